@@ -1,0 +1,245 @@
+"""A closed, walled race track: centre line, widths, walls and batched geometric queries.
+
+Conventions (see ARCHITECTURE.md): arc length ``s`` grows in the driving direction, lateral offset ``d`` is
+positive to the left, curvature is positive in a left turn. The centre line is a periodic smooth spline
+resampled at a fixed spacing; every query below works on that resampled polyline and is batched over cars.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from scipy import interpolate
+from scipy.spatial import cKDTree
+
+#: Default spacing of the resampled centre line; the issue asks for <= 2 m and 1 m keeps polyline errors
+#: (kappa * ds^2 / 8) below 3 mm even in a 40 m hairpin.
+DEFAULT_SPACING_M = 1.0
+
+#: Half-width, in samples, of the window searched around a warm-start guess. A car at 100 m/s moves 1 m per
+#: 10 ms physics substep, so 16 samples leave a wide margin even for a 0.1 s control step.
+_WARM_WINDOW_SAMPLES = 16
+
+
+class TrackError(ValueError):
+    """A track that cannot be built: the message names the source and, where it applies, the point."""
+
+
+@dataclass(frozen=True, eq=False)
+class Projection:
+    """Where points lie relative to the centre line, batched over cars (all arrays shape (n,))."""
+
+    s_m: np.ndarray
+    """Arc length of the closest centre-line point, in [0, length_m)."""
+    lateral_m: np.ndarray
+    """Signed distance to the centre line, positive to the left."""
+    heading_rad: np.ndarray
+    """Centre-line tangent direction at s_m, counter-clockwise from +x, in (-pi, pi]."""
+
+
+class Track:
+    """A closed centre line resampled every ``spacing_m`` metres, with widths and walls on both edges.
+
+    Build one with :meth:`from_centre_line` (any closed point sequence) or :func:`vision_rl.sim.load_track`
+    (a built-in name, ``random:SEED`` or a racetrack-database CSV path).
+
+    Attributes (arrays over the n resampled points):
+        centre_xy_m (n, 2), s_m (n,), heading_rad (n,), curvature_1pm (n,), width_left_m (n,), width_right_m (n,),
+        tangent (n, 2), normal_left (n, 2), left_wall_xy_m (n, 2), right_wall_xy_m (n, 2).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        centre_xy_m: np.ndarray,
+        heading_rad: np.ndarray,
+        curvature_1pm: np.ndarray,
+        width_left_m: np.ndarray,
+        width_right_m: np.ndarray,
+    ) -> None:
+        self.name = name
+        self.centre_xy_m = np.ascontiguousarray(centre_xy_m, dtype=np.float64)
+        self.heading_rad = np.asarray(heading_rad, dtype=np.float64)
+        self.curvature_1pm = np.asarray(curvature_1pm, dtype=np.float64)
+        self.width_left_m = np.asarray(width_left_m, dtype=np.float64)
+        self.width_right_m = np.asarray(width_right_m, dtype=np.float64)
+        n = len(self.centre_xy_m)
+        seg = np.roll(self.centre_xy_m, -1, axis=0) - self.centre_xy_m
+        self.length_m = float(np.hypot(seg[:, 0], seg[:, 1]).sum())
+        self.spacing_m = self.length_m / n
+        self.s_m = np.arange(n) * self.spacing_m
+        self.tangent = np.stack([np.cos(self.heading_rad), np.sin(self.heading_rad)], axis=1)
+        self.normal_left = np.stack([-self.tangent[:, 1], self.tangent[:, 0]], axis=1)
+        self.left_wall_xy_m = self.centre_xy_m + self.normal_left * self.width_left_m[:, None]
+        self.right_wall_xy_m = self.centre_xy_m - self.normal_left * self.width_right_m[:, None]
+        # Heading unwrapped along s so that linear interpolation between samples never jumps by 2 pi.
+        self._heading_unwrapped = np.unwrap(np.append(self.heading_rad, self.heading_rad[0]))
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_centre_line(
+        cls,
+        name: str,
+        xy_m: np.ndarray,
+        width_left_m: np.ndarray | float,
+        width_right_m: np.ndarray | float,
+        spacing_m: float = DEFAULT_SPACING_M,
+        smoothing_m: float = 0.0,
+    ) -> Track:
+        """Fit a periodic cubic spline through a closed point sequence and resample it every ~``spacing_m``.
+
+        ``xy_m`` (k, 2) must not repeat its first point at the end. Widths are per input point or scalars.
+        ``smoothing_m`` is the RMS distance the spline may keep from the input points (0 interpolates them);
+        a few centimetres remove the jitter of surveyed centre lines without moving the track.
+        """
+        xy = np.asarray(xy_m, dtype=np.float64)
+        k = len(xy)
+        w_left = np.broadcast_to(np.asarray(width_left_m, dtype=np.float64), (k,))
+        w_right = np.broadcast_to(np.asarray(width_right_m, dtype=np.float64), (k,))
+        closed = np.vstack([xy, xy[:1]])
+        chord = np.hypot(*np.diff(closed, axis=0).T)
+        u = np.concatenate([[0.0], np.cumsum(chord)])
+        tck, _ = interpolate.splprep(
+            [closed[:, 0], closed[:, 1]], u=u, s=k * smoothing_m**2, per=1, k=3, quiet=2
+        )
+        # Arc length of the spline by dense quadrature, then uniform resampling in arc length.
+        u_dense = np.linspace(0.0, u[-1], 20 * k + 1)
+        dx, dy = interpolate.splev(u_dense, tck, der=1)
+        speed = np.hypot(dx, dy)
+        arc = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(u_dense))])
+        n = max(int(round(arc[-1] / spacing_m)), 8)
+        s_uniform = np.arange(n) * (arc[-1] / n)
+        u_uniform = np.interp(s_uniform, arc, u_dense)
+        x, y = interpolate.splev(u_uniform, tck)
+        dx, dy = interpolate.splev(u_uniform, tck, der=1)
+        ddx, ddy = interpolate.splev(u_uniform, tck, der=2)
+        curvature = (dx * ddy - dy * ddx) / np.hypot(dx, dy) ** 3
+        wl = np.interp(u_uniform, u, np.append(w_left, w_left[0]))
+        wr = np.interp(u_uniform, u, np.append(w_right, w_right[0]))
+        return cls(name, np.stack([x, y], axis=1), np.arctan2(dy, dx), curvature, wl, wr)
+
+    # ------------------------------------------------------------------ derived properties
+    @cached_property
+    def geometry_hash(self) -> str:
+        """Hex digest of the resampled geometry (centre line and widths): a cache key and a dataset attribute."""
+        h = hashlib.sha256()
+        for a in (self.centre_xy_m, self.width_left_m, self.width_right_m):
+            h.update(np.round(a, 6).tobytes())
+        return h.hexdigest()[:16]
+
+    @property
+    def n_points(self) -> int:
+        return len(self.s_m)
+
+    @property
+    def min_width_m(self) -> float:
+        """Narrowest wall-to-wall width."""
+        return float((self.width_left_m + self.width_right_m).min())
+
+    @cached_property
+    def _kdtree(self) -> cKDTree:
+        return cKDTree(self.centre_xy_m)
+
+    def wall_segments(self) -> np.ndarray:
+        """All wall segments as (2n, 4) rows ``x0, y0, x1, y1``: the left wall's n, then the right wall's n."""
+        segs = []
+        for wall in (self.left_wall_xy_m, self.right_wall_xy_m):
+            segs.append(np.hstack([wall, np.roll(wall, -1, axis=0)]))
+        return np.ascontiguousarray(np.vstack(segs))
+
+    # ------------------------------------------------------------------ batched queries
+    def wrap_s(self, s_m: np.ndarray) -> np.ndarray:
+        """Arc length wrapped into [0, length_m)."""
+        return np.mod(s_m, self.length_m)
+
+    def _interp_index(self, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        pos = self.wrap_s(np.asarray(s_m, dtype=np.float64)) / self.spacing_m
+        i0 = np.floor(pos).astype(np.int64)
+        frac = pos - i0
+        return i0 % self.n_points, frac
+
+    def _interp(self, values: np.ndarray, s_m: np.ndarray) -> np.ndarray:
+        i0, frac = self._interp_index(s_m)
+        i1 = (i0 + 1) % self.n_points
+        return values[i0] * (1.0 - frac) + values[i1] * frac
+
+    def curvature_at(self, s_m: np.ndarray) -> np.ndarray:
+        """Centre-line curvature (1/m, positive turning left) at any arc length, wrapped."""
+        return self._interp(self.curvature_1pm, s_m)
+
+    def heading_at(self, s_m: np.ndarray) -> np.ndarray:
+        """Centre-line tangent direction (rad, in (-pi, pi]) at any arc length, wrapped."""
+        i0, frac = self._interp_index(s_m)
+        h = self._heading_unwrapped[i0] * (1.0 - frac) + self._heading_unwrapped[i0 + 1] * frac
+        return np.angle(np.exp(1j * h))
+
+    def position_at(self, s_m: np.ndarray, lateral_m: np.ndarray | float = 0.0) -> np.ndarray:
+        """World (x, y) in m, shape (n, 2), of the point at arc length ``s_m`` and lateral offset ``lateral_m``."""
+        s_m = np.atleast_1d(np.asarray(s_m, dtype=np.float64))
+        i0, frac = self._interp_index(s_m)
+        i1 = (i0 + 1) % self.n_points
+        centre = self.centre_xy_m[i0] * (1.0 - frac)[:, None] + self.centre_xy_m[i1] * frac[:, None]
+        heading = self.heading_at(s_m)
+        normal = np.stack([-np.sin(heading), np.cos(heading)], axis=1)
+        return centre + normal * np.asarray(lateral_m, dtype=np.float64)[..., None]
+
+    def width_left_at(self, s_m: np.ndarray) -> np.ndarray:
+        """Distance from the centre line to the left wall (m) at any arc length."""
+        return self._interp(self.width_left_m, s_m)
+
+    def width_right_at(self, s_m: np.ndarray) -> np.ndarray:
+        """Distance from the centre line to the right wall (m) at any arc length."""
+        return self._interp(self.width_right_m, s_m)
+
+    def project(self, xy_m: np.ndarray, s_guess_m: np.ndarray | None = None) -> Projection:
+        """Project points (n, 2) onto the centre line.
+
+        With ``s_guess_m`` (the previous step's s) only a window of samples around each guess is searched, so
+        the cost per car is O(1) and a car never jumps to a neighbouring part of the track that happens to be
+        close (the far side of a hairpin). Points whose window minimum lies on the window's edge (a bad guess)
+        fall back to a global nearest-point search.
+        """
+        xy = np.atleast_2d(np.asarray(xy_m, dtype=np.float64))
+        n = self.n_points
+        if s_guess_m is None:
+            _, nearest = self._kdtree.query(xy)
+            nearest = np.asarray(nearest, dtype=np.int64)
+        else:
+            w = _WARM_WINDOW_SAMPLES
+            centre_idx = np.rint(self.wrap_s(np.asarray(s_guess_m, dtype=np.float64)) / self.spacing_m)
+            window = (centre_idx.astype(np.int64)[:, None] + np.arange(-w, w + 1)[None, :]) % n
+            diff = self.centre_xy_m[window] - xy[:, None, :]
+            dist2 = np.einsum("nwk,nwk->nw", diff, diff)
+            best = np.argmin(dist2, axis=1)
+            nearest = window[np.arange(len(xy)), best]
+            lost = (best == 0) | (best == 2 * w)
+            if lost.any():
+                _, nearest[lost] = self._kdtree.query(xy[lost])
+        # Refine on the polyline segment on the side of the nearest sample the point lies on.
+        rel = xy - self.centre_xy_m[nearest]
+        ahead = np.einsum("nk,nk->n", rel, self.tangent[nearest]) >= 0.0
+        i0 = np.where(ahead, nearest, (nearest - 1) % n)
+        i1 = (i0 + 1) % n
+        seg = self.centre_xy_m[i1] - self.centre_xy_m[i0]
+        seg_len2 = np.einsum("nk,nk->n", seg, seg)
+        t = np.clip(np.einsum("nk,nk->n", xy - self.centre_xy_m[i0], seg) / seg_len2, 0.0, 1.0)
+        s = self.wrap_s((i0 + t) * self.spacing_m)
+        heading = self.heading_at(s)
+        foot = self.centre_xy_m[i0] + seg * t[:, None]
+        off = xy - foot
+        lateral = -np.sin(heading) * off[:, 0] + np.cos(heading) * off[:, 1]
+        return Projection(s_m=s, lateral_m=lateral, heading_rad=heading)
+
+    def progress_delta(self, s_prev_m: np.ndarray, s_now_m: np.ndarray) -> np.ndarray:
+        """Signed arc length driven from ``s_prev_m`` to ``s_now_m`` (m), wrapped to half a lap.
+
+        Crossing the start/finish line forwards gives a small positive value, driving backwards a negative one.
+        """
+        half = 0.5 * self.length_m
+        return np.mod(np.asarray(s_now_m) - np.asarray(s_prev_m) + half, self.length_m) - half
+
+    def __repr__(self) -> str:
+        return f"Track({self.name!r}, length_m={self.length_m:.1f}, n_points={self.n_points})"
