@@ -22,8 +22,8 @@ def test_reset_places_car_on_track_coordinates(stadium):
     world = World(stadium, n_cars=2)
     world.reset(s_m=np.array([100.0, 250.0]), lateral_m=np.array([2.0, -3.0]), speed_mps=15.0)
     v = world.state.vehicle
-    np.testing.assert_allclose(v.x_m, [100.0, 250.0], atol=1e-6)
-    np.testing.assert_allclose(v.y_m, [2.0, -3.0], atol=1e-6)
+    np.testing.assert_allclose(v.x_m, [100.0, 250.0], atol=0.01)
+    np.testing.assert_allclose(v.y_m, [2.0, -3.0], atol=0.01)
     np.testing.assert_allclose(v.vx_mps, 15.0)
     np.testing.assert_allclose(world.state.lateral_m, [2.0, -3.0])
 
@@ -141,7 +141,9 @@ def test_one_million_car_steps_of_random_actions_stay_finite(stadium):
     n = 1000
     world = World(stadium, car="tt_cup", n_cars=n, groups=np.arange(n) // 5, config=WorldConfig(control_dt_s=0.01))
     rng = np.random.default_rng(0)
-    world.reset(s_m=rng.uniform(0, stadium.length_m, n), lateral_m=rng.uniform(-4, 4, n), speed_mps=rng.uniform(0, 60, n))
+    world.reset(
+        s_m=rng.uniform(0, stadium.length_m, n), lateral_m=rng.uniform(-4, 4, n), speed_mps=rng.uniform(0, 60, n)
+    )
     for k in range(1000):
         steer = rng.uniform(-1.0, 1.0, n)
         omega = rng.uniform(-1.5, 1.5, n)
