@@ -1,5 +1,8 @@
 # Two entry points for a fresh clone: `make quick` (the main job on built-in defaults) and `make test`.
 PYTHON ?= python3
+# The CPU build of torch is installed first so that the package's `torch>=2.1` needs nothing more; on a machine
+# with an NVIDIA GPU use `make setup TORCH_SPEC=torch` (or any CUDA build) instead.
+TORCH_SPEC ?= torch==2.13.0
 VENV ?= .venv
 BIN := $(VENV)/bin
 
@@ -8,6 +11,7 @@ BIN := $(VENV)/bin
 $(BIN)/vision-rl: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet "$(TORCH_SPEC)"
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $@
 

@@ -1,44 +1,29 @@
-"""`vision-rl <command>`: the umbrella command line. The design card's names (`capture`, `train-repr`,
-`train-policy`, `bench-latency`) are console-script aliases of the same commands.
+"""vision-rl: simulate, capture, train and race cars that drive from what they see.
 
-Every command is one config dataclass (a doc line per field, CleanRL style) turned into argparse options, and one
-function that runs it. Figures go to stdout as text, or as one JSON object with `--json`.
+The design card's names (`capture`, `train-repr`, `train-policy`, `bench-latency`) are console-script aliases of
+the same commands.
+
+Every command is one config dataclass (a doc line per field) and one ``run(config) -> exit code`` function, both
+imported only when that command runs, so `vision-rl tracks` never loads torch. Figures go to stdout as text, or
+as one JSON object with ``--json``.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
+import importlib
 import json
+import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-# ---------------------------------------------------------------------------------------------------- config plumbing
+from vision_rl.config import add_config_arguments, config_from_args, doc
 
 
-def _help(text: str) -> dict[str, str]:
-    return {"help": text}
-
-
-def _add_config_arguments(parser: argparse.ArgumentParser, config_cls: type) -> None:
-    for f in dataclasses.fields(config_cls):
-        flag = "--" + f.name.replace("_", "-")
-        help_text = f.metadata.get("help", "")
-        default = f.default if f.default is not dataclasses.MISSING else None
-        if f.type in ("bool", bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=default, help=help_text)
-            continue
-        kind = {"int": int, "float": float, "str": str}.get(str(f.type).replace(" | None", ""), str)
-        parser.add_argument(flag, type=kind, default=default, help=f"{help_text} (default: {default})")
-
-
-def _config_from_args(config_cls: type, args: argparse.Namespace) -> Any:
-    return config_cls(**{f.name: getattr(args, f.name) for f in dataclasses.fields(config_cls)})
-
-
-def _emit(result: dict[str, Any], as_json: bool, lines: Callable[[dict[str, Any]], list[str]] | None = None) -> None:
+def emit(result: Any, as_json: bool, lines: Callable[[Any], list[str]] | None = None) -> None:
+    """Print a command's figures: JSON, the given text lines, or ``key: value`` rows."""
     if as_json:
         print(json.dumps(result, indent=2))
     elif lines is not None:
@@ -48,27 +33,27 @@ def _emit(result: dict[str, Any], as_json: bool, lines: Callable[[dict[str, Any]
             print(f"{key}: {value}")
 
 
-# ------------------------------------------------------------------------------------------------------- commands
+# --------------------------------------------------------------------------------------- the simulator's commands
 
 
 @dataclass
 class TracksConfig:
     """List the built-in tracks with their length, narrowest width and number of corners."""
 
-    json: bool = field(default=False, metadata=_help("print one JSON list instead of a table"))
+    json: bool = field(default=False, metadata=doc("print one JSON list instead of a table"))
 
 
 def run_tracks(cfg: TracksConfig) -> int:
     from vision_rl.sim.track_library import BUILTIN_TRACKS, load_track, track_summary
 
     rows = [track_summary(load_track(name)) for name in BUILTIN_TRACKS]
-    if cfg.json:
-        print(json.dumps(rows, indent=2))
-    else:
-        print(f"{'name':<14}{'length_m':>10}{'min_width_m':>13}{'corners':>9}")
-        for r in rows:
-            print(f"{r['name']:<14}{r['length_m']:>10.1f}{r['min_width_m']:>13.2f}{r['corners']:>9d}")
-        print("Also: random:SEED (procedural), or the path of a racetrack-database CSV.")
+
+    def table(rows: list[dict]) -> list[str]:
+        out = [f"{'name':<14}{'length_m':>10}{'min_width_m':>13}{'corners':>9}"]
+        out += [f"{r['name']:<14}{r['length_m']:>10.1f}{r['min_width_m']:>13.2f}{r['corners']:>9d}" for r in rows]
+        return [*out, "Also: random:SEED (procedural), or the path of a racetrack-database CSV."]
+
+    emit(rows, cfg.json, table)
     return 0
 
 
@@ -76,16 +61,33 @@ def run_tracks(cfg: TracksConfig) -> int:
 class BenchSimConfig:
     """Measure simulator throughput: physics, a full control step with sensors, and the lidar."""
 
-    track: str = field(default="expressway", metadata=_help("track: built-in name, random:SEED or CSV path"))
-    car: str = field(default="hatchback", metadata=_help("car preset"))
-    repeats: int = field(default=7, metadata=_help("timed repeats; medians are reported"))
-    json: bool = field(default=False, metadata=_help("print figures as JSON"))
+    track: str = field(default="expressway", metadata=doc("track: built-in name, random:SEED or CSV path"))
+    car: str = field(default="hatchback", metadata=doc("car preset"))
+    repeats: int = field(default=7, metadata=doc("timed repeats; medians are reported"))
+    json: bool = field(default=False, metadata=doc("print figures as JSON"))
 
 
 def run_bench_sim(cfg: BenchSimConfig) -> int:
     from vision_rl.sim.bench import bench_sim
 
-    _emit(bench_sim(cfg.track, cfg.car, cfg.repeats), cfg.json)
+    emit(bench_sim(cfg.track, cfg.car, cfg.repeats), cfg.json)
+    return 0
+
+
+@dataclass
+class BenchEnvConfig:
+    """Measure environment throughput: 20 time-trial cars through the SB3 VecEnv, 20 overtaking groups of 6."""
+
+    track: str = field(default="expressway", metadata=doc("track: built-in name, random:SEED or CSV path"))
+    car: str = field(default="hatchback", metadata=doc("car preset"))
+    repeats: int = field(default=5, metadata=doc("timed repeats of 100 steps; medians are reported"))
+    json: bool = field(default=False, metadata=doc("print figures as JSON"))
+
+
+def run_bench_env(cfg: BenchEnvConfig) -> int:
+    from vision_rl.envs.bench import bench_env
+
+    emit(bench_env(cfg.track, cfg.car, repeats=cfg.repeats), cfg.json)
     return 0
 
 
@@ -93,78 +95,97 @@ def run_bench_sim(cfg: BenchSimConfig) -> int:
 class PipelineConfig:
     """The whole two-phase job (capture, train-repr, train-policy, evaluate, leaderboard)."""
 
-    quick: bool = field(default=False, metadata=_help("small sizes that finish in minutes on a laptop CPU"))
-    track: str = field(default="expressway", metadata=_help("track: built-in name, random:SEED or CSV path"))
-    car: str = field(default="hatchback", metadata=_help("car preset"))
-    json: bool = field(default=False, metadata=_help("print figures as JSON"))
+    quick: bool = field(default=False, metadata=doc("small sizes that finish in minutes on a laptop CPU"))
+    track: str = field(default="expressway", metadata=doc("track: built-in name, random:SEED or CSV path"))
+    car: str = field(default="hatchback", metadata=doc("car preset"))
+    json: bool = field(default=False, metadata=doc("print figures as JSON"))
 
 
 def run_pipeline(cfg: PipelineConfig) -> int:
-    from vision_rl.sim.demo import simulator_demo
+    from vision_rl.sim.driving import simulator_demo
 
-    # Until capture and training land, the main job demonstrates the simulator layer they build on.
+    # Until capture and Phase 2 land, the main job demonstrates the simulator layer they build on.
     result = simulator_demo(cfg.track, cfg.car)
-    result["note"] = (
-        "capture, train-repr, train-policy and evaluate are not built yet; this run shows the simulator they build on"
-    )
-    _emit(result, cfg.json)
+    result["note"] = "capture, train-policy and evaluate are not built yet; this run shows the simulator and its AI"
+    emit(result, cfg.json)
     return 0
 
 
-# ------------------------------------------------------------------------------------------- commands not built yet
-
-_MISSING_PARTS = {
-    "capture": "the offscreen renderer and capture layer (vision_rl/render, vision_rl/capture)",
-    "train-repr": "Phase 1 representation learning (vision_rl/datasets, vision_rl/phase1_repr)",
-    "train-policy": "Phase 2 SAC training (vision_rl/envs, vision_rl/phase2_rl)",
-    "evaluate": "Phase 2 policy evaluation (vision_rl/phase2_rl)",
-    "leaderboard": "Phase 2 policy evaluation (vision_rl/phase2_rl)",
-    "bench-latency": "the Phase 1 encoder (vision_rl/phase1_repr)",
-}
+# ------------------------------------------------------------------------------------------------------ registry
 
 
-def _not_built(name: str) -> Callable[[argparse.Namespace], int]:
-    def run(_: argparse.Namespace) -> int:
-        print(f"vision-rl {name}: not built yet: it needs {_MISSING_PARTS[name]}.", file=sys.stderr)
+@dataclass(frozen=True)
+class Command:
+    help: str
+    """One line for `vision-rl --help`."""
+    module: str = ""
+    """Module holding the config class and the run function; empty: the command is not built yet."""
+    config: str = ""
+    run: str = ""
+    missing: str = ""
+    """For a command not built yet: the part it needs."""
+
+
+COMMANDS: dict[str, Command] = {
+    "tracks": Command("list the built-in tracks", __name__, "TracksConfig", "run_tracks"),
+    "limit": Command("physical-limit (QSS) lap time of a car", "vision_rl.sim.driving", "LimitConfig", "run_limit"),
+    "drive": Command("drive the built-in AI: lap times, a plot", "vision_rl.sim.driving", "DriveConfig", "run_drive"),
+    "bench sim": Command("simulator throughput", __name__, "BenchSimConfig", "run_bench_sim"),
+    "bench env": Command("environment throughput", __name__, "BenchEnvConfig", "run_bench_env"),
+    "train-repr": Command(
+        "Phase 1: train the frame encoder on capture files", "vision_rl.phase1_repr.train", "TrainReprConfig",
+        "run_train_repr",
+    ),
+    "bench-latency": Command(
+        "Phase 1: encoder latency, batch 1", "vision_rl.phase1_repr.bench", "BenchLatencyConfig", "run_bench_latency"
+    ),
+    "pipeline": Command("the whole two-phase job (--quick: small)", __name__, "PipelineConfig", "run_pipeline"),
+    "capture": Command("record frames and targets to HDF5", missing="the capture command (vision_rl/capture)"),
+    "train-policy": Command("Phase 2: SAC", missing="Phase 2 SAC training (vision_rl/phase2_rl)"),
+    "evaluate": Command("Phase 2: evaluate a policy", missing="Phase 2 policy evaluation (vision_rl/phase2_rl)"),
+    "leaderboard": Command("Phase 2: lap-time table", missing="Phase 2 policy evaluation (vision_rl/phase2_rl)"),
+}  # fmt: skip
+
+
+def _run_command(name: str, argv: Sequence[str]) -> int:
+    command = COMMANDS[name]
+    prog = f"vision-rl {name}"
+    if not command.module:
+        if any(a in ("-h", "--help") for a in argv):
+            print(f"usage: {prog}\n\n{command.help}: not built yet, it needs {command.missing}.")
+            return 0
+        print(f"{prog}: not built yet: it needs {command.missing}.", file=sys.stderr)
         return 2
-
-    return run
-
-
-# ------------------------------------------------------------------------------------------------------ dispatch
-
-_COMMANDS: dict[str, tuple[type, Callable[[Any], int]]] = {
-    "tracks": (TracksConfig, run_tracks),
-    "pipeline": (PipelineConfig, run_pipeline),
-}
-_BENCH_COMMANDS: dict[str, tuple[type, Callable[[Any], int]]] = {
-    "sim": (BenchSimConfig, run_bench_sim),
-}
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="vision-rl", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, (config_cls, func) in _COMMANDS.items():
-        p = sub.add_parser(name, help=config_cls.__doc__, description=config_cls.__doc__)
-        _add_config_arguments(p, config_cls)
-        p.set_defaults(_run=lambda a, c=config_cls, f=func: f(_config_from_args(c, a)))
-    bench = sub.add_parser("bench", help="throughput benchmarks that print figures")
-    bench_sub = bench.add_subparsers(dest="bench_command", required=True, metavar="WHAT")
-    for name, (config_cls, func) in _BENCH_COMMANDS.items():
-        p = bench_sub.add_parser(name, help=config_cls.__doc__, description=config_cls.__doc__)
-        _add_config_arguments(p, config_cls)
-        p.set_defaults(_run=lambda a, c=config_cls, f=func: f(_config_from_args(c, a)))
-    for name, part in _MISSING_PARTS.items():
-        p = sub.add_parser(name, help=f"(not built yet: needs {part})")
-        p.add_argument("rest", nargs=argparse.REMAINDER)
-        p.set_defaults(_run=_not_built(name))
-    return parser
+    module = importlib.import_module(command.module)
+    config_cls = getattr(module, command.config)
+    parser = argparse.ArgumentParser(prog=prog, description=config_cls.__doc__)
+    add_config_arguments(parser, config_cls)
+    args = parser.parse_args(list(argv))
+    try:
+        return int(getattr(module, command.run)(config_from_args(config_cls, args)))
+    except (ValueError, OSError) as exc:  # bad input (a track file, a checkpoint, a dataset): say what, not a trace
+        if os.environ.get("VISION_RL_DEBUG"):
+            raise
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return int(args._run(args))
+    argv = list(sys.argv[1:] if argv is None else argv)
+    for words in (2, 1):
+        name = " ".join(argv[:words])
+        if len(argv) >= words and name in COMMANDS:
+            return _run_command(name, argv[words:])
+    width = max(len(n) for n in COMMANDS)
+    listing = "\n".join(
+        f"  {n:<{width}}  {c.help}{'' if c.module else ' (not built yet)'}" for n, c in COMMANDS.items()
+    )
+    usage = f"usage: vision-rl COMMAND [options]\n\n{__doc__.splitlines()[0]}\n\ncommands:\n{listing}\n"
+    if not argv or argv[0] in ("-h", "--help"):
+        print(usage)
+        return 0 if argv else 2
+    print(f"{usage}\nvision-rl: error: unknown command {' '.join(argv[:2])!r}", file=sys.stderr)
+    return 2
 
 
 def _alias(command: str) -> Callable[[], int]:

@@ -1,0 +1,272 @@
+"""The capture HDF5 file: round trip, refusal to overwrite, crash safety, resume, validation, full disk."""
+
+from __future__ import annotations
+
+import errno
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from vision_rl.capture import h5format
+from vision_rl.capture.h5format import (
+    CaptureDiskFullError,
+    CaptureFormatError,
+    CaptureWriter,
+    open_capture,
+)
+
+HW = (12, 20)
+NAMES = tuple(f"t{i}" for i in range(27))
+UNITS = ("m",) * 13 + ("m", "m", "m", "rad") + ("1/m",) * 10
+DED = tuple(f"d{i}" for i in range(11))
+DED_UNITS = ("m/s",) * 3 + ("m/s^2",) * 3 + ("rad/s",) * 3 + ("1", "rad")
+ATTRS = {
+    "track_name": "stadium",
+    "track_geometry_hash": "abc123",
+    "car_preset": "hatchback",
+    "renderer_settings": {"camera": "hood", "fov_deg": 70.0, "msaa": 0},
+    "seed": 42,
+}
+
+
+def batch(k: int, start: int = 0) -> dict[str, np.ndarray]:
+    """k frames whose every value encodes its frame number, so a misplaced frame is caught."""
+    i = np.arange(start, start + k)
+    images = np.broadcast_to((i % 251).astype(np.uint8)[:, None, None, None], (k, *HW, 3)).copy()
+    images[:, 0, 0, 0] = (i // 251).astype(np.uint8)
+    return {
+        "images": images,
+        "targets": (i[:, None] + np.arange(27) / 100).astype(np.float32),
+        "dedicated": (-i[:, None] + np.arange(11) / 100).astype(np.float32),
+        "pose": np.stack([i * 1.5, i * -2.0, i * 0.01], axis=1),
+        "time_s": i / 60.0,
+        "lap": (i // 10).astype(np.int32),
+        "car_id": (i % 3).astype(np.int32),
+    }
+
+
+def writer(path: Path, **kw) -> CaptureWriter:
+    return CaptureWriter(path, image_hw=HW, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
+                         dedicated_units=DED_UNITS, attrs=ATTRS, **kw)  # fmt: skip
+
+
+def assert_frames(cap, start: int, stop: int) -> None:
+    expected = batch(stop - start, start)
+    np.testing.assert_array_equal(cap.read_images(np.arange(start, stop)), expected["images"])
+    np.testing.assert_array_equal(cap.targets[start:stop], expected["targets"])
+    np.testing.assert_array_equal(cap.dedicated[start:stop], expected["dedicated"])
+    np.testing.assert_array_equal(cap.pose[start:stop], expected["pose"])
+    np.testing.assert_array_equal(cap.time_s[start:stop], expected["time_s"])
+    np.testing.assert_array_equal(cap.lap[start:stop], expected["lap"])
+    np.testing.assert_array_equal(cap.car_id[start:stop], expected["car_id"])
+
+
+@pytest.mark.parametrize("compression", ["lzf", "gzip", "none"])
+def test_round_trip_shapes_dtypes_attributes(tmp_path: Path, compression: str) -> None:
+    path = tmp_path / "cap.h5"
+    w = writer(path, compression=compression)
+    w.append(**batch(5))
+    w.append(**batch(7, 5))
+    assert w.n_frames == 12
+    w.close(complete=True)
+    with open_capture(path) as cap:
+        assert cap.n_frames == 12 and cap.complete
+        assert cap.image_hw == HW
+        assert cap.images.dtype == np.uint8 and cap.images.shape == (12, *HW, 3)
+        assert cap.images.chunks == (1, *HW, 3)  # one frame per chunk: a random read decodes one frame
+        assert cap.targets.dtype == np.float32 and cap.targets.shape == (12, 27)
+        assert cap.dedicated.dtype == np.float32 and cap.pose.dtype == np.float64
+        assert cap.lap.dtype == np.int32 and cap.car_id.dtype == np.int32
+        assert cap.target_names == list(NAMES) and cap.target_units == list(UNITS)
+        assert cap.dedicated_names == list(DED) and cap.dedicated_units == list(DED_UNITS)
+        assert cap.attrs["track_geometry_hash"] == "abc123" and cap.attrs["seed"] == 42
+        assert cap.attrs["renderer_settings"] == ATTRS["renderer_settings"]  # dict back from JSON
+        assert cap.attrs["package_version"] and cap.attrs["compression"] == compression
+        assert_frames(cap, 0, 12)
+        np.testing.assert_array_equal(cap.read_images([11, 0, 11]), batch(12)["images"][[11, 0, 11]])
+        with pytest.raises(IndexError):
+            cap.read_image(12)
+    with h5py.File(path) as f:  # plain h5py readers see the per-dataset names and units too
+        assert list(f["targets"].attrs["names"]) == list(NAMES)
+        assert f["time"].attrs["units"] == "s"
+
+
+def test_existing_file_needs_force_and_complete_file_cannot_resume(tmp_path: Path) -> None:
+    path = tmp_path / "cap.h5"
+    w = writer(path)
+    w.append(**batch(3))
+    w.close(complete=True)
+    with pytest.raises(FileExistsError, match="force"):
+        writer(path)
+    with pytest.raises(CaptureFormatError, match="complete"):
+        writer(path, resume=True)
+    with pytest.raises(ValueError):
+        writer(path, resume=True, force=True)
+    writer(path, force=True).close()
+    with open_capture(path) as cap:
+        assert cap.n_frames == 0 and not cap.complete
+
+
+def test_context_manager_leaves_file_incomplete(tmp_path: Path) -> None:
+    path = tmp_path / "cap.h5"
+    with writer(path) as w:
+        w.append(**batch(4))
+    with open_capture(path) as cap:
+        assert cap.n_frames == 4 and not cap.complete
+
+
+def test_bad_input_is_refused(tmp_path: Path) -> None:
+    w = writer(tmp_path / "cap.h5")
+    b = batch(2)
+    with pytest.raises(ValueError, match="uint8"):
+        w.append(**{**b, "images": b["images"].astype(np.float32)})
+    with pytest.raises(ValueError, match="targets"):
+        w.append(**{**b, "targets": b["targets"][:, :26]})
+    with pytest.raises(ValueError, match="integers"):
+        w.append(**{**b, "lap": np.array([0.5, 1.0])})
+    w.append(**{**b, "lap": np.array([0.0, 1.0])})  # whole floats are fine
+    assert w.n_frames == 2
+    w.close()
+    with pytest.raises(ValueError, match="attrs lack"):
+        CaptureWriter(tmp_path / "x.h5", image_hw=HW, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
+                      dedicated_units=DED_UNITS, attrs={"seed": 1})  # fmt: skip
+
+
+_KILLED_WRITER = textwrap.dedent(
+    """
+    import os, signal, sys
+    sys.path.insert(0, {tests!r})
+    from test_h5format import batch, writer
+    w = writer({path!r}, flush_interval_s={interval})
+    w.append(**batch(4))
+    w.append(**batch(4, 4))
+    w.flush()
+    w.append(**batch(4, 8))  # after the last flush: may be lost, must not corrupt the file
+    os.kill(os.getpid(), signal.SIGKILL)
+    """
+)
+
+
+@pytest.mark.parametrize("interval", [0.0, 3600.0])
+def test_killed_writer_leaves_readable_incomplete_file_that_resumes(tmp_path: Path, interval: float) -> None:
+    path = tmp_path / "cap.h5"
+    code = _KILLED_WRITER.format(tests=str(Path(__file__).parent), path=str(path), interval=interval)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == -9, proc.stderr
+    with open_capture(path) as cap:
+        assert not cap.complete
+        # Flushing after every append (interval 0) keeps all 12 frames; otherwise the explicit flush's 8 survive.
+        assert cap.n_frames == (12 if interval == 0.0 else 8)
+        n = cap.n_frames
+        assert_frames(cap, 0, n)
+    w = writer(path, resume=True)
+    assert w.n_frames == n
+    w.append(**batch(5, n))
+    w.close(complete=True)
+    with open_capture(path) as cap:
+        assert cap.complete and cap.n_frames == n + 5
+        assert_frames(cap, 0, n + 5)
+
+
+def test_resume_refuses_other_settings_and_creates_missing_file(tmp_path: Path) -> None:
+    path = tmp_path / "cap.h5"
+    w = writer(path)
+    w.append(**batch(2))
+    w.close()
+    with pytest.raises(CaptureFormatError, match="track_geometry_hash"):
+        CaptureWriter(path, image_hw=HW, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
+                      dedicated_units=DED_UNITS, attrs={**ATTRS, "track_geometry_hash": "other"},
+                      resume=True)  # fmt: skip
+    with pytest.raises(CaptureFormatError, match="image_width"):
+        CaptureWriter(path, image_hw=(HW[0], HW[1] + 4), target_names=NAMES, target_units=UNITS,
+                      dedicated_names=DED, dedicated_units=DED_UNITS, attrs=ATTRS, resume=True)  # fmt: skip
+    fresh = writer(tmp_path / "new.h5", resume=True)
+    assert fresh.n_frames == 0
+    fresh.close()
+
+
+def test_disk_full_raises_clear_error_and_keeps_flushed_frames(tmp_path: Path, monkeypatch) -> None:
+    path = tmp_path / "cap.h5"
+    w = writer(path, flush_interval_s=0.0)
+    w.append(**batch(3))
+    real_flush = h5py.File.flush
+
+    def full_disk(self):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(h5py.File, "flush", full_disk)
+    with pytest.raises(CaptureDiskFullError, match=r"disk full after 3 frames") as info:
+        w.append(**batch(2, 3))
+    assert info.value.errno == errno.ENOSPC and str(path) in str(info.value)
+    monkeypatch.setattr(h5py.File, "flush", real_flush)
+    with pytest.raises(RuntimeError):
+        w.append(**batch(1, 5))
+    with open_capture(path) as cap:
+        assert not cap.complete and cap.n_frames >= 3
+        assert_frames(cap, 0, 3)
+
+
+def _complete_file(path: Path, k: int = 6) -> Path:
+    w = writer(path)
+    w.append(**batch(k))
+    w.close(complete=True)
+    return path
+
+
+def test_missing_or_wrong_datasets_and_lengths_are_named(tmp_path: Path) -> None:
+    cases = {
+        "missing dataset 'lap'": lambda f: f.__delitem__("lap"),
+        "dtype": lambda f: (f.__delitem__("car_id"), f.create_dataset("car_id", data=np.zeros(6, np.float32))),
+        "shape": lambda f: (f.__delitem__("pose"), f.create_dataset("pose", data=np.zeros((6, 2)))),
+        "different lengths": lambda f: f["time"].resize(5, axis=0),
+        "missing attributes": lambda f: f.attrs.__delitem__("track_geometry_hash"),
+    }
+    for i, (message, damage) in enumerate(cases.items()):
+        path = _complete_file(tmp_path / f"c{i}.h5")
+        with h5py.File(path, "r+") as f:
+            damage(f)
+        with pytest.raises(CaptureFormatError, match=message) as info:
+            open_capture(path)
+        assert str(path) in str(info.value)
+
+
+def test_truncated_corrupt_and_absent_files_are_named(tmp_path: Path) -> None:
+    good = _complete_file(tmp_path / "good.h5", k=20)
+    truncated = tmp_path / "truncated.h5"
+    data = good.read_bytes()
+    truncated.write_bytes(data[: len(data) // 2])
+    garbage = tmp_path / "garbage.h5"
+    garbage.write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    for path in (truncated, garbage, tmp_path / "absent.h5"):
+        with pytest.raises(CaptureFormatError) as info:
+            with open_capture(path) as cap:  # a file that opens must fail on reading its frames
+                cap.read_images(range(cap.n_frames))
+        assert str(path) in str(info.value)
+
+
+def test_incomplete_file_trusts_committed_count(tmp_path: Path) -> None:
+    # A kill between a dataset resize and the flush leaves datasets longer than n_frames: frames beyond are ignored.
+    path = tmp_path / "cap.h5"
+    w = writer(path)
+    w.append(**batch(4))
+    w.close()
+    with h5py.File(path, "r+") as f:
+        f["images"].resize(6, axis=0)
+        f["targets"].resize(5, axis=0)
+    with open_capture(path) as cap:
+        assert cap.n_frames == 4 and cap.targets.shape == (4, 27)
+    shutil.copy(path, tmp_path / "copy.h5")
+    with h5py.File(tmp_path / "copy.h5", "r+") as f:
+        f.attrs["n_frames"] = 7
+    with pytest.raises(CaptureFormatError, match="shorter than the 7 committed"):
+        open_capture(tmp_path / "copy.h5")
+
+
+def test_package_version_is_recorded() -> None:
+    assert isinstance(h5format.package_version(), str) and h5format.package_version()

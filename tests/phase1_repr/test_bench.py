@@ -1,0 +1,42 @@
+"""bench-latency: --json emits its keys, figures are ordered, a checkpoint fixes the frame size."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from tests.phase1_repr.test_checkpoint import write
+from vision_rl.phase1_repr.bench import PAPER_BUDGET_MS, BenchLatencyConfig, bench_latency, run_bench_latency
+
+
+def test_json_output_has_the_keys(capsys) -> None:
+    cfg = BenchLatencyConfig(width=96, height=64, runs=5, warmup=1, batch_size=2, variants=False, json=True)
+    assert run_bench_latency(cfg) == 0
+    result = json.loads(capsys.readouterr().out)
+    for key in ("p50_ms", "p90_ms", "p99_ms", "variants", "budget_ms", "throughput_fps", "threads", "parameters"):
+        assert key in result
+    assert 0 < result["p50_ms"] <= result["p90_ms"] <= result["p99_ms"]
+    assert result["budget_ms"] == PAPER_BUDGET_MS == 8.0
+    assert result["input_hw_px"] == [64, 96] and result["runs"] == 5
+    assert set(result["variants"]) == {"eager"} and result["variants"]["eager"]["p50_ms"] == result["p50_ms"]
+    assert result["within_budget"] == (result["p50_ms"] <= 8.0)
+
+
+def test_text_output_prints_the_budget_beside(capsys) -> None:
+    run_bench_latency(BenchLatencyConfig(width=96, height=64, runs=3, warmup=0, batch_size=2, variants=False))
+    text = capsys.readouterr().out
+    assert "p50" in text and "budget: 8 ms" in text
+
+
+def test_checkpoint_sets_the_frame_size(tmp_path: Path) -> None:
+    path = tmp_path / "ckpt.pt"
+    write(path)  # a 32x48 encoder
+    result = bench_latency(BenchLatencyConfig(encoder=str(path), runs=3, warmup=0, batch_size=2, variants=False))
+    assert result["input_hw_px"] == [32, 48] and result["encoder"] == str(path)
+
+
+def test_bad_settings_are_refused() -> None:
+    with pytest.raises(ValueError):
+        bench_latency(BenchLatencyConfig(runs=0))

@@ -1,0 +1,108 @@
+"""train-repr: the loss falls on a learnable synthetic capture; the command writes and resumes its run."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from tests.datasets.synthetic_capture import TARGET_NAMES, write_synthetic_capture
+from vision_rl.datasets import TargetStandardiser
+from vision_rl.phase1_repr import load_encoder
+from vision_rl.phase1_repr.encoder import EncoderConfig
+from vision_rl.phase1_repr.train import (
+    ReprModule,
+    TrainReprConfig,
+    group_targets,
+    regression_metrics,
+    train_repr,
+)
+
+
+def test_loss_falls_on_sixteen_frames(tmp_path: Path) -> None:
+    written = write_synthetic_capture(tmp_path / "d.h5", n_laps=4, frames_per_lap=4)  # 16 frames
+    images = torch.from_numpy(written["images"])
+    std = TargetStandardiser.from_targets(written["targets"])
+    targets = torch.from_numpy(std.transform(written["targets"]))
+    torch.manual_seed(0)
+    cfg = EncoderConfig(input_height_px=64, input_width_px=96, stem_channels=16, stage_channels=(32, 64),
+                        stage_blocks=(1, 1), stage_strides=(2, 2))  # fmt: skip
+    module = ReprModule(cfg.to_dict(), list(TARGET_NAMES), ["m"] * 27, std.mean.tolist(), std.std.tolist())
+    opt = torch.optim.AdamW(module.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(40):
+        loss = F.mse_loss(module.predict_standardised(images), targets)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    module.eval()
+    with torch.no_grad():
+        final = F.mse_loss(module.predict_standardised(images), targets).item()
+    assert losses[0] > 0.5  # standardised targets: an untrained net is far off
+    assert final < 0.25 * losses[0], (losses[0], final)
+
+
+def test_metrics_per_target_and_group() -> None:
+    names = ["edge_distance_+00deg", "edge_distance_+15deg", "centre_line_offset", "curvature_40.0m_ahead", "x"]
+    assert group_targets(names) == {"edge_distances": [0, 1], "centre_offset": [2], "curvature_ahead": [3],
+                                    "other": [4]}  # fmt: skip
+    true = np.array([[0.0, 1, 2, 3, 4], [2.0, 3, 4, 5, 4]])
+    pred = true + np.array([[1.0, 0, 0, 0, 0], [1.0, 0, 1, 0, 0]])
+    m = regression_metrics(pred, true, names)
+    assert m["rmse"]["edge_distance_+00deg"] == pytest.approx(1.0)
+    assert m["rmse"]["centre_line_offset"] == pytest.approx(np.sqrt(0.5))
+    # edge group: squared errors 1 + 1 over squares about the means 1 + 1 + 1 + 1 -> R^2 = 0.5
+    assert m["r2"]["edge_distances"] == pytest.approx(0.5)
+    assert m["r2"]["curvature_ahead"] == pytest.approx(1.0)
+    assert np.isnan(m["r2"]["other"])  # a constant target has no variance to explain
+
+
+def test_train_repr_writes_run_and_resumes(tmp_path: Path) -> None:
+    data = tmp_path / "d.h5"
+    write_synthetic_capture(data, n_laps=4, frames_per_lap=4)
+    out = tmp_path / "run"
+    cfg = TrainReprConfig(data=str(data), epochs=2, batch_size=8, num_workers=0, out=str(out), progress=False,
+                          width_mult=0.25, val_fraction=0.25)  # fmt: skip
+    result = train_repr(cfg)
+    assert result["n_train_frames"] == 12 and result["n_val_frames"] == 4  # one lap of four held out
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert [e["epoch"] for e in metrics["epochs"]] == [0, 1]
+    assert set(metrics["epochs"][0]["val_rmse"]) == set(TARGET_NAMES)
+    assert set(metrics["epochs"][0]["val_r2"]) == {"edge_distances", "min_edge_distances", "centre_offset",
+                                                    "heading_angle", "curvature_ahead"}  # fmt: skip
+    assert metrics["best"]["val_loss"] == min(e["val_loss"] for e in metrics["epochs"])
+    assert metrics["units"]["centre_line_offset"] == "m"
+    assert (out / "pred_vs_true.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert list((out / "tensorboard").glob("events.out.tfevents.*"))
+    enc = load_encoder(result["ckpt"], expected_input_hw=(64, 96), expected_target_names=TARGET_NAMES)
+    assert enc.metrics["epoch"] == metrics["best"]["epoch"]
+    assert enc(np.zeros((2, 64, 96, 3), dtype=np.uint8)).shape == (2, 64)
+
+    with pytest.raises(FileExistsError, match="--resume"):
+        train_repr(cfg)
+    resumed = TrainReprConfig(**{**cfg.__dict__, "epochs": 3, "resume": True})
+    train_repr(resumed)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert [e["epoch"] for e in metrics["epochs"]] == [0, 1, 2]  # history kept, one more epoch run
+
+
+def test_command_configs_fit_the_cli_plumbing() -> None:
+    from vision_rl.config import add_config_arguments as _add_config_arguments
+    from vision_rl.config import config_from_args as _config_from_args
+    from vision_rl.phase1_repr.bench import BenchLatencyConfig
+
+    parser = argparse.ArgumentParser()
+    _add_config_arguments(parser, TrainReprConfig)
+    argv = ["--data", "a.h5,b.h5", "--val", "e.h5", "--epochs", "3", "--lr", "0.01", "--no-augment", "--resume"]
+    cfg = _config_from_args(TrainReprConfig, parser.parse_args(argv))
+    assert cfg.data == "a.h5,b.h5" and cfg.epochs == 3 and cfg.lr == 0.01 and not cfg.augment and cfg.resume
+    parser = argparse.ArgumentParser()
+    _add_config_arguments(parser, BenchLatencyConfig)
+    bench = _config_from_args(BenchLatencyConfig, parser.parse_args(["--device", "cpu", "--width", "96", "--json"]))
+    assert bench.width == 96 and bench.json and bench.runs >= 200

@@ -1,0 +1,34 @@
+import json
+
+import pytest
+
+from vision_rl.cli import COMMANDS, main
+
+
+def test_tracks_json_lists_the_builtin_tracks(capsys):
+    assert main(["tracks", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["name"] for r in rows] == ["expressway", "flowing", "technical"]
+    assert all({"name", "length_m", "min_width_m", "corners"} <= set(r) for r in rows)
+
+
+@pytest.mark.parametrize("name", [n for n, c in COMMANDS.items() if not c.module])
+def test_commands_not_built_yet_say_what_they_need_and_fail(name, capsys):
+    assert main([*name.split(), "--laps", "50"]) == 2
+    err = capsys.readouterr().err
+    assert "not built yet" in err and COMMANDS[name].missing in err
+
+
+def test_unknown_command_fails_with_the_listing(capsys):
+    assert main(["fly"]) == 2
+    assert "unknown command 'fly'" in capsys.readouterr().err
+    assert main(["--help"]) == 0
+    assert "bench sim" in capsys.readouterr().out
+
+
+def test_bad_input_is_a_one_line_error_not_a_traceback(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("# x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,5,5\n1,0,5,5\n")
+    assert main(["bench", "sim", "--track", str(bad), "--repeats", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "bench sim: error:" in err and "bad.csv" in err

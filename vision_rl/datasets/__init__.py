@@ -1,0 +1,23 @@
+"""Capture HDF5 files as torch datasets: lap split, target standardisation, augmentation, Lightning DataModule.
+
+Import the DataModule from :mod:`vision_rl.datasets.datamodule` (it pulls in Lightning).
+"""
+
+from vision_rl.datasets.augment import FrameAugmentation, shift_frames
+from vision_rl.datasets.capture_dataset import (
+    CaptureDataset,
+    FrameCatalogue,
+    TargetStandardiser,
+    expand_paths,
+    split_by_lap,
+)
+
+__all__ = [
+    "CaptureDataset",
+    "FrameAugmentation",
+    "FrameCatalogue",
+    "TargetStandardiser",
+    "expand_paths",
+    "shift_frames",
+    "split_by_lap",
+]

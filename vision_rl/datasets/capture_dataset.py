@@ -1,0 +1,227 @@
+"""Capture HDF5 files as one torch Dataset: frame catalogue, split by lap, target standardisation.
+
+The small per-frame arrays (targets, lap, car id) of every file are read once into a :class:`FrameCatalogue`; the
+images stay on disk and are read one frame at a time. Each process opens its own h5py handles the first time it
+reads (HDF5 handles must not cross a fork), so the dataset is safe under DataLoader workers of any start method.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from vision_rl.capture.h5format import CaptureFile, CaptureFormatError, open_capture
+
+
+def expand_paths(spec: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]) -> list[Path]:
+    """Capture files named by a path, a comma-separated list or glob patterns (``runs/cap/shard_*.h5``)."""
+    items = [spec] if isinstance(spec, str | os.PathLike) else list(spec)
+    parts = [p.strip() for item in items for p in str(item).split(",") if p.strip()]
+    out: list[Path] = []
+    for part in parts:
+        matches = sorted(glob.glob(part)) if any(c in part for c in "*?[") else [part]
+        if not matches:
+            raise CaptureFormatError(f"{part}: no capture file matches")
+        out.extend(Path(m) for m in matches)
+    if not out:
+        raise CaptureFormatError("no capture file given")
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class TargetStandardiser:
+    """Per-target affine map to zero mean and unit variance over the training frames.
+
+    ``mean`` and ``std`` are (n_targets,) float32 in the targets' physical units (m, rad, 1/m).
+    """
+
+    mean: np.ndarray
+    std: np.ndarray
+
+    @classmethod
+    def from_targets(cls, targets: np.ndarray) -> TargetStandardiser:
+        targets = np.asarray(targets, dtype=np.float64)
+        if targets.ndim != 2 or targets.shape[0] < 1:
+            raise ValueError(f"targets must be (n_frames >= 1, n_targets), got {targets.shape}")
+        std = targets.std(axis=0)
+        # A target constant over the split (a straight-only capture's curvature) standardises to 0 whatever the
+        # divisor; 1 keeps float noise from being blown up.
+        std = np.where(std > 1e-12, std, 1.0)
+        return cls(targets.mean(axis=0).astype(np.float32), std.astype(np.float32))
+
+    def transform(self, targets: np.ndarray) -> np.ndarray:
+        return ((np.asarray(targets, dtype=np.float32) - self.mean) / self.std).astype(np.float32)
+
+    def inverse(self, standardised: np.ndarray) -> np.ndarray:
+        return (np.asarray(standardised, dtype=np.float32) * self.std + self.mean).astype(np.float32)
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {"mean": self.mean.tolist(), "std": self.std.tolist()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TargetStandardiser:
+        return cls(np.asarray(data["mean"], dtype=np.float32), np.asarray(data["std"], dtype=np.float32))
+
+
+@dataclass(frozen=True, eq=False)
+class FrameCatalogue:
+    """Every frame of one or more capture files: where it is and its targets (arrays over all N frames)."""
+
+    paths: tuple[Path, ...]
+    image_hw: tuple[int, int]
+    target_names: tuple[str, ...]
+    target_units: tuple[str, ...]
+    file_index: np.ndarray
+    """(N,) int32 index into ``paths``."""
+    frame_index: np.ndarray
+    """(N,) int64 frame number inside its file."""
+    targets: np.ndarray
+    """(N, n_targets) float32, physical units."""
+    lap: np.ndarray
+    """(N,) int32 lap index of the car."""
+    car_id: np.ndarray
+    """(N,) int32."""
+
+    @classmethod
+    def open(cls, paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]) -> FrameCatalogue:
+        """Read the catalogue of the given files (see :func:`expand_paths`); all must share frame size and targets."""
+        files = expand_paths(paths)
+        cols: dict[str, list[np.ndarray]] = {k: [] for k in ("targets", "lap", "car_id", "file", "frame")}
+        meta: tuple[tuple[int, int], list[str], list[str]] | None = None
+        for i, path in enumerate(files):
+            with open_capture(path) as cap:
+                this = (cap.image_hw, cap.target_names, cap.target_units)
+                if meta is None:
+                    meta = this
+                elif this[:2] != meta[:2]:
+                    raise CaptureFormatError(
+                        f"{path}: frames {this[0]} / {len(this[1])} targets do not match {files[0]}: "
+                        f"{meta[0]} / {len(meta[1])} targets (or the target names differ)"
+                    )
+                if cap.n_frames == 0:
+                    continue
+                cols["targets"].append(cap.targets.astype(np.float32))
+                cols["lap"].append(cap.lap.astype(np.int32))
+                cols["car_id"].append(cap.car_id.astype(np.int32))
+                cols["file"].append(np.full(cap.n_frames, i, dtype=np.int32))
+                cols["frame"].append(np.arange(cap.n_frames, dtype=np.int64))
+        assert meta is not None
+        if not cols["targets"]:
+            raise CaptureFormatError(f"{', '.join(map(str, files))}: no frames")
+        return cls(
+            paths=tuple(files),
+            image_hw=meta[0],
+            target_names=tuple(meta[1]),
+            target_units=tuple(meta[2]),
+            file_index=np.concatenate(cols["file"]),
+            frame_index=np.concatenate(cols["frame"]),
+            targets=np.concatenate(cols["targets"]),
+            lap=np.concatenate(cols["lap"]),
+            car_id=np.concatenate(cols["car_id"]),
+        )
+
+    def __len__(self) -> int:
+        return len(self.frame_index)
+
+    @property
+    def lap_keys(self) -> np.ndarray:
+        """(N, 3) int64 rows (file, car_id, lap): the unit a split never cuts."""
+        return np.stack([self.file_index, self.car_id, self.lap], axis=1).astype(np.int64)
+
+
+def split_by_lap(catalogue: FrameCatalogue, val_fraction: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Frame rows of a training and a validation split such that no (file, car, lap) has frames on both sides.
+
+    Laps are shuffled with ``seed`` and moved to the validation side until it holds at least ``val_fraction`` of the
+    frames; both sides keep at least one lap. Returns sorted row indices into the catalogue.
+    """
+    if not 0.0 < val_fraction < 1.0:
+        raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction}")
+    keys, inverse, counts = np.unique(catalogue.lap_keys, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    if len(keys) < 2:
+        raise ValueError(
+            f"{', '.join(map(str, catalogue.paths))}: a single (file, car, lap) group cannot be split by lap; "
+            "capture more laps or give a separate validation file"
+        )
+    order = np.random.default_rng(seed).permutation(len(keys))
+    cum = np.cumsum(counts[order])
+    n_val_groups = int(np.searchsorted(cum, val_fraction * len(catalogue)) + 1)
+    n_val_groups = min(max(n_val_groups, 1), len(keys) - 1)
+    is_val_group = np.zeros(len(keys), dtype=bool)
+    is_val_group[order[:n_val_groups]] = True
+    is_val = is_val_group[inverse]
+    return np.flatnonzero(~is_val), np.flatnonzero(is_val)
+
+
+class CaptureDataset(Dataset):
+    """Frames ``rows`` of a catalogue as ``(image uint8 (H, W, 3), targets float32 (n_targets,))`` pairs.
+
+    Targets are standardised when a standardiser is given. Images are left as uint8: the model converts them
+    (on the GPU when there is one), and uint8 batches cost workers a quarter of the float copies.
+    """
+
+    def __init__(
+        self,
+        catalogue: FrameCatalogue,
+        rows: np.ndarray | None = None,
+        standardiser: TargetStandardiser | None = None,
+    ) -> None:
+        self.catalogue = catalogue
+        self.rows = np.arange(len(catalogue)) if rows is None else np.asarray(rows, dtype=np.int64)
+        targets = catalogue.targets[self.rows]
+        self.targets = standardiser.transform(targets) if standardiser is not None else targets
+        self.standardiser = standardiser
+        self._handles: dict[int, CaptureFile] = {}
+        self._pid = os.getpid()
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def _handle(self, file_index: int) -> CaptureFile:
+        if self._pid != os.getpid():  # a forked worker inherited the parent's handles: never use them
+            self._handles = {}
+            self._pid = os.getpid()
+        handle = self._handles.get(file_index)
+        if handle is None:
+            handle = open_capture(self.catalogue.paths[file_index])
+            self._handles[file_index] = handle
+        return handle
+
+    def image(self, i: int) -> np.ndarray:
+        row = self.rows[i]
+        cap = self._handle(int(self.catalogue.file_index[row]))
+        return cap.read_image(int(self.catalogue.frame_index[row]))
+
+    def __getitem__(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
+        return torch.from_numpy(self.image(i)), torch.from_numpy(self.targets[i])
+
+    def __getitems__(self, indices: list[int]) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """A whole batch at once (DataLoader calls this): frames of one file are decoded in parallel threads."""
+        idx = np.asarray(indices, dtype=np.int64)
+        rows = self.rows[idx]
+        images = np.empty((len(idx), *self.catalogue.image_hw, 3), dtype=np.uint8)
+        files = self.catalogue.file_index[rows]
+        for f in np.unique(files):
+            sel = np.flatnonzero(files == f)
+            images[sel] = self._handle(int(f)).read_images(self.catalogue.frame_index[rows[sel]])
+        return [(torch.from_numpy(images[j]), torch.from_numpy(self.targets[i])) for j, i in enumerate(idx)]
+
+    def close(self) -> None:
+        if self._pid == os.getpid():
+            for handle in self._handles.values():
+                handle.close()
+        self._handles = {}
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_handles"] = {}  # spawned workers open their own
+        return state

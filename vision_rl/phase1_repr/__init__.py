@@ -1,0 +1,28 @@
+"""Phase 1: the space2depth + depthwise-separable encoder (phi_rep, 64-D) and its regressor (phi_reg, 27 targets),
+`train-repr`, `bench-latency` and :func:`load_encoder` for Phase 2.
+
+Commands (config dataclass, runner): ``TrainReprConfig``/``run_train_repr`` in :mod:`.train`,
+``BenchLatencyConfig``/``run_bench_latency`` in :mod:`.bench` (import those modules directly: train pulls in
+Lightning).
+"""
+
+from vision_rl.phase1_repr.checkpoint import (
+    EncoderCheckpointError,
+    FrozenEncoder,
+    checkpoint_sha256,
+    load_encoder,
+    read_checkpoint,
+    save_checkpoint,
+)
+from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
+
+__all__ = [
+    "EncoderCheckpointError",
+    "EncoderConfig",
+    "FrozenEncoder",
+    "ReprNet",
+    "checkpoint_sha256",
+    "load_encoder",
+    "read_checkpoint",
+    "save_checkpoint",
+]

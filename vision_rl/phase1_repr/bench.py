@@ -1,0 +1,236 @@
+"""`bench-latency`: batch-1 latency of the encoder, uint8 frame to 64-D vector, against the paper's 8 ms budget.
+
+Each timed call starts from a uint8 numpy frame (N, H, W, 3), as the renderer or a grabber hands it over, and ends
+with phi_rep on the host side (CUDA is synchronised), so conversion, normalisation and transfer are included.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from vision_rl.config import doc
+from vision_rl.phase1_repr.checkpoint import build_network, load_encoder
+from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet, count_parameters
+
+#: The vision paper's inference time per frame, measured there on a GPU (section 3: "averages around 8 ms").
+PAPER_BUDGET_MS = 8.0
+
+
+
+
+@dataclass
+class BenchLatencyConfig:
+    """Measure the encoder's batch-1 latency (uint8 frame in, 64-D out) and batched throughput."""
+
+    encoder: str = field(default="", metadata=doc("ckpt.pt to measure; empty: a freshly initialised default encoder"))
+    device: str = field(default="cpu", metadata=doc("cpu or cuda"))
+    width: int = field(default=470, metadata=doc("frame width, pixels (a checkpoint fixes its own)"))
+    height: int = field(default=280, metadata=doc("frame height, pixels (a checkpoint fixes its own)"))
+    runs: int = field(default=300, metadata=doc("timed batch-1 calls (>= 200 for the report)"))
+    warmup: int = field(default=30, metadata=doc("untimed calls first"))
+    threads: int = field(default=0, metadata=doc("torch CPU threads (0: leave torch's default)"))
+    batch_size: int = field(default=32, metadata=doc("frames per call for the throughput figure"))
+    variants: bool = field(default=True, metadata=doc("also time unfused, channels_last, torch.compile, ONNX"))
+    json: bool = field(default=False, metadata=doc("print one JSON object"))
+
+
+def _percentiles(times_s: list[float]) -> dict[str, float]:
+    ms = np.asarray(times_s) * 1e3
+    return {
+        "p50_ms": float(np.percentile(ms, 50)),
+        "p90_ms": float(np.percentile(ms, 90)),
+        "p99_ms": float(np.percentile(ms, 99)),
+        "mean_ms": float(ms.mean()),
+    }
+
+
+def _time_calls(fn: Callable[[np.ndarray], Any], frames: np.ndarray, runs: int, warmup: int, sync: Callable[[], None]):
+    for _ in range(warmup):
+        fn(frames)
+    sync()
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        fn(frames)
+        sync()
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def _torch_path(net: ReprNet, device: torch.device, channels_last: bool = False) -> Callable[[np.ndarray], Any]:
+    if channels_last:
+        net = net.to(memory_format=torch.channels_last)
+
+    def run(frames: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            return net.embed(torch.from_numpy(frames).to(device, non_blocking=True)).cpu().numpy()
+
+    return run
+
+
+def _compiled_path(net: ReprNet, device: torch.device) -> Callable[[np.ndarray], Any]:
+    compiled = torch.compile(net.embed, dynamic=False)
+
+    def run(frames: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            return compiled(torch.from_numpy(frames).to(device)).cpu().numpy()
+
+    return run
+
+
+def _onnx_path(net: ReprNet, frames: np.ndarray, threads: int) -> Callable[[np.ndarray], Any]:
+    import onnxruntime as ort
+
+    class _Embed(torch.nn.Module):
+        def __init__(self, inner: ReprNet) -> None:
+            super().__init__()
+            self.inner = inner
+
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            return self.inner.embed(x)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "encoder.onnx"
+        torch.onnx.export(_Embed(net.cpu()).eval(), (torch.from_numpy(frames),), str(path), input_names=["frames"])
+        options = ort.SessionOptions()
+        if threads > 0:
+            options.intra_op_num_threads = threads
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+    def run(x: np.ndarray) -> np.ndarray:
+        return session.run(None, {"frames": x})[0]
+
+    return run
+
+
+def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
+    """Time the encoder as configured; returns the figures (``p50_ms``, ``p90_ms``, ``p99_ms``, ``variants``...)."""
+    if cfg.runs < 1 or cfg.warmup < 0 or cfg.batch_size < 1:
+        raise ValueError("runs and batch_size must be >= 1 and warmup >= 0")
+    if cfg.device.startswith("cuda") and not torch.cuda.is_available():
+        raise RuntimeError("--device cuda: torch sees no CUDA device here")
+    if cfg.threads > 0:
+        torch.set_num_threads(cfg.threads)
+    device = torch.device(cfg.device)
+    if cfg.encoder:
+        frozen = load_encoder(cfg.encoder, device)
+        trained = build_network(torch.load(cfg.encoder, map_location="cpu", weights_only=True), cfg.encoder)
+        source = str(cfg.encoder)
+    else:
+        torch.manual_seed(0)
+        trained = ReprNet(EncoderConfig(input_height_px=cfg.height, input_width_px=cfg.width)).eval()
+        fused = ReprNet(trained.config).eval()
+        fused.load_state_dict(trained.state_dict())
+        fused.fuse_for_inference()
+        frozen = None
+        source = "freshly initialised default encoder"
+    fused_net = frozen.net if frozen is not None else fused.to(device)
+    h, w = fused_net.config.input_height_px, fused_net.config.input_width_px
+    rng = np.random.default_rng(0)
+    frame = rng.integers(0, 256, (1, h, w, 3), dtype=np.uint8)
+    batch = rng.integers(0, 256, (cfg.batch_size, h, w, 3), dtype=np.uint8)
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+
+    default_path = _torch_path(fused_net, device)
+    times = _time_calls(default_path, frame, cfg.runs, cfg.warmup, sync)
+    batch_runs = max(3, min(20, cfg.runs // 10))
+    batch_times = _time_calls(default_path, batch, batch_runs, 1, sync)
+    result: dict[str, Any] = {
+        "encoder": source,
+        "device": str(device),
+        "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else _cpu_name(),
+        "threads": torch.get_num_threads(),
+        "input_hw_px": [h, w],
+        "parameters": count_parameters(trained),
+        "runs": cfg.runs,
+        **_percentiles(times),
+        "budget_ms": PAPER_BUDGET_MS,
+        "batch_size": cfg.batch_size,
+        "throughput_fps": float(cfg.batch_size / np.median(batch_times)),
+        "torch_version": torch.__version__,
+    }
+    result["within_budget"] = result["p50_ms"] <= PAPER_BUDGET_MS
+    variants: dict[str, Any] = {"eager": _percentiles(times)}
+    if cfg.variants:
+        builders: dict[str, Callable[[], Callable[[np.ndarray], Any]]] = {
+            "unfused": lambda: _torch_path(_copy(trained).to(device), device),
+            "channels_last": lambda: _torch_path(_copy(fused_net), device, channels_last=True),
+            "torch_compile": lambda: _compiled_path(_copy(fused_net), device),
+        }
+        if device.type == "cpu":
+            builders["onnxruntime"] = lambda: _onnx_path(_copy(fused_net), frame, cfg.threads)
+        for name, build in builders.items():
+            if name == "onnxruntime" and not _has_module("onnxruntime"):
+                variants[name] = {"skipped": "onnxruntime is not installed (pip install onnxruntime onnx)"}
+                continue
+            try:
+                t0 = time.perf_counter()
+                fn = build()
+                fn(frame)  # compile or export here, outside the timing
+                setup_s = time.perf_counter() - t0
+                variants[name] = {**_percentiles(_time_calls(fn, frame, cfg.runs, cfg.warmup, sync)),
+                                  "setup_s": setup_s}  # fmt: skip
+            except Exception as exc:  # a variant that does not work on this machine is reported, not fatal
+                variants[name] = {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200]}"}
+    result["variants"] = variants
+    return result
+
+
+def _copy(net: ReprNet) -> ReprNet:
+    clone = ReprNet(net.config).eval()
+    if net.fused:
+        clone.fuse_for_inference()
+    clone.load_state_dict(net.state_dict())
+    return clone.to(next(net.parameters()).device)
+
+
+def _has_module(name: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(name) is not None
+
+
+def _cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return f"{line.split(':', 1)[1].strip()} ({os.cpu_count()} logical CPUs)"
+    except OSError:
+        pass
+    return f"{os.cpu_count()} logical CPUs"
+
+
+def format_bench_latency(result: dict[str, Any]) -> list[str]:
+    budget = result["budget_ms"]
+    lines = [
+        f"encoder: {result['encoder']} ({result['parameters']:,} parameters), frames {result['input_hw_px'][1]}x"
+        f"{result['input_hw_px'][0]}, {result['device']} ({result['device_name']}), {result['threads']} threads",
+        f"batch 1 over {result['runs']} runs: p50 {result['p50_ms']:.2f} ms  p90 {result['p90_ms']:.2f} ms  "
+        f"p99 {result['p99_ms']:.2f} ms   (paper's budget: {budget:.0f} ms per frame on a GPU: "
+        f"{'within' if result['within_budget'] else 'OVER'})",
+        f"throughput at batch {result['batch_size']}: {result['throughput_fps']:.0f} frames/s",
+    ]
+    for name, v in result["variants"].items():
+        if "p50_ms" in v:
+            lines.append(f"  {name:<14s} p50 {v['p50_ms']:.2f} ms  p90 {v['p90_ms']:.2f} ms  p99 {v['p99_ms']:.2f} ms"
+                         f"   (budget {budget:.0f} ms)")  # fmt: skip
+        else:
+            lines.append(f"  {name:<14s} {v.get('error') or v.get('skipped')}")
+    return lines
+
+
+def run_bench_latency(cfg: BenchLatencyConfig) -> int:
+    """The `bench-latency` command: measure, then print the figures (or one JSON object with ``--json``)."""
+    result = bench_latency(cfg)
+    print(json.dumps(result, indent=2) if cfg.json else "\n".join(format_bench_latency(result)))
+    return 0

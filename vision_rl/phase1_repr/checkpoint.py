@@ -1,0 +1,220 @@
+"""The encoder checkpoint ``ckpt.pt`` (ARCHITECTURE, "Files that cross a phase boundary") and :func:`load_encoder`.
+
+``ckpt.pt`` is a plain dict that ``torch.load(path, weights_only=True)`` reads:
+
+- ``format`` ("vision_rl.encoder") and ``format_version`` (1);
+- ``encoder_config``: :class:`EncoderConfig` as a dict; it holds the input size (``input_height_px``,
+  ``input_width_px``) and the pixel normalisation (``pixel_mean``, ``pixel_std`` of pixels scaled to [0, 1]);
+- ``state_dict``: the trained (unfused) :class:`ReprNet` weights;
+- ``target_names``, ``target_units`` and ``target_mean`` / ``target_std`` (float32 tensors, physical units), the
+  standardisation phi_reg was trained against: physical = standardised * std + mean;
+- ``package_version`` and ``metrics`` (the validation figures of the kept weights; may be empty).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
+
+CKPT_FORMAT = "vision_rl.encoder"
+CKPT_FORMAT_VERSION = 1
+_REQUIRED_KEYS = ("format", "format_version", "encoder_config", "state_dict", "target_names", "target_units",
+                  "target_mean", "target_std")  # fmt: skip
+
+
+class EncoderCheckpointError(ValueError):
+    """A checkpoint that cannot serve as requested: the message names the file and the problem."""
+
+
+def save_checkpoint(
+    path: str | os.PathLike[str],
+    net: ReprNet,
+    *,
+    target_names: Sequence[str],
+    target_units: Sequence[str],
+    target_mean: np.ndarray | torch.Tensor,
+    target_std: np.ndarray | torch.Tensor,
+    metrics: Mapping[str, Any] | None = None,
+) -> Path:
+    """Write ``ckpt.pt`` for ``net`` (trained form, not fused); returns the path."""
+    from vision_rl.capture.h5format import package_version
+
+    if net.fused:
+        raise ValueError("save the trained network, not the fused inference copy")
+    n = net.config.n_targets
+    mean = torch.as_tensor(np.asarray(target_mean, dtype=np.float32)).reshape(-1)
+    std = torch.as_tensor(np.asarray(target_std, dtype=np.float32)).reshape(-1)
+    if not len(target_names) == len(target_units) == mean.numel() == std.numel() == n:
+        raise ValueError(f"the network predicts {n} targets: names, units, mean and std must all have {n}")
+    payload = {
+        "format": CKPT_FORMAT,
+        "format_version": CKPT_FORMAT_VERSION,
+        "encoder_config": net.config.to_dict(),
+        "state_dict": {k: v.detach().cpu().clone() for k, v in net.state_dict().items()},
+        "target_names": list(target_names),
+        "target_units": list(target_units),
+        "target_mean": mean,
+        "target_std": std,
+        "package_version": package_version(),
+        "metrics": dict(metrics or {}),
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)  # a crash mid-write never leaves a half checkpoint under the real name
+    return path
+
+
+def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The checkpoint dict, checked for its keys and internal consistency (tensors on the CPU)."""
+    path = Path(path)
+    if not path.is_file():
+        raise EncoderCheckpointError(f"{path}: no such checkpoint file")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several types (RuntimeError, UnpicklingError, EOFError) for a bad file
+        raise EncoderCheckpointError(
+            f"{path}: not a readable encoder checkpoint (corrupt or truncated?): {exc}"
+        ) from exc
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CKPT_FORMAT:
+        raise EncoderCheckpointError(f"{path}: not a vision_rl encoder checkpoint (no format {CKPT_FORMAT!r})")
+    missing = [k for k in _REQUIRED_KEYS if k not in ckpt]
+    if missing:
+        raise EncoderCheckpointError(f"{path}: checkpoint lacks {missing}")
+    if int(ckpt["format_version"]) > CKPT_FORMAT_VERSION:
+        raise EncoderCheckpointError(f"{path}: checkpoint format {ckpt['format_version']} is newer than this code's")
+    try:
+        cfg = EncoderConfig.from_dict(ckpt["encoder_config"])
+    except (TypeError, ValueError) as exc:
+        raise EncoderCheckpointError(f"{path}: bad encoder_config: {exc}") from exc
+    n = cfg.n_targets
+    sizes = (
+        len(ckpt["target_names"]), len(ckpt["target_units"]), ckpt["target_mean"].numel(), ckpt["target_std"].numel()
+    )  # fmt: skip
+    if set(sizes) != {n}:
+        raise EncoderCheckpointError(
+            f"{path}: the network predicts {n} targets but names/units/mean/std have {sizes} entries"
+        )
+    return ckpt
+
+
+def build_network(ckpt: Mapping[str, Any], path: str | os.PathLike[str] = "<checkpoint>") -> ReprNet:
+    """The trained :class:`ReprNet` of a checkpoint dict (eval mode, unfused)."""
+    net = ReprNet(EncoderConfig.from_dict(ckpt["encoder_config"]))
+    try:
+        net.load_state_dict(ckpt["state_dict"], strict=True)
+    except RuntimeError as exc:
+        raise EncoderCheckpointError(f"{path}: the weights do not fit the stored architecture: {exc}") from exc
+    return net.eval()
+
+
+def checkpoint_sha256(path: str | os.PathLike[str]) -> str:
+    """Hex SHA-256 of the checkpoint file: Phase 2 records it beside a vision policy."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+class FrozenEncoder(nn.Module):
+    """uint8 frames (N, H, W, 3), numpy or torch, on any device -> phi_rep (N, rep_dim) float32, no gradients.
+
+    :meth:`predict_targets` gives phi_reg's 27 targets in physical units (m, rad, 1/m) for diagnostics.
+    """
+
+    def __init__(self, net: ReprNet, ckpt: Mapping[str, Any], path: Path) -> None:
+        super().__init__()
+        self.net = net
+        self.path = path
+        self.config: EncoderConfig = net.config
+        self.target_names: list[str] = list(ckpt["target_names"])
+        self.target_units: list[str] = list(ckpt["target_units"])
+        self.metrics: dict[str, Any] = dict(ckpt.get("metrics", {}))
+        self.register_buffer("target_mean", ckpt["target_mean"].float().clone())
+        self.register_buffer("target_std", ckpt["target_std"].float().clone())
+        self.requires_grad_(False)
+        self.eval()
+
+    @property
+    def input_hw_px(self) -> tuple[int, int]:
+        return self.config.input_height_px, self.config.input_width_px
+
+    @property
+    def rep_dim(self) -> int:
+        return self.config.rep_dim
+
+    @property
+    def device(self) -> torch.device:
+        return self.target_mean.device
+
+    def train(self, mode: bool = True) -> FrozenEncoder:
+        # Frozen: BatchNorm statistics and the fused layers must never switch back to training behaviour.
+        return super().train(False)
+
+    def _frames(self, frames: np.ndarray | torch.Tensor) -> torch.Tensor:
+        x = torch.from_numpy(np.ascontiguousarray(frames)) if isinstance(frames, np.ndarray) else frames
+        self.net.check_frames(x)
+        return x.to(self.device, non_blocking=True)
+
+    def forward(self, frames: np.ndarray | torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            return self.net.embed(self._frames(frames))
+
+    def predict_targets(self, frames: np.ndarray | torch.Tensor) -> torch.Tensor:
+        """phi_reg(phi_rep(frames)) in physical units, (N, n_targets)."""
+        with torch.no_grad():
+            _, standardised = self.net(self._frames(frames))
+            return standardised * self.target_std + self.target_mean
+
+
+def load_encoder(
+    path: str | os.PathLike[str],
+    device: str | torch.device = "cpu",
+    *,
+    expected_input_hw: tuple[int, int] | None = None,
+    expected_target_names: Sequence[str] | None = None,
+    fuse: bool = True,
+) -> FrozenEncoder:
+    """Load ``ckpt.pt`` as a frozen module from uint8 frames (N, H, W, 3) to (N, 64).
+
+    Args:
+        path: the checkpoint.
+        device: where the module runs (``"cpu"``, ``"cuda"``...); numpy frames are moved there.
+        expected_input_hw: refuse a checkpoint built for another frame size (height, width) in pixels.
+        expected_target_names: refuse a checkpoint trained on other targets (count or names).
+        fuse: fold BatchNorm, normalisation and space2depth into the convolutions (same outputs, faster).
+    """
+    path = Path(path)
+    ckpt = read_checkpoint(path)
+    cfg = EncoderConfig.from_dict(ckpt["encoder_config"])
+    if expected_input_hw is not None:
+        want = (int(expected_input_hw[0]), int(expected_input_hw[1]))
+        have = (cfg.input_height_px, cfg.input_width_px)
+        if want != have:
+            raise EncoderCheckpointError(
+                f"{path}: checkpoint was trained on {have[0]}x{have[1]} (HxW) frames, expected {want[0]}x{want[1]}"
+            )
+    if expected_target_names is not None:
+        want_names, have_names = list(expected_target_names), list(ckpt["target_names"])
+        if want_names != have_names:
+            if len(want_names) != len(have_names):
+                detail = f"{len(have_names)} targets, expected {len(want_names)}"
+            else:
+                first = next(a for a, b in zip(have_names, want_names, strict=True) if a != b)
+                detail = f"other targets than expected (first difference: {first!r})"
+            raise EncoderCheckpointError(f"{path}: checkpoint predicts {detail}")
+    net = build_network(ckpt, path)
+    if fuse:
+        net.fuse_for_inference()
+    return FrozenEncoder(net, ckpt, path).to(device)

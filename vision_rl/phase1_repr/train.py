@@ -1,0 +1,389 @@
+"""`train-repr`: learn phi_rep by regressing the 27 targets from frames (vision paper, section 3, equation 1).
+
+The loss is the MSE on standardised targets; per-target RMSE in physical units and R^2 per target group go to
+TensorBoard and ``metrics.json`` every epoch; the weights with the lowest validation loss are kept (the paper keeps
+the best of 50 epochs on undisturbed-driving frames) and written as ``ckpt.pt`` with a predicted-vs-true figure.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from vision_rl.config import doc
+from vision_rl.datasets.augment import FrameAugmentation
+from vision_rl.datasets.capture_dataset import TargetStandardiser
+from vision_rl.phase1_repr.checkpoint import save_checkpoint
+from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
+
+#: Target groups reported with R^2 (issue 6), matched by name prefix; any other target lands in "other".
+TARGET_GROUPS: dict[str, str] = {
+    "edge_distances": "edge_distance_",
+    "min_edge_distances": "min_distance_",
+    "centre_offset": "centre_line_offset",
+    "heading_angle": "heading_angle",
+    "curvature_ahead": "curvature_",
+}
+
+
+def group_targets(target_names: Sequence[str]) -> dict[str, list[int]]:
+    """Group name -> indices of its targets, in :data:`TARGET_GROUPS` order (empty groups left out)."""
+    groups: dict[str, list[int]] = {}
+    for i, name in enumerate(target_names):
+        group = next((g for g, prefix in TARGET_GROUPS.items() if name.startswith(prefix)), "other")
+        groups.setdefault(group, []).append(i)
+    order = [*TARGET_GROUPS, "other"]
+    return {g: groups[g] for g in order if g in groups}
+
+
+def regression_metrics(pred: np.ndarray, true: np.ndarray, target_names: Sequence[str]) -> dict[str, Any]:
+    """RMSE per target (physical units) and R^2 per group: 1 - sum of squared errors / sum of squares about each
+    target's own mean, pooled over the group's targets (NaN for a group whose targets do not vary)."""
+    pred = np.asarray(pred, dtype=np.float64)
+    true = np.asarray(true, dtype=np.float64)
+    err2 = (pred - true) ** 2
+    rmse = np.sqrt(err2.mean(axis=0))
+    dev2 = (true - true.mean(axis=0)) ** 2
+    r2 = {}
+    for group, idx in group_targets(target_names).items():
+        ss_tot = dev2[:, idx].sum()
+        r2[group] = float(1.0 - err2[:, idx].sum() / ss_tot) if ss_tot > 0 else float("nan")
+    return {"rmse": {n: float(v) for n, v in zip(target_names, rmse, strict=True)}, "r2": r2}
+
+
+class ReprModule(L.LightningModule):
+    """The representation network with its training loop (AdamW, cosine schedule, MSE on standardised targets)."""
+
+    def __init__(
+        self,
+        encoder_config: dict[str, Any],
+        target_names: list[str],
+        target_units: list[str],
+        target_mean: list[float],
+        target_std: list[float],
+        lr: float = 2e-3,
+        weight_decay: float = 1e-4,
+        augmentation: dict[str, Any] | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.net = ReprNet(EncoderConfig.from_dict(encoder_config))
+        self.augment = FrameAugmentation(**augmentation) if augmentation else None
+        self.register_buffer("target_mean", torch.tensor(target_mean, dtype=torch.float32))
+        self.register_buffer("target_std", torch.tensor(target_std, dtype=torch.float32))
+        self._val_pred: list[torch.Tensor] = []
+        self._val_true: list[torch.Tensor] = []
+        self.last_val_metrics: dict[str, Any] | None = None
+
+    def predict_standardised(self, images: torch.Tensor, augment: bool = False) -> torch.Tensor:
+        x = self.net.frames_to_unit(images)
+        if augment and self.augment is not None and self.augment.enabled:
+            x = self.augment(x)
+        return self.net.phi_reg(self.net.embed_unit(x))
+
+    def on_train_epoch_start(self) -> None:
+        self._train_loss_sum, self._train_loss_count = 0.0, 0
+
+    def train_loss_mean(self) -> float | None:
+        """Mean training loss of the current epoch so far (validation runs before Lightning's epoch aggregate)."""
+        count = getattr(self, "_train_loss_count", 0)
+        return self._train_loss_sum / count if count else None
+
+    def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        images, targets = batch
+        loss = F.mse_loss(self.predict_standardised(images, augment=True), targets)
+        self.log("train_loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=len(images))
+        self._train_loss_sum += float(loss.detach()) * len(images)
+        self._train_loss_count += len(images)
+        return loss
+
+    def validation_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> None:
+        images, targets = batch
+        pred = self.predict_standardised(images)
+        self.log("val_loss", F.mse_loss(pred, targets), on_epoch=True, prog_bar=True, batch_size=len(images))
+        self._val_pred.append((pred * self.target_std + self.target_mean).detach().cpu())
+        self._val_true.append((targets * self.target_std + self.target_mean).detach().cpu())
+
+    def on_validation_epoch_end(self) -> None:
+        if not self._val_pred:
+            return
+        pred, true = torch.cat(self._val_pred).numpy(), torch.cat(self._val_true).numpy()
+        self._val_pred.clear()
+        self._val_true.clear()
+        metrics = regression_metrics(pred, true, self.hparams.target_names)
+        self.last_val_metrics = metrics
+        if self.trainer.sanity_checking:
+            return
+        for name, value in metrics["rmse"].items():
+            self.log(f"val_rmse/{name}", value)
+        for group, value in metrics["r2"].items():
+            if np.isfinite(value):
+                self.log(f"val_r2/{group}", value)
+
+    def configure_optimizers(self) -> dict[str, Any]:
+        decay = [p for n, p in self.named_parameters() if p.ndim > 1]
+        no_decay = [p for n, p in self.named_parameters() if p.ndim <= 1]  # biases and norms: no weight decay
+        optimiser = torch.optim.AdamW(
+            [{"params": decay, "weight_decay": self.hparams.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
+            lr=self.hparams.lr,
+        )
+        total = max(1, int(self.trainer.estimated_stepping_batches))
+        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=total)
+        return {"optimizer": optimiser, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
+
+
+class MetricsHistory(L.Callback):
+    """Writes ``metrics.json`` after every validation epoch; its history survives a resume (callback state)."""
+
+    def __init__(self, path: Path, target_units: Sequence[str], target_names: Sequence[str]) -> None:
+        self.path = Path(path)
+        self.units = dict(zip(target_names, target_units, strict=True))
+        self.epochs: list[dict[str, Any]] = []
+
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        # on_validation_end, not on_validation_epoch_end: Lightning calls callbacks' epoch-end hooks before the
+        # module's, which computes the metrics. Checkpoint callbacks run after this one, so they save this record.
+        if trainer.sanity_checking or not isinstance(pl_module, ReprModule) or pl_module.last_val_metrics is None:
+            return
+        logged = trainer.callback_metrics
+        record = {
+            "epoch": int(trainer.current_epoch),
+            "step": int(trainer.global_step),
+            "val_loss": float(logged["val_loss"]) if "val_loss" in logged else None,
+            "train_loss": pl_module.train_loss_mean(),
+            "val_rmse": pl_module.last_val_metrics["rmse"],
+            "val_r2": pl_module.last_val_metrics["r2"],
+        }
+        self.epochs = [e for e in self.epochs if e["epoch"] != record["epoch"]] + [record]
+        if trainer.is_global_zero:
+            self.write()
+
+    def best(self) -> dict[str, Any] | None:
+        scored = [e for e in self.epochs if e["val_loss"] is not None]
+        return min(scored, key=lambda e: e["val_loss"]) if scored else None
+
+    def write(self, extra: dict[str, Any] | None = None) -> None:
+        payload = {"units": self.units, "epochs": self.epochs, "best": self.best(), **(extra or {})}
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.path.write_text(json.dumps(payload, indent=2, allow_nan=True))
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"epochs": self.epochs}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.epochs = list(state_dict.get("epochs", []))
+
+
+
+
+@dataclass
+class TrainReprConfig:
+    """Train the Phase-1 encoder on capture files; writes ckpt.pt, metrics.json, TensorBoard logs and a figure."""
+
+    data: str = field(default="", metadata=doc("training capture file(s): a path, a comma-separated list or a glob"))
+    val: str = field(default="", metadata=doc("validation capture (undisturbed laps); empty: laps of --data"))
+    val_fraction: float = field(default=0.1, metadata=doc("share of frames held out by lap when --val is empty"))
+    epochs: int = field(default=50, metadata=doc("training epochs (the paper: best of 50)"))
+    max_steps: int = field(default=-1, metadata=doc("stop after this many optimiser steps (-1: no limit)"))
+    batch_size: int = field(default=64, metadata=doc("frames per batch"))
+    lr: float = field(default=2e-3, metadata=doc("AdamW peak learning rate (cosine decay to 0)"))
+    weight_decay: float = field(default=1e-4, metadata=doc("AdamW weight decay on weights (not biases)"))
+    backbone: str = field(default="s2d", metadata=doc("s2d (the paper's design) or mobilenet_v3_small"))
+    width_mult: float = field(default=1.0, metadata=doc("multiply every channel count of the s2d encoder"))
+    space2depth_block: int = field(default=4, metadata=doc("space2depth block side, pixels"))
+    augment: bool = field(default=True, metadata=doc("random brightness, contrast and saturation"))
+    shift_px: int = field(default=0, metadata=doc("random shift of up to this many pixels (0: off)"))
+    num_workers: int = field(default=2, metadata=doc("DataLoader worker processes"))
+    seed: int = field(default=0, metadata=doc("seed of weights, split and batches"))
+    device: str = field(default="auto", metadata=doc("auto, cpu or cuda"))
+    precision: str = field(default="32-true", metadata=doc("Lightning precision, e.g. 32-true, bf16-mixed"))
+    out: str = field(default="runs/repr/default", metadata=doc("output folder"))
+    resume: bool = field(default=False, metadata=doc("continue the run in --out from its last checkpoint"))
+    force: bool = field(default=False, metadata=doc("start over in an --out that holds a run"))
+    progress: bool = field(default=True, metadata=doc("show a progress bar"))
+    json: bool = field(default=False, metadata=doc("print the result as JSON"))
+
+
+def _lightning_dir(out: Path) -> Path:
+    return out / "lightning"
+
+
+def train_repr(cfg: TrainReprConfig) -> dict[str, Any]:
+    """Run training as configured; returns the paths written and the kept epoch's figures. Prints nothing itself
+    (Lightning shows its progress bar when ``cfg.progress``)."""
+    from lightning.pytorch.callbacks import ModelCheckpoint
+    from lightning.pytorch.loggers import TensorBoardLogger
+
+    from vision_rl.datasets.datamodule import CaptureDataModule
+
+    if not cfg.data:
+        raise ValueError("train-repr needs --data: one or more capture files")
+    out = Path(cfg.out)
+    last_ckpt = _lightning_dir(out) / "last.ckpt"
+    if cfg.resume and not last_ckpt.is_file():
+        raise FileNotFoundError(f"{out}: nothing to resume (no {last_ckpt.name})")
+    if not cfg.resume and (last_ckpt.exists() or (out / "ckpt.pt").exists()):
+        if not cfg.force:
+            raise FileExistsError(f"{out} holds a run: pass --resume to continue it or --force to start over")
+        shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
+    L.seed_everything(cfg.seed, workers=True, verbose=False)
+
+    dm = CaptureDataModule(
+        cfg.data,
+        cfg.val or None,
+        val_fraction=cfg.val_fraction,
+        split_seed=cfg.seed,
+        batch_size=cfg.batch_size,
+        num_workers=cfg.num_workers,
+    )
+    dm.prepare_data()
+    dm.setup("fit")
+    catalogue = dm.catalogue
+    assert dm.standardiser is not None
+    h, w = catalogue.image_hw
+    enc_cfg = EncoderConfig(
+        backbone=cfg.backbone,
+        input_height_px=h,
+        input_width_px=w,
+        space2depth_block=cfg.space2depth_block,
+        n_targets=len(catalogue.target_names),
+    ).scaled(cfg.width_mult)
+    photometric = {} if cfg.augment else {"brightness": 0.0, "contrast": 0.0, "saturation": 0.0}
+    augment = FrameAugmentation(shift_px=cfg.shift_px, **photometric)
+    augmentation = dataclasses.asdict(augment) if augment.enabled else None
+    module = ReprModule(
+        encoder_config=enc_cfg.to_dict(),
+        target_names=list(catalogue.target_names),
+        target_units=list(catalogue.target_units),
+        target_mean=dm.standardiser.mean.tolist(),
+        target_std=dm.standardiser.std.tolist(),
+        lr=cfg.lr,
+        weight_decay=cfg.weight_decay,
+        augmentation=augmentation,
+    )
+    history = MetricsHistory(out / "metrics.json", catalogue.target_units, catalogue.target_names)
+    best_keeper = ModelCheckpoint(
+        dirpath=_lightning_dir(out), filename="best", monitor="val_loss", mode="min", save_last=True,
+        save_top_k=1, enable_version_counter=False,
+    )  # fmt: skip
+    trainer = L.Trainer(
+        accelerator=cfg.device if cfg.device != "auto" else "auto",
+        devices=1,
+        precision=cfg.precision,
+        max_epochs=cfg.epochs,
+        max_steps=cfg.max_steps,
+        logger=TensorBoardLogger(save_dir=str(out), name="tensorboard", version=""),
+        callbacks=[best_keeper, history],
+        enable_progress_bar=cfg.progress,
+        enable_model_summary=False,
+        num_sanity_val_steps=0,
+        log_every_n_steps=max(1, min(50, len(dm.train_set) // max(1, cfg.batch_size))),
+        deterministic=False,
+    )
+    trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if cfg.resume else None)
+
+    best_path = best_keeper.best_model_path or str(last_ckpt)
+    best_module = ReprModule.load_from_checkpoint(best_path, map_location="cpu", weights_only=False)
+    best = history.best() or {}
+    ckpt_path = save_checkpoint(
+        out / "ckpt.pt",
+        best_module.net.cpu().eval(),
+        target_names=catalogue.target_names,
+        target_units=catalogue.target_units,
+        target_mean=dm.standardiser.mean,
+        target_std=dm.standardiser.std,
+        metrics={k: best[k] for k in ("epoch", "val_loss", "val_r2", "val_rmse") if k in best},
+    )
+    pred, true = predict_dataset(best_module.net, dm.val_dataloader(), dm.standardiser, trainer.strategy.root_device)
+    figure = plot_predictions(pred, true, catalogue.target_names, catalogue.target_units, out / "pred_vs_true.png")
+    history.write({"ckpt": str(ckpt_path), "figure": str(figure)})
+    dm.train_set.close()
+    dm.val_set.close()
+    return {
+        "ckpt": str(ckpt_path),
+        "metrics_json": str(out / "metrics.json"),
+        "figure": str(figure),
+        "tensorboard": str(out / "tensorboard"),
+        "best_epoch": best.get("epoch"),
+        "val_loss": best.get("val_loss"),
+        "val_r2": best.get("val_r2"),
+        "val_rmse": best.get("val_rmse"),
+        "n_train_frames": len(dm.train_set),
+        "n_val_frames": len(dm.val_set),
+    }
+
+
+@torch.no_grad()
+def predict_dataset(
+    net: ReprNet, loader: torch.utils.data.DataLoader, standardiser: TargetStandardiser, device: torch.device
+) -> tuple[np.ndarray, np.ndarray]:
+    """Predictions and truths in physical units over a loader of (uint8 frames, standardised targets)."""
+    net = net.to(device).eval()
+    preds, trues = [], []
+    for images, targets in loader:
+        _, standardised = net(images.to(device))
+        preds.append(standardised.float().cpu().numpy())
+        trues.append(targets.numpy())
+    return standardiser.inverse(np.concatenate(preds)), standardiser.inverse(np.concatenate(trues))
+
+
+def plot_predictions(
+    pred: np.ndarray, true: np.ndarray, target_names: Sequence[str], target_units: Sequence[str], path: Path
+) -> Path:
+    """One scatter of predicted against true values per target group, with the identity line and R^2."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups = group_targets(target_names)
+    r2 = regression_metrics(pred, true, target_names)["r2"]
+    fig, axes = plt.subplots(1, len(groups), figsize=(4 * len(groups), 4), squeeze=False)
+    rng = np.random.default_rng(0)
+    for ax, (group, idx) in zip(axes[0], groups.items(), strict=True):
+        t, p = true[:, idx].ravel(), pred[:, idx].ravel()
+        if len(t) > 20_000:  # keep the figure light: a random subset shows the same spread
+            keep = rng.choice(len(t), 20_000, replace=False)
+            t, p = t[keep], p[keep]
+        ax.scatter(t, p, s=2, alpha=0.3)
+        lo, hi = float(min(t.min(), p.min())), float(max(t.max(), p.max()))
+        ax.plot([lo, hi], [lo, hi], "k--", lw=1)
+        ax.set_title(f"{group}  R²={r2[group]:.3f}")
+        unit = target_units[idx[0]]
+        ax.set_xlabel(f"true ({unit})")
+        ax.set_ylabel(f"predicted ({unit})")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def format_train_repr(result: dict[str, Any]) -> list[str]:
+    lines = [
+        f"ckpt.pt: {result['ckpt']}",
+        f"metrics: {result['metrics_json']}   figure: {result['figure']}   TensorBoard: {result['tensorboard']}",
+        f"frames: {result['n_train_frames']} training, {result['n_val_frames']} validation; "
+        f"kept epoch {result['best_epoch']} (val loss {result['val_loss']})",
+    ]
+    for group, value in (result.get("val_r2") or {}).items():
+        lines.append(f"  R^2 {group:<20s} {value:.4f}")
+    return lines
+
+
+def run_train_repr(cfg: TrainReprConfig) -> int:
+    """The `train-repr` command: train, then print where things went and the kept epoch's R^2 per group."""
+    result = train_repr(cfg)
+    print(json.dumps(result, indent=2) if cfg.json else "\n".join(format_train_repr(result)))
+    return 0
