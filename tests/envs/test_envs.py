@@ -1,0 +1,186 @@
+"""The environments on a small track: reward signs, wrap-around, autoreset, determinism, checkers, SB3."""
+
+import dataclasses
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from vision_rl.envs import RacingConfig, RacingCore, make_vector_env
+from vision_rl.envs.racing_env import TimeTrial
+
+TRACK = "technical"
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("VISION_RL_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+def _core(**kw) -> RacingCore:
+    return RacingCore(RacingConfig(track=TRACK, normalize=False, **kw), seed=0)
+
+
+def test_forward_progress_is_positive_and_reversing_negative():
+    core = _core(n_groups=2)
+    core.reset_groups(np.arange(2))
+    core.world.reset(s_m=np.array([100.0, 300.0]), speed_mps=np.array([20.0, -8.0]))
+    _, reward, *_ = core.step(np.array([[0.0, 0.0], [0.0, 0.0]]), autoreset=False)
+    assert reward[0] > 1.0  # ~2 m of progress in 0.1 s at 20 m/s
+    assert reward[1] < -0.5  # rolling backwards
+
+
+def _circle_csv(path, radius_m=100.0, half_width_m=6.0):
+    a = np.linspace(0.0, 2 * np.pi, 300, endpoint=False)
+    rows = np.stack([radius_m * np.cos(a), radius_m * np.sin(a), np.full(300, half_width_m), np.full(300, half_width_m)])
+    np.savetxt(path, rows.T, delimiter=",", header="x_m,y_m,w_tr_right_m,w_tr_left_m")
+    return str(path)
+
+
+def _follow_centre_line(core: RacingCore, speed_mps: float) -> np.ndarray:
+    """Pure pursuit of the centre line 12 m ahead at a constant speed: actions (M, 2)."""
+    st, track = core.world.state, core.track
+    v = st.vehicle
+    target = track.position_at(st.s_m + 12.0)
+    alpha = np.arctan2(target[:, 1] - v.y_m, target[:, 0] - v.x_m) - v.yaw_rad
+    steer = np.arctan(2 * core.car.wheelbase_m * np.sin(alpha) / 12.0)
+    omega = np.clip(0.5 * (speed_mps - np.hypot(v.vx_mps, v.vy_mps)), -1, 1)
+    return np.stack([steer, omega], axis=1)[core.ego_ids]
+
+
+def test_one_lap_through_the_start_line_sums_to_the_lap_length(tmp_path):
+    core = RacingCore(RacingConfig(track=_circle_csv(tmp_path / "circle.csv"), normalize=False, episode_s=1000), 0)
+    core.reset_groups(np.array([0]))
+    core.world.reset(s_m=core.track.length_m - 30.0, speed_mps=12.0)
+    total = 0.0
+    for _ in range(2000):
+        _, reward, _, _, infos = core.step(_follow_centre_line(core, 12.0), autoreset=False)
+        total += reward[0]
+        if core.progress_m[0] >= core.track.length_m:
+            break
+    assert core.world.state.wall_contact_time_s[0] == 0.0
+    assert core.progress_m[0] == pytest.approx(core.track.length_m, abs=2.0)  # one lap, crossing s = 0 once
+    assert total == pytest.approx(core.progress_m[0], abs=0.02)  # rewards are float32
+    assert infos[0]["lap_times_s"] == []  # the line was crossed once: timing started, no full lap yet
+
+
+def test_wall_penalty_only_in_contact():
+    core = _core(n_groups=1)
+    core.reset_groups(np.array([0]))
+    core.world.reset(s_m=50.0, speed_mps=25.0, heading_offset_rad=0.6)  # aimed at the left wall
+    penalised = False
+    for _ in range(20):
+        s_prev = core.world.state.s_m[0]
+        _, reward, _, _, _ = core.step(np.array([[0.0, 0.0]]), autoreset=False)
+        progress = core.track.progress_delta(s_prev, core.world.state.s_m[0])
+        if core.world.state.wall_contact[0]:
+            v = core.world.state.vehicle
+            speed2 = v.vx_mps[0] ** 2 + v.vy_mps[0] ** 2
+            assert reward[0] == pytest.approx(progress - 0.005 * speed2, rel=1e-5)
+            penalised = True
+        else:
+            assert reward[0] == pytest.approx(progress, rel=1e-5)
+    assert penalised
+
+
+def test_overtaking_reward_and_info_on_setting_a():
+    core = _core(n_groups=1, scenario="setting_a", observation="overtaking")
+    obs, info = None, None
+    core.reset_groups(np.array([0]))
+    assert core.world.n_cars == 6
+    gaps = core._gaps()[0]
+    np.testing.assert_allclose(gaps, [50, 100, 150, 200, 250], atol=1.0)
+    for _ in range(5):
+        obs, reward, _, _, infos = core.step(np.array([[0.0, 1.0]]), autoreset=False)
+    info = infos[0]
+    assert obs.shape == (1, 96)
+    assert {"travel_time_s", "travel_distance_m", "car_contact_s", "wall_contact_s", "overtaken"} <= set(info)
+    assert info["overtaken"] == 0
+    assert np.all(obs[0, 7:79] <= 20.0 + 1e-9)
+
+
+def test_autoreset_gives_a_fresh_observation_and_final_observation():
+    env = make_vector_env(RacingConfig(track=TRACK, n_groups=3, episode_s=0.3), seed=1)
+    obs, _ = env.reset()
+    for _ in range(2):
+        obs, _, terminated, truncated, info = env.step(np.zeros((3, 2), dtype=np.float32))
+        assert not (terminated | truncated).any()
+    new_obs, _, terminated, truncated, info = env.step(np.zeros((3, 2), dtype=np.float32))
+    assert truncated.all() and not terminated.any()
+    assert info["_final_obs"].all()
+    # The returned observation starts a new episode somewhere else; the final one continues the old episode.
+    assert not np.allclose(new_obs, info["final_obs"][0])
+    assert env.core.steps.tolist() == [0, 0, 0]
+
+
+def test_same_seed_same_rollout():
+    def rollout(seed):
+        env = make_vector_env(RacingConfig(track=TRACK, n_groups=4), seed=seed)
+        obs, _ = env.reset()
+        rng = np.random.default_rng(0)
+        out = [obs]
+        for _ in range(20):
+            obs, reward, *_ = env.step(rng.uniform(-0.3, 0.3, (4, 2)).astype(np.float32))
+            out += [obs, reward]
+        return out
+
+    a, b, c = rollout(7), rollout(7), rollout(8)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+    assert not np.array_equal(a[0], c[0])
+
+
+def test_observation_normalisation_is_cached_and_reused(tmp_path, monkeypatch):
+    monkeypatch.setenv("VISION_RL_CACHE", str(tmp_path))
+    first = RacingCore(RacingConfig(track=TRACK), seed=0).normalizer
+    files = list((tmp_path / "obs_stats").glob("*.json"))
+    assert len(files) == 1
+    second = RacingCore(RacingConfig(track=TRACK), seed=5).normalizer
+    np.testing.assert_array_equal(first.offset, second.offset)
+    files[0].write_text("{not json")
+    third = RacingCore(RacingConfig(track=TRACK), seed=0).normalizer
+    np.testing.assert_allclose(third.offset, first.offset)
+
+
+@pytest.mark.parametrize("env_id", ["vision_rl/TimeTrial-v0", "vision_rl/Overtaking-v0"])
+def test_registered_envs_pass_the_checkers(env_id):
+    from gymnasium.utils.env_checker import check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make(env_id, track=TRACK).unwrapped
+    check_env(env, skip_render_check=True)
+    sb3_check_env(env, warn=True, skip_render_check=True)
+
+
+def test_vision_observation_without_renderer_is_a_clear_error(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "vision_rl.render", None)
+    env = TimeTrial(track=TRACK, observation="vision")
+    with pytest.raises(RuntimeError, match="renderer"):
+        env.reset(seed=0)
+
+
+def test_unknown_argument_is_rejected():
+    with pytest.raises(TypeError, match="unknown argument"):
+        TimeTrial(track=TRACK, wheels=3)
+    with pytest.raises(ValueError, match="scenario"):
+        RacingConfig(scenario="drag_race")
+
+
+def test_sb3_sac_runs_2000_steps_on_the_vector_env():
+    torch = pytest.importorskip("torch")
+    from stable_baselines3 import SAC
+
+    from vision_rl.envs import make_sb3_vec_env
+
+    torch.set_num_threads(1)
+    venv = make_sb3_vec_env(RacingConfig(track=TRACK, n_groups=20, episode_s=5.0), seed=0)
+    model = SAC("MlpPolicy", venv, batch_size=64, learning_starts=200, train_freq=1, gradient_steps=1,
+                policy_kwargs={"net_arch": [32, 32]}, seed=0, device="cpu")  # fmt: skip
+    model.learn(total_timesteps=2000)
+    assert model.num_timesteps >= 2000
+    assert model.replay_buffer.size() * 20 >= 2000  # one row per step holds all 20 envs
+    obs = venv.reset()
+    action, _ = model.predict(obs, deterministic=True)
+    assert action.shape == (20, 2)
+    assert dataclasses.asdict(venv.config)["n_groups"] == 20

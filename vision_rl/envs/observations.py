@@ -1,0 +1,155 @@
+"""Observation vectors of the environments, their names, and their normalisation.
+
+- ``state`` (38-D, the privileged baseline of Fuchs et al.): the 27 Phase-1 targets with the curvature sampled
+  1.0-2.8 s ahead at the current speed instead of 40-120 m ahead, then the 11 dedicated features.
+- ``overtaking`` (96-D, overtaking paper Table I): body velocity (3), body acceleration (3), heading angle to the
+  centre line (1), 72 lidar beams (72), previous steering (1), wall flag (1), car flag (1), curvature 0.2-3.0 s
+  ahead (14).
+- ``vision``: a Dict of the rendered frame and the 11 dedicated features (Phase 2 embeds the frame).
+
+Normalisation follows the overtaking paper (section III-B): z-score for every feature except the lidar, which is
+min-max scaled to [0, 1]. The z-score statistics come from states sampled once by the disrupted built-in AI and
+are cached on disk per (track geometry, car, observation kind), so every run of one configuration uses the same
+numbers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vision_rl.sim import sensors
+from vision_rl.sim.track import Track
+from vision_rl.sim.world import WorldState
+
+STATE_OBS_NAMES: tuple[str, ...] = (
+    sensors.TARGET_NAMES[:17]
+    + tuple(f"curvature_{t:.1f}s_ahead" for t in sensors.STATE_CURVATURE_TIMES_S)
+    + sensors.DEDICATED_NAMES
+)
+OVERTAKING_OBS_NAMES: tuple[str, ...] = (
+    sensors.DEDICATED_NAMES[:6]
+    + ("heading_angle_to_centre_line",)
+    + tuple(f"lidar_{np.rad2deg(a):+.1f}deg" for a in sensors.LIDAR_ANGLES_RAD)
+    + ("previous_steering", "wall_contact", "car_contact")
+    + tuple(f"curvature_{t:.1f}s_ahead" for t in sensors.OVERTAKING_CURVATURE_TIMES_S)
+)
+#: Slice of the lidar beams inside the overtaking vector: min-max scaled, not z-scored.
+OVERTAKING_LIDAR = slice(7, 79)
+OBS_NAMES = {"state": STATE_OBS_NAMES, "overtaking": OVERTAKING_OBS_NAMES}
+
+#: Bump when an observation's definition changes: cached statistics of older versions are then ignored.
+OBS_VERSION = 1
+
+
+def _speed(state: WorldState, ids: np.ndarray) -> np.ndarray:
+    return np.hypot(state.vehicle.vx_mps[ids], state.vehicle.vy_mps[ids])
+
+
+def state_observation(track: Track, caster: sensors.WallRayCaster, state: WorldState, ids: np.ndarray) -> np.ndarray:
+    """The 38-D ``state`` observation (len(ids), 38) of the cars ``ids``, raw physical units."""
+    v = state.vehicle
+    targets = sensors.environment_targets(
+        track, caster, v.x_m[ids], v.y_m[ids], v.yaw_rad[ids], state.s_m[ids], state.lateral_m[ids]
+    )
+    curvature = sensors.state_curvature_ahead(track, state.s_m[ids], _speed(state, ids))
+    vehicle_ids = type(v)(*(a[ids] for a in v))
+    dedicated = sensors.dedicated_features(vehicle_ids, state.wall_contact[ids], state.prev_steer_cmd_rad[ids])
+    return np.hstack([targets[:, :17], curvature, dedicated])
+
+
+def overtaking_observation(
+    track: Track,
+    caster: sensors.WallRayCaster,
+    state: WorldState,
+    ids: np.ndarray,
+    car_length_m: float,
+    car_width_m: float,
+    groups: np.ndarray,
+) -> np.ndarray:
+    """The 96-D ``overtaking`` observation (len(ids), 96) of the cars ``ids``; the lidar sees same-group cars."""
+    v = state.vehicle
+    corners = sensors.car_corners(v.x_m, v.y_m, v.yaw_rad, car_length_m, car_width_m)
+    beams = sensors.lidar(caster, v.x_m[ids], v.y_m[ids], v.yaw_rad[ids], corners, groups, car_index=ids)
+    heading = sensors.wrap_angle(v.yaw_rad[ids] - track.heading_at(state.s_m[ids]))
+    curvature = sensors.curvature_ahead_time(
+        track, state.s_m[ids], _speed(state, ids), sensors.OVERTAKING_CURVATURE_TIMES_S
+    )
+    out = np.empty((len(ids), 96))
+    out[:, 0] = v.vx_mps[ids]
+    out[:, 1] = v.vy_mps[ids]
+    out[:, 2] = 0.0
+    out[:, 3] = v.ax_mps2[ids]
+    out[:, 4] = v.ay_mps2[ids]
+    out[:, 5] = 0.0
+    out[:, 6] = heading
+    out[:, OVERTAKING_LIDAR] = beams
+    out[:, 79] = state.prev_steer_cmd_rad[ids]
+    out[:, 80] = state.wall_contact[ids]
+    out[:, 81] = state.car_contact[ids]
+    out[:, 82:] = curvature
+    return out
+
+
+@dataclass(frozen=True)
+class ObsNormalizer:
+    """``(obs - offset) / scale`` per feature; features that never vary keep scale 1."""
+
+    offset: np.ndarray
+    scale: np.ndarray
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return ((obs - self.offset) / self.scale).astype(np.float32)
+
+    def to_dict(self) -> dict:
+        return {"offset": self.offset.tolist(), "scale": self.scale.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ObsNormalizer:
+        return cls(offset=np.asarray(d["offset"], dtype=np.float64), scale=np.asarray(d["scale"], dtype=np.float64))
+
+    @classmethod
+    def from_samples(cls, kind: str, samples: np.ndarray) -> ObsNormalizer:
+        """z-score statistics of ``samples`` (n, dim); for ``overtaking`` the lidar is min-max over [0, range]."""
+        offset = samples.mean(axis=0)
+        scale = samples.std(axis=0)
+        scale = np.where(scale > 1e-6, scale, 1.0)
+        if kind == "overtaking":
+            offset[OVERTAKING_LIDAR] = 0.0
+            scale[OVERTAKING_LIDAR] = sensors.LIDAR_RANGE_M
+        return cls(offset=offset, scale=scale)
+
+
+def cache_dir() -> Path:
+    """Where lines, profiles and observation statistics are cached: $VISION_RL_CACHE or ~/.cache/vision_rl."""
+    return Path(os.environ.get("VISION_RL_CACHE", Path.home() / ".cache" / "vision_rl"))
+
+
+def stats_key(track: Track, car_name: str, kind: str) -> str:
+    raw = f"{track.geometry_hash}|{car_name}|{kind}|{OBS_VERSION}"
+    return hashlib.sha256(raw.encode()).hexdigest()[:16]
+
+
+def load_or_compute_normalizer(track: Track, car_name: str, kind: str, sample) -> ObsNormalizer:
+    """The cached normaliser of (track, car, kind), or ``sample()`` -> (n, dim) raw observations, cached.
+
+    A corrupt or unreadable cache file is recomputed and rewritten.
+    """
+    path = cache_dir() / "obs_stats" / f"{kind}-{stats_key(track, car_name, kind)}.json"
+    try:
+        normalizer = ObsNormalizer.from_dict(json.loads(path.read_text()))
+        if normalizer.offset.shape == (len(OBS_NAMES[kind]),):
+            return normalizer
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    normalizer = ObsNormalizer.from_samples(kind, sample())
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps({**normalizer.to_dict(), "track": track.name, "car": car_name, "kind": kind}))
+    tmp.replace(path)
+    return normalizer

@@ -1,0 +1,169 @@
+"""Single-agent gymnasium environments: ``vision_rl/TimeTrial-v0`` and ``vision_rl/Overtaking-v0``."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from vision_rl.envs.core import RacingConfig, RacingCore
+from vision_rl.envs.observations import OBS_NAMES
+from vision_rl.sim.sensors import DEDICATED_NAMES
+from vision_rl.sim.vehicle import ACTION_STEER_LIMIT_RAD
+
+
+def action_space() -> spaces.Box:
+    """``[steering angle rad in [-pi/6, pi/6], omega in [-1, 1] (throttle > 0, brake < 0)]`` (ARCHITECTURE)."""
+    limit = np.array([ACTION_STEER_LIMIT_RAD, 1.0], dtype=np.float32)
+    return spaces.Box(-limit, limit, dtype=np.float32)
+
+
+def observation_space(config: RacingConfig) -> spaces.Space:
+    if config.observation == "vision":
+        width, height = config.image_size_px
+        return spaces.Dict(
+            {
+                "image": spaces.Box(0, 255, (height, width, 3), dtype=np.uint8),
+                "features": spaces.Box(-np.inf, np.inf, (len(DEDICATED_NAMES),), dtype=np.float32),
+            }
+        )
+    return spaces.Box(-np.inf, np.inf, (len(OBS_NAMES[config.observation]),), dtype=np.float32)
+
+
+class _RacingEnv(gym.Env):
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    _defaults: dict[str, Any] = {}
+
+    def __init__(self, render_mode: str | None = None, **config: Any) -> None:
+        fields = {f.name for f in dataclasses.fields(RacingConfig)}
+        unknown = set(config) - fields
+        if unknown:
+            raise TypeError(f"unknown argument(s) {sorted(unknown)}; accepted: {sorted(fields)}")
+        self.config = RacingConfig(**{**self._defaults, **config, "n_groups": 1})
+        self.render_mode = render_mode
+        self.action_space = action_space()
+        self.observation_space = observation_space(self.config)
+        self._core: RacingCore | None = None
+
+    @property
+    def core(self) -> RacingCore:
+        if self._core is None:
+            self._core = RacingCore(self.config)
+        return self._core
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if seed is not None or self._core is None:
+            self._core = RacingCore(self.config, seed=seed)
+        self.core.reset_groups(np.array([0]))
+        return self._single(self.core.observation()), {}
+
+    def step(self, action):
+        obs, reward, terminated, truncated, infos = self.core.step(np.asarray(action)[None, :], autoreset=False)
+        return self._single(obs), float(reward[0]), bool(terminated[0]), bool(truncated[0]), infos[0]
+
+    @staticmethod
+    def _single(obs):
+        if isinstance(obs, dict):
+            return {k: v[0] for k, v in obs.items()}
+        return obs[0]
+
+    def render(self):
+        """The driver's view (H, W, 3) uint8 from the offscreen renderer."""
+        core = self.core
+        if core.config.observation != "vision":
+            return core._vision_observation()["image"][0]
+        return core.observation()["image"][0]
+
+    def close(self) -> None:
+        if self._core is not None and self._core.renderer is not None:
+            self._core.renderer.close()
+        self._core = None
+
+
+class TimeTrial(_RacingEnv):
+    """One car alone on a walled track, racing the clock (the GT Sport time trial of both Sony papers).
+
+    ## Action Space
+    ``Box([-pi/6, -1], [pi/6, 1], float32)``: the front-wheel steering angle command in rad (+ left) and omega,
+    throttle (> 0) or brake (< 0) in [-1, 1]. Steering is rate-limited and both commands pass a short actuator lag.
+
+    ## Observation Space
+    ``observation="state"`` (default): ``Box(38,)`` float32, the privileged observation of Fuchs et al.: 13 edge
+    distances at -90..+90 deg (m), minimum distances to the left and right walls (m), signed distance to the centre
+    line (m, + left), heading angle to the centre line (rad), centre-line curvature 1.0-2.8 s ahead at the current
+    speed (10, 1/m), then the 11 dedicated features (body velocity, body acceleration, angular velocity, wall
+    flag, previous steering). Normalised (z-score with statistics sampled once from the disrupted built-in AI and
+    cached) unless ``normalize=False``; names in ``vision_rl.envs.observations.STATE_OBS_NAMES``.
+    ``observation="vision"``: ``Dict(image=Box(280, 470, 3) uint8, features=Box(11,) float32)``, the driver's-view
+    frame from the offscreen renderer and the raw dedicated features.
+
+    ## Rewards
+    ``r = (cp_t - cp_{t-1}) - c_w * wall * |v|^2``: centre-line progress in metres over the step (signed, so
+    reversing is negative, and correct across the start/finish line) minus ``c_w`` (default 0.005) times the
+    squared speed while touching a wall (overtaking paper Eq. 1, vision paper Eq. 3).
+
+    ## Starting State
+    A uniformly random point of the track, on the built-in AI's racing line, heading along the track at the AI's
+    speed there (the papers start each 100 s trial at a new point).
+
+    ## Episode End
+    Truncation after ``episode_s`` (100 s = 1,000 steps at 10 Hz). No termination unless asked for:
+    ``stuck_timeout_s=T`` terminates an episode whose progress over T seconds is below 1 m.
+
+    ## Info
+    ``lap_times_s`` (completed laps of this episode), ``lap_completed``, ``progress_m``, ``wall_contact_s``,
+    ``speed_mps``, ``episode_time_s``.
+
+    ## Arguments
+    Any field of :class:`vision_rl.envs.core.RacingConfig`: ``track`` (built-in name, ``random:SEED``, CSV path),
+    ``car``, ``observation``, ``control_dt_s``, ``episode_s``, ``wall_penalty_c_w``, ``stuck_timeout_s``,
+    ``normalize``, ``image_size_px``. For 20 cars in one world use :func:`vision_rl.envs.make_vector_env`.
+
+    ## Version History
+    - v0: first version.
+    """
+
+    _defaults = {"scenario": "time_trial"}
+
+
+class Overtaking(_RacingEnv):
+    """An ego car behind built-in AI opponents of its own collision group (the overtaking paper).
+
+    ## Action Space
+    As :class:`TimeTrial`.
+
+    ## Observation Space
+    ``Box(96,)`` float32 (overtaking paper, Table I): body velocity (3, m/s), body acceleration (3, m/s^2),
+    heading angle to the centre line (rad), 72 lidar beams over -108..+108 deg with a 20 m range hitting walls and
+    cars (m), previous steering command (rad), wall flag, car flag, centre-line curvature 0.2-3.0 s ahead (14,
+    1/m). Normalised as in the paper: z-score, except the lidar, min-max scaled to [0, 1].
+
+    ## Rewards
+    Eq. 2: the racing reward, minus ``c_c * car * |v|^2`` while touching a car, plus for every opponent within
+    ``c_d`` metres of progress ``c_r * (dcp_i(t-1) - dcp_i(t))``, ``dcp_i = cp_i - cp_ego`` wrapped to half a lap.
+
+    ## Starting State
+    The ego at a random point on the racing line at the AI's speed; opponents ahead of it on the line, spaced by
+    the scenario: ``stage1`` none, ``stage2`` one 200 m ahead, ``setting_a``/``setting_b`` five, 50/200 m apart
+    (the paper's evaluation), driving at skills drawn from ``opponent_skill`` and keeping a gap to cars ahead.
+
+    ## Episode End
+    As :class:`TimeTrial`.
+
+    ## Info
+    As :class:`TimeTrial`, plus the paper's four metrics ``travel_time_s``, ``travel_distance_m``,
+    ``car_contact_s``, ``wall_contact_s`` and ``overtaken``, the number of opponents passed.
+
+    ## Arguments
+    As :class:`TimeTrial`, plus ``scenario`` (default ``setting_a``), ``car_penalty_c_c``, ``overtake_gain_c_r``,
+    ``detection_range_c_d_m`` and ``opponent_skill``. The paper raced the Audi TT Cup: ``car="tt_cup"``.
+
+    ## Version History
+    - v0: first version.
+    """
+
+    _defaults = {"scenario": "setting_a", "observation": "overtaking"}

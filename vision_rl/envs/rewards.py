@@ -1,0 +1,40 @@
+"""The papers' rewards as pure batched functions.
+
+Racing (overtaking paper Eq. 1, vision paper Eq. 3): ``r = (cp_t - cp_{t-1}) - c_w * wall * |v|^2``.
+Overtaking (overtaking paper Eq. 2): racing ``- c_c * car * |v|^2`` plus, for every other car i of the ego's group
+within ``c_d`` metres of track progress, ``c_r * (dcp_i(t-1) - dcp_i(t))`` with ``dcp_i = cp_i - cp_ego`` wrapped to
+half a lap: closing on a car ahead is rewarded, pulling away from one behind is rewarded, falling back is penalised.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def racing_reward(
+    progress_m: np.ndarray, wall_contact: np.ndarray, speed_mps: np.ndarray, wall_penalty_c_w: float
+) -> np.ndarray:
+    """Signed centre-line progress (m) over the step minus the wall penalty ``c_w * |v|^2`` while touching a wall."""
+    return progress_m - wall_penalty_c_w * wall_contact * np.square(speed_mps)
+
+
+def wrapped_gap_m(cp_other_m: np.ndarray, cp_ego_m: np.ndarray, lap_length_m: float) -> np.ndarray:
+    """``cp_i - cp_ego`` in metres of track, wrapped to (-half lap, half lap]: positive when car i is ahead."""
+    half = 0.5 * lap_length_m
+    return half - np.mod(half - (cp_other_m - cp_ego_m), lap_length_m)
+
+
+def overtaking_reward(
+    racing: np.ndarray,
+    car_contact: np.ndarray,
+    speed_mps: np.ndarray,
+    gap_prev_m: np.ndarray,
+    gap_now_m: np.ndarray,
+    car_penalty_c_c: float,
+    overtake_gain_c_r: float,
+    detection_range_c_d_m: float,
+) -> np.ndarray:
+    """Eq. 2. ``gap_prev_m``/``gap_now_m`` (n_egos, k_others) are wrapped gaps to the ego's opponents (NaN = none)."""
+    near = np.abs(gap_now_m) < detection_range_c_d_m
+    closing = np.where(near, overtake_gain_c_r * (gap_prev_m - gap_now_m), 0.0)
+    return racing - car_penalty_c_c * car_contact * np.square(speed_mps) + np.nansum(closing, axis=-1)

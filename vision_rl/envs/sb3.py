@@ -1,0 +1,71 @@
+"""Stable-Baselines3 ``VecEnv`` over the batched racing core (kept apart: importing SB3 imports torch)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+from vision_rl.envs.core import RacingConfig, RacingCore
+from vision_rl.envs.racing_env import action_space, observation_space
+
+
+class RacingSB3VecEnv(VecEnv):
+    """``config.n_groups`` egos as SB3 sub-environments: same-step reset, ``terminal_observation`` and
+    ``TimeLimit.truncated`` in the infos, as SB3's own vectorised environments report them."""
+
+    def __init__(self, config: RacingConfig, seed: int | None = None) -> None:
+        self.config = config
+        self.core = RacingCore(config, seed=seed)
+        self.render_mode = None
+        super().__init__(config.n_groups, observation_space(config), action_space())
+        self._actions: np.ndarray | None = None
+
+    def reset(self):
+        seed = self._seeds[0] if self._seeds and self._seeds[0] is not None else None
+        if seed is not None:
+            self.core.rng = np.random.default_rng(seed)
+        self._reset_seeds()
+        self.core.reset_groups(np.arange(self.num_envs))
+        return self.core.observation()
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self):
+        obs, reward, terminated, truncated, infos = self.core.step(self._actions, autoreset=True)
+        out = []
+        for g, info in enumerate(infos):
+            if "final_info" in info:
+                sb3_info = dict(info["final_info"])
+                sb3_info["terminal_observation"] = info["final_observation"]
+                sb3_info["TimeLimit.truncated"] = bool(truncated[g] and not terminated[g])
+            else:
+                sb3_info = info
+            out.append(sb3_info)
+        return obs, reward, terminated | truncated, out
+
+    def close(self) -> None:
+        if self.core.renderer is not None:
+            self.core.renderer.close()
+
+    # The sub-environments are rows of one world, not separate objects: attribute access goes to the core.
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        owner = self if attr_name == "render_mode" else self.core
+        return [getattr(owner, attr_name)] * len(self._indices(indices))
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        setattr(self.core, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        return [getattr(self.core, method_name)(*method_args, **method_kwargs)] * len(self._indices(indices))
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False] * len(self._indices(indices))
+
+    def _indices(self, indices) -> Sequence[int]:
+        if indices is None:
+            return range(self.num_envs)
+        return [indices] if isinstance(indices, int) else list(indices)
