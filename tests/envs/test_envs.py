@@ -32,7 +32,9 @@ def test_forward_progress_is_positive_and_reversing_negative():
 
 def _circle_csv(path, radius_m=100.0, half_width_m=6.0):
     a = np.linspace(0.0, 2 * np.pi, 300, endpoint=False)
-    rows = np.stack([radius_m * np.cos(a), radius_m * np.sin(a), np.full(300, half_width_m), np.full(300, half_width_m)])
+    rows = np.stack(
+        [radius_m * np.cos(a), radius_m * np.sin(a), np.full(300, half_width_m), np.full(300, half_width_m)]
+    )
     np.savetxt(path, rows.T, delimiter=",", header="x_m,y_m,w_tr_right_m,w_tr_left_m")
     return str(path)
 
@@ -91,7 +93,7 @@ def test_overtaking_reward_and_info_on_setting_a():
     gaps = core._gaps()[0]
     np.testing.assert_allclose(gaps, [50, 100, 150, 200, 250], atol=1.0)
     for _ in range(5):
-        obs, reward, _, _, infos = core.step(np.array([[0.0, 1.0]]), autoreset=False)
+        obs, _reward, _, _, infos = core.step(np.array([[0.0, 1.0]]), autoreset=False)
     info = infos[0]
     assert obs.shape == (1, 96)
     assert {"travel_time_s", "travel_distance_m", "car_contact_s", "wall_contact_s", "overtaken"} <= set(info)
@@ -101,9 +103,9 @@ def test_overtaking_reward_and_info_on_setting_a():
 
 def test_autoreset_gives_a_fresh_observation_and_final_observation():
     env = make_vector_env(RacingConfig(track=TRACK, n_groups=3, episode_s=0.3), seed=1)
-    obs, _ = env.reset()
+    env.reset()
     for _ in range(2):
-        obs, _, terminated, truncated, info = env.step(np.zeros((3, 2), dtype=np.float32))
+        _obs, _, terminated, truncated, info = env.step(np.zeros((3, 2), dtype=np.float32))
         assert not (terminated | truncated).any()
     new_obs, _, terminated, truncated, info = env.step(np.zeros((3, 2), dtype=np.float32))
     assert truncated.all() and not terminated.any()

@@ -44,8 +44,6 @@ def bench_env(track: str = "expressway", car: str = "hatchback", steps: int = 10
     overtaking.reset_groups(np.arange(20))
     return {
         "timetrial_state_car_steps_per_s": _steps_per_s(sb3_step, 20, steps, repeats),
-        "overtaking_ego_steps_per_s": _steps_per_s(
-            lambda a: overtaking.step(a, autoreset=True), 20, steps, repeats
-        ),
+        "overtaking_ego_steps_per_s": _steps_per_s(lambda a: overtaking.step(a, autoreset=True), 20, steps, repeats),
         "targets": TARGETS,
     }

@@ -102,9 +102,7 @@ class RacingCore:
         n_cars = cfg.n_groups * self.group_size
         self.ego_ids = np.arange(cfg.n_groups) * self.group_size
         self.groups = np.repeat(np.arange(cfg.n_groups), self.group_size)
-        self.world = World(
-            self.track, self.car, n_cars, self.groups, WorldConfig(control_dt_s=cfg.control_dt_s)
-        )
+        self.world = World(self.track, self.car, n_cars, self.groups, WorldConfig(control_dt_s=cfg.control_dt_s))
         self.line = optimise_racing_line(self.track, margin_m=0.5 * self.car.width_m + 0.3)  # TEMP until driving lands
         self.profile = profile_for_line(self.car, self.line)
         self.rng = np.random.default_rng(seed)

@@ -33,11 +33,13 @@ STATE_OBS_NAMES: tuple[str, ...] = (
     + sensors.DEDICATED_NAMES
 )
 OVERTAKING_OBS_NAMES: tuple[str, ...] = (
-    sensors.DEDICATED_NAMES[:6]
-    + ("heading_angle_to_centre_line",)
-    + tuple(f"lidar_{np.rad2deg(a):+.1f}deg" for a in sensors.LIDAR_ANGLES_RAD)
-    + ("previous_steering", "wall_contact", "car_contact")
-    + tuple(f"curvature_{t:.1f}s_ahead" for t in sensors.OVERTAKING_CURVATURE_TIMES_S)
+    *sensors.DEDICATED_NAMES[:6],
+    "heading_angle_to_centre_line",
+    *tuple(f"lidar_{np.rad2deg(a):+.1f}deg" for a in sensors.LIDAR_ANGLES_RAD),
+    "previous_steering",
+    "wall_contact",
+    "car_contact",
+    *tuple(f"curvature_{t:.1f}s_ahead" for t in sensors.OVERTAKING_CURVATURE_TIMES_S),
 )
 #: Slice of the lidar beams inside the overtaking vector: min-max scaled, not z-scored.
 OVERTAKING_LIDAR = slice(7, 79)
