@@ -91,26 +91,6 @@ def run_bench_env(cfg: BenchEnvConfig) -> int:
     return 0
 
 
-@dataclass
-class PipelineConfig:
-    """The whole two-phase job (capture, train-repr, train-policy, evaluate, leaderboard)."""
-
-    quick: bool = field(default=False, metadata=doc("small sizes that finish in minutes on a laptop CPU"))
-    track: str = field(default="expressway", metadata=doc("track: built-in name, random:SEED or CSV path"))
-    car: str = field(default="hatchback", metadata=doc("car preset"))
-    json: bool = field(default=False, metadata=doc("print figures as JSON"))
-
-
-def run_pipeline(cfg: PipelineConfig) -> int:
-    from vision_rl.sim.driving import simulator_demo
-
-    # Until capture and Phase 2 land, the main job demonstrates the simulator layer they build on.
-    result = simulator_demo(cfg.track, cfg.car)
-    result["note"] = "capture, train-policy and evaluate are not built yet; this run shows the simulator and its AI"
-    emit(result, cfg.json)
-    return 0
-
-
 # ------------------------------------------------------------------------------------------------------ registry
 
 
@@ -139,8 +119,10 @@ COMMANDS: dict[str, Command] = {
     "bench-latency": Command(
         "Phase 1: encoder latency, batch 1", "vision_rl.phase1_repr.bench", "BenchLatencyConfig", "run_bench_latency"
     ),
-    "pipeline": Command("the whole two-phase job (--quick: small)", __name__, "PipelineConfig", "run_pipeline"),
-    "capture": Command("record frames and targets to HDF5", missing="the capture command (vision_rl/capture)"),
+    "pipeline": Command("the whole job (--quick: small)", "vision_rl.pipeline", "PipelineConfig", "run_pipeline"),
+    "capture": Command(
+        "record frames and targets to HDF5", "vision_rl.capture.sim_capture", "CaptureConfig", "run_capture"
+    ),
     "train-policy": Command("Phase 2: SAC", missing="Phase 2 SAC training (vision_rl/phase2_rl)"),
     "evaluate": Command("Phase 2: evaluate a policy", missing="Phase 2 policy evaluation (vision_rl/phase2_rl)"),
     "leaderboard": Command("Phase 2: lap-time table", missing="Phase 2 policy evaluation (vision_rl/phase2_rl)"),

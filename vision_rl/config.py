@@ -7,9 +7,12 @@ import dataclasses
 from typing import Any
 
 
-def doc(text: str) -> dict[str, str]:
-    """Field metadata carrying the field's help line: ``field(default=..., metadata=doc("..."))``."""
-    return {"help": text}
+def doc(text: str, negative: str = "") -> dict[str, str]:
+    """Field metadata carrying the field's help line: ``field(default=..., metadata=doc("..."))``.
+
+    ``negative`` names an extra switch that sets a bool field to False (``--no-disrupt`` for ``disrupt_ai``).
+    """
+    return {"help": text, "negative": negative}
 
 
 _TYPES = {"int": int, "float": float, "str": str}
@@ -24,6 +27,10 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_cls: type) -> N
         kind = str(f.type).replace(" | None", "")
         if kind == "bool":
             parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=default, help=help_text)
+            if f.metadata.get("negative"):
+                parser.add_argument(
+                    f.metadata["negative"], dest=f.name, action="store_false", help=f"same as --no-{flag[2:]}"
+                )
             continue
         if kind not in _TYPES:
             raise TypeError(f"{config_cls.__name__}.{f.name}: command options must be int, float, str or bool")

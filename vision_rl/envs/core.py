@@ -16,8 +16,7 @@ from vision_rl.envs import observations as obs_lib
 from vision_rl.envs.rewards import overtaking_reward, racing_reward, wrapped_gap_m
 from vision_rl.sim import sensors
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE, AIDriver, Disruptor
-from vision_rl.sim.racing_line import optimise_racing_line
-from vision_rl.sim.speed_profile import profile_for_line
+from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import ACTION_STEER_LIMIT_RAD, get_preset
 from vision_rl.sim.world import World, WorldConfig
@@ -103,8 +102,7 @@ class RacingCore:
         self.ego_ids = np.arange(cfg.n_groups) * self.group_size
         self.groups = np.repeat(np.arange(cfg.n_groups), self.group_size)
         self.world = World(self.track, self.car, n_cars, self.groups, WorldConfig(control_dt_s=cfg.control_dt_s))
-        self.line = optimise_racing_line(self.track, margin_m=0.5 * self.car.width_m + 0.3)  # TEMP until driving lands
-        self.profile = profile_for_line(self.car, self.line)
+        self.line, self.profile = line_and_profile(self.track, self.car)
         self.rng = np.random.default_rng(seed)
         self.skill = np.full(n_cars, cfg.start_skill)
         self.unwrapped_at_reset = np.zeros(n_cars)

@@ -19,11 +19,11 @@ import hashlib
 import json
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from vision_rl.sim import sensors
+from vision_rl.sim.driving import cache_dir
 from vision_rl.sim.track import Track
 from vision_rl.sim.world import WorldState
 
@@ -125,11 +125,6 @@ class ObsNormalizer:
             offset[OVERTAKING_LIDAR] = 0.0
             scale[OVERTAKING_LIDAR] = sensors.LIDAR_RANGE_M
         return cls(offset=offset, scale=scale)
-
-
-def cache_dir() -> Path:
-    """Where lines, profiles and observation statistics are cached: $VISION_RL_CACHE or ~/.cache/vision_rl."""
-    return Path(os.environ.get("VISION_RL_CACHE", Path.home() / ".cache" / "vision_rl"))
 
 
 def stats_key(track: Track, car_name: str, kind: str) -> str:

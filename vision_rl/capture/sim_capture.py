@@ -1,0 +1,256 @@
+"""`capture`: game-screen frames paired with the 27 targets and 11 dedicated features, written to HDF5.
+
+Two frame sources play the part of the vision paper's HDMI grabber (section 4.1):
+
+- ``sim`` (default): N built-in AI cars drive one world together (each its own collision group, so they are
+  ghosts to each other and every frame shows the bare track), disrupted by uniform random offsets held for random
+  durations ("the built-in AI with uniform random disruptions"); every car's driver's view is rendered at the
+  capture rate and the targets are computed at the same instant.
+- ``video:DEVICE_OR_FILE`` with ``--poses POSES.csv``: frames from ``cv2.VideoCapture`` (a V4L2 grabber or a
+  recorded video) paired by timestamp with a telemetry log, the targets computed from the track geometry (see
+  :mod:`vision_rl.capture.video_source`).
+
+``--laps`` counts laps over all cars. A capture stopped by Ctrl-C or a kill keeps the frames flushed so far in a
+valid file marked incomplete; ``--resume`` continues it up to the requested laps (the world restarts from a state
+derived from the seed and the frames already written, lap indices continue per car).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from vision_rl.capture.h5format import CaptureWriter, open_capture
+from vision_rl.config import doc
+from vision_rl.sim import sensors
+from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver, DisruptionParams, Disruptor
+from vision_rl.sim.driving import line_and_profile
+from vision_rl.sim.track import Track
+from vision_rl.sim.track_library import load_track
+from vision_rl.sim.vehicle import get_preset
+from vision_rl.sim.world import World, WorldConfig
+
+
+@dataclass
+class CaptureConfig:
+    """Record frames, the 27 targets and the 11 dedicated features to an HDF5 file (see ARCHITECTURE)."""
+
+    out: str = field(default="", metadata=doc("output .h5 file (required)"))
+    track: str = field(default="expressway", metadata=doc("track: built-in name, random:SEED or CSV path"))
+    car: str = field(default="hatchback", metadata=doc("car preset"))
+    laps: int = field(default=50, metadata=doc("laps to record, summed over all cars"))
+    disrupt_ai: bool = field(
+        default=True,
+        metadata=doc("uniform random disruptions of the AI (off: clean laps for evaluation)", "--no-disrupt"),
+    )
+    cars: int = field(default=4, metadata=doc("AI cars driving (and rendered) together"))
+    fps: float = field(default=60.0, metadata=doc("capture rate, frames per second per car (GT Sport: 60)"))
+    width: int = field(default=470, metadata=doc("frame width, px"))
+    height: int = field(default=280, metadata=doc("frame height, px"))
+    seed: int = field(default=0, metadata=doc("seed of the disruptions and start points"))
+    resume: bool = field(default=False, metadata=doc("continue an incomplete file up to --laps"))
+    force: bool = field(default=False, metadata=doc("overwrite an existing file"))
+    source: str = field(default="sim", metadata=doc("'sim' or 'video:DEVICE_OR_FILE' (an HDMI grabber or a video)"))
+    poses: str = field(default="", metadata=doc("video source: telemetry CSV (time_s, x_m, y_m, yaw_rad, ...)"))
+    frame_delay: int = field(default=0, metadata=doc("video source: frames the video lags the telemetry (paper: 4)"))
+    compression: str = field(default="gzip", metadata=doc("image compression: gzip, lzf or none"))
+    json: bool = field(default=False, metadata=doc("print the summary as JSON"))
+
+
+def physics_step_for(fps: float) -> tuple[float, float]:
+    """(physics_dt_s, control_dt_s) for a capture rate: the largest physics step <= 10 ms dividing 1/fps."""
+    if not 1.0 <= fps <= 200.0:
+        raise ValueError(f"fps must be within 1..200, got {fps}")
+    control_dt = 1.0 / fps
+    return control_dt / math.ceil(control_dt / 0.01 - 1e-9), control_dt
+
+
+def capture_attrs(track: Track, cfg: CaptureConfig, renderer_settings: dict, source: str) -> dict:
+    return {
+        "track_name": track.name,
+        "track_geometry_hash": track.geometry_hash,
+        "car_preset": cfg.car,
+        "renderer_settings": renderer_settings,
+        "seed": cfg.seed,
+        "source": source,
+        "fps": cfg.fps,
+        "disrupted": bool(cfg.disrupt_ai),
+        "requested_laps": cfg.laps,
+    }
+
+
+def open_writer(path: Path, track: Track, cfg: CaptureConfig, renderer_settings: dict, source: str) -> CaptureWriter:
+    return CaptureWriter(
+        path,
+        image_hw=(cfg.height, cfg.width),
+        target_names=sensors.TARGET_NAMES,
+        target_units=sensors.TARGET_UNITS,
+        dedicated_names=sensors.DEDICATED_NAMES,
+        dedicated_units=sensors.DEDICATED_UNITS,
+        attrs=capture_attrs(track, cfg, renderer_settings, source),
+        resume=cfg.resume,
+        force=cfg.force,
+        compression=cfg.compression,
+    )
+
+
+def _done_so_far(path: Path) -> tuple[int, np.ndarray, float]:
+    """Frames, laps started per car (next lap index) and last time of an existing (partial) capture."""
+    with open_capture(path) as f:
+        if f.n_frames == 0:
+            return 0, np.zeros(0, dtype=np.int64), 0.0
+        car_id, lap = f.car_id, f.lap
+        next_lap = np.zeros(int(car_id.max()) + 1, dtype=np.int64)
+        np.maximum.at(next_lap, car_id, lap.astype(np.int64) + 1)
+        return f.n_frames, next_lap, float(f.time_s.max())
+
+
+def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
+    """Drive, render and record until ``cfg.laps`` laps (over all cars) are in the file; returns a summary.
+
+    ``progress(laps_done, frames)`` is called after every written batch (the command's progress bar).
+    """
+    from vision_rl.render import RenderConfig, Renderer
+
+    path = Path(cfg.out)
+    track = load_track(cfg.track)
+    car = get_preset(cfg.car)
+    physics_dt, control_dt = physics_step_for(cfg.fps)
+    n = cfg.cars
+    if n < 1:
+        raise ValueError(f"cars must be >= 1, got {n}")
+    render_cfg = RenderConfig(width_px=cfg.width, height_px=cfg.height, max_views=n)
+    renderer_settings = {**asdict(render_cfg), "camera": asdict(render_cfg.camera)}
+    writer = open_writer(path, track, cfg, renderer_settings, "sim")
+    frames_before, lap_offset, t_before = (0, np.zeros(0, dtype=np.int64), 0.0)
+    if cfg.resume and writer.n_frames:
+        writer.close()
+        frames_before, lap_offset, t_before = _done_so_far(path)
+        writer = open_writer(path, track, cfg, renderer_settings, "sim")
+    # Lap bookkeeping per car: the lap index of its frames (never reused: a lap cut by an interruption or a
+    # stuck-reset is not continued) and the number of whole laps recorded.
+    lap_index_base = np.pad(lap_offset, (0, max(0, n - len(lap_offset))))[:n]
+    lap_count_base = np.maximum(lap_index_base - 1, 0)
+    laps_before = int(lap_count_base.sum())
+
+    # A resumed run restarts the world from a state derived from the seed and the frames already kept.
+    rng = np.random.default_rng([cfg.seed, frames_before])
+    world = World(track, car, n_cars=n, config=WorldConfig(physics_dt_s=physics_dt, control_dt_s=control_dt))
+    line, profile = line_and_profile(track, car)
+    disruption = DisruptionParams()
+    skill = disruption.skill if cfg.disrupt_ai else DEFAULT_SKILL
+    ai = AIDriver(car, line, profile, n, skill=skill, groups=world.model.groups)
+    disruptor = Disruptor(n, disruption, seed=int(rng.integers(2**31))) if cfg.disrupt_ai else None
+    s0 = np.mod(rng.uniform(0, track.length_m) + np.arange(n) * track.length_m / n, track.length_m)
+
+    def place(ids: np.ndarray, s: np.ndarray, speed_share: float) -> None:
+        speed = speed_share * skill * profile.speed_at(line.line_s_at(s))
+        world.reset(s_m=s, lateral_m=line.lateral_at(s), speed_mps=speed, car_ids=ids)
+
+    place(np.arange(n), s0, 1.0)
+    start_u = world.state.unwrapped_s_m.copy()
+    caster = sensors.WallRayCaster(track)
+    # Stuck detection: progress over a sliding window (the disrupted AI may end up facing a wall).
+    window = max(1, round(disruption.stuck_after_s / control_dt))
+    u_window = np.tile(world.state.unwrapped_s_m, (window, 1))
+    resets = 0
+    frames = 0
+    laps_done = laps_before
+    t0 = time.perf_counter()
+    interrupted = False
+    try:
+        with Renderer(track, render_cfg, car_length_m=car.length_m, car_width_m=car.width_m) as renderer:
+            step = 0
+            while True:
+                st = world.state
+                v = st.vehicle
+                completed = np.floor((st.unwrapped_s_m - start_u) / track.length_m).astype(np.int64)
+                laps_done = int((lap_count_base + completed).sum())
+                if laps_done >= cfg.laps:
+                    break
+                images = renderer.render(v.x_m, v.y_m, v.yaw_rad, groups=world.model.groups)
+                targets = sensors.environment_targets(track, caster, v.x_m, v.y_m, v.yaw_rad, st.s_m, st.lateral_m)
+                dedicated = sensors.dedicated_features(v, st.wall_contact, st.prev_steer_cmd_rad)
+                writer.append(
+                    images=images,
+                    targets=targets.astype(np.float32),
+                    dedicated=dedicated.astype(np.float32),
+                    pose=np.stack([v.x_m, v.y_m, v.yaw_rad], axis=1),
+                    time_s=np.full(n, t_before + step * control_dt),
+                    lap=(lap_index_base + completed).astype(np.int32),
+                    car_id=np.arange(n, dtype=np.int32),
+                )
+                frames += n
+                if progress is not None:
+                    progress(laps_done - laps_before, frames)
+                steer, omega = ai.act(st)
+                if disruptor is not None:
+                    steer, omega = disruptor(steer, omega, control_dt)
+                world.step(steer, omega)
+                step += 1
+                u_window[step % window] = world.state.unwrapped_s_m
+                if step >= window:
+                    stuck = np.flatnonzero(
+                        world.state.unwrapped_s_m - u_window[(step + 1) % window] < disruption.stuck_progress_m
+                    )
+                    if len(stuck):
+                        # Put a stuck car back on the racing line a little ahead, at half the AI's speed; it
+                        # starts a new lap index so that a lap never mixes two placements.
+                        done_now = np.floor((world.state.unwrapped_s_m[stuck] - start_u[stuck]) / track.length_m)
+                        lap_count_base[stuck] += done_now.astype(np.int64)
+                        lap_index_base[stuck] += done_now.astype(np.int64) + 1
+                        place(stuck, world.state.s_m[stuck] + 5.0, 0.5)
+                        start_u[stuck] = world.state.unwrapped_s_m[stuck]
+                        u_window[:, stuck] = start_u[stuck]
+                        resets += len(stuck)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        complete = not interrupted and laps_done >= cfg.laps
+        writer.close(complete=complete)
+    elapsed = time.perf_counter() - t0
+    return {
+        "out": str(path),
+        "frames_written": frames,
+        "frames_in_file": frames_before + frames,
+        "laps_in_file": laps_done,
+        "complete": complete,
+        "interrupted": interrupted,
+        "stuck_resets": resets,
+        "capture_fps": frames / elapsed if elapsed > 0 else 0.0,
+        "bytes_per_frame": path.stat().st_size / max(frames_before + frames, 1),
+        "elapsed_s": elapsed,
+    }
+
+
+def run_capture(cfg: CaptureConfig) -> int:
+    """The `capture` command: a progress bar in laps (with frames/s) and a summary."""
+    from tqdm import tqdm
+
+    from vision_rl.cli import emit
+
+    if not cfg.out:
+        raise ValueError("--out PATH.h5 is required")
+    if cfg.source.startswith("video:"):
+        from vision_rl.capture.video_source import capture_video
+
+        emit(capture_video(cfg), cfg.json)
+        return 0
+    if cfg.source != "sim":
+        raise ValueError(f"--source must be 'sim' or 'video:DEVICE_OR_FILE', got {cfg.source!r}")
+    with tqdm(total=cfg.laps, unit="lap", desc="capture", disable=None) as bar:
+
+        def progress(laps: int, frames: int) -> None:
+            bar.n = laps
+            bar.set_postfix(frames=frames, refresh=False)
+            bar.update(0)
+
+        result = capture_sim(cfg, progress)
+    if result["interrupted"]:
+        result["note"] = f"interrupted: {result['frames_in_file']} frames kept; run again with --resume to continue"
+    emit(result, cfg.json)
+    return 130 if result["interrupted"] else 0
