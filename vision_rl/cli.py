@@ -91,6 +91,34 @@ def run_bench_env(cfg: BenchEnvConfig) -> int:
     return 0
 
 
+@dataclass
+class BenchRenderConfig:
+    """Measure the renderer (one view, 20 tiled views) and capture end to end (physics, targets, render, write)."""
+
+    track: str = field(default="expressway", metadata=doc("track: built-in name, random:SEED or CSV path"))
+    repeats: int = field(default=5, metadata=doc("timed repeats; medians are reported"))
+    capture_frames: int = field(default=2000, metadata=doc("frames of the end-to-end capture measurement (4 cars)"))
+    json: bool = field(default=False, metadata=doc("print figures as JSON"))
+
+
+def run_bench_render(cfg: BenchRenderConfig) -> int:
+    import tempfile
+
+    from vision_rl.capture.sim_capture import CaptureConfig, capture_sim
+    from vision_rl.render.bench import bench_render
+
+    result = bench_render(n_views=20, repeats=cfg.repeats, track=cfg.track)
+    with tempfile.TemporaryDirectory() as tmp:
+        cap = capture_sim(CaptureConfig(out=f"{tmp}/bench.h5", track=cfg.track, cars=4, max_frames=cfg.capture_frames))
+    result.update(capture_fps=cap["capture_fps"], bytes_per_frame=cap["bytes_per_frame"])
+    result["targets"] = {
+        "render_fps_470x280": ">= 300", "render_fps_batch20": ">= 400", "capture_fps": ">= 150",
+        "bytes_per_frame": "<= 50,000 (15 GB for 300,000 frames)",
+    }  # fmt: skip
+    emit(result, cfg.json)
+    return 0
+
+
 # ------------------------------------------------------------------------------------------------------ registry
 
 
@@ -112,6 +140,7 @@ COMMANDS: dict[str, Command] = {
     "drive": Command("drive the built-in AI: lap times, a plot", "vision_rl.sim.driving", "DriveConfig", "run_drive"),
     "bench sim": Command("simulator throughput", __name__, "BenchSimConfig", "run_bench_sim"),
     "bench env": Command("environment throughput", __name__, "BenchEnvConfig", "run_bench_env"),
+    "bench render": Command("renderer and capture throughput", __name__, "BenchRenderConfig", "run_bench_render"),
     "train-repr": Command(
         "Phase 1: train the frame encoder on capture files", "vision_rl.phase1_repr.train", "TrainReprConfig",
         "run_train_repr",

@@ -58,6 +58,7 @@ class CaptureConfig:
     poses: str = field(default="", metadata=doc("video source: telemetry CSV (time_s, x_m, y_m, yaw_rad, ...)"))
     frame_delay: int = field(default=0, metadata=doc("video source: frames the video lags the telemetry (paper: 4)"))
     compression: str = field(default="gzip", metadata=doc("image compression: gzip, lzf or none"))
+    max_frames: int = field(default=0, metadata=doc("stop after this many new frames (0: when --laps are in)"))
     json: bool = field(default=False, metadata=doc("print the summary as JSON"))
 
 
@@ -170,7 +171,7 @@ def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
                 v = st.vehicle
                 completed = np.floor((st.unwrapped_s_m - start_u) / track.length_m).astype(np.int64)
                 laps_done = int((lap_count_base + completed).sum())
-                if laps_done >= cfg.laps:
+                if laps_done >= cfg.laps or 0 < cfg.max_frames <= frames:
                     break
                 images = renderer.render(v.x_m, v.y_m, v.yaw_rad, groups=world.model.groups)
                 targets = sensors.environment_targets(track, caster, v.x_m, v.y_m, v.yaw_rad, st.s_m, st.lateral_m)
