@@ -126,12 +126,10 @@ def run_bench_render(cfg: BenchRenderConfig) -> int:
 class Command:
     help: str
     """One line for `vision-rl --help`."""
-    module: str = ""
-    """Module holding the config class and the run function; empty: the command is not built yet."""
-    config: str = ""
-    run: str = ""
-    missing: str = ""
-    """For a command not built yet: the part it needs."""
+    module: str
+    """Module holding the config class and the run function, imported only when the command runs."""
+    config: str
+    run: str
 
 
 COMMANDS: dict[str, Command] = {
@@ -152,21 +150,23 @@ COMMANDS: dict[str, Command] = {
     "capture": Command(
         "record frames and targets to HDF5", "vision_rl.capture.sim_capture", "CaptureConfig", "run_capture"
     ),
-    "train-policy": Command("Phase 2: SAC", missing="Phase 2 SAC training (vision_rl/phase2_rl)"),
-    "evaluate": Command("Phase 2: evaluate a policy", missing="Phase 2 policy evaluation (vision_rl/phase2_rl)"),
-    "leaderboard": Command("Phase 2: lap-time table", missing="Phase 2 policy evaluation (vision_rl/phase2_rl)"),
+    "train-policy": Command(
+        "Phase 2: SAC on the state or the frozen embedding", "vision_rl.phase2_rl.train", "TrainPolicyConfig",
+        "run_train_policy",
+    ),
+    "evaluate": Command(
+        "Phase 2: the papers' lap protocol", "vision_rl.phase2_rl.evaluate", "EvaluateConfig", "run_evaluate"
+    ),
+    "leaderboard": Command(
+        "Phase 2: AI, limit and policies (Table 1)", "vision_rl.phase2_rl.leaderboard", "LeaderboardConfig",
+        "run_leaderboard",
+    ),
 }  # fmt: skip
 
 
 def _run_command(name: str, argv: Sequence[str]) -> int:
     command = COMMANDS[name]
     prog = f"vision-rl {name}"
-    if not command.module:
-        if any(a in ("-h", "--help") for a in argv):
-            print(f"usage: {prog}\n\n{command.help}: not built yet, it needs {command.missing}.")
-            return 0
-        print(f"{prog}: not built yet: it needs {command.missing}.", file=sys.stderr)
-        return 2
     module = importlib.import_module(command.module)
     config_cls = getattr(module, command.config)
     parser = argparse.ArgumentParser(prog=prog, description=config_cls.__doc__)
@@ -188,9 +188,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if len(argv) >= words and name in COMMANDS:
             return _run_command(name, argv[words:])
     width = max(len(n) for n in COMMANDS)
-    listing = "\n".join(
-        f"  {n:<{width}}  {c.help}{'' if c.module else ' (not built yet)'}" for n, c in COMMANDS.items()
-    )
+    listing = "\n".join(f"  {n:<{width}}  {c.help}" for n, c in COMMANDS.items())
     usage = f"usage: vision-rl COMMAND [options]\n\n{__doc__.splitlines()[0]}\n\ncommands:\n{listing}\n"
     if not argv or argv[0] in ("-h", "--help"):
         print(usage)

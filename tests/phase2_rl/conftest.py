@@ -1,0 +1,98 @@
+"""Shared fixtures of the Phase-2 tests: a private cache, a small track, tiny encoders and a tiny trained policy."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vision_rl.sim.sensors import TARGET_NAMES, TARGET_UNITS
+
+#: A stadium of 150 m straights and 60 m-radius bends, 6 m from the centre line to each wall: a 677 m lap, about 26 s
+#: at the limit (the built-in AI completes laps here; on tighter stadiums it hit walls when this was written).
+STADIUM = (150.0, 60.0, 6.0)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _private_cache(tmp_path_factory):
+    # Session-wide (not monkeypatch): the session-scoped trained policy below needs it too.
+    old = os.environ.get("VISION_RL_CACHE")
+    os.environ["VISION_RL_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    yield
+    if old is None:
+        os.environ.pop("VISION_RL_CACHE", None)
+    else:
+        os.environ["VISION_RL_CACHE"] = old
+
+
+def stadium_csv(path: Path, straight_m: float, radius_m: float, half_width_m: float, step_m: float = 2.0) -> Path:
+    """Counter-clockwise stadium in the racetrack-database CSV format; s = 0 at the origin, on the bottom straight."""
+    n_straight = int(straight_m / step_m)
+    n_arc = int(np.pi * radius_m / step_m)
+    bottom = np.stack([np.arange(n_straight) * step_m, np.zeros(n_straight)], axis=1)
+    a = -np.pi / 2 + np.arange(n_arc) * np.pi / n_arc
+    right = np.stack([straight_m + radius_m * np.cos(a), radius_m + radius_m * np.sin(a)], axis=1)
+    top = np.stack([straight_m - np.arange(n_straight) * step_m, np.full(n_straight, 2 * radius_m)], axis=1)
+    left = np.stack([radius_m * np.cos(a + np.pi), radius_m + radius_m * np.sin(a + np.pi)], axis=1)
+    xy = np.vstack([bottom, right, top, left])
+    rows = np.column_stack([xy, np.full(len(xy), half_width_m), np.full(len(xy), half_width_m)])
+    np.savetxt(path, rows, delimiter=",", header="x_m,y_m,w_tr_right_m,w_tr_left_m")
+    return path
+
+
+@pytest.fixture(scope="session")
+def small_track(tmp_path_factory) -> str:
+    return str(stadium_csv(tmp_path_factory.mktemp("track") / "stadium.csv", *STADIUM))
+
+
+def write_tiny_encoder(path: Path, seed: int) -> Path:
+    """A small untrained encoder checkpoint (96 x 64 frames, 64-D embedding); the seed sets its weights."""
+    import torch
+
+    from vision_rl.phase1_repr import EncoderConfig, ReprNet, save_checkpoint
+
+    torch.manual_seed(seed)
+    cfg = EncoderConfig(input_height_px=64, input_width_px=96, stem_channels=8, stage_channels=(16, 32),
+                        stage_blocks=(1, 1), stage_strides=(2, 2))  # fmt: skip
+    net = ReprNet(cfg).eval()
+    return save_checkpoint(path, net, target_names=TARGET_NAMES, target_units=TARGET_UNITS,
+                           target_mean=np.zeros(27), target_std=np.ones(27))  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def tiny_encoders(tmp_path_factory) -> tuple[Path, Path]:
+    """Two encoder checkpoints of one architecture with different weights (so different SHA-256)."""
+    root = tmp_path_factory.mktemp("encoders")
+    return write_tiny_encoder(root / "a" / "ckpt.pt", 0), write_tiny_encoder(root / "b" / "ckpt.pt", 1)
+
+
+def tiny_train_config(track: str, out: Path, **kw):
+    from vision_rl.phase2_rl.train import TrainPolicyConfig
+
+    base = dict(track=track, cars=2, steps=200, out=str(out), learning_starts=50, batch_size=32, buffer_size=5_000,
+                eval_every_steps=100, eval_laps=1, checkpoint_every_steps=100, progress=False,
+                device="cpu")  # fmt: skip
+    return TrainPolicyConfig(**{**base, **kw})
+
+
+@pytest.fixture(scope="session")
+def state_run(tmp_path_factory, small_track) -> tuple[Path, dict]:
+    """A state policy trained for 200 steps (2 cars) on the small track: (run folder, train_policy result)."""
+    from vision_rl.phase2_rl.train import train_policy
+
+    out = tmp_path_factory.mktemp("runs") / "policy" / "tiny-state"
+    return out, train_policy(tiny_train_config(small_track, out))
+
+
+def renderer_available() -> str:
+    """Empty if an EGL context can be made here, else the reason."""
+    try:
+        from vision_rl.render import create_context
+
+        ctx = create_context()
+        ctx.release()
+        return ""
+    except Exception as exc:  # no EGL library, no driver, no moderngl
+        return f"vision_rl.render cannot make an EGL context here: {exc}"

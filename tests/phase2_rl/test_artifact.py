@@ -1,0 +1,96 @@
+"""The policy sidecar: round trips, path resolution, and the encoder-hash check."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from vision_rl.envs import RacingConfig
+from vision_rl.phase1_repr import checkpoint_sha256
+from vision_rl.phase2_rl.artifact import (
+    PolicyError,
+    PolicySpec,
+    check_encoder,
+    racing_config_from_dict,
+    racing_config_to_dict,
+    resolve_policy_paths,
+)
+
+
+def _vision_spec(encoder_path, sha) -> PolicySpec:
+    cfg = RacingConfig(track="technical", observation="vision", n_groups=3, image_size_px=(96, 64))
+    return PolicySpec(
+        observation="vision", racing_config=racing_config_to_dict(cfg),
+        obs_normalizer={"offset": [0.0] * 75, "scale": [1.0] * 75},
+        encoder={"path": str(encoder_path), "sha256": sha, "rep_dim": 64, "input_hw_px": [64, 96]},
+    )  # fmt: skip
+
+
+def test_racing_config_round_trips_through_json():
+    cfg = RacingConfig(track="flowing", car="gt3", n_groups=7, image_size_px=(96, 64), stuck_timeout_s=5.0)
+    back = racing_config_from_dict(json.loads(json.dumps(racing_config_to_dict(cfg))))
+    assert back == cfg
+    assert back.image_size_px == (96, 64) and isinstance(back.opponent_skill, tuple)
+    with pytest.raises(PolicyError, match="unknown fields"):
+        racing_config_from_dict({**racing_config_to_dict(cfg), "warp_drive": True})
+
+
+def test_spec_round_trip_and_bad_sidecars(tmp_path, tiny_encoders):
+    spec = _vision_spec(tiny_encoders[0], "ab" * 32)
+    path = spec.write(tmp_path / "policy.json")
+    assert PolicySpec.read(path) == spec
+    assert PolicySpec.read(path).config.image_size_px == (96, 64)
+    (tmp_path / "other.json").write_text(json.dumps({"format": "something.else"}))
+    with pytest.raises(PolicyError, match="not a vision_rl policy"):
+        PolicySpec.read(tmp_path / "other.json")
+    (tmp_path / "broken.json").write_text("{not json")
+    with pytest.raises(PolicyError, match="not valid JSON"):
+        PolicySpec.read(tmp_path / "broken.json")
+    with pytest.raises(PolicyError, match="must record its encoder"):
+        PolicySpec(observation="vision", racing_config={}, obs_normalizer={})
+
+
+def test_encoder_hash_mismatch_is_refused(tmp_path, tiny_encoders):
+    enc_a, enc_b = tiny_encoders
+    sha_a = checkpoint_sha256(enc_a)
+    assert sha_a != checkpoint_sha256(enc_b)
+    spec = _vision_spec(enc_a, sha_a)
+    assert check_encoder(spec, enc_a) == enc_a
+    assert check_encoder(spec) == enc_a  # no --encoder: the recorded checkpoint, checked again
+    with pytest.raises(PolicyError, match="trained with encoder sha256"):
+        check_encoder(spec, enc_b)
+    # The recorded file was replaced by other weights: refused even without --encoder.
+    moved = tmp_path / "ckpt.pt"
+    shutil.copyfile(enc_b, moved)
+    with pytest.raises(PolicyError, match="trained with encoder sha256"):
+        check_encoder(_vision_spec(moved, sha_a))
+    with pytest.raises(PolicyError, match="--encoder"):
+        check_encoder(_vision_spec(tmp_path / "gone.pt", sha_a))
+    state = PolicySpec(observation="state", racing_config=racing_config_to_dict(RacingConfig()),
+                       obs_normalizer={"offset": [0.0] * 38, "scale": [1.0] * 38})  # fmt: skip
+    with pytest.raises(PolicyError, match="takes no encoder"):
+        check_encoder(state, enc_a)
+
+
+def test_policy_paths_resolve_from_folder_zip_and_checkpoint(tmp_path):
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    for name in ("policy.zip", "checkpoints/policy_100.zip"):
+        (run / name).write_bytes(b"zip")
+    spec = PolicySpec(observation="state", racing_config=racing_config_to_dict(RacingConfig()),
+                      obs_normalizer={"offset": [0.0] * 38, "scale": [1.0] * 38})  # fmt: skip
+    with pytest.raises(PolicyError, match=r"no policy\.json sidecar"):
+        resolve_policy_paths(run)
+    spec.write(run / "policy.json")
+    assert resolve_policy_paths(run) == (run / "policy.zip", run / "policy.json")
+    assert resolve_policy_paths(run / "policy.zip") == (run / "policy.zip", run / "policy.json")
+    assert resolve_policy_paths(run / "checkpoints" / "policy_100.zip") == (
+        run / "checkpoints" / "policy_100.zip", run / "policy.json"
+    )  # fmt: skip
+    with pytest.raises(PolicyError, match="no such policy"):
+        resolve_policy_paths(tmp_path / "nothing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(PolicyError, match="no policy here"):
+        resolve_policy_paths(tmp_path / "empty")

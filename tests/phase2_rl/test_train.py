@@ -1,0 +1,127 @@
+"""train-policy at tiny sizes: the artifact, resume, Ctrl-C, refusal of an existing run, the presets."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from tests.phase2_rl.conftest import tiny_train_config
+from vision_rl.envs import RacingConfig
+from vision_rl.envs.observations import STATE_OBS_NAMES
+from vision_rl.phase2_rl.artifact import PolicySpec, load_policy
+from vision_rl.phase2_rl.evaluate import evaluate_policy
+from vision_rl.phase2_rl.train import (
+    PRESETS,
+    TrainPolicyConfig,
+    _TrainingLoop,
+    read_metrics,
+    resolve_preset,
+    train_policy,
+)
+
+
+def test_train_writes_a_policy_that_evaluate_loads(state_run, small_track):
+    out, result = state_run
+    assert result["num_timesteps"] == 200 and not result["interrupted"]
+    assert result["n_updates"] == (200 - 50) // 2  # one update per vector step of 2 cars after 50 random steps
+    spec = PolicySpec.read(out / "policy.json")
+    assert spec.observation == "state" and spec.num_timesteps == 200 and spec.encoder is None
+    assert spec.config == RacingConfig(track=small_track, n_groups=2)
+    assert len(spec.obs_normalizer["offset"]) == len(STATE_OBS_NAMES) == 38
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["policy_100.zip", "policy_200.zip"]
+    assert (out / "replay_buffer.pkl").is_file() and any((out / "tensorboard").iterdir())
+    metrics = read_metrics(out / "metrics.jsonl")
+    assert [m["num_timesteps"] for m in metrics] == [100, 200]
+    assert all(m["distance_m"] != 0.0 for m in metrics)
+
+    policy = load_policy(out)
+    assert policy.model.num_timesteps == 200
+    np.testing.assert_allclose(policy.observer.normalizer.scale, spec.obs_normalizer["scale"])
+    ev = evaluate_policy(out, laps=2, seeds=2, time_limit_s=20.0)
+    assert ev["observation"] == "state" and ev["n_seeds"] == 2 and ev["protocol"]["scored_lap"] == 2
+    assert ev["protocol"]["start"] == "rolling"
+    stored = json.loads((out / "evaluation.json").read_text())
+    assert stored["best_lap_time_s"] == ev["best_lap_time_s"] and stored["name"] == "tiny-state"
+
+
+def test_resume_continues_the_step_count(state_run, tmp_path):
+    src, first = state_run
+    out = tmp_path / "resumed"
+    shutil.copytree(src, out)
+    result = train_policy(tiny_train_config("ignored-on-resume", out, steps=300, resume=True))
+    assert result["resumed_from_steps"] == 200 and result["num_timesteps"] == 300
+    assert result["n_updates"] == first["n_updates"] + 100 // 2  # the buffer came back: no new random phase
+    spec = PolicySpec.read(out / "policy.json")
+    assert spec.num_timesteps == 300 and spec.train_time_s > PolicySpec.read(src / "policy.json").train_time_s
+    assert spec.train_config["track"] == spec.config.track != "ignored-on-resume"  # the run's own options win
+    assert [m["num_timesteps"] for m in read_metrics(out / "metrics.jsonl")] == [100, 200, 300]
+    again = train_policy(tiny_train_config("x", out, steps=300, resume=True))  # nothing left to do
+    assert again["num_timesteps"] == 300
+
+
+def test_ctrl_c_saves_and_resume_finishes(small_track, tmp_path, monkeypatch):
+    original = _TrainingLoop._on_step
+
+    def interrupt(self):
+        if self.num_timesteps >= 120:
+            raise KeyboardInterrupt
+        return original(self)
+
+    monkeypatch.setattr(_TrainingLoop, "_on_step", interrupt)
+    out = tmp_path / "run"
+    result = train_policy(tiny_train_config(small_track, out, eval_every_steps=0))
+    assert result["interrupted"] and result["num_timesteps"] == 120
+    assert PolicySpec.read(out / "policy.json").num_timesteps == 120
+    assert load_policy(out).model.num_timesteps == 120
+    monkeypatch.setattr(_TrainingLoop, "_on_step", original)
+    assert train_policy(tiny_train_config(small_track, out, resume=True))["num_timesteps"] == 200
+
+
+def test_existing_run_and_missing_run_are_refused(state_run, tmp_path):
+    out, _ = state_run
+    with pytest.raises(FileExistsError, match="--resume"):
+        train_policy(tiny_train_config("technical", out))
+    with pytest.raises(FileNotFoundError, match="nothing to resume"):
+        train_policy(tiny_train_config("technical", tmp_path / "empty", resume=True))
+    with pytest.raises(ValueError, match="preset"):
+        train_policy(tiny_train_config("technical", out, preset="gpu", force=True))
+    with pytest.raises(FileNotFoundError, match="encoder checkpoint"):
+        train_policy(tiny_train_config("technical", out, encoder=str(tmp_path / "no.pt"), force=True))
+    assert (out / "policy.zip").is_file()  # a bad option with --force left the run alone
+
+
+def test_presets_and_overrides():
+    paper = PRESETS["paper"]
+    assert (paper.hidden_units, paper.batch_size, paper.buffer_size, paper.learning_starts) == ((256, 256), 4096,
+                                                                                                1_000_000, 40_000)
+    assert (paper.learning_rate, paper.gamma) == (1e-3, 0.99)
+    cpu = resolve_preset(TrainPolicyConfig(preset="cpu"))
+    assert cpu == PRESETS["cpu"] and cpu.torch_threads == 1
+    custom = resolve_preset(TrainPolicyConfig(preset="paper", batch_size=64, learning_starts=0, learning_rate=3e-4))
+    assert (custom.batch_size, custom.learning_starts, custom.learning_rate, custom.buffer_size) == (64, 0, 3e-4,
+                                                                                                  1_000_000)
+
+
+def test_sigterm_saves_like_ctrl_c(small_track, tmp_path, monkeypatch, capsys):
+    import os
+    import signal
+
+    from vision_rl.phase2_rl.train import run_train_policy
+
+    original = _TrainingLoop._on_step
+
+    def terminate(self):
+        if self.num_timesteps >= 100:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return original(self)
+
+    monkeypatch.setattr(_TrainingLoop, "_on_step", terminate)
+    handler = signal.getsignal(signal.SIGTERM)
+    out = tmp_path / "run"
+    assert run_train_policy(tiny_train_config(small_track, out, eval_every_steps=0)) == 130
+    assert "interrupted: saved" in capsys.readouterr().out
+    assert 100 <= PolicySpec.read(out / "policy.json").num_timesteps < 200
+    assert signal.getsignal(signal.SIGTERM) == handler  # the command's handler is gone again

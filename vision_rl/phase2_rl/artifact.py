@@ -1,0 +1,276 @@
+"""The policy artifact: an SB3 zip plus ``policy.json`` (ARCHITECTURE, "Files that cross a phase boundary").
+
+``policy.json`` holds what evaluation needs to rebuild the policy's inputs exactly as in training:
+
+- ``format`` ("vision_rl.policy"), ``format_version`` (1), ``package_version``;
+- ``observation``: ``"state"`` (the 38-D privileged vector) or ``"vision"`` (64-D embedding + 11 dedicated features);
+- ``racing_config``: the :class:`~vision_rl.envs.RacingConfig` trained on, as a dict;
+- ``obs_normalizer``: ``{"offset", "scale"}`` of the policy's input (state: the environment's cached statistics;
+  vision: z-score statistics of the 75-D vector, computed once from a short disrupted-AI rollout);
+- ``encoder``: for vision, ``{"path", "sha256", "rep_dim", "input_hw_px"}`` of the frozen encoder checkpoint;
+- ``model``: the zip's file name; ``preset``, ``sac`` (hyper-parameters), ``seed``, ``num_timesteps``,
+  ``train_time_s`` and ``train_config`` (the command's options) for the record.
+
+A policy refuses an encoder whose checkpoint hash differs from the one it was trained with.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vision_rl.envs.core import RacingConfig, RacingCore
+from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
+from vision_rl.sim.sensors import DEDICATED_NAMES
+
+POLICY_FORMAT = "vision_rl.policy"
+POLICY_FORMAT_VERSION = 1
+SIDECAR_NAME = "policy.json"
+MODEL_NAME = "policy.zip"
+POLICY_KINDS = ("state", "vision")
+
+
+class PolicyError(ValueError):
+    """A policy that cannot be used as asked (missing files, another encoder, a bad sidecar); the message says why."""
+
+
+def racing_config_to_dict(config: RacingConfig) -> dict[str, Any]:
+    """A JSON-ready dict of ``config`` (tuples become lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(config)))
+
+
+def racing_config_from_dict(data: Mapping[str, Any]) -> RacingConfig:
+    """The inverse of :func:`racing_config_to_dict`; unknown keys (a newer writer) are refused."""
+    fields = {f.name: f for f in dataclasses.fields(RacingConfig)}
+    unknown = set(data) - set(fields)
+    if unknown:
+        raise PolicyError(f"racing_config has unknown fields {sorted(unknown)}")
+    kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+    return RacingConfig(**kwargs)
+
+
+def obs_dim(kind: str, rep_dim: int = 64) -> int:
+    """Length of a policy's input vector: 38 (state) or rep_dim + 11 (vision)."""
+    if kind == "state":
+        return len(OBS_NAMES["state"])
+    if kind == "vision":
+        return rep_dim + len(DEDICATED_NAMES)
+    raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {kind!r}")
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """The contents of ``policy.json``."""
+
+    observation: str
+    racing_config: dict[str, Any]
+    obs_normalizer: dict[str, list[float]]
+    encoder: dict[str, Any] | None = None
+    model: str = MODEL_NAME
+    preset: str = ""
+    sac: dict[str, Any] = dataclasses.field(default_factory=dict)
+    seed: int = 0
+    num_timesteps: int = 0
+    """Environment steps (transitions over all cars) the weights were trained on."""
+    train_time_s: float = 0.0
+    """Wall-clock training time over all sessions of the run, s."""
+    train_config: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.observation not in POLICY_KINDS:
+            raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {self.observation!r}")
+        if self.observation == "vision" and not self.encoder:
+            raise PolicyError("a vision policy must record its encoder checkpoint")
+
+    @property
+    def config(self) -> RacingConfig:
+        return racing_config_from_dict(self.racing_config)
+
+    @property
+    def normalizer(self) -> ObsNormalizer:
+        return ObsNormalizer.from_dict(self.obs_normalizer)
+
+    @property
+    def encoder_sha256(self) -> str | None:
+        return self.encoder["sha256"] if self.encoder else None
+
+    def to_dict(self) -> dict[str, Any]:
+        from vision_rl.capture.h5format import package_version
+
+        return {
+            "format": POLICY_FORMAT,
+            "format_version": POLICY_FORMAT_VERSION,
+            "package_version": package_version(),
+            **dataclasses.asdict(self),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], source: str = "policy.json") -> PolicySpec:
+        if data.get("format") != POLICY_FORMAT:
+            raise PolicyError(f"{source}: not a vision_rl policy sidecar (no format {POLICY_FORMAT!r})")
+        if int(data.get("format_version", 0)) > POLICY_FORMAT_VERSION:
+            raise PolicyError(f"{source}: policy format {data['format_version']} is newer than this code's")
+        names = {f.name for f in dataclasses.fields(cls)}
+        try:
+            return cls(**{k: v for k, v in data.items() if k in names})
+        except TypeError as exc:
+            raise PolicyError(f"{source}: bad policy sidecar: {exc}") from exc
+
+    def write(self, path: str | os.PathLike[str]) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(self.to_dict(), indent=2))
+        os.replace(tmp, path)  # a reader never sees half a sidecar
+        return path
+
+    @classmethod
+    def read(cls, path: str | os.PathLike[str]) -> PolicySpec:
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except OSError as exc:
+            raise PolicyError(f"{path}: cannot read the policy sidecar: {exc}") from exc
+        except ValueError as exc:
+            raise PolicyError(f"{path}: the policy sidecar is not valid JSON: {exc}") from exc
+        return cls.from_dict(data, str(path))
+
+
+def resolve_policy_paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
+    """(zip, sidecar) of a policy given as a run folder, its ``policy.zip``, or a checkpoint zip inside the run
+    (``checkpoints/policy_<steps>.zip``, whose sidecar is the run's)."""
+    path = Path(path)
+    if not path.exists() and not path.with_suffix(".zip").exists():
+        raise PolicyError(f"{path}: no such policy (give a train-policy run folder or its policy.zip)")
+    if path.is_dir():
+        spec_path = path / SIDECAR_NAME
+        zip_path = path / MODEL_NAME
+        if spec_path.is_file():
+            zip_path = path / PolicySpec.read(spec_path).model
+    else:
+        zip_path = path if path.suffix == ".zip" else path.with_suffix(".zip")
+        candidates = [zip_path.parent / SIDECAR_NAME, zip_path.parent.parent / SIDECAR_NAME]
+        spec_path = next((c for c in candidates if c.is_file()), candidates[0])
+    if not zip_path.is_file():
+        raise PolicyError(f"{path}: no policy here (missing {zip_path})")
+    if not spec_path.is_file():
+        raise PolicyError(f"{path}: the policy has no {SIDECAR_NAME} sidecar beside it")
+    return zip_path, spec_path
+
+
+def check_encoder(spec: PolicySpec, encoder: str | os.PathLike[str] = "", source: str = "policy") -> Path:
+    """The encoder checkpoint a vision policy should use, refusing one whose SHA-256 is not the recorded one.
+
+    ``encoder`` empty: the recorded path (which must still hold the same bytes)."""
+    from vision_rl.phase1_repr.checkpoint import checkpoint_sha256
+
+    if spec.observation != "vision":
+        raise PolicyError(f"{source} observes {spec.observation!r}, not frames: it takes no encoder")
+    assert spec.encoder is not None
+    recorded = spec.encoder["sha256"]
+    path = Path(encoder) if encoder else Path(spec.encoder["path"])
+    if not path.is_file():
+        hint = "" if encoder else "; pass the encoder it was trained with (--encoder)"
+        raise PolicyError(f"{source}: encoder checkpoint {path} not found{hint}")
+    actual = checkpoint_sha256(path)
+    if actual != recorded:
+        raise PolicyError(
+            f"{source} was trained with encoder sha256 {recorded[:12]}... ({spec.encoder['path']}), but {path} "
+            f"has sha256 {actual[:12]}...: a policy only works with the frozen encoder it was trained on"
+        )
+    return path
+
+
+class Observer:
+    """A racing core's egos -> the policy's input vectors (n_groups, obs_dim) float32.
+
+    ``state``: the 38-D vector with the stored normaliser (the core itself may run with ``normalize=False``).
+    ``vision``: the frozen encoder's embedding of each ego's frame, then the 11 raw dedicated features, z-scored
+    with the stored statistics (or raw while they are being computed: ``normalizer=None``).
+    """
+
+    def __init__(self, kind: str, normalizer: ObsNormalizer | None, encoder=None) -> None:
+        if kind not in POLICY_KINDS:
+            raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {kind!r}")
+        if kind == "vision" and encoder is None:
+            raise PolicyError("the vision observation needs an encoder")
+        self.kind = kind
+        self.normalizer = normalizer
+        self.encoder = encoder
+
+    @property
+    def dim(self) -> int:
+        return obs_dim(self.kind, self.encoder.rep_dim if self.encoder is not None else 64)
+
+    def vision_vector(self, images: np.ndarray, features: np.ndarray) -> np.ndarray:
+        """(n, rep_dim + 11) from frames (n, H, W, 3) uint8 and raw dedicated features (n, 11)."""
+        embedding = self.encoder(images).cpu().numpy().astype(np.float64)
+        raw = np.hstack([embedding, np.asarray(features, dtype=np.float64)])
+        return self.normalizer(raw) if self.normalizer is not None else raw.astype(np.float32)
+
+    def __call__(self, core: RacingCore) -> np.ndarray:
+        if self.kind == "state":
+            raw = core.raw_observation()
+            return self.normalizer(raw) if self.normalizer is not None else raw.astype(np.float32)
+        obs = core.observation()
+        return self.vision_vector(obs["image"], obs["features"])
+
+
+@dataclass
+class LoadedPolicy:
+    """A trained policy ready to drive: the SB3 model, its sidecar and its observer."""
+
+    model: Any
+    spec: PolicySpec
+    observer: Observer
+    zip_path: Path
+    spec_path: Path
+    encoder_path: Path | None = None
+
+    @property
+    def config(self) -> RacingConfig:
+        return self.spec.config
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Deterministic actions (n, 2) ``[steer rad, omega]`` for observations (n, obs_dim)."""
+        action, _ = self.model.predict(obs, deterministic=True)
+        return np.asarray(action, dtype=np.float64).reshape(len(obs), 2)
+
+
+def load_policy(
+    path: str | os.PathLike[str], encoder: str | os.PathLike[str] = "", device: str = "cpu"
+) -> LoadedPolicy:
+    """Load a policy (run folder or zip) with the observer that feeds it; for vision, the frozen encoder too.
+
+    ``encoder``: optional checkpoint path for a vision policy; refused when its hash is not the recorded one.
+    """
+    from stable_baselines3 import SAC
+
+    zip_path, spec_path = resolve_policy_paths(path)
+    spec = PolicySpec.read(spec_path)
+    encoder_path = None
+    module = None
+    if spec.observation == "vision":
+        encoder_path = check_encoder(spec, encoder, source=f"policy {zip_path}")
+        from vision_rl.phase1_repr.checkpoint import load_encoder
+
+        module = load_encoder(encoder_path, device=device)
+    elif encoder:
+        check_encoder(spec, encoder, source=f"policy {zip_path}")  # raises: a state policy takes no encoder
+    try:
+        model = SAC.load(zip_path, device=device)
+    except Exception as exc:  # SB3 raises several types for a corrupt or foreign zip
+        raise PolicyError(f"{zip_path}: not a loadable SB3 SAC policy: {exc}") from exc
+    observer = Observer(spec.observation, spec.normalizer, module)
+    want = (observer.dim,)
+    if tuple(model.observation_space.shape) != want:
+        raise PolicyError(f"{zip_path}: the model takes inputs of shape {model.observation_space.shape}, "
+                          f"its sidecar describes {want}")  # fmt: skip
+    return LoadedPolicy(model, spec, observer, zip_path, spec_path, encoder_path)

@@ -1,0 +1,479 @@
+"""`train-policy`: SAC (Stable-Baselines3) on the batched racing env, from the 38-D privileged state or, with
+``--encoder``, from the frozen 64-D frame embedding plus the 11 dedicated features (vision paper, section 3
+"Phase 2" and section 4).
+
+A run folder holds ``policy.zip`` + ``policy.json`` (the artifact), ``replay_buffer.pkl``, snapshots in
+``checkpoints/``, ``metrics.jsonl`` (one line per periodic evaluation: the protocol's lap time of the current
+policy against environment steps and training time) and TensorBoard logs in ``tensorboard/``. ``--resume`` continues
+the step count with the stored weights, optimiser state and replay buffer; Ctrl-C saves all of it and exits cleanly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3 import SAC
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.vec_env import VecMonitor
+
+from vision_rl.config import doc
+from vision_rl.envs.core import RacingConfig
+from vision_rl.envs.vector import make_sb3_vec_env
+from vision_rl.phase2_rl.artifact import (
+    MODEL_NAME,
+    SIDECAR_NAME,
+    Observer,
+    PolicyError,
+    PolicySpec,
+    check_encoder,
+    racing_config_to_dict,
+)
+from vision_rl.phase2_rl.evaluate import ProtocolRun, format_lap_time, protocol_core, run_protocol
+
+BUFFER_NAME = "replay_buffer.pkl"
+METRICS_NAME = "metrics.jsonl"
+
+
+@dataclass(frozen=True)
+class SACPreset:
+    """SAC hyper-parameters. Steps count transitions over all cars (SB3's ``num_timesteps``)."""
+
+    hidden_units: tuple[int, ...]
+    """Widths of the hidden layers of actor and critics (ReLU)."""
+    batch_size: int
+    """Transitions per gradient update."""
+    buffer_size: int
+    """Replay buffer capacity, transitions."""
+    learning_starts: int
+    """Transitions collected with random actions before the first update."""
+    learning_rate: float
+    """Adam step size of actor, critics and entropy coefficient."""
+    gamma: float
+    """Discount per 0.1 s control step."""
+    tau: float
+    """Polyak factor of the target critics."""
+    train_freq_steps: int
+    """Vector-env steps (n_cars transitions each) between training phases."""
+    gradient_steps: int
+    """Gradient updates per training phase."""
+    torch_threads: int
+    """torch intra-op threads (0: leave torch's default)."""
+
+
+PRESETS: dict[str, SACPreset] = {
+    # The vision paper, section 4, and Fuchs et al.: MLP 2 x 256 (ReLU), batch 4,096, buffer 1e6, 40k random
+    # start steps, lr 1e-3, gamma 0.99. One update per vector step of 20 cars is our choice (the papers update
+    # after each "epoch" of 20 trials on the console).
+    "paper": SACPreset((256, 256), 4096, 1_000_000, 40_000, 1e-3, 0.99, 0.005, 1, 1, 0),
+    # Chosen by measurement on the shared 2-core CPU: SB3 SAC 2 x 256 on one thread did 63 updates/s at batch 256,
+    # 42 at 512 and 24 at 1,024 (ARCHITECTURE: about 6 at 4,096), and a vector step of 20 state cars costs about
+    # 1.2 ms, so one update per vector step spends ~90 % of the time on updates and still collects ~1,100
+    # transitions/s. With lr 1e-3 (the paper's) the agent drove two whole laps of the expressway after 200k steps
+    # (3 min); with 3e-4 after 300k; both then stayed at 2:16-2:21 over 20-40 min (Phase-2 report). One torch
+    # thread leaves the other core to the simulator and to neighbours.
+    "cpu": SACPreset((256, 256), 256, 1_000_000, 10_000, 1e-3, 0.99, 0.005, 1, 1, 1),
+}
+
+
+@dataclass
+class TrainPolicyConfig:
+    """Train a SAC driving policy on the batched time-trial env (state, or vision with --encoder)."""
+
+    encoder: str = field(default="", metadata=doc("encoder ckpt.pt: vision observation (64-D embedding + 11); "
+                                                  "empty: the 38-D state observation"))  # fmt: skip
+    track: str = field(default="expressway", metadata=doc("track: built-in name, random:SEED or CSV path"))
+    car: str = field(default="hatchback", metadata=doc("car preset"))
+    cars: int = field(default=20, metadata=doc("cars sampled at once (one world, the papers' 20)"))
+    steps: int = field(default=1_000_000, metadata=doc("total environment steps (transitions over all cars)"))
+    preset: str = field(default="cpu", metadata=doc("paper (the paper's SAC recipe) or cpu (learns on 2 cores)"))
+    out: str = field(default="", metadata=doc("run folder (default runs/policy/<kind>-<track>-<car>-s<seed>)"))
+    seed: int = field(default=0, metadata=doc("seed of the networks, exploration and start points"))
+    resume: bool = field(default=False, metadata=doc("continue the run in --out up to --steps (its own track, car, "
+                                                     "cars, encoder and SAC settings; weights, buffer)"))
+    force: bool = field(default=False, metadata=doc("start over in an --out that holds a run"))
+    eval_every_steps: int = field(default=100_000, metadata=doc("evaluate the current policy every N steps (0: off)"))
+    eval_seeds: int = field(default=1, metadata=doc("start seeds of the periodic evaluation"))
+    eval_laps: int = field(default=2, metadata=doc("laps of the periodic evaluation (the last is scored)"))
+    checkpoint_every_steps: int = field(default=200_000, metadata=doc("save weights and buffer every N steps"))
+    save_buffer: bool = field(default=True, metadata=doc("save the replay buffer with checkpoints (for --resume)"))
+    episode_s: float = field(default=100.0, metadata=doc("training episode length, s (the papers' 100 s trials)"))
+    wall_penalty_c_w: float = field(default=0.005, metadata=doc("c_w of the reward's wall penalty"))
+    stats_steps: int = field(default=50, metadata=doc("vision: control steps of the feature-statistics rollout"))
+    learning_rate: float = field(default=0.0, metadata=doc("override the preset's learning rate (0: preset)"))
+    batch_size: int = field(default=0, metadata=doc("override the preset's batch size (0: preset)"))
+    buffer_size: int = field(default=0, metadata=doc("override the preset's buffer size (0: preset)"))
+    learning_starts: int = field(default=-1, metadata=doc("override the preset's random start steps (-1: preset)"))
+    gradient_steps: int = field(default=0, metadata=doc("override the preset's updates per vector step (0: preset)"))
+    device: str = field(default="auto", metadata=doc("torch device: auto, cpu or cuda"))
+    progress: bool = field(default=True, metadata=doc("show a progress bar on stderr"))
+    json: bool = field(default=False, metadata=doc("print the result as JSON"))
+
+
+def resolve_preset(cfg: TrainPolicyConfig) -> SACPreset:
+    if cfg.preset not in PRESETS:
+        raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
+    preset = PRESETS[cfg.preset]
+    overrides = {
+        "learning_rate": cfg.learning_rate if cfg.learning_rate > 0 else None,
+        "batch_size": cfg.batch_size if cfg.batch_size > 0 else None,
+        "buffer_size": cfg.buffer_size if cfg.buffer_size > 0 else None,
+        "learning_starts": cfg.learning_starts if cfg.learning_starts >= 0 else None,
+        "gradient_steps": cfg.gradient_steps if cfg.gradient_steps > 0 else None,
+    }
+    return dataclasses.replace(preset, **{k: v for k, v in overrides.items() if v is not None})
+
+
+def default_out(cfg: TrainPolicyConfig) -> Path:
+    kind = "vision" if cfg.encoder else "state"
+    track = cfg.track.replace("random:", "random-")
+    if track.endswith(".csv") or os.sep in track:
+        track = Path(track).stem
+    return Path("runs") / "policy" / f"{kind}-{track}-{cfg.car}-s{cfg.seed}"
+
+
+def _device(name: str) -> str:
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return name
+
+
+def _atomic_zip_save(model: SAC, path: Path) -> None:
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.zip")
+    model.save(tmp)
+    os.replace(tmp, path)
+
+
+class _TrainingLoop(BaseCallback):
+    """Progress bar, periodic evaluation (TensorBoard + metrics.jsonl) and checkpoints, on environment steps."""
+
+    def __init__(self, run: _Run) -> None:
+        super().__init__()
+        self.run = run
+        self.bar = None
+        cfg = run.cfg
+        self.next_eval = _next_multiple(run.start_steps, cfg.eval_every_steps)
+        self.next_checkpoint = _next_multiple(run.start_steps, cfg.checkpoint_every_steps)
+
+    def _on_training_start(self) -> None:
+        if self.run.cfg.progress:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=self.run.cfg.steps, initial=self.num_timesteps, unit="step", file=sys.stderr,
+                            dynamic_ncols=True, desc=f"train-policy {self.run.kind}")  # fmt: skip
+
+    def _on_step(self) -> bool:
+        n = self.num_timesteps
+        if self.bar is not None:
+            self.bar.update(n - self.bar.n)
+        if self.next_eval is not None and n >= self.next_eval:
+            record = self.run.evaluate(self.model)
+            self.next_eval = _next_multiple(n, self.run.cfg.eval_every_steps)
+            if self.bar is not None:
+                self.bar.set_postfix(lap=format_lap_time(record["lap_time_s"]), refresh=False)
+        if self.next_checkpoint is not None and n >= self.next_checkpoint:
+            self.run.save(self.model, snapshot=True)
+            self.next_checkpoint = _next_multiple(n, self.run.cfg.checkpoint_every_steps)
+        return True
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
+def _next_multiple(n: int, every: int) -> int | None:
+    return None if every <= 0 else (n // every + 1) * every
+
+
+class _Run:
+    """One training session of a run folder: environments, model, artifact and bookkeeping."""
+
+    def __init__(self, cfg: TrainPolicyConfig) -> None:
+        self.cfg = cfg
+        self.out = Path(cfg.out) if cfg.out else default_out(cfg)
+        self.device = _device(cfg.device)
+        self.previous: PolicySpec | None = None
+        if cfg.cars < 1 or cfg.steps < 1:
+            raise ValueError("cars and steps must be >= 1")
+        if cfg.resume:
+            if not (self.out / MODEL_NAME).is_file() or not (self.out / SIDECAR_NAME).is_file():
+                raise FileNotFoundError(f"{self.out}: nothing to resume (no {MODEL_NAME} and {SIDECAR_NAME})")
+            self.previous = PolicySpec.read(self.out / SIDECAR_NAME)
+        self.preset = resolve_preset(cfg) if self.previous is None else _preset_from_spec(self.previous)
+        if self.previous is None and cfg.encoder and not Path(cfg.encoder).is_file():
+            raise FileNotFoundError(f"{cfg.encoder}: no such encoder checkpoint")
+        # Checked only now, so that a bad option never deletes the run it would have replaced.
+        if self.previous is None and ((self.out / SIDECAR_NAME).exists() or (self.out / MODEL_NAME).exists()):
+            if not cfg.force:
+                raise FileExistsError(f"{self.out} holds a run: pass --resume to continue it or --force to start over")
+            shutil.rmtree(self.out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.encoder_path: Path | None = None
+        self.encoder = None
+        if self.previous is not None:
+            self.kind = self.previous.observation
+            self.racing = self.previous.config
+            if self.kind == "vision":
+                self.encoder_path = check_encoder(self.previous, cfg.encoder, source=f"the run in {self.out}")
+            elif cfg.encoder:
+                raise PolicyError(f"the run in {self.out} observes state; it cannot resume with an --encoder")
+            self.start_steps = self.previous.num_timesteps
+            self.train_time_before_s = self.previous.train_time_s
+        else:
+            self.kind = "vision" if cfg.encoder else "state"
+            image_size = RacingConfig().image_size_px
+            if cfg.encoder:
+                from vision_rl.phase1_repr.checkpoint import read_checkpoint
+
+                self.encoder_path = Path(cfg.encoder)
+                enc = read_checkpoint(self.encoder_path)["encoder_config"]
+                image_size = (int(enc["input_width_px"]), int(enc["input_height_px"]))
+            self.racing = RacingConfig(
+                track=cfg.track, car=cfg.car, observation=self.kind, n_groups=cfg.cars, episode_s=cfg.episode_s,
+                wall_penalty_c_w=cfg.wall_penalty_c_w, image_size_px=image_size,
+            )  # fmt: skip
+            self.start_steps = 0
+            self.train_time_before_s = 0.0
+        if self.preset.torch_threads > 0:
+            torch.set_num_threads(self.preset.torch_threads)
+        self.session_start = time.perf_counter()
+        self.last_eval: dict[str, Any] | None = None
+
+    # ------------------------------------------------------------------ set-up
+    def build(self) -> SAC:
+        from vision_rl.phase1_repr.checkpoint import checkpoint_sha256, load_encoder
+
+        # A resumed session draws new start points: reusing the first session's would replay its episodes.
+        venv = make_sb3_vec_env(self.racing, seed=self.cfg.seed + self.start_steps)
+        self.venv = venv
+        if self.kind == "vision":
+            assert self.encoder_path is not None
+            self.encoder = load_encoder(self.encoder_path, device=self.device)
+            self.encoder_sha256 = checkpoint_sha256(self.encoder_path)
+            if self.previous is not None:
+                normalizer = self.previous.normalizer
+            else:
+                from vision_rl.phase2_rl.vision_env import sample_vision_statistics
+
+                normalizer = sample_vision_statistics(venv.core, self.encoder, self.cfg.stats_steps)
+            from vision_rl.phase2_rl.vision_env import EmbeddingVecEnv
+
+            self.observer = Observer("vision", normalizer, self.encoder)
+            env = EmbeddingVecEnv(venv, self.observer)
+        else:
+            normalizer = self.previous.normalizer if self.previous is not None else venv.core.normalizer
+            venv.core.normalizer = normalizer  # evaluation uses the same numbers as training
+            self.observer = Observer("state", normalizer)
+            env = venv
+        self.normalizer = normalizer
+        env = VecMonitor(env)
+        self.env = env
+        if self.previous is not None:
+            model = SAC.load(self.out / MODEL_NAME, env=env, device=self.device)
+            if (self.out / BUFFER_NAME).is_file():
+                model.load_replay_buffer(self.out / BUFFER_NAME)
+        else:
+            p = self.preset
+            model = SAC(
+                "MlpPolicy", env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
+                learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
+                train_freq=(p.train_freq_steps, "step"), gradient_steps=p.gradient_steps,
+                policy_kwargs={"net_arch": list(p.hidden_units)}, seed=self.cfg.seed, device=self.device, verbose=0,
+            )  # fmt: skip
+        model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
+        self.eval_core = None
+        return model
+
+    # ------------------------------------------------------------------ periodic work
+    @property
+    def train_time_s(self) -> float:
+        return self.train_time_before_s + time.perf_counter() - self.session_start
+
+    def evaluate(self, model: SAC) -> dict[str, Any]:
+        """The protocol (cfg.eval_laps laps, last scored) with the current deterministic policy, logged."""
+        cfg = self.cfg
+        t0 = time.perf_counter()
+        if self.eval_core is None:
+            self.eval_core = protocol_core(self.racing, cfg.eval_seeds)
+
+        def act(core):
+            a, _ = model.predict(self.observer(core), deterministic=True)
+            return a[:, 0], a[:, 1]
+
+        run: ProtocolRun = run_protocol(self.eval_core, act, cfg.eval_laps, list(range(cfg.eval_seeds)),
+                                        record=False)  # fmt: skip
+        summary = run.summary()
+        eval_time = time.perf_counter() - t0
+        self.session_start += eval_time  # evaluation time is not training time
+        episodes = list(model.ep_info_buffer or [])
+        record = {
+            "num_timesteps": int(model.num_timesteps),
+            "train_time_s": round(self.train_time_s, 2),
+            "n_updates": int(getattr(model, "_n_updates", 0)),
+            "lap_time_s": summary["best_lap_time_s"],
+            "lap_times_s": [s["lap_times_s"] for s in summary["seeds"]],
+            "finished": summary["n_finished"],
+            "distance_m": float(np.mean([s["distance_m"] for s in summary["seeds"]])),
+            "wall_contact_s": summary["wall_contact_s"],
+            "wall_contact_total_s": float(np.mean([s["wall_contact_total_s"] for s in summary["seeds"]])),
+            "ep_rew_mean": float(np.mean([e["r"] for e in episodes])) if episodes else None,
+            "eval_time_s": round(eval_time, 2),
+        }
+        with open(self.out / METRICS_NAME, "a") as f:
+            f.write(json.dumps(record) + "\n")
+        logger = model.logger
+        logger.record("eval/distance_m", record["distance_m"])
+        logger.record("eval/laps_finished", record["finished"])
+        logger.record("eval/wall_contact_total_s", record["wall_contact_total_s"])
+        if record["lap_time_s"] is not None:
+            logger.record("eval/lap_time_s", record["lap_time_s"])
+        logger.record("time/train_time_s", record["train_time_s"])
+        logger.dump(step=model.num_timesteps)
+        self.last_eval = record
+        return record
+
+    def spec(self, model: SAC) -> PolicySpec:
+        encoder = None
+        if self.kind == "vision":
+            assert self.encoder_path is not None and self.encoder is not None
+            encoder = {
+                "path": str(self.encoder_path.resolve()),
+                "sha256": self.encoder_sha256,
+                "rep_dim": int(self.encoder.rep_dim),
+                "input_hw_px": list(self.encoder.input_hw_px),
+            }
+        sac = dataclasses.asdict(self.preset)
+        return PolicySpec(
+            observation=self.kind,
+            racing_config=racing_config_to_dict(self.racing),
+            obs_normalizer=self.normalizer.to_dict(),
+            encoder=encoder,
+            model=MODEL_NAME,
+            preset=self.previous.preset if self.previous is not None else self.cfg.preset,
+            sac=json.loads(json.dumps(sac)),
+            seed=self.previous.seed if self.previous is not None else self.cfg.seed,
+            num_timesteps=int(model.num_timesteps),
+            train_time_s=round(self.train_time_s, 2),
+            # A resumed run keeps the options it was started with (its track, car and cars win over the new ones).
+            train_config=self.previous.train_config if self.previous is not None else dataclasses.asdict(self.cfg),
+        )
+
+    def save(self, model: SAC, snapshot: bool = False) -> None:
+        """Weights (policy.zip), sidecar, replay buffer; with ``snapshot`` also checkpoints/policy_<steps>.zip."""
+        _atomic_zip_save(model, self.out / MODEL_NAME)
+        self.spec(model).write(self.out / SIDECAR_NAME)
+        if self.cfg.save_buffer and model.replay_buffer is not None:
+            tmp = self.out / f".{BUFFER_NAME}.{os.getpid()}.tmp"
+            model.save_replay_buffer(tmp)
+            os.replace(tmp, self.out / BUFFER_NAME)
+        if snapshot:
+            (self.out / "checkpoints").mkdir(exist_ok=True)
+            shutil.copyfile(self.out / MODEL_NAME, self.out / "checkpoints" / f"policy_{model.num_timesteps}.zip")
+
+    def close(self) -> None:
+        self.env.close()
+        if self.eval_core is not None and self.eval_core.renderer is not None:
+            self.eval_core.renderer.close()
+
+
+def _preset_from_spec(spec: PolicySpec) -> SACPreset:
+    sac = dict(spec.sac)
+    sac["hidden_units"] = tuple(sac["hidden_units"])
+    return SACPreset(**sac)
+
+
+def train_policy(cfg: TrainPolicyConfig) -> dict[str, Any]:
+    """Train (or resume) as configured; returns where things went and the last evaluation. Prints nothing itself
+    (the progress bar goes to stderr when ``cfg.progress``)."""
+    run = _Run(cfg)
+    model = run.build()
+    loop = _TrainingLoop(run)
+    remaining = cfg.steps - run.start_steps
+    interrupted = False
+    try:
+        if remaining > 0:
+            model.learn(total_timesteps=remaining, callback=loop, reset_num_timesteps=False, log_interval=4)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        loop.close()
+    run.save(model, snapshot=not interrupted and remaining > 0)
+    run.close()
+    return {
+        "out": str(run.out),
+        "policy": str(run.out / MODEL_NAME),
+        "observation": run.kind,
+        "num_timesteps": int(model.num_timesteps),
+        "n_updates": int(getattr(model, "_n_updates", 0)),
+        "train_time_s": round(run.train_time_s, 2),
+        "interrupted": interrupted,
+        "resumed_from_steps": run.start_steps if cfg.resume else None,
+        "last_eval": run.last_eval,
+        "metrics_jsonl": str(run.out / METRICS_NAME),
+        "tensorboard": str(run.out / "tensorboard"),
+    }
+
+
+def format_train_policy(result: dict[str, Any]) -> list[str]:
+    lines = [
+        f"policy: {result['policy']} ({result['observation']}), {result['num_timesteps']} steps, "
+        f"{result['n_updates']} updates, {result['train_time_s']:.0f} s of training"
+        + (" (interrupted: saved, continue with --resume)" if result["interrupted"] else ""),
+        f"metrics: {result['metrics_jsonl']}   TensorBoard: {result['tensorboard']}",
+    ]
+    last = result.get("last_eval")
+    if last:
+        lines.append(f"last evaluation at {last['num_timesteps']} steps: lap {format_lap_time(last['lap_time_s'])}, "
+                     f"{last['distance_m']:.0f} m driven")  # fmt: skip
+    return lines
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def run_train_policy(cfg: TrainPolicyConfig) -> int:
+    """The `train-policy` command. SIGTERM (a scheduler's stop, ``kill``) saves and exits like Ctrl-C: a job started
+    in the background of a non-interactive shell ignores SIGINT. Exit code 130 after an interruption."""
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        result = train_policy(cfg)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    print(json.dumps(result, indent=2) if cfg.json else "\n".join(format_train_policy(result)))
+    return 130 if result["interrupted"] else 0
+
+
+def read_metrics(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
+    """The records of a run's metrics.jsonl (a torn last line, from a kill mid-write, is skipped)."""
+    records = []
+    for line in Path(path).read_text().splitlines():
+        try:
+            records.append(json.loads(line))
+        except ValueError:
+            continue
+    return records
+
+
+__all__ = [
+    "PRESETS",
+    "SACPreset",
+    "TrainPolicyConfig",
+    "format_train_policy",
+    "read_metrics",
+    "resolve_preset",
+    "run_train_policy",
+    "train_policy",
+]
