@@ -2,14 +2,18 @@
 
 How a batch is drawn. Every view owns a tile of one tall framebuffer. The static track mesh is drawn with a single
 multi-draw-indirect call: each command is a run of chunks visible from one view, and its ``baseInstance`` selects
-the view, whose view-projection matrix the vertex shader reads from a uniform block and whose tile it maps the clip
-position into (with four clip distances so that no triangle leaks into a neighbouring tile). Other cars are one
-instanced draw over the visible (view, car) pairs, the sky one instanced quad per tile drawn behind everything.
-Then one ``glReadPixels`` brings all tiles back; tiles are stacked so that the rows come back already in
-(view, row, column) order. The y axis is flipped in the shader so no copy is needed to turn the image upright.
+the view, whose camera the vertex shader reads from a uniform block and whose tile it maps the clip position into
+(with four clip distances so that no triangle leaks into a neighbouring tile). Other cars are one instanced draw
+over the visible (view, car) pairs. Last comes the background, one instanced pair of quads per tile at the far
+plane: a sky gradient above the horizon and, below it, an infinite textured ground plane intersected per pixel, so
+only pixels nothing else covered are shaded. Then one ``glReadPixels`` brings all tiles back; tiles are stacked so
+that the rows come back already in (view, row, column) order, and the y axis is flipped in the shader so no copy
+is needed to turn the image upright.
 
-Frames are a pure function of (track, config, poses, groups, colours): the mesh and textures are built
-deterministically and the GL state is the same for every call.
+Frames are a pure function of (track, config, poses, groups, colours, tile): the mesh and textures are built
+deterministically and the GL state is the same for every call. The same view rendered into another tile (another
+position in a batch) may differ in a few edge pixels, because float rounding of the tile offset can move a polygon
+edge by a sub-pixel. A Renderer owns its GL context: use it from one thread.
 """
 
 from __future__ import annotations
@@ -125,7 +129,7 @@ class RenderConfig:
     """Frame width; 470x280 is the vision paper's network input."""
     height_px: int = 280
     samples: int = 0
-    """MSAA samples per pixel (0 = off, 2, 4, 8); llvmpipe pays about linearly for them."""
+    """MSAA samples per pixel (0 = off, 2, 4, 8); 4 samples cost llvmpipe about 2.5x the CPU time per frame."""
     camera: CameraConfig = field(default_factory=CameraConfig)
     max_views: int = 20
     """Views per pass (tiles in one framebuffer); more views in one call run in several passes."""
@@ -229,8 +233,8 @@ vec4 to_tile(vec4 clip, int tile) {
 _FOG_GLSL = """
 uniform vec3 u_fog_color;
 uniform float u_fog_inv_m;   // 1 / haze distance (m): 63 % of the colour is haze at that distance
-vec3 fogged(vec3 c, float distance_m) {
-    return mix(c, u_fog_color, 1.0 - exp(-distance_m * u_fog_inv_m));
+float haze(float distance_m) {
+    return 1.0 - exp(-distance_m * u_fog_inv_m);
 }
 """
 
@@ -243,14 +247,15 @@ in float in_label;
 in float in_view;
 out vec2 v_uv;
 flat out float v_layer;
-out vec4 v_tint_depth;
+out vec4 v_tint_haze;
 flat out float v_label;
 void main() {
     int view = int(in_view);
     vec4 clip = u_views[view].view_proj * vec4(in_pos, 1.0);
     v_uv = in_uv;
     v_layer = in_layer;
-    v_tint_depth = vec4(in_tint, clip.w);
+    // Haze per vertex: it varies slowly over the <= 10 m between vertices and saves an exp per pixel.
+    v_tint_haze = vec4(in_tint, haze(clip.w));
     v_label = in_label;
     gl_Position = to_tile(clip, view);
 }
@@ -260,15 +265,15 @@ _STATIC_FS = """
 uniform sampler2DArray u_tex;
 in vec2 v_uv;
 flat in float v_layer;
-in vec4 v_tint_depth;
+in vec4 v_tint_haze;
 flat in float v_label;
 out vec4 f_color;
 void main() {
 #ifdef LABELS
     f_color = vec4(v_label / 255.0, 0.0, 0.0, 1.0);
 #else
-    vec3 c = texture(u_tex, vec3(v_uv, v_layer)).rgb * v_tint_depth.rgb;
-    f_color = vec4(fogged(c, v_tint_depth.w), 1.0);
+    vec3 c = texture(u_tex, vec3(v_uv, v_layer)).rgb * v_tint_haze.rgb;
+    f_color = vec4(mix(c, u_fog_color, v_tint_haze.w), 1.0);
 #endif
 }
 """
@@ -281,7 +286,7 @@ in float in_part;
 in float in_view;
 in vec3 in_pose;   // x (m), y (m), yaw (rad) in the scene frame
 in vec3 in_color;
-out vec4 v_color_depth;
+out vec4 v_color_haze;
 flat out float v_label;
 void main() {
     float c = cos(in_pose.z), s = sin(in_pose.z);
@@ -297,20 +302,20 @@ void main() {
     v_label = (part == 4) ? float(ROAD_LABEL) : float(CAR_LABEL);
     int view = int(in_view);
     vec4 clip = u_views[view].view_proj * vec4(p, 1.0);
-    v_color_depth = vec4(color, clip.w);
+    v_color_haze = vec4(color, haze(clip.w));
     gl_Position = to_tile(clip, view);
 }
 """
 
 _CAR_FS = """
-in vec4 v_color_depth;
+in vec4 v_color_haze;
 flat in float v_label;
 out vec4 f_color;
 void main() {
 #ifdef LABELS
     f_color = vec4(v_label / 255.0, 0.0, 0.0, 1.0);
 #else
-    f_color = vec4(fogged(v_color_depth.rgb, v_color_depth.w), 1.0);
+    f_color = vec4(mix(v_color_haze.rgb, u_fog_color, v_color_haze.w), 1.0);
 #endif
 }
 """
@@ -330,27 +335,37 @@ void main() {
 }
 """
 
-_BACKGROUND_FS = """
+_GROUND_FS = """
 uniform sampler2DArray u_tex;
 uniform float u_ground_layer;
 uniform float u_ground_tile_inv_m;
 uniform float u_ground_z_m;
-uniform vec3 u_zenith;
 in vec3 v_dir;
 flat in vec3 v_eye;
 out vec4 f_color;
 void main() {
-    float len = length(v_dir);
-    float sin_elevation = v_dir.z / len;
 #ifdef LABELS
-    f_color = vec4((sin_elevation < 0.0 ? float(GROUND_LABEL) : float(SKY_LABEL)) / 255.0, 0.0, 0.0, 1.0);
+    f_color = vec4(float(GROUND_LABEL) / 255.0, 0.0, 0.0, 1.0);
 #else
-    // Infinite ground plane: intersect the eye ray with it (far away above the horizon, where it is unused).
+    // Infinite ground plane: where the eye ray meets it.
     float t = (u_ground_z_m - v_eye.z) / min(v_dir.z, -1e-6);
     vec2 p = v_eye.xy + t * v_dir.xy;
-    vec3 ground = fogged(texture(u_tex, vec3(p * u_ground_tile_inv_m, u_ground_layer)).rgb, t * len);
-    vec3 sky = mix(u_fog_color, u_zenith, sqrt(clamp(sin_elevation / 0.8, 0.0, 1.0)));
-    f_color = vec4(sin_elevation < 0.0 ? ground : sky, 1.0);
+    vec3 ground = texture(u_tex, vec3(p * u_ground_tile_inv_m, u_ground_layer)).rgb;
+    f_color = vec4(mix(ground, u_fog_color, haze(t * length(v_dir))), 1.0);
+#endif
+}
+"""
+
+_SKY_FS = """
+uniform vec3 u_zenith;
+in vec3 v_dir;
+out vec4 f_color;
+void main() {
+#ifdef LABELS
+    f_color = vec4(float(SKY_LABEL) / 255.0, 0.0, 0.0, 1.0);
+#else
+    float sin_elevation = v_dir.z / length(v_dir);
+    f_color = vec4(mix(u_fog_color, u_zenith, sqrt(clamp(sin_elevation / 0.8, 0.0, 1.0))), 1.0);
 #endif
 }
 """
@@ -358,7 +373,7 @@ void main() {
 
 def _vs(body: str, max_views: int) -> str:
     header = _HEADER.replace("MAX_VIEWS", str(max_views))
-    return header + f"#define ROAD_LABEL {int(Label.ROAD)}\n#define CAR_LABEL {int(Label.CAR)}\n" + body
+    return header + f"#define ROAD_LABEL {int(Label.ROAD)}\n#define CAR_LABEL {int(Label.CAR)}\n" + _FOG_GLSL + body
 
 
 def _fs(body: str, labels: bool) -> str:
@@ -406,7 +421,8 @@ class Renderer:
         ctx = create_context(device_index)
         self._ctx = ctx
         try:
-            self._setup(ctx)
+            with ctx:
+                self._setup(ctx)
         except Exception:
             self.close()
             raise
@@ -423,6 +439,9 @@ class Renderer:
         rows = math.ceil(cfg.max_views / cols)
         if cols * w > max_size:
             raise ValueError(f"max_views={cfg.max_views} frames of {w}x{h} do not fit in a {max_size}px framebuffer")
+        max_block = int(ctx.info.get("GL_MAX_UNIFORM_BLOCK_SIZE", 16384))
+        if cfg.max_views * _VIEW_BYTES > max_block:
+            raise ValueError(f"max_views={cfg.max_views} exceeds this GL device's {max_block // _VIEW_BYTES} views")
         self._rows, self._cols = rows, cols
         self._fb_size = (cols * w, rows * h)
         if cfg.samples > int(ctx.info.get("GL_MAX_SAMPLES", 0)):
@@ -438,19 +457,24 @@ class Renderer:
                 color_attachments=[ctx.renderbuffer(self._fb_size, components=4, samples=cfg.samples)],
                 depth_attachment=ctx.depth_renderbuffer(self._fb_size, samples=cfg.samples),
             )
-            self._resolve_fbo = self._label_fbo
+            self._msaa = True
         else:
             self._fbo = self._label_fbo
-            self._resolve_fbo = None
+            self._msaa = False
+        # MSAA resolve targets, one per used region size: resolving only the tiles drawn, not the whole framebuffer.
+        self._resolve_fbos = {}
 
         # Textures: one mipmapped array, one layer per surface.
         layers = build_texture_layers()
-        # RGBA: llvmpipe samples 4 x 8-bit texels much faster than 3-component ones.
-        rgba = np.concatenate([layers, np.full(layers.shape[:3] + (1,), 255, np.uint8)], axis=3)
+        # RGBA8, the format every GL driver stores and samples natively.
+        rgba = np.concatenate([layers, np.full((*layers.shape[:3], 1), 255, np.uint8)], axis=3)
         tex = ctx.texture_array((TEXTURE_SIZE_PX, TEXTURE_SIZE_PX, len(layers)), 4, rgba.tobytes())
         tex.build_mipmaps()
         # Bilinear within the nearest mip level by default: trilinear costs llvmpipe about 1.5x per textured pixel.
-        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR if cfg.trilinear else moderngl.LINEAR_MIPMAP_NEAREST, moderngl.LINEAR)
+        tex.filter = (
+            moderngl.LINEAR_MIPMAP_LINEAR if cfg.trilinear else moderngl.LINEAR_MIPMAP_NEAREST,
+            moderngl.LINEAR,
+        )
         tex.repeat_x = tex.repeat_y = True
         if cfg.anisotropy > 1.0:
             tex.anisotropy = cfg.anisotropy
@@ -470,21 +494,40 @@ class Renderer:
         self._car_ibo = ctx.buffer(car_i.tobytes())
         self._car_inst_capacity = 64
         self._car_inst = ctx.buffer(reserve=7 * 4 * self._car_inst_capacity)
-        quad = np.array([[-1, -1], [1, -1], [1, 1], [-1, -1], [1, 1], [-1, 1]], "f4")
-        self._quad_vbo = ctx.buffer(quad.tobytes())
-
         cam = cfg.camera
         self._tan_half_fovx = math.tan(math.radians(cam.fov_deg) / 2.0)
         self._tan_half_fovy = self._tan_half_fovx / cfg.aspect
+        # Background quads of every tile: the sky above the horizon row, the ground below it. With no roll the
+        # horizon is the same row in every view: ndc y = tan(pitch) / tan(vertical half fov).
+        horizon = float(np.clip(math.tan(math.radians(cam.pitch_deg)) / self._tan_half_fovy, -1.0, 1.0))
+        quads = np.array(
+            [
+                [-1, horizon],
+                [1, horizon],
+                [1, 1],
+                [-1, horizon],
+                [1, 1],
+                [-1, 1],
+                [-1, -1],
+                [1, -1],
+                [1, horizon],
+                [-1, -1],
+                [1, horizon],
+                [-1, horizon],
+            ],
+            "f4",
+        )
+        self._quad_vbo = ctx.buffer(quads.tobytes())
 
         self._vaos = {}
         for labels in (False, True):
             static = ctx.program(vertex_shader=_vs(_STATIC_VS, cfg.max_views), fragment_shader=_fs(_STATIC_FS, labels))
             car = ctx.program(vertex_shader=_vs(_CAR_VS, cfg.max_views), fragment_shader=_fs(_CAR_FS, labels))
-            background = ctx.program(
-                vertex_shader=_vs(_BACKGROUND_VS, cfg.max_views), fragment_shader=_fs(_BACKGROUND_FS, labels)
+            sky = ctx.program(vertex_shader=_vs(_BACKGROUND_VS, cfg.max_views), fragment_shader=_fs(_SKY_FS, labels))
+            ground = ctx.program(
+                vertex_shader=_vs(_BACKGROUND_VS, cfg.max_views), fragment_shader=_fs(_GROUND_FS, labels)
             )
-            for prog in (static, car, background):
+            for prog in (static, car, sky, ground):
                 self._set_uniforms(prog)
             # skip_errors: the label and colour programs each leave some attributes unused.
             static_vao = ctx.vertex_array(
@@ -507,10 +550,13 @@ class Renderer:
                 index_element_size=4,
                 skip_errors=True,
             )
-            background_vao = ctx.vertex_array(
-                background, [(self._quad_vbo, "2f", "in_ndc"), (view_index, "1f/i", "in_view")], skip_errors=True
+            sky_vao, ground_vao = (
+                ctx.vertex_array(
+                    prog, [(self._quad_vbo, "2f", "in_ndc"), (view_index, "1f/i", "in_view")], skip_errors=True
+                )
+                for prog in (sky, ground)
             )
-            self._vaos[labels] = (static_vao, car_vao, background_vao)
+            self._vaos[labels] = (static_vao, car_vao, sky_vao, ground_vao)
 
     def _set_uniforms(self, prog) -> None:
         values = {
@@ -574,7 +620,7 @@ class Renderer:
     def close(self) -> None:
         """Release the GL context and everything in it (idempotent)."""
         if self._ctx is not None:
-            self._ctx.release()
+            self._ctx.release()  # destroys the EGL context and every GL object in it
             self._ctx = None
 
     def __enter__(self) -> Renderer:
@@ -596,7 +642,9 @@ class Renderer:
         yaw = np.atleast_1d(np.asarray(yaw_rad, dtype=np.float64))
         n = len(x)
         if x.ndim != 1 or y.shape != (n,) or yaw.shape != (n,):
-            raise ValueError(f"x_m, y_m, yaw_rad must be 1-D arrays of one length, got {x.shape}, {y.shape}, {yaw.shape}")
+            raise ValueError(
+                f"x_m, y_m, yaw_rad must be 1-D arrays of one length, got {x.shape}, {y.shape}, {yaw.shape}"
+            )
         if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(yaw).all()):
             raise ValueError("car poses must be finite")
         views = np.arange(n) if view_ids is None else np.atleast_1d(np.asarray(view_ids, dtype=np.int64))
@@ -627,8 +675,10 @@ class Renderer:
         x = x - self.scene.origin_xy_m[0]
         y = y - self.scene.origin_xy_m[1]
         parts = []
-        for start in range(0, len(views), cfg.max_views):
-            parts.append(self._render_pass(x, y, yaw, views[start : start + cfg.max_views], groups, colors, labels))
+        # Make this renderer's context current for the call (several renderers may live in one thread).
+        with self._ctx:
+            for start in range(0, len(views), cfg.max_views):
+                parts.append(self._render_pass(x, y, yaw, views[start : start + cfg.max_views], groups, colors, labels))
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     def _cameras(self, x, y, yaw):
@@ -729,7 +779,7 @@ class Renderer:
         cmd = self._static_commands(eye, planes)
         inst = self._car_instances(x, y, yaw, views, groups, colors, eye, planes)
         if len(inst) > self._car_inst_capacity:
-            self._car_inst_capacity = 1 << int(math.ceil(math.log2(len(inst))))
+            self._car_inst_capacity = 1 << math.ceil(math.log2(len(inst)))
             self._car_inst.orphan(self._car_inst_capacity * 7 * 4)
         if len(inst):
             self._car_inst.write(inst.tobytes())
@@ -737,12 +787,17 @@ class Renderer:
             self._cmd.write(cmd.tobytes())
 
         fbo = self._label_fbo if labels else self._fbo
-        fbo.use()
-        ctx.viewport = (0, 0, *self._fb_size)
         used_cols = math.ceil(v / self._rows)
         used_rows = min(v, self._rows)
         region = (0, 0, used_cols * cfg.width_px, used_rows * cfg.height_px)
-        fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0, viewport=region)
+        # Depth only: the background pass writes every pixel's colour.
+        # (moderngl applies a framebuffer's colour mask when it is bound.)
+        fbo.color_mask = (False, False, False, False)
+        fbo.use()
+        fbo.clear(depth=1.0, viewport=region)
+        fbo.color_mask = (True, True, True, True)
+        fbo.use()
+        ctx.viewport = (0, 0, *self._fb_size)
         ctx.enable_only(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         # Faces are wound counter-clockwise seen from outside; the y flip into the tile makes that clockwise.
         ctx.front_face = "cw"
@@ -752,20 +807,26 @@ class Renderer:
         ctx.depth_func = "<"
         self._views_ubo.bind_to_uniform_block(0)
         self._tex.use(0)
-        static_vao, car_vao, background_vao = self._vaos[labels]
+        static_vao, car_vao, sky_vao, ground_vao = self._vaos[labels]
         if len(cmd):
             static_vao.render_indirect(self._cmd, moderngl.TRIANGLES, count=len(cmd))
         if len(inst):
             car_vao.render(moderngl.TRIANGLES, instances=len(inst))
         # Sky and ground last: only the pixels nothing else covered are shaded.
         ctx.depth_func = "<="
-        background_vao.render(moderngl.TRIANGLES, instances=v)
+        sky_vao.render(moderngl.TRIANGLES, vertices=6, first=0, instances=v)
+        ground_vao.render(moderngl.TRIANGLES, vertices=6, first=6, instances=v)
         ctx.depth_func = "<"
-        if not labels and self._resolve_fbo is not None:
-            ctx.copy_framebuffer(self._resolve_fbo, self._fbo)
+        read_fbo = self._label_fbo
+        if self._msaa and not labels:
+            size = (region[2], region[3])
+            if size not in self._resolve_fbos:
+                self._resolve_fbos[size] = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, components=4)])
+            read_fbo = self._resolve_fbos[size]
+            ctx.copy_framebuffer(read_fbo, self._fbo)  # blits the lower-left region of that size: our tiles
         components = 1 if labels else 3
         buf = bytearray(region[2] * region[3] * components)
-        self._label_fbo.read_into(buf, viewport=region, components=components, alignment=1)
+        read_fbo.read_into(buf, viewport=region, components=components, alignment=1)
         img = np.frombuffer(buf, dtype=np.uint8)
         h, w = cfg.height_px, cfg.width_px
         if used_cols == 1:

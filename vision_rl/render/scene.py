@@ -57,8 +57,11 @@ LABEL_COLORS = np.array(
 
 #: Sun direction (towards the sun): azimuth 225 deg from +x, 50 deg up; baked into static vertex tints.
 SUN_DIR = np.array(
-    [math.cos(math.radians(50)) * math.cos(math.radians(225)), math.cos(math.radians(50)) * math.sin(math.radians(225)),
-     math.sin(math.radians(50))]
+    [
+        math.cos(math.radians(50)) * math.cos(math.radians(225)),
+        math.cos(math.radians(50)) * math.sin(math.radians(225)),
+        math.sin(math.radians(50)),
+    ]
 )
 AMBIENT = 0.55
 """Share of light that reaches a face turned away from the sun (sky light)."""
@@ -99,6 +102,9 @@ class SceneStyle:
     chunk_length_m: float = 60.0
     """Track length per culling chunk."""
     gantry_height_m: float = 6.5
+    """Clearance under the start/finish gantry's beam."""
+    start_line_length_m: float = 2.0
+    """Length of the chequered start/finish line on the road (two rows of 0.75 m squares and a bit)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,7 +191,14 @@ class _Quads:
         label = np.concatenate(self._label)
         chunk = np.concatenate(self._chunk)
         order = np.argsort(chunk, kind="stable")
-        pos, uv, layer, tint, label, chunk = pos[order], uv[order], layer[order], tint[order], label[order], chunk[order]
+        pos, uv, layer, tint, label, chunk = (
+            pos[order],
+            uv[order],
+            layer[order],
+            tint[order],
+            label[order],
+            chunk[order],
+        )
         q = len(pos)
         verts = np.empty((q, 4, FLOATS_PER_VERTEX), dtype=np.float32)
         verts[:, :, 0:3] = pos
@@ -244,8 +257,9 @@ def _box_quads(
     """Boxes (b,) standing on z0 up to z1, four sides and a top, lit by the sun; uv in metres / uv_scale_m."""
     centre_xy = np.atleast_2d(centre_xy)
     b = len(centre_xy)
-    half_len, half_wid, z0, z1, yaw = (np.broadcast_to(np.asarray(a, dtype=np.float64), (b,)) for a in
-                                       (half_len, half_wid, z0, z1, yaw))
+    half_len, half_wid, z0, z1, yaw = (
+        np.broadcast_to(np.asarray(a, dtype=np.float64), (b,)) for a in (half_len, half_wid, z0, z1, yaw)
+    )
     chunk = np.broadcast_to(np.asarray(chunk), (b,))
     tint = np.broadcast_to(np.asarray(tint, dtype=np.float64), (b, 3))
     ax = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
@@ -273,8 +287,12 @@ def _box_quads(
         )
         u1 = edge_len / uv_scale_m[0]
         uv = np.stack(
-            [np.column_stack([np.zeros(b), z0 / uv_scale_m[1]]), np.column_stack([u1, z0 / uv_scale_m[1]]),
-             np.column_stack([u1, z1 / uv_scale_m[1]]), np.column_stack([np.zeros(b), z1 / uv_scale_m[1]])],
+            [
+                np.column_stack([np.zeros(b), z0 / uv_scale_m[1]]),
+                np.column_stack([u1, z0 / uv_scale_m[1]]),
+                np.column_stack([u1, z1 / uv_scale_m[1]]),
+                np.column_stack([np.zeros(b), z1 / uv_scale_m[1]]),
+            ],
             axis=1,
         )
         quads.add(pos, uv, side_layer, tint * _face_shade(normal)[:, None], label, chunk, normal)
@@ -293,6 +311,21 @@ def _dilate_circular(flag: np.ndarray, half_width: int) -> np.ndarray:
     c = np.concatenate([[0], np.cumsum(ext)])
     window = c[2 * half_width + 1 :] - c[: -(2 * half_width + 1)]
     return window[:n] > 0
+
+
+def _inside_other_branch(track: Track, xy: np.ndarray, s_m: np.ndarray, block: int = 256) -> np.ndarray:
+    """Which points (m, 2) lie on the road of a part of the track far (along s) from their own arc length s_m."""
+    reach = float(np.max(np.maximum(track.width_left_m, track.width_right_m)))
+    far_along_m = 4.0 * reach + 20.0
+    half_width = np.maximum(track.width_left_m, track.width_right_m) - 0.05
+    out = np.zeros(len(xy), dtype=bool)
+    for start in range(0, len(xy), block):  # blocks bound the (block, n_points) distance matrix
+        p = xy[start : start + block]
+        d2 = ((p[:, None, :] - track.centre_xy_m[None, :, :]) ** 2).sum(axis=2)
+        ds = np.abs(s_m[start : start + block, None] - track.s_m[None, :])
+        ds = np.minimum(ds, track.length_m - ds)
+        out[start : start + block] = ((d2 < half_width[None, :] ** 2) & (ds > far_along_m)).any(axis=1)
+    return out
 
 
 def _section_indices(track: Track, style: SceneStyle, kerb: np.ndarray, forced: list[int]) -> np.ndarray:
@@ -319,10 +352,9 @@ def _section_indices(track: Track, style: SceneStyle, kerb: np.ndarray, forced: 
 
 def _track_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndarray) -> int:
     """Road bands and walls; returns the number of chunk ids used (track chunks are 0..k-1)."""
-    n = track.n_points
     kerb_raw = np.abs(track.curvature_1pm) > style.kerb_min_curvature_1pm
-    kerb = _dilate_circular(kerb_raw, int(round(style.kerb_extend_m / track.spacing_m)))
-    start_end = max(1, int(round(1.5 / track.spacing_m)))  # the chequered start line is ~1.5 m long
+    kerb = _dilate_circular(kerb_raw, round(style.kerb_extend_m / track.spacing_m))
+    start_end = max(1, round(style.start_line_length_m / track.spacing_m))
     idx = _section_indices(track, style, kerb, [start_end])
     nxt = np.roll(idx, -1)
     s0 = track.s_m[idx]
@@ -338,8 +370,9 @@ def _track_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndar
     kerb_w_l = np.minimum(style.kerb_width_m, 0.15 * wl)
     kerb_w_r = np.minimum(style.kerb_width_m, 0.15 * wr)
     line_w = np.minimum(style.line_width_m, 0.03 * np.minimum(wl, wr))
-    offsets = np.stack([wl, wl - kerb_w_l, wl - kerb_w_l - line_w, -(wr - kerb_w_r - line_w), -(wr - kerb_w_r), -wr],
-                       axis=1)  # (n, 6)
+    offsets = np.stack(
+        [wl, wl - kerb_w_l, wl - kerb_w_l - line_w, -(wr - kerb_w_r - line_w), -(wr - kerb_w_r), -wr], axis=1
+    )  # (n, 6)
     xy = centre[:, None, :] + normal[:, None, :] * offsets[:, :, None]  # (n, 6, 2)
     start_line = np.zeros(len(idx), dtype=bool)
     start_line[0] = True
@@ -358,17 +391,28 @@ def _track_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndar
         )
         lat_a0, lat_a1, lat_b1, lat_b0 = offsets[idx, a], offsets[nxt, a], offsets[nxt, b], offsets[idx, b]
         tile = style.asphalt_tile_m
-        uv = np.stack(
-            [np.column_stack([s0, lat_a0]), np.column_stack([s1, lat_a1]), np.column_stack([s1, lat_b1]),
-             np.column_stack([s0, lat_b0])],
-            axis=1,
-        ) / tile
+        uv = (
+            np.stack(
+                [
+                    np.column_stack([s0, lat_a0]),
+                    np.column_stack([s1, lat_a1]),
+                    np.column_stack([s1, lat_b1]),
+                    np.column_stack([s0, lat_b0]),
+                ],
+                axis=1,
+            )
+            / tile
+        )
         if band in (0, 4):
             # Kerb in corners, old darker asphalt elsewhere; kerb uv: u one red+white period, v 0..1 across.
             k = kerb_seg
             kuv = np.stack(
-                [np.column_stack([s0, np.zeros_like(s0)]), np.column_stack([s1, np.zeros_like(s0)]),
-                 np.column_stack([s1, np.ones_like(s0)]), np.column_stack([s0, np.ones_like(s0)])],
+                [
+                    np.column_stack([s0, np.zeros_like(s0)]),
+                    np.column_stack([s1, np.zeros_like(s0)]),
+                    np.column_stack([s1, np.ones_like(s0)]),
+                    np.column_stack([s0, np.ones_like(s0)]),
+                ],
                 axis=1,
             )
             kuv[:, :, 0] /= style.kerb_period_m
@@ -384,7 +428,7 @@ def _track_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndar
     # Walls: inner face, top, outer face, each a strip along the wall line.
     h = style.wall_height_m
     foot_z = GROUND_Z_M
-    for side, col, outward_sign in (("left", 0, 1.0), ("right", 5, -1.0)):
+    for col, outward_sign in ((0, 1.0), (5, -1.0)):  # left wall line (outwards = +normal), right wall line
         w = xy[:, col]  # (n, 2) wall line
         out = normal * outward_sign
         seg = w[nxt] - w[idx]
@@ -395,31 +439,48 @@ def _track_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndar
         inner_n /= np.linalg.norm(inner_n, axis=1, keepdims=True)
         top_w = w + out * style.wall_thickness_m
         v_foot = foot_z / h
+        # Where the track crosses itself (a bridge, as at Suzuka) the flat renderer would put each branch's wall
+        # across the other's road; leave those wall pieces out, making the crossing look like a junction.
+        inside = _inside_other_branch(track, w[idx] + origin, track.s_m[idx])
+        keep = ~(inside | np.roll(inside, -1))
 
         def strip(a0, a1, b0, b1, za, zb):
             return np.stack(
-                [np.column_stack([a0, np.full(len(idx), za)]), np.column_stack([a1, np.full(len(idx), za)]),
-                 np.column_stack([b1, np.full(len(idx), zb)]), np.column_stack([b0, np.full(len(idx), zb)])],
+                [
+                    np.column_stack([a0, np.full(len(idx), za)]),
+                    np.column_stack([a1, np.full(len(idx), za)]),
+                    np.column_stack([b1, np.full(len(idx), zb)]),
+                    np.column_stack([b0, np.full(len(idx), zb)]),
+                ],
                 axis=1,
             )
 
         wall_uv = np.stack(
-            [np.column_stack([u0, np.full_like(u0, v_foot)]), np.column_stack([u1, np.full_like(u0, v_foot)]),
-             np.column_stack([u1, np.ones_like(u0)]), np.column_stack([u0, np.ones_like(u0)])],
+            [
+                np.column_stack([u0, np.full_like(u0, v_foot)]),
+                np.column_stack([u1, np.full_like(u0, v_foot)]),
+                np.column_stack([u1, np.ones_like(u0)]),
+                np.column_stack([u0, np.ones_like(u0)]),
+            ],
             axis=1,
         )
         inner = strip(w[idx], w[nxt], w[idx], w[nxt], foot_z, h)
-        quads.add(inner, wall_uv, Layer.WALL, _face_shade(inner_n)[:, None] * np.ones(3), Label.WALL, chunk, inner_n)
+        shade = _face_shade(inner_n)[:, None] * np.ones(3)
+        quads.add(inner[keep], wall_uv[keep], Layer.WALL, shade[keep], Label.WALL, chunk[keep], inner_n[keep])
         top = strip(w[idx], w[nxt], top_w[idx], top_w[nxt], h, h)
         top_uv = np.stack(
-            [np.column_stack([u0, np.zeros_like(u0)]), np.column_stack([u1, np.zeros_like(u0)]),
-             np.column_stack([u1, np.full_like(u0, 0.1)]), np.column_stack([u0, np.full_like(u0, 0.1)])],
+            [
+                np.column_stack([u0, np.zeros_like(u0)]),
+                np.column_stack([u1, np.zeros_like(u0)]),
+                np.column_stack([u1, np.full_like(u0, 0.1)]),
+                np.column_stack([u0, np.full_like(u0, 0.1)]),
+            ],
             axis=1,
         )
-        quads.add(top, top_uv, Layer.WALL_TOP, np.ones(3), Label.WALL, chunk, _UP)
+        quads.add(top[keep], top_uv[keep], Layer.WALL_TOP, np.ones(3), Label.WALL, chunk[keep], _UP)
         outer = strip(top_w[idx], top_w[nxt], top_w[idx], top_w[nxt], foot_z, h)
-        quads.add(outer, wall_uv, Layer.WALL, _face_shade(-inner_n)[:, None] * np.ones(3), Label.WALL, chunk, -inner_n)
-        del side
+        shade = _face_shade(-inner_n)[:, None] * np.ones(3)
+        quads.add(outer[keep], wall_uv[keep], Layer.WALL, shade[keep], Label.WALL, chunk[keep], -inner_n[keep])
     _gantry_quads(quads, track, style, origin, chunk_id=0)
     return n_chunks
 
@@ -427,22 +488,46 @@ def _track_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndar
 def _gantry_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndarray, chunk_id: int) -> None:
     """Start/finish gantry at s = 0: two pillars beyond the walls and a chequered beam over the track."""
     c = track.centre_xy_m[0] - origin
-    t = track.tangent[0]
     nl = track.normal_left[0]
     yaw = float(track.heading_rad[0])
     reach_l = track.width_left_m[0] + style.wall_thickness_m + 0.8
     reach_r = track.width_right_m[0] + style.wall_thickness_m + 0.8
     pillars = np.stack([c + nl * reach_l, c - nl * reach_r])
     tint = np.array([0.85, 0.85, 0.9])
-    _box_quads(quads, pillars, 0.4, 0.4, GROUND_Z_M, style.gantry_height_m + 1.5, yaw, Layer.METAL, Layer.METAL, tint,
-               Label.GANTRY, chunk_id, (1.0, 2.0))
+    _box_quads(
+        quads,
+        pillars,
+        0.4,
+        0.4,
+        GROUND_Z_M,
+        style.gantry_height_m + 1.5,
+        yaw,
+        Layer.METAL,
+        Layer.METAL,
+        tint,
+        Label.GANTRY,
+        chunk_id,
+        (1.0, 2.0),
+    )
     mid = c + nl * 0.5 * (reach_l - reach_r)
     span_half = 0.5 * (reach_l + reach_r) + 0.4
     # The beam is a box whose long axis runs across the track (yaw + 90 deg); its faces towards the drivers
     # carry the chequered banner (uv 1 repeat per 6 m across, 1.5 m high -> 0.75 m squares).
-    _box_quads(quads, mid[None], span_half, 0.6, style.gantry_height_m, style.gantry_height_m + 1.5,
-               yaw + 0.5 * math.pi, Layer.CHECKER, Layer.METAL, np.ones(3), Label.GANTRY, chunk_id, (6.0, 6.0))
-    del t
+    _box_quads(
+        quads,
+        mid[None],
+        span_half,
+        0.6,
+        style.gantry_height_m,
+        style.gantry_height_m + 1.5,
+        yaw + 0.5 * math.pi,
+        Layer.CHECKER,
+        Layer.METAL,
+        np.ones(3),
+        Label.GANTRY,
+        chunk_id,
+        (6.0, 6.0),
+    )
 
 
 # ------------------------------------------------------------------------------------------------ scenery
@@ -462,8 +547,16 @@ def _scenery_quads(
     hi = track.centre_xy_m.max(axis=0) - origin
     half_diag = 0.5 * float(np.hypot(*(hi - lo)))
     max_w = float(np.max(np.maximum(track.width_left_m, track.width_right_m)))
-    palette = np.array([[1.0, 0.97, 0.9], [0.85, 0.88, 0.95], [0.95, 0.85, 0.75], [0.8, 0.8, 0.82],
-                        [0.92, 0.92, 0.85], [0.75, 0.82, 0.9]])
+    palette = np.array(
+        [
+            [1.0, 0.97, 0.9],
+            [0.85, 0.88, 0.95],
+            [0.95, 0.85, 0.75],
+            [0.8, 0.8, 0.82],
+            [0.92, 0.92, 0.85],
+            [0.75, 0.82, 0.9],
+        ]
+    )
 
     # Near landmarks: blocks along the track (city) or a few towers (park); rejected when they would touch the road.
     cell_m = 400.0
@@ -474,8 +567,11 @@ def _scenery_quads(
     s = rng.uniform(0.0, track.length_m, n_try)
     side = rng.choice([-1.0, 1.0], n_try)
     off = rng.uniform(dist_lo, dist_hi, n_try)
-    base = track.position_at(s) + np.stack([-np.sin(track.heading_at(s)), np.cos(track.heading_at(s))], axis=1) * (
-        side * (off + np.where(side > 0, track.width_left_at(s), track.width_right_at(s))))[:, None]
+    base = (
+        track.position_at(s)
+        + np.stack([-np.sin(track.heading_at(s)), np.cos(track.heading_at(s))], axis=1)
+        * (side * (off + np.where(side > 0, track.width_left_at(s), track.width_right_at(s))))[:, None]
+    )
     half_len = rng.uniform(*size, n_try)
     half_wid = rng.uniform(*size, n_try)
     radius = np.hypot(half_len, half_wid)
@@ -499,8 +595,21 @@ def _scenery_quads(
         cell = np.floor((base - lo) / cell_m).astype(np.int64)
         cell_key = cell[:, 0] * 100_000 + cell[:, 1]
         _, cell_chunk = np.unique(cell_key, return_inverse=True)
-        _box_quads(quads, base, half_len, half_wid, GROUND_Z_M, height, yaw, Layer.FACADE, Layer.ROOF, tint,
-                   Label.LANDMARK, chunk_id + cell_chunk, (12.0, 14.0))
+        _box_quads(
+            quads,
+            base,
+            half_len,
+            half_wid,
+            GROUND_Z_M,
+            height,
+            yaw,
+            Layer.FACADE,
+            Layer.ROOF,
+            tint,
+            Label.LANDMARK,
+            chunk_id + cell_chunk,
+            (12.0, 14.0),
+        )
         chunk_id += int(cell_chunk.max()) + 1
 
     # Horizon ring: a skyline (city) or hills (park), in azimuth sectors that each view culls.
@@ -517,18 +626,57 @@ def _scenery_quads(
         hw = rng.uniform(12.0, 40.0, n_b)
         tint = palette[rng.integers(0, len(palette), n_b)] * 0.95
         sector = np.floor(az / (2 * math.pi) * n_sectors).astype(np.int64) % n_sectors
-        _box_quads(quads, pos, hl, hw, GROUND_Z_M, h, az, Layer.FACADE, Layer.ROOF, tint, Label.LANDMARK,
-                   chunk_id + sector, (12.0, 14.0))
+        _box_quads(
+            quads,
+            pos,
+            hl,
+            hw,
+            GROUND_Z_M,
+            h,
+            az,
+            Layer.FACADE,
+            Layer.ROOF,
+            tint,
+            Label.LANDMARK,
+            chunk_id + sector,
+            (12.0, 14.0),
+        )
         # A few thin towers with a masthead: the city's landmarks.
         n_t = 6
         az_t = (np.arange(n_t) + rng.uniform(0.2, 0.8, n_t)) * 2 * math.pi / n_t
         pos_t = centre + np.stack([np.cos(az_t), np.sin(az_t)], axis=1) * (ring_r + rng.uniform(200, 900, n_t))[:, None]
         h_t = rng.uniform(250.0, 450.0, n_t)
         sector_t = np.floor(az_t / (2 * math.pi) * n_sectors).astype(np.int64) % n_sectors
-        _box_quads(quads, pos_t, 9.0, 9.0, GROUND_Z_M, h_t, az_t, Layer.METAL, Layer.METAL, np.array([0.95, 0.92, 0.9]),
-                   Label.LANDMARK, chunk_id + sector_t, (4.0, 8.0))
-        _box_quads(quads, pos_t, 2.0, 2.0, h_t, h_t + 60.0, az_t, Layer.METAL, Layer.METAL,
-                   np.array([0.9, 0.25, 0.2]), Label.LANDMARK, chunk_id + sector_t, (4.0, 8.0))
+        _box_quads(
+            quads,
+            pos_t,
+            9.0,
+            9.0,
+            GROUND_Z_M,
+            h_t,
+            az_t,
+            Layer.METAL,
+            Layer.METAL,
+            np.array([0.95, 0.92, 0.9]),
+            Label.LANDMARK,
+            chunk_id + sector_t,
+            (4.0, 8.0),
+        )
+        _box_quads(
+            quads,
+            pos_t,
+            2.0,
+            2.0,
+            h_t,
+            h_t + 60.0,
+            az_t,
+            Layer.METAL,
+            Layer.METAL,
+            np.array([0.9, 0.25, 0.2]),
+            Label.LANDMARK,
+            chunk_id + sector_t,
+            (4.0, 8.0),
+        )
     else:
         k = 96
         az = np.arange(k + 1) * 2 * math.pi / k
@@ -538,8 +686,12 @@ def _scenery_quads(
         ring = centre + np.stack([np.cos(az), np.sin(az)], axis=1) * ridge_r
         outer = centre + np.stack([np.cos(az), np.sin(az)], axis=1) * (ridge_r + 900.0)
         p = np.stack(
-            [np.column_stack([ring[:-1], np.full(k, GROUND_Z_M)]), np.column_stack([ring[1:], np.full(k, GROUND_Z_M)]),
-             np.column_stack([outer[1:], ridge[1:]]), np.column_stack([outer[:-1], ridge[:-1]])],
+            [
+                np.column_stack([ring[:-1], np.full(k, GROUND_Z_M)]),
+                np.column_stack([ring[1:], np.full(k, GROUND_Z_M)]),
+                np.column_stack([outer[1:], ridge[1:]]),
+                np.column_stack([outer[:-1], ridge[:-1]]),
+            ],
             axis=1,
         )
         sector = (np.arange(k) * n_sectors) // k
@@ -553,10 +705,36 @@ def _scenery_quads(
         pos_t = centre + np.stack([np.cos(az_t), np.sin(az_t)], axis=1) * (ring_r + rng.uniform(100, 600, n_t))[:, None]
         h_t = rng.uniform(120.0, 220.0, n_t)
         sector_t = np.floor(az_t / (2 * math.pi) * n_sectors).astype(np.int64) % n_sectors
-        _box_quads(quads, pos_t, 5.0, 5.0, GROUND_Z_M, h_t, az_t, Layer.METAL, Layer.METAL, np.array([0.95, 0.95, 0.95]),
-                   Label.LANDMARK, chunk_id + sector_t, (4.0, 8.0))
-        _box_quads(quads, pos_t, 11.0, 11.0, h_t, h_t + 14.0, az_t, Layer.FACADE, Layer.ROOF,
-                   np.array([0.9, 0.9, 0.95]), Label.LANDMARK, chunk_id + sector_t, (12.0, 14.0))
+        _box_quads(
+            quads,
+            pos_t,
+            5.0,
+            5.0,
+            GROUND_Z_M,
+            h_t,
+            az_t,
+            Layer.METAL,
+            Layer.METAL,
+            np.array([0.95, 0.95, 0.95]),
+            Label.LANDMARK,
+            chunk_id + sector_t,
+            (4.0, 8.0),
+        )
+        _box_quads(
+            quads,
+            pos_t,
+            11.0,
+            11.0,
+            h_t,
+            h_t + 14.0,
+            az_t,
+            Layer.FACADE,
+            Layer.ROOF,
+            np.array([0.9, 0.9, 0.95]),
+            Label.LANDMARK,
+            chunk_id + sector_t,
+            (12.0, 14.0),
+        )
     chunk_id += n_sectors
 
     return chunk_id
@@ -626,14 +804,21 @@ def build_car_mesh(length_m: float, width_m: float) -> tuple[np.ndarray, np.ndar
     faces: list[tuple] = []
     # Body: a wedge, higher at the back (0.78 m) than over the nose (0.62 m).
     body_bottom = _ring(-half_l, half_l, half_w, half_w, 0.22)
-    body_top = np.array([[-half_l, -half_w, 0.78], [half_l, -half_w, 0.62], [half_l, half_w, 0.62],
-                         [-half_l, half_w, 0.78]])
+    body_top = np.array(
+        [[-half_l, -half_w, 0.78], [half_l, -half_w, 0.62], [half_l, half_w, 0.62], [-half_l, half_w, 0.78]]
+    )
     faces += _hexa(np.vstack([body_bottom, body_top]), 0, 0)
     # Cabin (glass sides, painted roof), set back from the middle and narrower than the body.
     cab_x0, cab_x1 = -0.36 * length_m, 0.14 * length_m
     z_base = 0.78 - 0.16 * (np.array([cab_x0, cab_x1]) + half_l) / length_m
-    cab_bottom = np.array([[cab_x0, -0.44 * width_m, z_base[0]], [cab_x1, -0.44 * width_m, z_base[1]],
-                           [cab_x1, 0.44 * width_m, z_base[1]], [cab_x0, 0.44 * width_m, z_base[0]]])
+    cab_bottom = np.array(
+        [
+            [cab_x0, -0.44 * width_m, z_base[0]],
+            [cab_x1, -0.44 * width_m, z_base[1]],
+            [cab_x1, 0.44 * width_m, z_base[1]],
+            [cab_x0, 0.44 * width_m, z_base[0]],
+        ]
+    )
     cab_top = _ring(-0.28 * length_m, 0.0, 0.36 * width_m, 0.36 * width_m, 1.28)
     faces += _hexa(np.vstack([cab_bottom, cab_top]), 1, 0)
     # Tyres: boxes standing out of the body's flanks at both axles.
@@ -642,8 +827,9 @@ def build_car_mesh(length_m: float, width_m: float) -> tuple[np.ndarray, np.ndar
         for y_sign in (-1.0, 1.0):
             y_in, y_out = y_sign * (half_w - 0.26), y_sign * (half_w + 0.02)
             lo_y, hi_y = min(y_in, y_out), max(y_in, y_out)
-            ring_lo = np.array([[x - 0.32, lo_y, 0.0], [x + 0.32, lo_y, 0.0], [x + 0.32, hi_y, 0.0],
-                                [x - 0.32, hi_y, 0.0]])
+            ring_lo = np.array(
+                [[x - 0.32, lo_y, 0.0], [x + 0.32, lo_y, 0.0], [x + 0.32, hi_y, 0.0], [x - 0.32, hi_y, 0.0]]
+            )
             ring_hi = ring_lo + np.array([0.0, 0.0, 0.62])
             faces += _hexa(np.vstack([ring_lo, ring_hi]), 2, 2)
     # Tail lights: two thin red plates just behind the rear face.
@@ -653,8 +839,14 @@ def build_car_mesh(length_m: float, width_m: float) -> tuple[np.ndarray, np.ndar
         plate = np.array([[x, y0, 0.56], [x, y1, 0.56], [x, y1, 0.70], [x, y0, 0.70]])
         faces.append((plate, 3, np.array([-1.0, 0.0, 0.0])))
     # Blob shadow on the road, a little larger than the footprint.
-    sh = np.array([[-half_l - 0.25, -half_w - 0.2, 0.02], [half_l + 0.25, -half_w - 0.2, 0.02],
-                   [half_l + 0.25, half_w + 0.2, 0.02], [-half_l - 0.25, half_w + 0.2, 0.02]])
+    sh = np.array(
+        [
+            [-half_l - 0.25, -half_w - 0.2, 0.02],
+            [half_l + 0.25, -half_w - 0.2, 0.02],
+            [half_l + 0.25, half_w + 0.2, 0.02],
+            [-half_l - 0.25, half_w + 0.2, 0.02],
+        ]
+    )
     faces.append((sh, 4, np.array([0.0, 0.0, 1.0])))
     verts = []
     for quad, part, outward in faces:
