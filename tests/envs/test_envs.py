@@ -149,8 +149,10 @@ def test_registered_envs_pass_the_checkers(env_id):
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
     env = gym.make(env_id, track=TRACK).unwrapped
-    check_env(env, skip_render_check=True)
+    check_env(env, skip_render_check=True)  # raises on any violation of the gymnasium API
     sb3_check_env(env, warn=True, skip_render_check=True)
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
 
 
 def test_vision_observation_without_renderer_is_a_clear_error(monkeypatch):
