@@ -29,7 +29,7 @@ from vision_rl.sim.vehicle import VehicleParams, get_preset
 from vision_rl.sim.world import World, WorldConfig
 
 #: Bump when the racing line or the speed profile changes: older cache files are then ignored.
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 #: Distance the racing line keeps from each wall beyond the car's half width, m.
 LINE_SAFETY_MARGIN_M = 0.4
 #: Control step of the built-in AI: its steering feedforward leads by the 0.05 s actuator lag plus half a step.

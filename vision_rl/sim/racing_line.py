@@ -1,12 +1,14 @@
 """Minimum-curvature racing line: lateral offsets of the centre line that minimise the summed squared curvature.
 
-The line is ``p_i = c_i + a_i * n_i`` on a subsample of the track's resampled centre line, with ``a`` bounded by the
-walls less a margin. The first QP linearises the curvature with the centre line's tangent held fixed, as Heilmeier
-et al. (2019), "Minimum curvature trajectory planning and control for an autonomous race car", Vehicle System
-Dynamics 58(10), do; that is the line of the racetrack-database (its lines lie 0.2-1.0 m from ours on average).
-Further iterations (Gauss-Newton on the exact polyline curvature, ``cross(p', p'') / |p'|^3``) converge to the
-true minimum-curvature line, which moves off the inside of long corners; on the five real tracks it was no faster
-in a quasi-steady-state lap (between -1.1 % and +0.6 %), so one QP is the default.
+The line is ``p_i = c_i + a_i * n_i`` on the track's centre-line samples, with ``a`` bounded by the walls less a
+margin. The first QP linearises the curvature with the centre line's tangent held fixed, as Heilmeier et al.
+(2019), "Minimum curvature trajectory planning and control for an autonomous race car", Vehicle System Dynamics
+58(10), do: that is the line of the racetrack-database (0.28-0.95 m from ours on average on its five tracks, margin
+1 m). That linearisation sees ``k - k^2 a`` where an offset curve has ``k + k^2 a``, so it puts the line on the
+inside of long constant-radius corners (on a ring: the inner wall). The next QPs are Gauss-Newton steps on the exact
+polyline curvature ``cross(p', p'') / |p'|^3``; they converge to the true minimum-curvature line, whose QSS lap is
+0.2-4.5 % faster (hatchback and gt3; most on the built-in tracks' arcs; Catalunya gt3 +0.2 %), so three QPs are the
+default and ``iterations=1`` gives the database's formulation.
 """
 
 from __future__ import annotations
@@ -28,8 +30,9 @@ from vision_rl.sim.track import Track, TrackError
 #: distance against 1.01 m at 2 m and 1.11 m at 3 m, where the main straight leaves the objective nearly flat).
 DEFAULT_OPT_STEP_M = 1.0
 
-#: QPs solved: 1 is the Heilmeier et al. line; each further one is a Gauss-Newton step on the exact curvature.
-DEFAULT_ITERATIONS = 1
+#: QPs solved: 1 is the Heilmeier et al. line; each further one is a Gauss-Newton step on the exact curvature (the
+#: third moves the line by millimetres).
+DEFAULT_ITERATIONS = 3
 
 #: Interior-point iterations before falling back to OSQP; 20-30 are typical.
 _IPM_MAX_ITER = 80
@@ -135,38 +138,70 @@ def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
+def _polyline_normals(track: Track) -> np.ndarray:
+    """Left unit normals (n, 2) of the centre polyline from central differences.
+
+    Not ``track.normal_left``: that comes from the spline's heading, which on some built tracks differs from the
+    polyline's direction by a few mrad at isolated samples; offsets of several metres along it would put kinks of
+    1-2 cm, curvature spikes of several 0.01 /m, into the line. The two normals differ by < 5 mrad, so a line
+    point moves < 3 cm against the walls, well inside any margin.
+    """
+    chord = np.roll(track.centre_xy_m, -1, axis=0) - np.roll(track.centre_xy_m, 1, axis=0)
+    chord /= np.hypot(chord[:, 0], chord[:, 1])[:, None]
+    return np.stack([-chord[:, 1], chord[:, 0]], axis=1)
+
+
+def _difference_weights(centre_xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Three-point weights (3, n) of the first and second derivative in arc length on a closed, unevenly spaced
+    polyline: ``f'_i = sum_o w1[o, i] f_{i+o-1}``, likewise ``f''``. Exact for quadratics."""
+    seg = np.roll(centre_xy_m, -1, axis=0) - centre_xy_m
+    h_f = np.hypot(seg[:, 0], seg[:, 1])
+    h_b = np.roll(h_f, 1)
+    total = h_f + h_b
+    w1 = np.stack([-h_f / (h_b * total), (h_f - h_b) / (h_f * h_b), h_b / (h_f * total)])
+    w2 = np.stack([2.0 / (h_b * total), -2.0 / (h_f * h_b), 2.0 / (h_f * total)])
+    return w1, w2
+
+
+def _apply(weights: np.ndarray, values: np.ndarray) -> np.ndarray:
+    return (
+        weights[0][:, None] * np.roll(values, 1, axis=0)
+        + weights[1][:, None] * values
+        + weights[2][:, None] * np.roll(values, -1, axis=0)
+    )
+
+
 def _curvature_and_jacobian(
     centre_xy_m: np.ndarray,
     normal: np.ndarray,
     lateral_m: np.ndarray,
-    step_m: float,
     reference_tangent: bool = False,
 ) -> tuple[np.ndarray, sparse.csc_matrix]:
-    """Curvature of the periodic polyline ``p = c + a n`` from central differences, and its Jacobian in ``a``.
+    """Curvature of the periodic polyline ``p = c + a n`` from finite differences, and its Jacobian in ``a``.
 
-    Differences are taken in the centre line's parameter (uniform ``step_m``), so ``p'`` and ``p''`` are linear in
-    ``a`` and kappa_i depends only on a_{i-1}, a_i, a_{i+1}: the Jacobian is tridiagonal plus two corners.
-    With ``reference_tangent`` the first derivative is held at the centre line's, ``kappa = cross(c', p'') / |c'|^3``,
-    which is linear in ``a``: the formulation of Heilmeier et al. (2019). It ignores that offsets towards the inside of
-    a corner shorten the path, so it favours the inside of long corners a little.
+    Derivatives are taken in the centre line's arc length (unevenly spaced samples allowed), so ``p'`` and ``p''``
+    are linear in ``a`` and kappa_i depends only on a_{i-1}, a_i, a_{i+1}: the Jacobian is tridiagonal plus two
+    corners. With ``reference_tangent`` the first derivative is held at the centre line's,
+    ``kappa = cross(c', p'') / |c'|^3``, which is linear in ``a``: the formulation of Heilmeier et al. (2019). It
+    ignores that offsets towards the inside of a corner shorten the path, so it favours the inside of long corners.
     """
     n = len(lateral_m)
+    w1, w2 = _difference_weights(centre_xy_m)
     p = centre_xy_m + normal * lateral_m[:, None]
-    d2 = (np.roll(p, -1, axis=0) - 2.0 * p + np.roll(p, 1, axis=0)) / step_m**2
-    base = centre_xy_m if reference_tangent else p
-    d1 = (np.roll(base, -1, axis=0) - np.roll(base, 1, axis=0)) / (2.0 * step_m)
+    d2 = _apply(w2, p)
+    d1 = _apply(w1, centre_xy_m if reference_tangent else p)
     cross = _cross(d1, d2)
     speed2 = np.einsum("nk,nk->n", d1, d1)
     speed3 = speed2**1.5
     kappa = cross / speed3
     cols, vals = [], []
-    for offset, weight_d1, weight_d2 in ((-1, -0.5, 1.0), (0, 0.0, -2.0), (1, 0.5, 1.0)):
+    for k, offset in enumerate((-1, 0, 1)):
         # Derivatives of p'_i and p''_i with respect to a_{i+offset}.
         n_j = np.roll(normal, -offset, axis=0)
-        dd2 = weight_d2 * n_j / step_m**2
+        dd2 = w2[k][:, None] * n_j
         dvals = _cross(d1, dd2) / speed3
         if not reference_tangent:
-            dd1 = weight_d1 * n_j / step_m
+            dd1 = w1[k][:, None] * n_j
             dspeed2 = 2.0 * np.einsum("nk,nk->n", d1, dd1)
             dvals = dvals + _cross(dd1, d2) / speed3 - 1.5 * cross * dspeed2 / (speed3 * speed2)
         vals.append(dvals)
@@ -180,6 +215,17 @@ def _max_step(value: np.ndarray, change: np.ndarray) -> float:
     """Largest step in [0, 1] that keeps ``value + step * change`` non-negative."""
     neg = change < 0.0
     return float(min(1.0, np.min(-value[neg] / change[neg]))) if neg.any() else 1.0
+
+
+def _newton_direction(
+    lu, residual, slack_lo, slack_up, z_lo, z_up, target, corr_lo, corr_up
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One interior-point direction (dx, dz_lo, dz_up) for the complementarity target ``target`` (+ corrections)."""
+    rhs = -residual + (target - corr_lo) / slack_lo - z_lo - (target - corr_up) / slack_up + z_up
+    dx = lu.solve(rhs)
+    dz_lo = (target - corr_lo - slack_lo * z_lo - z_lo * dx) / slack_lo
+    dz_up = (target - corr_up - slack_up * z_up + z_up * dx) / slack_up
+    return dx, dz_lo, dz_up
 
 
 def _box_qp(
@@ -203,22 +249,14 @@ def _box_qp(
         if mu < tol and np.abs(residual).max() < tol:
             return x
         lu = splu((hess + sparse.diags(z_lo / slack_lo + z_up / slack_up)).tocsc())
-
-        def direction(
-            target: float, corr_lo: np.ndarray | float, corr_up: np.ndarray | float
-        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            rhs = -residual + (target - corr_lo) / slack_lo - z_lo - (target - corr_up) / slack_up + z_up
-            dx = lu.solve(rhs)  # noqa: B023 - used within this iteration only
-            dz_lo = (target - corr_lo - slack_lo * z_lo - z_lo * dx) / slack_lo
-            dz_up = (target - corr_up - slack_up * z_up + z_up * dx) / slack_up
-            return dx, dz_lo, dz_up
-
-        dx, dz_lo, dz_up = direction(0.0, 0.0, 0.0)
+        state = (lu, residual, slack_lo, slack_up, z_lo, z_up)
+        dx, dz_lo, dz_up = _newton_direction(*state, 0.0, 0.0, 0.0)
         a_p = min(_max_step(slack_lo, dx), _max_step(slack_up, -dx))
         a_d = min(_max_step(z_lo, dz_lo), _max_step(z_up, dz_up))
         mu_aff = ((slack_lo + a_p * dx) @ (z_lo + a_d * dz_lo) + (slack_up - a_p * dx) @ (z_up + a_d * dz_up)) / (2 * n)
         sigma = (mu_aff / mu) ** 3
-        dx, dz_lo, dz_up = direction(sigma * mu, dx * dz_lo, -dx * dz_up)
+        dx, dz_lo, dz_up = _newton_direction(*state, sigma * mu, dx * dz_lo, -dx * dz_up)
+        # Slacks are updated, not recomputed from x: x - lower can round to 0 next to a bound.
         a_p = 0.99 * min(_max_step(slack_lo, dx), _max_step(slack_up, -dx))
         a_d = 0.99 * min(_max_step(z_lo, dz_lo), _max_step(z_up, dz_up))
         x = x + a_p * dx
@@ -238,6 +276,8 @@ def _solve_qp(
     hess = hess * scale
     free = upper - lower > 1e-9
     x = lower.copy()
+    if not free.any():
+        return x
     if free.all():
         sol = _box_qp(hess, grad, lower, upper)
     else:
@@ -292,12 +332,11 @@ def optimise_racing_line(
     lower_full = np.where(narrow, mid, lower_full)
     upper_full = np.where(narrow, mid, upper_full)
 
-    n_opt = int(round(track.length_m / opt_step_m))
+    n_opt = round(track.length_m / opt_step_m)
     if n_opt < 8:
         raise TrackError(f"track {track.name!r} too short for a racing line at {opt_step_m} m steps")
     n_opt = min(n_opt, track.n_points)
     idx = np.round(np.arange(n_opt) * (track.n_points / n_opt)).astype(np.int64) % track.n_points
-    step_m = track.length_m / n_opt
     # The spline between optimisation samples follows the neighbouring bounds only roughly: make each sample's
     # bounds the tightest over the samples it stands for, so the interpolated line rarely needs clipping (a clip
     # would copy the walls' survey jitter into the line's curvature).
@@ -305,27 +344,33 @@ def optimise_racing_line(
     lower = np.minimum(maximum_filter1d(lower_full, window, mode="wrap")[idx], mid[idx])
     upper = np.maximum(minimum_filter1d(upper_full, window, mode="wrap")[idx], mid[idx])
     centre = track.centre_xy_m[idx]
-    normal = track.normal_left[idx]
+    normal = _polyline_normals(track)[idx]
     a = np.clip(np.zeros(n_opt), lower, upper)
     for iteration in range(iterations):
-        kappa0, jac = _curvature_and_jacobian(centre, normal, a, step_m, reference_tangent=iteration == 0)
+        kappa0, jac = _curvature_and_jacobian(centre, normal, a, reference_tangent=iteration == 0)
         a = _solve_qp(kappa0, jac, a, lower, upper)
 
-    s_opt = track.s_m[idx]
-    spline = interpolate.CubicSpline(np.append(s_opt, track.length_m), np.append(a, a[0]), bc_type="periodic")
-    lateral = np.clip(spline(track.s_m), lower_full, upper_full)
+    # Interpolate in the polyline's own arc length, the parameter the offsets were optimised in.
+    seg = np.roll(track.centre_xy_m, -1, axis=0) - track.centre_xy_m
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+    spline = interpolate.CubicSpline(np.append(arc[idx], arc[-1]), np.append(a, a[0]), bc_type="periodic")
+    lateral = np.clip(spline(arc[:-1]), lower_full, upper_full)
     return racing_line_from_offsets(track, lateral, margin_m)
 
 
 def racing_line_from_offsets(track: Track, lateral_m: np.ndarray, margin_m: float = 0.0) -> RacingLine:
-    """A :class:`RacingLine` through ``track.centre_xy_m + lateral_m * normal_left`` (offsets per track sample)."""
+    """A :class:`RacingLine` through ``track.centre_xy_m + lateral_m * n`` (offsets per track sample), where ``n`` is
+    the centre polyline's own left normal (see :func:`_polyline_normals`)."""
     lateral = np.asarray(lateral_m, dtype=np.float64)
-    xy = track.centre_xy_m + track.normal_left * lateral[:, None]
-    kappa, _ = _curvature_and_jacobian(track.centre_xy_m, track.normal_left, lateral, track.spacing_m)
+    xy = track.centre_xy_m + _polyline_normals(track) * lateral[:, None]
     seg = np.roll(xy, -1, axis=0) - xy
     seg_len = np.hypot(seg[:, 0], seg[:, 1])
     s = np.concatenate([[0.0], np.cumsum(seg_len)[:-1]])
     d1 = np.roll(xy, -1, axis=0) - np.roll(xy, 1, axis=0)
+    # Curvature of the circle through each sample and its neighbours (Menger): exact for any spacing, which a
+    # finite difference in the sample index is not where the centre line's samples are unevenly spaced.
+    back = np.roll(seg, 1, axis=0)
+    kappa = 2.0 * _cross(back, seg) / (np.roll(seg_len, 1) * seg_len * np.hypot(d1[:, 0], d1[:, 1]))
     return RacingLine(
         track_s_m=track.s_m.copy(),
         lateral_m=lateral,

@@ -222,8 +222,18 @@ def _passes(p, ds, kappa, v_corner, slip_f, slip_r, start):
     """Forward then backward pass from the slowest corner point, repeated until the lap closes on itself."""
     n = len(ds)
     v_fwd = v_corner.copy()
-    v_fwd[start] = v_corner[start]
+    # Start at the highest speed the car can hold at the slowest corner point (where the cornering drag does not
+    # outweigh the drive): a steady corner then closes in one lap, and the laps after can only raise it.
     v_start = v_corner[start]
+    if _accel_limit(p, v_start, kappa[start], slip_f, slip_r, False) < 0.0:
+        lo, hi = MIN_SPEED_MPS, v_start
+        for _ in range(50):
+            mid = 0.5 * (lo + hi)
+            if _accel_limit(p, mid, kappa[start], slip_f, slip_r, False) >= 0.0:
+                lo = mid
+            else:
+                hi = mid
+        v_start = lo
     for _ in range(_MAX_PASS_LAPS):
         v_fwd[start] = v_start
         for k in range(n):
