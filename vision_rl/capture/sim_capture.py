@@ -27,7 +27,7 @@ import numpy as np
 from vision_rl.capture.h5format import CaptureWriter, open_capture
 from vision_rl.config import doc
 from vision_rl.sim import sensors
-from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver, DisruptionParams, Disruptor
+from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver, DisruptionParams, Disruptor, StuckDetector
 from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.track import Track
 from vision_rl.sim.track_library import load_track
@@ -156,8 +156,9 @@ def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
     start_u = world.state.unwrapped_s_m.copy()
     caster = sensors.WallRayCaster(track)
     # Stuck detection: progress over a sliding window (the disrupted AI may end up facing a wall).
-    window = max(1, round(disruption.stuck_after_s / control_dt))
-    u_window = np.tile(world.state.unwrapped_s_m, (window, 1))
+    stuck_detector = StuckDetector(
+        world.state.unwrapped_s_m, round(disruption.stuck_after_s / control_dt), disruption.stuck_progress_m
+    )
     resets = 0
     frames = 0
     laps_done = laps_before
@@ -193,21 +194,17 @@ def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
                     steer, omega = disruptor(steer, omega, control_dt)
                 world.step(steer, omega)
                 step += 1
-                u_window[step % window] = world.state.unwrapped_s_m
-                if step >= window:
-                    stuck = np.flatnonzero(
-                        world.state.unwrapped_s_m - u_window[(step + 1) % window] < disruption.stuck_progress_m
-                    )
-                    if len(stuck):
-                        # Put a stuck car back on the racing line a little ahead, at half the AI's speed; it
-                        # starts a new lap index so that a lap never mixes two placements.
-                        done_now = np.floor((world.state.unwrapped_s_m[stuck] - start_u[stuck]) / track.length_m)
-                        lap_count_base[stuck] += done_now.astype(np.int64)
-                        lap_index_base[stuck] += done_now.astype(np.int64) + 1
-                        place(stuck, world.state.s_m[stuck] + 5.0, 0.5)
-                        start_u[stuck] = world.state.unwrapped_s_m[stuck]
-                        u_window[:, stuck] = start_u[stuck]
-                        resets += len(stuck)
+                stuck = stuck_detector.update(world.state.unwrapped_s_m)
+                if len(stuck):
+                    # Put a stuck car back on the racing line a little ahead, at half the AI's speed; it
+                    # starts a new lap index so that a lap never mixes two placements.
+                    done_now = np.floor((world.state.unwrapped_s_m[stuck] - start_u[stuck]) / track.length_m)
+                    lap_count_base[stuck] += done_now.astype(np.int64)
+                    lap_index_base[stuck] += done_now.astype(np.int64) + 1
+                    place(stuck, world.state.s_m[stuck] + 5.0, 0.5)
+                    start_u[stuck] = world.state.unwrapped_s_m[stuck]
+                    stuck_detector.reset(stuck, world.state.unwrapped_s_m)
+                    resets += len(stuck)
     except KeyboardInterrupt:
         interrupted = True
     finally:

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from vision_rl.config import doc
-from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver, DisruptionParams, Disruptor
+from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver, DisruptionParams, Disruptor, StuckDetector
 from vision_rl.sim.racing_line import RacingLine, optimise_racing_line
 from vision_rl.sim.speed_profile import SpeedProfile, profile_for_line
 from vision_rl.sim.track import Track
@@ -108,8 +108,9 @@ def drive_ai(
     place(np.arange(n_cars), s0, 1.0)
     dt = AI_CONTROL_DT_S
     max_steps = int((laps + 1) * 3.0 * profile.lap_time_s / dt)
-    window = max(1, round(disruption.stuck_after_s / dt))
-    u_hist = np.tile(world.state.unwrapped_s_m, (window, 1))
+    stuck_detector = StuckDetector(
+        world.state.unwrapped_s_m, round(disruption.stuck_after_s / dt), disruption.stuck_progress_m
+    )
     speeds, path, stuck_resets = [], [], 0
     for step in range(max_steps):
         steer, omega = ai.act(world.state)
@@ -122,17 +123,15 @@ def drive_ai(
         if record_path:
             heading_error = np.angle(np.exp(1j * (st.vehicle.yaw_rad - track.heading_at(st.s_m))))
             path.append(np.stack([st.vehicle.x_m, st.vehicle.y_m, v, st.lateral_m, heading_error], axis=1))
-        u_hist[step % window] = st.unwrapped_s_m
-        if step >= window:
-            # A car that has not moved stuck_progress_m in stuck_after_s is put back on the line, slowly.
-            stuck = np.flatnonzero(st.unwrapped_s_m - u_hist[(step + 1) % window] < disruption.stuck_progress_m)
-            if len(stuck):
-                stuck_resets += len(stuck)
-                laps_kept = [list(world.lap_times_s[i]) for i in stuck]
-                place(stuck, st.s_m[stuck] + 5.0, 0.5)
-                for i, kept in zip(stuck, laps_kept, strict=True):
-                    world.lap_times_s[i] = kept
-                u_hist[:, stuck] = world.state.unwrapped_s_m[stuck]
+        # A car that has not moved stuck_progress_m in stuck_after_s is put back on the line, slowly.
+        stuck = stuck_detector.update(st.unwrapped_s_m)
+        if len(stuck):
+            stuck_resets += len(stuck)
+            laps_kept = [list(world.lap_times_s[i]) for i in stuck]
+            place(stuck, st.s_m[stuck] + 5.0, 0.5)
+            for i, kept in zip(stuck, laps_kept, strict=True):
+                world.lap_times_s[i] = kept
+            stuck_detector.reset(stuck, world.state.unwrapped_s_m)
         if all(len(t) >= laps for t in world.lap_times_s):
             break
     result: dict[str, Any] = {
