@@ -292,14 +292,9 @@ def plot_trajectory(core: RacingCore, run: ProtocolRun, index: int, path: str | 
 
 
 def _video_writer(path: Path, fps: float):
-    try:
-        import imageio.v2 as imageio
-        import imageio_ffmpeg  # noqa: F401  (the ffmpeg binary the mp4 writer needs)
-    except ImportError as exc:
-        raise VideoDependencyError(
-            "--video needs imageio with its ffmpeg plugin: pip install 'imageio[ffmpeg]' "
-            f"(it bundles a static ffmpeg binary); {exc}"
-        ) from exc
+    check_video_dependencies()
+    import imageio.v2 as imageio
+
     # Even frame sizes suffice for yuv420p; the default block of 16 would rescale 470 x 280.
     return imageio.get_writer(str(path), fps=fps, codec="libx264", quality=7, macro_block_size=2)
 
@@ -312,7 +307,7 @@ def check_video_dependencies() -> None:
     """Raise :class:`VideoDependencyError` now rather than after a long evaluation."""
     try:
         import imageio  # noqa: F401
-        import imageio_ffmpeg  # noqa: F401
+        import imageio_ffmpeg  # noqa: F401  (the ffmpeg binary the mp4 writer needs)
     except ImportError as exc:
         raise VideoDependencyError(
             "--video needs imageio with its ffmpeg plugin: pip install 'imageio[ffmpeg]' "
