@@ -143,7 +143,7 @@ def test_stuck_detector_flags_once_per_window_and_never_a_moving_car():
     s_m = np.zeros(2)
     detector = StuckDetector(s_m, window, min_progress_m=5.0)
     flagged = []
-    for step in range(1, 13):
+    for _ in range(12):
         s_m = s_m + np.array([0.0, 2.0])  # car 0 parked, car 1 at 2 m per step
         stuck = detector.update(s_m)
         flagged.append(list(stuck))

@@ -112,7 +112,7 @@ def drive_ai(
         world.state.unwrapped_s_m, round(disruption.stuck_after_s / dt), disruption.stuck_progress_m
     )
     speeds, path, stuck_resets = [], [], 0
-    for step in range(max_steps):
+    for _ in range(max_steps):
         steer, omega = ai.act(world.state)
         if disruptor is not None:
             steer, omega = disruptor(steer, omega, dt)
