@@ -41,9 +41,10 @@ def _config(track, out, **kw):
     return dataclasses.replace(base, **kw)
 
 
-def test_physics_step_divides_the_capture_interval():
-    assert physics_step_for(60) == pytest.approx((1 / 120, 1 / 60))
-    assert physics_step_for(10) == pytest.approx((0.01, 0.1))
+def test_physics_step_divides_the_capture_interval_and_the_ai_steers_at_50_hz_or_faster():
+    assert physics_step_for(60) == pytest.approx((1 / 120, 1 / 60, 1))
+    assert physics_step_for(10) == pytest.approx((0.01, 0.02, 5))  # 5 AI steps a frame, as in `drive`
+    assert physics_step_for(30) == pytest.approx((1 / 120, 1 / 60, 2))
     with pytest.raises(ValueError, match="fps"):
         physics_step_for(0)
 
@@ -80,6 +81,17 @@ def test_capture_writes_the_contract_and_targets_match_the_poses(egl, circle_csv
             assert np.all(np.diff(f.lap[mine]) >= 0)
             s = track.project(f.pose[mine][:, :2]).s_m
             assert track.progress_delta(s[:-1], s[1:]).sum() > 0.95 * track.length_m
+
+
+def test_undisturbed_capture_keeps_the_ai_on_its_line_at_a_low_frame_rate(egl, circle_csv, tmp_path):
+    # The AI steers at 50 Hz between frames 0.1 s apart; the frames' heading errors stay those of its line.
+    cfg = _config(circle_csv, tmp_path / "clean.h5", cars=1, laps=1, disrupt_ai=False)
+    capture_sim(cfg)
+    with open_capture(cfg.out) as f:
+        np.testing.assert_allclose(np.diff(f.time_s), 0.1, atol=1e-9)
+        heading = f.targets[:, list(f.target_names).index("heading_angle_to_centre_line")]
+        assert np.abs(heading).max() < np.radians(15.0)
+        assert f.dedicated[:, list(f.dedicated_names).index("wall_contact")].max() == 0.0
 
 
 def test_existing_file_is_not_overwritten_without_force(egl, circle_csv, tmp_path):

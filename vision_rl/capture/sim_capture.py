@@ -28,7 +28,7 @@ from vision_rl.capture.h5format import CaptureWriter, open_capture
 from vision_rl.config import doc
 from vision_rl.sim import sensors
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver, DisruptionParams, Disruptor, StuckDetector
-from vision_rl.sim.driving import line_and_profile
+from vision_rl.sim.driving import AI_CONTROL_DT_S, line_and_profile
 from vision_rl.sim.track import Track
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import get_preset
@@ -62,12 +62,17 @@ class CaptureConfig:
     json: bool = field(default=False, metadata=doc("print the summary as JSON"))
 
 
-def physics_step_for(fps: float) -> tuple[float, float]:
-    """(physics_dt_s, control_dt_s) for a capture rate: the largest physics step <= 10 ms dividing 1/fps."""
+def physics_step_for(fps: float) -> tuple[float, float, int]:
+    """(physics_dt_s, control_dt_s, control_steps_per_frame) for a capture rate.
+
+    The AI steers at least every ``AI_CONTROL_DT_S`` whatever the frame rate (it is tuned at 50 Hz: steering every
+    0.1 s for a 10 fps capture, the undisturbed AI spun off now and then); physics steps are <= 10 ms."""
     if not 1.0 <= fps <= 200.0:
         raise ValueError(f"fps must be within 1..200, got {fps}")
-    control_dt = 1.0 / fps
-    return control_dt / math.ceil(control_dt / 0.01 - 1e-9), control_dt
+    frame_dt = 1.0 / fps
+    steps_per_frame = math.ceil(frame_dt / AI_CONTROL_DT_S - 1e-9)
+    control_dt = frame_dt / steps_per_frame
+    return control_dt / math.ceil(control_dt / 0.01 - 1e-9), control_dt, steps_per_frame
 
 
 def capture_attrs(track: Track, cfg: CaptureConfig, renderer_settings: dict, source: str) -> dict:
@@ -120,7 +125,7 @@ def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
     path = Path(cfg.out)
     track = load_track(cfg.track)
     car = get_preset(cfg.car)
-    physics_dt, control_dt = physics_step_for(cfg.fps)
+    physics_dt, control_dt, steps_per_frame = physics_step_for(cfg.fps)
     n = cfg.cars
     if n < 1:
         raise ValueError(f"cars must be >= 1, got {n}")
@@ -131,6 +136,7 @@ def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
     if cfg.resume and writer.n_frames:
         writer.close()
         frames_before, lap_offset, t_before = _done_so_far(path)
+        t_before += steps_per_frame * control_dt  # the first new frame comes one frame after the last kept one
         writer = open_writer(path, track, cfg, renderer_settings, "sim")
     # Lap bookkeeping per car: the lap index of its frames (never reused: a lap cut by an interruption or a
     # stuck-reset is not continued) and the number of whole laps recorded.
@@ -166,7 +172,7 @@ def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
     interrupted = False
     try:
         with Renderer(track, render_cfg, car_length_m=car.length_m, car_width_m=car.width_m) as renderer:
-            step = 0
+            frame_step = 0
             while True:
                 st = world.state
                 v = st.vehicle
@@ -182,29 +188,30 @@ def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
                     targets=targets.astype(np.float32),
                     dedicated=dedicated.astype(np.float32),
                     pose=np.stack([v.x_m, v.y_m, v.yaw_rad], axis=1),
-                    time_s=np.full(n, t_before + step * control_dt),
+                    time_s=np.full(n, t_before + frame_step * steps_per_frame * control_dt),
                     lap=(lap_index_base + completed).astype(np.int32),
                     car_id=np.arange(n, dtype=np.int32),
                 )
                 frames += n
                 if progress is not None:
                     progress(laps_done - laps_before, frames)
-                steer, omega = ai.act(st)
-                if disruptor is not None:
-                    steer, omega = disruptor(steer, omega, control_dt)
-                world.step(steer, omega)
-                step += 1
-                stuck = stuck_detector.update(world.state.unwrapped_s_m)
-                if len(stuck):
-                    # Put a stuck car back on the racing line a little ahead, at half the AI's speed; it
-                    # starts a new lap index so that a lap never mixes two placements.
-                    done_now = np.floor((world.state.unwrapped_s_m[stuck] - start_u[stuck]) / track.length_m)
-                    lap_count_base[stuck] += done_now.astype(np.int64)
-                    lap_index_base[stuck] += done_now.astype(np.int64) + 1
-                    place(stuck, world.state.s_m[stuck] + 5.0, 0.5)
-                    start_u[stuck] = world.state.unwrapped_s_m[stuck]
-                    stuck_detector.reset(stuck, world.state.unwrapped_s_m)
-                    resets += len(stuck)
+                frame_step += 1
+                for _ in range(steps_per_frame):
+                    steer, omega = ai.act(world.state)
+                    if disruptor is not None:
+                        steer, omega = disruptor(steer, omega, control_dt)
+                    world.step(steer, omega)
+                    stuck = stuck_detector.update(world.state.unwrapped_s_m)
+                    if len(stuck):
+                        # Put a stuck car back on the racing line a little ahead, at half the AI's speed; it
+                        # starts a new lap index so that a lap never mixes two placements.
+                        done_now = np.floor((world.state.unwrapped_s_m[stuck] - start_u[stuck]) / track.length_m)
+                        lap_count_base[stuck] += done_now.astype(np.int64)
+                        lap_index_base[stuck] += done_now.astype(np.int64) + 1
+                        place(stuck, world.state.s_m[stuck] + 5.0, 0.5)
+                        start_u[stuck] = world.state.unwrapped_s_m[stuck]
+                        stuck_detector.reset(stuck, world.state.unwrapped_s_m)
+                        resets += len(stuck)
     except KeyboardInterrupt:
         interrupted = True
     finally:
