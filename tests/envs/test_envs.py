@@ -101,6 +101,18 @@ def test_overtaking_reward_and_info_on_setting_a():
     assert np.all(obs[0, 7:79] <= 20.0 + 1e-9)
 
 
+def test_opponents_act_at_the_ai_rate_and_stay_off_the_walls():
+    core = _core(scenario="setting_b", n_groups=2)
+    assert core.ai_substeps == 5 and _core().ai_substeps == 1  # 10 Hz agents, 50 Hz built-in AI
+    core.reset_groups(np.arange(2))
+    for _ in range(300):  # 30 s; the egos hold their lane at a crawl, the opponents race ahead
+        core.step(np.array([[0.0, 0.1], [0.0, 0.1]]), autoreset=False)
+    opponents = np.flatnonzero(np.arange(core.world.n_cars) % core.group_size != 0)
+    assert core.world.state.time_s[0] == pytest.approx(30.0)
+    # Acting at 10 Hz, one opponent here scraped a wall for 20 s; at 50 Hz the ten touch for 0.3 s in all.
+    assert core.world.state.wall_contact_time_s[opponents].sum() < 1.0
+
+
 def test_autoreset_gives_a_fresh_observation_and_final_observation():
     env = make_vector_env(RacingConfig(track=TRACK, n_groups=3, episode_s=0.3), seed=1)
     env.reset()

@@ -224,21 +224,10 @@ def policy_controller(policy: LoadedPolicy) -> Controller:
     return act
 
 
-def ai_controller(core: RacingCore) -> tuple[np.ndarray, np.ndarray]:
-    """The built-in AI at the core's skill (``start_skill``, the default skill unless changed)."""
-    return core.ai.act(core.world.state)
-
-
 def protocol_core(config: RacingConfig, n_seeds: int) -> RacingCore:
     """A core for the protocol: ``n_seeds`` lone egos, no normalisation (the policy's observer applies its own)."""
     cfg = dataclasses.replace(config, n_groups=n_seeds, scenario="time_trial", normalize=False, stuck_timeout_s=None)
     return RacingCore(cfg, seed=0)
-
-
-def evaluate_ai(track: str, car: str, laps: int = 2, seeds: int = 1, seed: int = 0, start: str = "rolling") -> dict:
-    """The built-in AI at default skill under the same protocol as the policies (summary dict)."""
-    core = protocol_core(RacingConfig(track=track, car=car), seeds)
-    return run_protocol(core, ai_controller, laps, list(range(seed, seed + seeds)), start, record=False).summary()
 
 
 # ------------------------------------------------------------------------------------------------- outputs

@@ -64,8 +64,7 @@ def sample_vision_statistics(core: RacingCore, encoder, steps: int, seed: int = 
     core.reset_groups(np.arange(core.config.n_groups))
     samples = []
     for _ in range(steps):
-        steer, omega = disruptor(*core.ai.act(core.world.state), core.config.control_dt_s)
-        core.world.step(steer, omega)
+        core.advance(disruptor=disruptor)
         samples.append(raw(core))
     core.rng = saved_rng
     return ObsNormalizer.from_samples("vision", np.concatenate(samples).astype(np.float64))
