@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from tests.phase2_rl.conftest import renderer_available
 from vision_rl.phase2_rl import leaderboard as lb
 from vision_rl.phase2_rl.pipeline import pipeline_phase2
@@ -21,3 +23,25 @@ def test_pipeline_tiny(small_track, tiny_encoders, tmp_path, monkeypatch):
         assert summary["vision"]["num_timesteps"] == 120 and "pipeline-vision" in names
     else:
         assert "skipped" in summary["vision"]
+
+
+def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path, monkeypatch):
+    reason = renderer_available()
+    if reason:
+        pytest.skip(reason)
+    from vision_rl.capture.h5format import open_capture
+    from vision_rl.pipeline import PipelineConfig, run_pipeline_stages
+
+    monkeypatch.setattr(lb, "reference_lap_times",
+                        lambda track, car: {"limit_lap_time_s": 25.0, "ai_lap_time_s": 28.0, "source": "test"})
+    runs = tmp_path / "runs"
+    summary = run_pipeline_stages(PipelineConfig(tiny=True, track=small_track, runs=str(runs)))
+    with open_capture(summary["capture"]["train"]) as f:
+        assert f.complete and f.image_hw == (64, 96)
+    assert (runs / "repr" / "pipeline" / "ckpt.pt").is_file()
+    assert summary["train_repr"]["n_train_frames"] > 0 and summary["train_repr"]["n_val_frames"] > 0
+    names = [r["name"] for r in summary["phase2"]["leaderboard"]]
+    assert {"pipeline-state", "pipeline-vision"} <= set(names)
+    # A second call finds every stage's output and does not redo the capture or Phase 1.
+    again = run_pipeline_stages(PipelineConfig(tiny=True, track=small_track, runs=str(runs)))
+    assert "train_repr" not in again and again["capture"]["seconds"] < 1.0
