@@ -93,7 +93,8 @@ def run_bench_env(cfg: BenchEnvConfig) -> int:
 
 @dataclass
 class BenchRenderConfig:
-    """Measure the renderer (one view, 20 tiled views) and capture end to end (physics, targets, render, write)."""
+    """Measure the renderer (one view, 20 tiled views), capture end to end (physics, targets, render, write) and
+    random read-back of the captured frames (2 DataLoader workers)."""
 
     track: str = field(default="expressway", metadata=doc("track: built-in name, random:SEED or CSV path"))
     repeats: int = field(default=5, metadata=doc("timed repeats; medians are reported"))
@@ -105,15 +106,18 @@ def run_bench_render(cfg: BenchRenderConfig) -> int:
     import tempfile
 
     from vision_rl.capture.sim_capture import CaptureConfig, capture_sim
+    from vision_rl.datasets.bench import bench_readback
     from vision_rl.render.bench import bench_render
 
     result = bench_render(n_views=20, repeats=cfg.repeats, track=cfg.track)
     with tempfile.TemporaryDirectory() as tmp:
         cap = capture_sim(CaptureConfig(out=f"{tmp}/bench.h5", track=cfg.track, cars=4, max_frames=cfg.capture_frames))
-    result.update(capture_fps=cap["capture_fps"], bytes_per_frame=cap["bytes_per_frame"])
+        result.update(capture_fps=cap["capture_fps"], bytes_per_frame=cap["bytes_per_frame"])
+        # Random frames of that capture, read back the way training reads them (2 DataLoader worker processes).
+        result.update(bench_readback(cap["out"], n_workers=2, repeats=cfg.repeats))
     result["targets"] = {
         "render_fps_470x280": ">= 300", "render_fps_batch20": ">= 400", "capture_fps": ">= 150",
-        "bytes_per_frame": "<= 50,000 (15 GB for 300,000 frames)",
+        "bytes_per_frame": "<= 50,000 (15 GB for 300,000 frames)", "readback_fps": ">= 2,000 (2 worker processes)",
     }  # fmt: skip
     emit(result, cfg.json)
     return 0

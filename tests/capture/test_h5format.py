@@ -67,7 +67,7 @@ def assert_frames(cap, start: int, stop: int) -> None:
     np.testing.assert_array_equal(cap.car_id[start:stop], expected["car_id"])
 
 
-@pytest.mark.parametrize("compression", ["lzf", "gzip", "none"])
+@pytest.mark.parametrize("compression", ["zstd", "lzf", "gzip", "none"])
 def test_round_trip_shapes_dtypes_attributes(tmp_path: Path, compression: str) -> None:
     path = tmp_path / "cap.h5"
     w = writer(path, compression=compression)
@@ -95,6 +95,84 @@ def test_round_trip_shapes_dtypes_attributes(tmp_path: Path, compression: str) -
     with h5py.File(path) as f:  # plain h5py readers see the per-dataset names and units too
         assert list(f["targets"].attrs["names"]) == list(NAMES)
         assert f["time"].attrs["units"] == "s"
+
+
+def noisy_batch(k: int, seed: int) -> dict[str, np.ndarray]:
+    """A batch whose images are half random noise (incompressible) and half flat: every byte must survive."""
+    out = batch(k)
+    rng = np.random.default_rng(seed)
+    out["images"][:, : HW[0] // 2] = rng.integers(0, 256, (k, HW[0] // 2, HW[1], 3), dtype=np.uint8)
+    return out
+
+
+@pytest.mark.parametrize("compression", ["zstd", "gzip"])
+def test_codec_round_trips_bit_exactly_here_and_in_plain_h5py(tmp_path: Path, compression: str) -> None:
+    path = tmp_path / "cap.h5"
+    frames = noisy_batch(9, seed=3)
+    with writer(path, compression=compression) as w:
+        w.append(**frames)
+    with open_capture(path) as cap:
+        np.testing.assert_array_equal(cap.read_images(np.arange(9), threads=2), frames["images"])
+        np.testing.assert_array_equal(cap.read_images([4, 4, 0], threads=1), frames["images"][[4, 4, 0]])
+        np.testing.assert_array_equal(cap.read_image(8), frames["images"][8])
+    # The chunks are what HDF5's own deflate / Zstandard filter makes of them (hdf5plugin registers the latter).
+    with h5py.File(path) as f:
+        np.testing.assert_array_equal(f["images"][:9], frames["images"])
+        filter_id = f["images"].id.get_create_plist().get_filter(0)[0]
+        assert filter_id == (h5py.h5z.FILTER_DEFLATE if compression == "gzip" else 32015)
+
+
+def test_caller_may_reuse_its_buffers_while_frames_are_compressed(tmp_path: Path) -> None:
+    path = tmp_path / "cap.h5"
+    frames = noisy_batch(12, seed=5)
+    buf = {k: np.empty_like(v[:3]) for k, v in frames.items()}
+    with writer(path, flush_interval_s=3600.0) as w:
+        for start in range(0, 12, 3):
+            for k, v in frames.items():
+                buf[k][...] = v[start : start + 3]  # one buffer refilled for every batch, as a grabber does
+            w.append(**buf)
+        w.close(complete=True)
+    with open_capture(path) as cap:
+        assert cap.n_frames == 12
+        np.testing.assert_array_equal(cap.read_images(np.arange(12)), frames["images"])
+        np.testing.assert_array_equal(cap.targets, frames["targets"])
+        np.testing.assert_array_equal(cap.lap, frames["lap"])
+
+
+def test_file_of_the_old_gzip_codec_reads_and_resumes_with_it(tmp_path: Path) -> None:
+    path = tmp_path / "old.h5"
+    frames = noisy_batch(6, seed=4)
+    with writer(path, compression="gzip") as w:
+        w.append(**{k: v[:4] for k, v in frames.items()})
+    # As a file of the earlier format: images compressed by h5py's own deflate filter (level 6), not by this module.
+    with h5py.File(path, "r+") as f:
+        old = f["images"][:]
+        del f["images"]
+        f.create_dataset("images", data=old, maxshape=(None, *HW, 3), chunks=(1, *HW, 3), compression="gzip")
+    with open_capture(path) as cap:
+        np.testing.assert_array_equal(cap.read_images(np.arange(4)), frames["images"][:4])
+    w = writer(path, resume=True)  # the default codec is zstd: a resumed file keeps its own
+    assert w.compression == "gzip" and w.n_frames == 4
+    w.append(**{k: v[4:] for k, v in frames.items()})
+    w.close(complete=True)
+    with open_capture(path) as cap:
+        assert cap.attrs["compression"] == "gzip"
+        np.testing.assert_array_equal(cap.read_images(np.arange(6), threads=2), frames["images"])
+        np.testing.assert_array_equal(cap.read_image(5), frames["images"][5])
+
+
+def test_corrupt_zstd_frame_is_named(tmp_path: Path) -> None:
+    path = tmp_path / "cap.h5"
+    with writer(path) as w:
+        w.append(**batch(3))
+    with h5py.File(path, "r+") as f:
+        f["images"].id.write_direct_chunk((1, 0, 0, 0), b"not a zstd frame")
+    with open_capture(path) as cap:
+        np.testing.assert_array_equal(cap.read_image(0), batch(3)["images"][0])
+        with pytest.raises(CaptureFormatError, match="frame 1"):
+            cap.read_image(1)
+        with pytest.raises(CaptureFormatError, match="frame 1"):
+            cap.read_images([0, 1, 2], threads=2)
 
 
 def test_existing_file_needs_force_and_complete_file_cannot_resume(tmp_path: Path) -> None:

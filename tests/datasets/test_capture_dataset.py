@@ -12,7 +12,15 @@ from torch.utils.data import DataLoader
 
 from tests.datasets.synthetic_capture import write_synthetic_capture
 from vision_rl.capture.h5format import CaptureFormatError
-from vision_rl.datasets import CaptureDataset, FrameCatalogue, TargetStandardiser, expand_paths, split_by_lap
+from vision_rl.datasets import (
+    CaptureDataset,
+    FrameBatch,
+    FrameCatalogue,
+    TargetStandardiser,
+    collate_frames,
+    expand_paths,
+    split_by_lap,
+)
 from vision_rl.datasets.datamodule import CaptureDataModule
 
 
@@ -98,6 +106,36 @@ def test_dataset_items_and_worker_processes(shards) -> None:
     assert clone._handles == {}
     np.testing.assert_array_equal(clone[3][0].numpy(), images[3])
     ds.close()
+
+
+@pytest.mark.parametrize("num_workers", [0, 2])
+def test_batches_collate_without_copy_in_order_across_shards(shards, num_workers: int) -> None:
+    paths, written = shards
+    cat = FrameCatalogue.open(paths)
+    images = np.concatenate([w["images"] for w in written])
+    rows = np.array([44, 0, 20, 3, 19, 18, 31, 7, 2])  # both shards within one batch
+    ds = CaptureDataset(cat, rows)
+    batch = ds.__getitems__([0, 1, 2, 8])
+    assert isinstance(batch, FrameBatch) and len(batch) == 4
+    np.testing.assert_array_equal(batch[2][0].numpy(), images[20])  # still a list of (image, target) pairs
+    got_images, got_targets = collate_frames(batch)
+    assert got_images is batch.images and got_images.shape == (4, 64, 96, 3) and got_images.dtype == torch.uint8
+    np.testing.assert_array_equal(got_images.numpy(), images[rows[[0, 1, 2, 8]]])
+    np.testing.assert_array_equal(got_targets.numpy(), cat.targets[rows[[0, 1, 2, 8]]])
+    loader = DataLoader(ds, batch_size=4, num_workers=num_workers, collate_fn=collate_frames)
+    got = [b for b in loader]
+    np.testing.assert_array_equal(torch.cat([b[0] for b in got]).numpy(), images[rows])
+    np.testing.assert_array_equal(torch.cat([b[1] for b in got]).numpy(), cat.targets[rows])
+    ds.close()
+
+
+def test_readback_bench_reports_both_figures(shards) -> None:
+    from vision_rl.datasets.bench import bench_readback
+
+    paths, _ = shards
+    result = bench_readback(paths[0], n_workers=2, batch_size=4, frames_per_repeat=16, repeats=1)
+    assert result["readback_fps"] > 0 and result["readback_loader_fps"] > 0
+    assert result["readback_cpu_ms"] > 0 and result["readback_compression"] == "zstd"
 
 
 def test_shards_of_different_frame_sizes_are_refused(tmp_path: Path) -> None:

@@ -5,7 +5,8 @@ Layout of one file (one run or one shard), N frames:
 ====================  =========  ===============  ==============================================================
 dataset               dtype      shape            notes
 ====================  =========  ===============  ==============================================================
-``images``            uint8      (N, H, W, 3)     RGB, one frame per chunk (random reads decode only one frame)
+``images``            uint8      (N, H, W, 3)     RGB, one frame per chunk (random reads decode only one frame),
+                                                  zstd-compressed (see :data:`COMPRESSIONS`)
 ``targets``           float32    (N, 27)          the Phase-1 targets, attributes ``names`` and ``units``
 ``dedicated``         float32    (N, 11)          the dedicated features, attributes ``names`` and ``units``
 ``pose``              float64    (N, 3)           x_m, y_m, yaw_rad in the world frame
@@ -21,10 +22,12 @@ geometry hash, car preset, renderer settings, seed). Dict or list values are sto
 attribute ``json_attrs`` so the reader gives them back decoded.
 
 Crash safety: the writer flushes at most every ``flush_interval_s`` seconds, data first and then ``n_frames``, so
-the count on disk never covers frames whose bytes are not there. A kill between flushes can leave datasets longer
-than ``n_frames``; the reader and a resumed writer trust ``n_frames`` and ignore the tail. HDF5's default (earliest)
-file format is used on purpose: the newer superblock records "open for writing" and then refuses to reopen a file
-whose writer was killed without the ``h5clear`` tool.
+the count on disk never covers frames whose bytes are not there. Between flushes the rows of the small datasets
+wait in memory and the last batch's image chunks are being compressed in threads; a kill loses them with everything
+else after the last flush. A kill between flushes can leave datasets longer than ``n_frames``; the reader and a
+resumed writer trust ``n_frames`` and ignore the tail. HDF5's default (earliest) file format is used on purpose:
+the newer superblock records "open for writing" and then refuses to reopen a file whose writer was killed without
+the ``h5clear`` tool.
 """
 
 from __future__ import annotations
@@ -33,15 +36,18 @@ import contextlib
 import errno
 import json
 import os
+import threading
 import time
 import zlib
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import h5py
+import hdf5plugin  # registers HDF5's Zstandard filter, so h5py reads zstd images
 import numpy as np
+import zstandard
 
 FORMAT_VERSION = 1
 
@@ -70,14 +76,63 @@ ALL_DATASETS: tuple[str, ...] = ("images", *_FRAME_DATASETS)
 #: and small enough that the last, partly filled chunk costs little.
 _ROW_CHUNK = 4096
 
-#: Compression of the image chunks. Measured on 470x280 renderer frames (textured asphalt, these 2-core CPUs):
-#: gzip level 1 133 kB/frame and 780 random frames/s read back in one process, lzf 184 kB and 640 frames/s, none
-#: 396 kB and 13,000 frames/s. gzip is the default: smallest and fastest to decode of the two codecs h5py ships;
-#: its slower compression runs in a thread pool (zlib releases the GIL) and is written with write_direct_chunk.
-COMPRESSIONS = ("gzip", "lzf", "none")
+#: Compression of the image chunks, one frame per chunk. Measured on these shared 2-core CPUs (medians) with
+#: 470x280 renderer frames (64 colour levels, smooth textures): size on 2,000 captured expressway frames; random
+#: read-back by 2 processes with a handle each, batches of 64, one thread each (wall clock, and CPU per frame);
+#: compression on one thread (300 frames of three tracks):
+#:
+#: ======  ========  ===================  ==========  =======================================================
+#: codec   size      read-back, 2 procs   compress    notes
+#: ======  ========  ===================  ==========  =======================================================
+#: zstd 3  43.0 kB   2,800 f/s, 0.35 ms   1.1 ms      default; zstd 1: +3 % size, 0.85 ms; zstd 5: -10 %, 4 ms
+#: gzip 1  51.6 kB   1,340 f/s, 0.74 ms   2.5 ms      the default before (130 kB/frame, 450 f/s with the old
+#:                                                    grainy frames); gzip 6: -28 % size, 9.7 ms: too slow
+#: lzf     75.5 kB     840 f/s, 1.17 ms   -
+#: none    395 kB    7,800 f/s, 0.13 ms   -           15 GB holds only 38,000 frames
+#: ======  ========  ===================  ==========  =======================================================
+#:
+#: zstd chunks are plain zstd frames under HDF5's registered Zstandard filter (id 32015, which ``hdf5plugin``
+#: provides), so any h5py that imported hdf5plugin reads them; this module compresses and decodes them itself with
+#: the ``zstandard`` package in threads (it releases the GIL) and moves them with write/read_direct_chunk. Files
+#: written with gzip (the earlier default), lzf or none stay readable and resumable with their own codec.
+COMPRESSIONS = ("zstd", "gzip", "lzf", "none")
+
+#: zstd level of the image chunks: level 3 is zstd's default; 5 and up are 4x slower to compress for 10 % less.
+_ZSTD_LEVEL = 3
 
 #: zlib level of the gzip chunks: level 1 compresses several times faster than the default 6 for a few % of size.
 _GZIP_LEVEL = 1
+
+#: HDF5 filter id of Zstandard (registered with The HDF Group; hdf5plugin ships the filter).
+_ZSTD_FILTER_ID = hdf5plugin.ZSTD_ID
+
+_codec_state = threading.local()
+
+
+def _zstd_compress(frame: np.ndarray) -> bytes:
+    # One compressor per thread: a zstd context must not be used by two threads at once.
+    comp = getattr(_codec_state, "compressor", None)
+    if comp is None:
+        comp = _codec_state.compressor = zstandard.ZstdCompressor(level=_ZSTD_LEVEL, write_content_size=True)
+    return comp.compress(frame)
+
+
+def _zstd_decompress(blob: bytes) -> bytes:
+    dec = getattr(_codec_state, "decompressor", None)
+    if dec is None:
+        dec = _codec_state.decompressor = zstandard.ZstdDecompressor()
+    return dec.decompress(blob)
+
+
+#: Chunk encoders of the codecs this module compresses itself (in a thread pool); the others go through h5py.
+_ENCODERS = {"zstd": _zstd_compress, "gzip": lambda frame: zlib.compress(frame, _GZIP_LEVEL)}
+#: Chunk decoders of the codecs this module decodes itself (see _direct_decoder for which datasets qualify).
+_DECODERS = {"zstd": _zstd_decompress, "gzip": zlib.decompress}
+_DECODE_ERRORS = (zlib.error, zstandard.ZstdError, ValueError)
+
+
+def _default_threads() -> int:
+    return min(4, os.cpu_count() or 1)
 
 
 class CaptureFormatError(ValueError):
@@ -153,8 +208,9 @@ class CaptureWriter:
         resume: reopen an incomplete file and append to it (a missing file is created); :attr:`n_frames` tells
             the caller where to continue. A complete file is refused.
         force: overwrite an existing file.
-        compression: ``"gzip"`` (level 1, default), ``"lzf"`` or ``"none"``; a resumed file keeps its own.
-        compress_threads: threads compressing gzip frames (0: one per CPU, at most 4).
+        compression: ``"zstd"`` (level 3, default), ``"gzip"`` (level 1), ``"lzf"`` or ``"none"``; a resumed file
+            keeps its own.
+        compress_threads: threads compressing zstd or gzip frames (0: one per CPU, at most 4).
         flush_interval_s: longest time between flushes; frames appended since the last flush are lost to a kill.
     """
 
@@ -170,7 +226,7 @@ class CaptureWriter:
         attrs: Mapping[str, Any],
         resume: bool = False,
         force: bool = False,
-        compression: str = "gzip",
+        compression: str = "zstd",
         flush_interval_s: float = 2.0,
         compress_threads: int = 0,
     ) -> None:
@@ -215,9 +271,19 @@ class CaptureWriter:
             self._file = self._create(file_attrs, compression)
         self.compression = compression
         self._pool: ThreadPoolExecutor | None = None
-        if compression == "gzip":
-            n_threads = compress_threads if compress_threads > 0 else min(4, os.cpu_count() or 1)
-            self._pool = ThreadPoolExecutor(n_threads, thread_name_prefix="capture-gzip")
+        if compression in _ENCODERS:
+            n_threads = compress_threads if compress_threads > 0 else _default_threads()
+            self._pool = ThreadPoolExecutor(n_threads, thread_name_prefix=f"capture-{compression}")
+        # Looked up once: h5py's name lookup costs about 0.2 ms, several times per append.
+        self._ds: dict[str, h5py.Dataset] = {name: self._file[name] for name in ALL_DATASETS}
+        # Frames whose chunks are being compressed (first frame, futures): written at the next append or flush,
+        # so that compression runs while the caller renders the next batch.
+        self._pending: list[tuple[int, list[Future[bytes]]]] = []
+        # Rows of the small per-frame datasets not yet on disk, and how many are: written at a flush (or every
+        # _ROW_CHUNK rows) in one call per dataset instead of a resize and a write per dataset and append.
+        self._rows: dict[str, list[np.ndarray]] = {name: [] for name in _FRAME_DATASETS}
+        self._n_buffered_rows = 0
+        self._n_rows_on_disk = int(self._ds["targets"].shape[0])
         self._closed = False
         self._last_flush_s = time.monotonic()
 
@@ -239,6 +305,8 @@ class CaptureWriter:
                 comp = {"compression": "lzf"}
             elif compression == "gzip":
                 comp = {"compression": "gzip", "compression_opts": _GZIP_LEVEL}
+            elif compression == "zstd":
+                comp = dict(hdf5plugin.Zstd(clevel=_ZSTD_LEVEL))
             h, w = self.image_hw
             f.create_dataset("images", shape=(0, h, w, 3), maxshape=(None, h, w, 3), dtype=np.uint8,
                              chunks=(1, h, w, 3), **comp)  # fmt: skip
@@ -284,7 +352,7 @@ class CaptureWriter:
     @property
     def n_frames(self) -> int:
         """Frames appended so far (committed or not)."""
-        return int(self._file["images"].shape[0])
+        return int(self._ds["images"].shape[0])
 
     def append(
         self,
@@ -322,15 +390,17 @@ class CaptureWriter:
             if dtype.kind == "i" and arr.dtype.kind not in "iu":
                 if not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
                     raise ValueError(f"{name} must hold integers")
-            arrays[name] = arr.astype(dtype, copy=False)
+            arrays[name] = arr.astype(dtype)  # a copy: the rows wait in memory until a flush
         if k == 0:
             return
         start = self.n_frames
         try:
             self._write_images(start, images)
             for name, arr in arrays.items():
-                self._file[name].resize(start + k, axis=0)
-                self._file[name][start:] = arr
+                self._rows[name].append(arr)
+            self._n_buffered_rows += k
+            if self._n_buffered_rows >= _ROW_CHUNK:
+                self._write_rows()
             if time.monotonic() - self._last_flush_s >= self.flush_interval_s:
                 self.flush()
         except OSError as exc:
@@ -346,19 +416,42 @@ class CaptureWriter:
             raise
 
     def _write_images(self, start: int, images: np.ndarray) -> None:
-        ds = self._file["images"]
+        ds = self._ds["images"]
         ds.resize(start + len(images), axis=0)
         if self._pool is None:
             ds[start:] = images
             return
-        # The same zlib stream HDF5's deflate filter writes, so any HDF5 reader decodes these chunks.
-        frames = np.ascontiguousarray(images)
-        blobs = self._pool.map(lambda frame: zlib.compress(frame, _GZIP_LEVEL), frames)
-        for j, blob in enumerate(blobs):
-            ds.id.write_direct_chunk((start + j, 0, 0, 0), blob)
+        # The same stream HDF5's deflate or Zstandard filter writes, so any HDF5 reader decodes these chunks. A
+        # copy: the caller may reuse its buffer once append returns.
+        frames = np.array(images, dtype=np.uint8, order="C", copy=True)
+        encode = _ENCODERS[self.compression]
+        self._pending.append((start, [self._pool.submit(encode, frame) for frame in frames]))
+        while len(self._pending) > 1:  # the batch before this one, compressed while the caller made this one
+            self._write_pending()
+
+    def _write_pending(self) -> None:
+        start, futures = self._pending.pop(0)
+        ds = self._ds["images"]
+        for j, future in enumerate(futures):
+            ds.id.write_direct_chunk((start + j, 0, 0, 0), future.result())
+
+    def _write_rows(self) -> None:
+        if self._n_buffered_rows == 0:
+            return
+        end = self._n_rows_on_disk + self._n_buffered_rows
+        for name, parts in self._rows.items():
+            ds = self._ds[name]
+            ds.resize(end, axis=0)
+            ds[self._n_rows_on_disk :] = np.concatenate(parts)
+            parts.clear()
+        self._n_rows_on_disk = end
+        self._n_buffered_rows = 0
 
     def flush(self) -> None:
         """Write everything appended so far to disk, then record it as committed in ``n_frames``."""
+        while self._pending:
+            self._write_pending()
+        self._write_rows()
         self._file.flush()
         self._file.attrs["n_frames"] = self.n_frames
         self._file.flush()
@@ -438,12 +531,9 @@ class CaptureFile:
         self.n_frames = n_frames
         self.attrs = attrs
         self.images: h5py.Dataset = handle["images"]
-        # Chunks that are exactly one deflate-compressed frame can be decoded outside h5py, in parallel.
-        ds = self.images
-        self._gzip_chunks = (
-            ds.compression == "gzip" and not ds.shuffle and not ds.fletcher32 and ds.scaleoffset is None
-            and ds.chunks == (1, *self.image_hw, 3)
-        )  # fmt: skip
+        self._decode = _direct_decoder(self.images, self.image_hw)
+        self._pool: ThreadPoolExecutor | None = None
+        self._pool_threads = 0
 
     @property
     def complete(self) -> bool:
@@ -503,42 +593,67 @@ class CaptureFile:
         """One frame, uint8 (H, W, 3)."""
         if not 0 <= index < self.n_frames:
             raise IndexError(f"{self.path}: frame {index} out of range [0, {self.n_frames})")
+        out = np.empty((*self.image_hw, 3), dtype=np.uint8)
+        self._decode_into(out, self._read_chunk(index), index)
+        return out
+
+    def _read_chunk(self, index: int) -> bytes | None:
+        """The compressed chunk of a frame when this module decodes it itself, else None (h5py decodes)."""
+        if self._decode is None:
+            return None
         try:
-            return self.images[index]
+            mask, blob = self.images.id.read_direct_chunk((int(index), 0, 0, 0))
         except OSError as exc:
+            raise CaptureFormatError(f"{self.path}: frame {index} cannot be read: {exc}") from exc
+        # A set bit in the mask means HDF5 skipped an optional filter for this chunk: let h5py decode it.
+        return blob if mask == 0 else None
+
+    def _decode_into(self, out: np.ndarray, blob: bytes | None, index: int) -> None:
+        try:
+            if blob is None:
+                out[...] = self.images[index]
+            else:
+                assert self._decode is not None
+                out.reshape(-1)[:] = np.frombuffer(self._decode(blob), dtype=np.uint8)
+        except (OSError, *_DECODE_ERRORS) as exc:
             raise CaptureFormatError(f"{self.path}: frame {index} cannot be decoded: {exc}") from exc
 
-    def read_images(self, indices: Sequence[int] | np.ndarray, threads: int = 0) -> np.ndarray:
-        """Frames at ``indices`` (any order, repeats allowed), uint8 (k, H, W, 3).
+    def read_images(
+        self, indices: Sequence[int] | np.ndarray, threads: int = 0, out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Frames at ``indices`` (any order, repeats allowed), uint8 (k, H, W, 3), written into ``out`` when given
+        (a C-contiguous uint8 array of that shape, e.g. shared memory a batch travels in).
 
-        gzip frames are decoded by ``threads`` threads (0: one per CPU, at most 4; zlib releases the GIL).
+        zstd and gzip frames are decoded by ``threads`` threads (0: one per CPU, at most 4; both codecs release
+        the GIL); the pool lives as long as the file is open.
         """
         idx = np.asarray(indices, dtype=np.int64).reshape(-1)
         if len(idx) and (idx.min() < 0 or idx.max() >= self.n_frames):
             raise IndexError(f"{self.path}: frame indices must lie in [0, {self.n_frames})")
-        out = np.empty((len(idx), *self.image_hw, 3), dtype=np.uint8)
-        if self._gzip_chunks and len(idx) > 1:
-            try:
-                blobs = [self.images.id.read_direct_chunk((int(i), 0, 0, 0)) for i in idx]
-            except OSError as exc:
-                raise CaptureFormatError(f"{self.path}: frames cannot be read: {exc}") from exc
-            if all(mask == 0 for mask, _ in blobs):
-                n_threads = threads if threads > 0 else min(4, os.cpu_count() or 1)
-
-                def decode(j: int) -> None:
-                    out[j].reshape(-1)[:] = np.frombuffer(zlib.decompress(blobs[j][1]), dtype=np.uint8)
-
-                try:
-                    with ThreadPoolExecutor(n_threads) as pool:
-                        list(pool.map(decode, range(len(idx))))
-                except (zlib.error, ValueError) as exc:
-                    raise CaptureFormatError(f"{self.path}: a frame cannot be decoded: {exc}") from exc
-                return out
-        for j, i in enumerate(idx):
-            out[j] = self.read_image(int(i))
+        shape = (len(idx), *self.image_hw, 3)
+        if out is None:
+            out = np.empty(shape, dtype=np.uint8)
+        elif out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
+            raise ValueError(f"out must be a C-contiguous uint8 array of shape {shape}, got {out.dtype} {out.shape}")
+        # HDF5 calls are serialised by h5py's lock anyway: read the compressed chunks here, decode in threads.
+        blobs = [self._read_chunk(int(i)) for i in idx]
+        n_threads = threads if threads > 0 else _default_threads()
+        if len(idx) < 2 or n_threads < 2 or self._decode is None:
+            for j, blob in enumerate(blobs):
+                self._decode_into(out[j], blob, int(idx[j]))
+            return out
+        if self._pool is None or self._pool_threads != n_threads:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+            self._pool = ThreadPoolExecutor(n_threads, thread_name_prefix="capture-decode")
+            self._pool_threads = n_threads
+        list(self._pool.map(lambda j: self._decode_into(out[j], blobs[j], int(idx[j])), range(len(idx))))
         return out
 
     def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
         self._f.close()
 
     def __enter__(self) -> CaptureFile:
@@ -546,6 +661,22 @@ class CaptureFile:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _direct_decoder(ds: h5py.Dataset, image_hw: tuple[int, int]):
+    """The chunk decoder for images stored one frame per chunk with a single zstd or deflate filter, else None
+    (other layouts are read through h5py)."""
+    if ds.chunks != (1, *image_hw, 3):
+        return None
+    dcpl = ds.id.get_create_plist()
+    if dcpl.get_nfilters() != 1:
+        return None
+    filter_id = dcpl.get_filter(0)[0]
+    if filter_id == h5py.h5z.FILTER_DEFLATE:
+        return _DECODERS["gzip"]
+    if filter_id == _ZSTD_FILTER_ID:
+        return _DECODERS["zstd"]
+    return None
 
 
 def open_capture(path: str | os.PathLike[str]) -> CaptureFile:

@@ -57,7 +57,7 @@ class CaptureConfig:
     source: str = field(default="sim", metadata=doc("'sim' or 'video:DEVICE_OR_FILE' (an HDMI grabber or a video)"))
     poses: str = field(default="", metadata=doc("video source: telemetry CSV (time_s, x_m, y_m, yaw_rad, ...)"))
     frame_delay: int = field(default=0, metadata=doc("video source: frames the video lags the telemetry (paper: 4)"))
-    compression: str = field(default="gzip", metadata=doc("image compression: gzip, lzf or none"))
+    compression: str = field(default="zstd", metadata=doc("image compression: zstd, gzip, lzf or none"))
     max_frames: int = field(default=0, metadata=doc("stop after this many new frames (0: when --laps are in)"))
     json: bool = field(default=False, metadata=doc("print the summary as JSON"))
 

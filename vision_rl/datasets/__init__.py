@@ -6,8 +6,10 @@ Import the DataModule from :mod:`vision_rl.datasets.datamodule` (it pulls in Lig
 from vision_rl.datasets.augment import FrameAugmentation, shift_frames
 from vision_rl.datasets.capture_dataset import (
     CaptureDataset,
+    FrameBatch,
     FrameCatalogue,
     TargetStandardiser,
+    collate_frames,
     expand_paths,
     split_by_lap,
 )
@@ -15,8 +17,10 @@ from vision_rl.datasets.capture_dataset import (
 __all__ = [
     "CaptureDataset",
     "FrameAugmentation",
+    "FrameBatch",
     "FrameCatalogue",
     "TargetStandardiser",
+    "collate_frames",
     "expand_paths",
     "shift_frames",
     "split_by_lap",

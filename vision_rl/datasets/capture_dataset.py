@@ -8,6 +8,7 @@ reads (HDF5 handles must not cross a fork), so the dataset is safe under DataLoa
 from __future__ import annotations
 
 import glob
+import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import Dataset
+from torch.utils.data import Dataset, default_collate, get_worker_info
 
 from vision_rl.capture.h5format import CaptureFile, CaptureFormatError, open_capture
 
@@ -162,6 +163,41 @@ def split_by_lap(catalogue: FrameCatalogue, val_fraction: float, seed: int = 0) 
     return np.flatnonzero(~is_val), np.flatnonzero(is_val)
 
 
+class FrameBatch(list):
+    """A batch of :meth:`CaptureDataset.__getitems__`: the list of (image, target) pairs DataLoader's default collate
+    expects, each a view into the whole-batch tensors ``images`` uint8 (k, H, W, 3) and ``targets`` float32 (k, n),
+    which :func:`collate_frames` hands on without stacking (copying) them again."""
+
+    def __init__(self, images: torch.Tensor, targets: torch.Tensor) -> None:
+        super().__init__(zip(images, targets, strict=True))
+        self.images = images
+        self.targets = targets
+
+
+def collate_frames(samples: list) -> tuple[torch.Tensor, torch.Tensor]:
+    """DataLoader ``collate_fn`` for :class:`CaptureDataset`: a :class:`FrameBatch` as (images, targets) as it is,
+    anything else through torch's default collate."""
+    if isinstance(samples, FrameBatch):
+        return samples.images, samples.targets
+    return default_collate(samples)
+
+
+def _batch_tensor(shape: tuple[int, ...]) -> torch.Tensor:
+    """An uninitialised uint8 tensor; in a DataLoader worker, in shared memory.
+
+    A worker's batch reaches the training process in shared memory; decoding into shared memory from the start
+    (as default_collate allocates its output) saves copying 400 kB per frame there: measured 1.16 -> 0.99 ms of
+    CPU per frame with two workers.
+    """
+    if get_worker_info() is not None:
+        try:
+            storage = torch.UntypedStorage._new_shared(math.prod(shape))
+            return torch.empty(0, dtype=torch.uint8).set_(storage).view(shape)
+        except (AttributeError, RuntimeError, TypeError):  # a torch without this (private) allocator
+            pass
+    return torch.empty(shape, dtype=torch.uint8)
+
+
 class CaptureDataset(Dataset):
     """Frames ``rows`` of a catalogue as ``(image uint8 (H, W, 3), targets float32 (n_targets,))`` pairs.
 
@@ -204,16 +240,23 @@ class CaptureDataset(Dataset):
     def __getitem__(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
         return torch.from_numpy(self.image(i)), torch.from_numpy(self.targets[i])
 
-    def __getitems__(self, indices: list[int]) -> list[tuple[torch.Tensor, torch.Tensor]]:
-        """A whole batch at once (DataLoader calls this): frames of one file are decoded in parallel threads."""
+    def __getitems__(self, indices: list[int]) -> FrameBatch:
+        """A whole batch at once (DataLoader calls this): frames of one file are decoded in parallel threads,
+        straight into the memory the batch leaves a worker process in. Collate it with :func:`collate_frames`."""
         idx = np.asarray(indices, dtype=np.int64)
         rows = self.rows[idx]
-        images = np.empty((len(idx), *self.catalogue.image_hw, 3), dtype=np.uint8)
+        images = _batch_tensor((len(idx), *self.catalogue.image_hw, 3))
+        out = images.numpy()
         files = self.catalogue.file_index[rows]
-        for f in np.unique(files):
-            sel = np.flatnonzero(files == f)
-            images[sel] = self._handle(int(f)).read_images(self.catalogue.frame_index[rows[sel]])
-        return [(torch.from_numpy(images[j]), torch.from_numpy(self.targets[i])) for j, i in enumerate(idx)]
+        file_ids = np.unique(files)
+        if len(file_ids) == 1:
+            self._handle(int(file_ids[0])).read_images(self.catalogue.frame_index[rows], out=out)
+        else:
+            for f in file_ids:
+                sel = np.flatnonzero(files == f)
+                out[sel] = self._handle(int(f)).read_images(self.catalogue.frame_index[rows[sel]])
+        targets = torch.from_numpy(self.targets[idx])
+        return FrameBatch(images, targets)
 
     def close(self) -> None:
         if self._pid == os.getpid():

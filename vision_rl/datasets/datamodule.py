@@ -15,6 +15,7 @@ from vision_rl.datasets.capture_dataset import (
     CaptureDataset,
     FrameCatalogue,
     TargetStandardiser,
+    collate_frames,
     expand_paths,
     split_by_lap,
 )
@@ -96,6 +97,7 @@ class CaptureDataModule(L.LightningDataModule):
             shuffle=shuffle,
             drop_last=shuffle and len(dataset) > self.batch_size,
             num_workers=self.num_workers,
+            collate_fn=collate_frames,
             persistent_workers=self.num_workers > 0,
             pin_memory=torch.cuda.is_available(),
         )

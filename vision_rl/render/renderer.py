@@ -139,6 +139,11 @@ class RenderConfig:
     """Anisotropic texture filtering (1 = off): sharper far road at a cost on llvmpipe."""
     car_draw_distance_m: float = 600.0
     """Other cars farther than this are not drawn (they would be under a pixel)."""
+    color_levels: int = 64
+    """Levels per colour channel of the output (256 = all of uint8). The last two bits of a shaded colour are
+    rounding noise of filtering, haze and lighting, not information about the scene, and a compressor pays for
+    them: 64 levels (6 bits) halve a compressed 470x280 frame (zstd level 3, median of 100 views on expressway /
+    technical / flowing: 86 / 69 / 47 kB at 256 levels, 43 / 34 / 23 kB at 64) with no visible banding in the sky."""
 
     def __post_init__(self) -> None:
         if not (16 <= self.width_px <= MAX_WIDTH_PX and 16 <= self.height_px <= MAX_HEIGHT_PX):
@@ -149,6 +154,8 @@ class RenderConfig:
             raise ValueError(f"samples must be 0 (off), 2, 4, 8 or 16, got {self.samples}")
         if self.max_views < 1:
             raise ValueError(f"max_views must be >= 1, got {self.max_views}")
+        if not 2 <= self.color_levels <= 256:
+            raise ValueError(f"color_levels must be within 2..256, got {self.color_levels}")
 
     @property
     def aspect(self) -> float:
@@ -273,7 +280,7 @@ void main() {
     f_color = vec4(v_label / 255.0, 0.0, 0.0, 1.0);
 #else
     vec3 c = texture(u_tex, vec3(v_uv, v_layer)).rgb * v_tint_haze.rgb;
-    f_color = vec4(mix(c, u_fog_color, v_tint_haze.w), 1.0);
+    f_color = game_color(mix(c, u_fog_color, v_tint_haze.w));
 #endif
 }
 """
@@ -315,7 +322,7 @@ void main() {
 #ifdef LABELS
     f_color = vec4(v_label / 255.0, 0.0, 0.0, 1.0);
 #else
-    f_color = vec4(mix(v_color_haze.rgb, u_fog_color, v_color_haze.w), 1.0);
+    f_color = game_color(mix(v_color_haze.rgb, u_fog_color, v_color_haze.w));
 #endif
 }
 """
@@ -351,7 +358,7 @@ void main() {
     float t = (u_ground_z_m - v_eye.z) / min(v_dir.z, -1e-6);
     vec2 p = v_eye.xy + t * v_dir.xy;
     vec3 ground = texture(u_tex, vec3(p * u_ground_tile_inv_m, u_ground_layer)).rgb;
-    f_color = vec4(mix(ground, u_fog_color, haze(t * length(v_dir))), 1.0);
+    f_color = game_color(mix(ground, u_fog_color, haze(t * length(v_dir))));
 #endif
 }
 """
@@ -365,7 +372,7 @@ void main() {
     f_color = vec4(float(SKY_LABEL) / 255.0, 0.0, 0.0, 1.0);
 #else
     float sin_elevation = v_dir.z / length(v_dir);
-    f_color = vec4(mix(u_fog_color, u_zenith, sqrt(clamp(sin_elevation / 0.8, 0.0, 1.0))), 1.0);
+    f_color = game_color(mix(u_fog_color, u_zenith, sqrt(clamp(sin_elevation / 0.8, 0.0, 1.0))));
 #endif
 }
 """
@@ -376,11 +383,20 @@ def _vs(body: str, max_views: int) -> str:
     return header + f"#define ROAD_LABEL {int(Label.ROAD)}\n#define CAR_LABEL {int(Label.CAR)}\n" + _FOG_GLSL + body
 
 
-def _fs(body: str, labels: bool) -> str:
+_COLOR_GLSL = """
+// Every colour is rounded to COLOR_LEVELS levels per channel (RenderConfig.color_levels) as it is written.
+vec4 game_color(vec3 c) {
+    return vec4(floor(clamp(c, 0.0, 1.0) * (COLOR_LEVELS - 1.0) + 0.5) / (COLOR_LEVELS - 1.0), 1.0);
+}
+"""
+
+
+def _fs(body: str, labels: bool, color_levels: int = 256) -> str:
     defines = f"#define GROUND_LABEL {int(Label.GROUND)}\n#define SKY_LABEL {int(Label.SKY)}\n"
+    defines += f"#define COLOR_LEVELS {float(color_levels):.1f}\n"
     if labels:
         defines += "#define LABELS\n"
-    return "#version 330\n" + defines + _FOG_GLSL + body
+    return "#version 330\n" + defines + _FOG_GLSL + _COLOR_GLSL + body
 
 
 # ------------------------------------------------------------------------------------------------ renderer
@@ -519,13 +535,16 @@ class Renderer:
         )
         self._quad_vbo = ctx.buffer(quads.tobytes())
 
+        def fs(body: str, labels: bool) -> str:
+            return _fs(body, labels, cfg.color_levels)
+
         self._vaos = {}
         for labels in (False, True):
-            static = ctx.program(vertex_shader=_vs(_STATIC_VS, cfg.max_views), fragment_shader=_fs(_STATIC_FS, labels))
-            car = ctx.program(vertex_shader=_vs(_CAR_VS, cfg.max_views), fragment_shader=_fs(_CAR_FS, labels))
-            sky = ctx.program(vertex_shader=_vs(_BACKGROUND_VS, cfg.max_views), fragment_shader=_fs(_SKY_FS, labels))
+            static = ctx.program(vertex_shader=_vs(_STATIC_VS, cfg.max_views), fragment_shader=fs(_STATIC_FS, labels))
+            car = ctx.program(vertex_shader=_vs(_CAR_VS, cfg.max_views), fragment_shader=fs(_CAR_FS, labels))
+            sky = ctx.program(vertex_shader=_vs(_BACKGROUND_VS, cfg.max_views), fragment_shader=fs(_SKY_FS, labels))
             ground = ctx.program(
-                vertex_shader=_vs(_BACKGROUND_VS, cfg.max_views), fragment_shader=_fs(_GROUND_FS, labels)
+                vertex_shader=_vs(_BACKGROUND_VS, cfg.max_views), fragment_shader=fs(_GROUND_FS, labels)
             )
             for prog in (static, car, sky, ground):
                 self._set_uniforms(prog)

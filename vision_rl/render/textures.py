@@ -1,9 +1,13 @@
 """Procedural, tileable surface textures generated in numpy at start-up (no files, no downloads).
 
 Every layer is a square RGB image that tiles seamlessly (all noise is periodic), so the GPU can repeat it along the
-track and build mipmaps from it; mipmapping averages the per-texel noise of distant asphalt or grass to a flat
-colour instead of letting it shimmer from frame to frame. The generator is seeded, so the same build gives the same
-bytes, hence the same pixels.
+track and build mipmaps from it. The generator is seeded, so the same build gives the same bytes, hence the same
+pixels.
+
+Surface detail is smooth value noise of a few texels and up, never independent per-texel noise: per-texel grain
+reaches the frame as pixel-to-pixel noise that looks like sensor noise to a compressor (it made up a third of a
+compressed frame: 131 -> 89 kB with gzip on expressway) and tells an encoder nothing about the track. What makes
+speed visible is kept: blotches of the asphalt, mowing stripes, wall panels and the blue-and-white band, kerbs.
 """
 
 from __future__ import annotations
@@ -73,13 +77,10 @@ def _uv(size: int = TEXTURE_SIZE_PX) -> tuple[np.ndarray, np.ndarray]:
 
 # ------------------------------------------------------------------------------------------------ layers
 def _asphalt(rng: np.random.Generator) -> np.ndarray:
-    grain = rng.normal(0.0, 1.0, (TEXTURE_SIZE_PX, TEXTURE_SIZE_PX))
+    """Patches of lighter and darker asphalt (1.5 m down to 0.2 m across on a 6 m tile): they stream past at speed."""
     blotch = _fractal_noise(rng, (4, 8, 16))
-    shade = 1.0 + 0.10 * grain + 0.16 * (blotch - 0.5)
-    # A few light aggregate chips: real asphalt glitters a little when close.
-    chips = rng.random((TEXTURE_SIZE_PX, TEXTURE_SIZE_PX)) > 0.985
-    shade = shade + 0.35 * chips
-    return _rgb((78, 79, 83), shade)
+    patches = _fractal_noise(rng, (32, 64))
+    return _rgb((78, 79, 83), 1.0 + 0.16 * (blotch - 0.5) + 0.06 * (patches - 0.5))
 
 
 def _shoulder(rng: np.random.Generator) -> np.ndarray:
@@ -87,8 +88,7 @@ def _shoulder(rng: np.random.Generator) -> np.ndarray:
 
 
 def _line(rng: np.random.Generator) -> np.ndarray:
-    shade = 1.0 + 0.05 * rng.normal(0.0, 1.0, (TEXTURE_SIZE_PX, TEXTURE_SIZE_PX))
-    return _rgb((232, 232, 228), shade)
+    return _rgb((232, 232, 228), 1.0 + 0.04 * (_fractal_noise(rng, (8, 32)) - 0.5))
 
 
 def _kerb(rng: np.random.Generator) -> np.ndarray:
@@ -97,8 +97,7 @@ def _kerb(rng: np.random.Generator) -> np.ndarray:
     red = u < 0.5
     base = np.where(red[..., None], np.array([196, 28, 30.0]), np.array([236, 236, 232.0]))
     bevel = 0.78 + 0.22 * np.sin(np.pi * v) ** 0.5
-    noise = 1.0 + 0.04 * rng.normal(0.0, 1.0, u.shape)
-    return base * (bevel * noise)[..., None]
+    return base * bevel[..., None]
 
 
 def _wall(rng: np.random.Generator) -> np.ndarray:
@@ -110,7 +109,7 @@ def _wall(rng: np.random.Generator) -> np.ndarray:
     u, v = _uv()
     grain = _fractal_noise(rng, (8, 32)) - 0.5
     panel_b = (u >= 0.5).astype(np.float64)
-    concrete = _rgb((176, 174, 168), 1.0 - 0.07 * panel_b + 0.12 * grain)
+    concrete = _rgb((176, 174, 168), 1.0 - 0.07 * panel_b + 0.06 * grain)
     band = (v > 0.62) & (v < 0.84)
     block = (np.floor(u * 4.0) % 2 == 0)[..., None]
     band_rgb = np.where(block, np.array([30, 80, 170.0]), np.array([235, 235, 235.0]))
@@ -130,9 +129,7 @@ def _grass(rng: np.random.Generator) -> np.ndarray:
     u, _ = _uv()
     stripes = np.where(np.floor(u * 2.0) % 2 == 0, 1.0, 0.86)
     clumps = _fractal_noise(rng, (4, 16, 64))
-    blades = rng.normal(0.0, 1.0, u.shape)
-    shade = stripes * (0.85 + 0.3 * clumps) + 0.06 * blades
-    return _rgb((62, 118, 46), shade)
+    return _rgb((62, 118, 46), stripes * (0.85 + 0.3 * clumps))
 
 
 def _pavement(rng: np.random.Generator) -> np.ndarray:
@@ -141,7 +138,7 @@ def _pavement(rng: np.random.Generator) -> np.ndarray:
     slab = np.floor(u * 4.0) + 4.0 * np.floor(v * 4.0)
     tone = rng.random(16)[slab.astype(np.int64) % 16]
     grain = _fractal_noise(rng, (16, 64)) - 0.5
-    img = _rgb((128, 128, 124), 0.92 + 0.12 * tone + 0.12 * grain)
+    img = _rgb((128, 128, 124), 0.92 + 0.12 * tone + 0.06 * grain)
     joint = (np.abs((u * 4.0) % 1.0 - 0.5) > 0.47) | (np.abs((v * 4.0) % 1.0 - 0.5) > 0.47)
     return np.where(joint[..., None], img * 0.6, img)
 
@@ -156,15 +153,14 @@ def _facade(rng: np.random.Generator) -> np.ndarray:
     lit = (rng.random(16) > 0.8)[cell]
     glass_rgb = np.where(lit[..., None], np.array([150, 160, 150.0]), np.array([52, 70, 92.0]))
     sky_reflection = 1.0 + 0.25 * cv[..., None]
-    frame = _rgb((196, 192, 182), 1.0 + 0.06 * rng.normal(0.0, 1.0, u.shape))
+    frame = np.array([196, 192, 182.0])
     return np.where(glass[..., None], glass_rgb * sky_reflection, frame)
 
 
 def _checker(rng: np.random.Generator) -> np.ndarray:
     u, v = _uv()
     black = (np.floor(u * 8.0) + np.floor(v * 8.0)) % 2 == 0
-    shade = 1.0 + 0.03 * rng.normal(0.0, 1.0, u.shape)
-    return np.where(black[..., None], np.array([24, 24, 24.0]), np.array([238, 238, 238.0])) * shade[..., None]
+    return np.where(black[..., None], np.array([24, 24, 24.0]), np.array([238, 238, 238.0]))
 
 
 def _metal(rng: np.random.Generator) -> np.ndarray:
