@@ -181,3 +181,16 @@ def test_bad_inputs_raise():
         speed_profile(car, np.arange(5.0), np.full(5, np.nan), 5.0)
     with pytest.raises(ValueError):
         speed_profile(car, np.arange(5.0), np.zeros(5), 5.0, grip_scale=0.0)
+
+
+@pytest.mark.parametrize("car_name", ["hatchback", "gt3"])
+def test_car_limits_table_follows_the_exact_model(car_name):
+    limits = CarLimits(get_preset(car_name))
+    rng = np.random.default_rng(0)
+    v = rng.uniform(1.0, 90.0, 5000)
+    kappa = rng.uniform(-1.0, 1.0, 5000) ** 3 * 0.2  # more samples on gentle bends, both signs
+    table, exact = np.array(limits(v, kappa)), np.array(limits.exact(v, kappa))
+    largest_force_n = exact[2:].max()
+    assert np.percentile(np.abs(table[:2] - exact[:2]), 99) < 1e-3  # rad
+    assert np.percentile(np.abs(table[2:] - exact[2:]), 99) < 2e-3 * largest_force_n
+    assert np.abs(table[2:] - exact[2:]).max() < 0.06 * largest_force_n  # at the saturation's edge

@@ -19,6 +19,7 @@ profile; both run lap after lap until the lap closes on itself. They are sequent
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numba
@@ -398,6 +399,47 @@ def _car_limits_vec(p, v, kappa, slip_f, slip_r):
     return alpha_f, alpha_r, drive, brake
 
 
+#: Grid of the :class:`CarLimits` table: speeds (m/s), and |curvature| as a fraction of the curvature that saturates
+#: the first axle at that speed, dense near 1 where the slip angles climb steeply and up to 1.1 (the other axle
+#: saturates there), with a few rows beyond.
+#: With the saturation on a grid row, bilinear lookups stay close to the exact model (tests/sim/test_speed_profile.py)
+#: at about 1/30 of its cost: the exact model was 5 ms of every 50 Hz AI step for 120 cars, most of an overtaking
+#: environment's step.
+_TABLE_SPEEDS_MPS = np.linspace(0.0, 110.0, 221)
+_TABLE_FRACTIONS = np.concatenate(
+    [1.0 - (1.0 - np.linspace(0.0, 1.0, 121)) ** 2, np.linspace(1.0, 1.1, 51)[1:], [1.2, 1.5, 3.0, 1e3]]
+)
+
+
+@numba.njit(cache=True)
+def _saturation_curvature(p, speeds):
+    """The |curvature| (1/m) at which the first axle's lateral force reaches its grip at each speed (no accel)."""
+    out = np.empty(len(speeds))
+    for i in range(len(speeds)):
+        v = max(speeds[i], 0.5)
+        lo, hi = 0.0, 10.0
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            fy_f, fy_r, grip_f, grip_r, _ = _point_state(p, v, mid, 0.0)
+            if max(fy_f / grip_f, fy_r / grip_r) < 1.0:
+                lo = mid
+            else:
+                hi = mid
+        out[i] = lo
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _limits_table(car: VehicleParams, grip_scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Saturation curvature per grid speed (1/m) and the exact limits on the grid (4, speeds, fractions)."""
+    p = _pack(car, grip_scale)
+    kappa_sat = _saturation_curvature(p, _TABLE_SPEEDS_MPS)
+    v = np.repeat(_TABLE_SPEEDS_MPS, len(_TABLE_FRACTIONS))
+    kappa = (kappa_sat[:, None] * _TABLE_FRACTIONS[None, :]).ravel()
+    exact = _car_limits_vec(p, v, kappa, slip_table(car.tyre_front), slip_table(car.tyre_rear))
+    return kappa_sat, np.stack(exact).reshape(4, len(_TABLE_SPEEDS_MPS), len(_TABLE_FRACTIONS))
+
+
 class CarLimits:
     """The QSS model of a car evaluated for many cars at once: steering feedforward and force limits for a driver.
 
@@ -405,17 +447,36 @@ class CarLimits:
     the front and rear steady-state slip angles (rad, magnitudes, saturated at the tyres' peak), so that
     ``steer = wheelbase * kappa + sign(kappa) * (alpha_front - alpha_rear)`` holds a steady turn; and the largest
     drive force and brake force (N) that leave every axle inside its friction ellipse. ``grip_scale`` scales every
-    tyre's friction (below 1: a reserve).
+    tyre's friction (below 1: a reserve). Values are interpolated in a table of the exact model
+    (:meth:`exact` evaluates it directly); they depend on |curvature| only.
     """
 
     def __init__(self, car: VehicleParams, grip_scale: float = 1.0) -> None:
         self._packed = _pack(car, grip_scale)
         self._slip_front = slip_table(car.tyre_front)
         self._slip_rear = slip_table(car.tyre_rear)
+        self._table = _limits_table(car, float(grip_scale))
 
     def __call__(
         self, speed_mps: np.ndarray, curvature_1pm: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        speeds, fractions = _TABLE_SPEEDS_MPS, _TABLE_FRACTIONS
+        kappa_sat, t = self._table
+        fv = np.clip(np.asarray(speed_mps, dtype=np.float64) / speeds[1], 0.0, len(speeds) - 1.000001)
+        i = fv.astype(np.int64)
+        wv = fv - i
+        fraction = np.abs(curvature_1pm) / (kappa_sat[i] * (1.0 - wv) + kappa_sat[i + 1] * wv)
+        j = np.clip(np.searchsorted(fractions, fraction, side="right") - 1, 0, len(fractions) - 2)
+        wk = np.clip((fraction - fractions[j]) / (fractions[j + 1] - fractions[j]), 0.0, 1.0)
+        out = (t[:, i, j] * (1.0 - wk) + t[:, i, j + 1] * wk) * (1.0 - wv) + (
+            t[:, i + 1, j] * (1.0 - wk) + t[:, i + 1, j + 1] * wk
+        ) * wv
+        return out[0], out[1], out[2], out[3]
+
+    def exact(
+        self, speed_mps: np.ndarray, curvature_1pm: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The model itself, without the table (slower)."""
         v = np.ascontiguousarray(speed_mps, dtype=np.float64)
         kappa = np.ascontiguousarray(np.broadcast_to(curvature_1pm, v.shape), dtype=np.float64)
         return _car_limits_vec(self._packed, v, kappa, self._slip_front, self._slip_rear)
