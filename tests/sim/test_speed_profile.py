@@ -191,6 +191,9 @@ def test_car_limits_table_follows_the_exact_model(car_name):
     kappa = rng.uniform(-1.0, 1.0, 5000) ** 3 * 0.2  # more samples on gentle bends, both signs
     table, exact = np.array(limits(v, kappa)), np.array(limits.exact(v, kappa))
     largest_force_n = exact[2:].max()
-    assert np.percentile(np.abs(table[:2] - exact[:2]), 99) < 1e-3  # rad
-    assert np.percentile(np.abs(table[2:] - exact[2:]), 99) < 2e-3 * largest_force_n
-    assert np.abs(table[2:] - exact[2:]).max() < 0.06 * largest_force_n  # at the saturation's edge
+    force_error_n = np.abs(table[2:] - exact[2:]).max(axis=0)
+    assert np.percentile(np.abs(table[:2] - exact[:2]), 99) < 2e-5  # rad
+    assert np.percentile(force_error_n, 99) < 5e-4 * largest_force_n
+    # Where an axle saturates the drive or brake limit can jump to zero (gt3: 4.2 kN to 0 within 1 % of curvature):
+    # there a lookup can be off by the jump, but only for the few samples that land in it.
+    assert (force_error_n > 0.01 * largest_force_n).mean() < 0.002

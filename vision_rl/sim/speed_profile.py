@@ -410,13 +410,16 @@ _TABLE_FRACTIONS = np.concatenate(
     [1.0 - (1.0 - np.linspace(0.0, 1.0, 121)) ** 2, np.linspace(1.0, 1.1, 51)[1:], [1.2, 1.5, 3.0, 1e3]]
 )
 
+#: Below this speed the saturation is that of this speed (the bisection's curvature bound).
+_SATURATION_MIN_SPEED_MPS = 0.5
+
 
 @numba.njit(cache=True)
 def _saturation_curvature(p, speeds):
     """The |curvature| (1/m) at which the first axle's lateral force reaches its grip at each speed (no accel)."""
     out = np.empty(len(speeds))
     for i in range(len(speeds)):
-        v = max(speeds[i], 0.5)
+        v = max(speeds[i], _SATURATION_MIN_SPEED_MPS)
         lo, hi = 0.0, 10.0
         for _ in range(60):
             mid = 0.5 * (lo + hi)
@@ -465,7 +468,12 @@ class CarLimits:
         fv = np.clip(np.asarray(speed_mps, dtype=np.float64) / speeds[1], 0.0, len(speeds) - 1.000001)
         i = fv.astype(np.int64)
         wv = fv - i
-        fraction = np.abs(curvature_1pm) / (kappa_sat[i] * (1.0 - wv) + kappa_sat[i + 1] * wv)
+        # The saturating lateral acceleration v^2 kappa_sat varies slowly with speed; kappa_sat itself goes as 1/v^2,
+        # which a linear interpolation over 0.5 m/s misplaces at low speed by more than the grid's fraction spacing.
+        v2 = np.maximum(speeds[i] * (1.0 - wv) + speeds[i + 1] * wv, _SATURATION_MIN_SPEED_MPS) ** 2
+        ay_lo = kappa_sat[i] * np.maximum(speeds[i], _SATURATION_MIN_SPEED_MPS) ** 2
+        ay_hi = kappa_sat[i + 1] * np.maximum(speeds[i + 1], _SATURATION_MIN_SPEED_MPS) ** 2
+        fraction = np.abs(curvature_1pm) * v2 / (ay_lo * (1.0 - wv) + ay_hi * wv)
         j = np.clip(np.searchsorted(fractions, fraction, side="right") - 1, 0, len(fractions) - 2)
         wk = np.clip((fraction - fractions[j]) / (fractions[j + 1] - fractions[j]), 0.0, 1.0)
         out = (t[:, i, j] * (1.0 - wk) + t[:, i, j + 1] * wk) * (1.0 - wv) + (
