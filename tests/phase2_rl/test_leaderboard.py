@@ -63,6 +63,8 @@ def test_leaderboard_reads_matching_evaluations(tmp_path, monkeypatch):
 
 def test_reference_lap_times(small_track):
     refs = lb.reference_lap_times(small_track, "hatchback")
-    assert refs["limit_lap_time_s"] == pytest.approx(26.8, abs=1.0)  # a 677 m lap at about 25 m/s
+    # A 677 m lap at about 26 m/s: the racing line uses the width to open the 60 m bends (measured 25.6 s; 26.8 s
+    # before the exact minimum-curvature line was taken where it is faster).
+    assert refs["limit_lap_time_s"] == pytest.approx(25.6, abs=0.5)
     # The built-in AI aims at a fraction of the limit profile (DEFAULT_SKILL): slower than the limit, not by much.
     assert 1.0 < refs["ai_lap_time_s"] / refs["limit_lap_time_s"] < 1.3

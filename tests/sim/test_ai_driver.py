@@ -162,3 +162,42 @@ def test_bad_arguments_raise():
         AIDriver(car, line, limit, 2, groups=np.array([0, 0, 1]))
     with pytest.raises(ValueError, match="grip_usage"):
         AIParams(grip_usage=0.0)
+
+
+def test_steering_never_asks_the_front_tyres_past_their_peak_slip():
+    track, car, line, limit = _setup("technical", "gt3")
+    world = World(track, car, n_cars=1, config=CONFIG)
+    # Far off the line and pointing away from it at speed: the path feedback alone would ask for more lock than the
+    # front tyres can use.
+    world.reset(200.0, line.lateral_at(np.array([200.0]))[0] + 3.0, 40.0, 0.3)
+    veh = world.state.vehicle
+    front_path = np.arctan2(veh.vy_mps + car.cg_to_front_axle_m * veh.yaw_rate_radps, veh.vx_mps)
+    peak = car.tyre_front.peak_slip_angle_rad
+    uncapped, _ = AIDriver(car, line, limit, 1, params=AIParams(front_slip_share=0.0)).act(world.state)
+    capped, _ = AIDriver(car, line, limit, 1).act(world.state)
+    assert np.abs(uncapped - front_path)[0] > peak  # the state needs the cap
+    np.testing.assert_allclose(np.abs(capped - front_path), peak, rtol=1e-9)
+
+
+def test_a_car_running_wide_in_a_corner_lifts():
+    track, car, line, limit = _setup("technical", "hatchback")
+    # The tightest corner of the line, a car on the line and one 1 m wide of it (towards the outside).
+    i = int(np.argmax(np.abs(np.convolve(line.curvature_1pm, np.ones(21) / 21, "same"))))
+    s = np.full(2, line.track_s_m[i])
+    outside = -np.sign(line.curvature_1pm[i])
+    world = World(track, car, n_cars=2, config=CONFIG)
+    ai = AIDriver(car, line, limit, 2, skill=1.0)
+    world.reset(s, line.lateral_at(s) + np.array([0.0, outside * 1.0]), ai.reference.speed_mps[i])
+    _, omega = ai.act(world.state)
+    _, no_lift = AIDriver(car, line, limit, 2, skill=1.0, params=AIParams(wide_lift_per_m=0.0)).act(world.state)
+    # The lift is wide_lift_per_m * (1 m - deadband) = 0.7 off the command; being 1 m off the line alone changes
+    # the command by much less (its speed target and feedforward are read a metre further along).
+    lift = ai.params.wide_lift_per_m * (1.0 - ai.params.wide_deadband_m)
+    assert abs(no_lift[1] - omega[0]) < 0.15
+    # (then clipped where an axle's friction ellipse caps the braking)
+    assert omega[1] < no_lift[1] - min(lift, 0.3)
+    # Well below the limit (a slower or disrupted car) it does not lift.
+    world.reset(s, line.lateral_at(s) + np.array([0.0, outside * 1.0]), 0.8 * ai.reference.speed_mps[i])
+    _, slow = ai.act(world.state)
+    _, slow_no_lift = AIDriver(car, line, limit, 2, skill=1.0, params=AIParams(wide_lift_per_m=0.0)).act(world.state)
+    assert slow[1] == slow_no_lift[1]

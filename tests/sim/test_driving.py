@@ -4,7 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from vision_rl.sim import driving
+from vision_rl.sim import driving, racing_line
+from vision_rl.sim.speed_profile import profile_for_line
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import get_preset
 
@@ -30,6 +31,21 @@ def test_line_and_profile_are_cached_and_the_key_follows_the_preset(tmp_path):
     _, profile3 = driving.line_and_profile(track, heavier)
     assert len(_cache_files(tmp_path)) == 2
     assert profile3.lap_time_s > profile.lap_time_s
+
+
+@pytest.mark.parametrize("spec", ["expressway", "technical"])
+def test_the_exact_line_is_taken_only_when_clearly_faster(spec):
+    # On the expressway's long arcs the exact minimum-curvature line is the faster (hatchback: 1.0 %), on the
+    # technical track the iterative QP's (0.3 %).
+    track, car = load_track(spec), get_preset("hatchback")
+    line, profile = driving.line_and_profile(track, car)
+    laps = {}
+    for model in racing_line.CURVATURE_MODELS:
+        candidate = racing_line.optimise_racing_line(track, margin_m=line.margin_m, curvature_model=model)
+        laps[model] = profile_for_line(car, candidate).lap_time_s
+    exact_wins = laps["exact"] < (1.0 - driving.EXACT_LINE_MIN_GAIN) * laps["iqp"]
+    assert exact_wins == (spec == "expressway")
+    assert profile.lap_time_s == pytest.approx(laps["exact" if exact_wins else "iqp"], rel=1e-9)
 
 
 def test_a_corrupt_cache_file_is_recomputed(tmp_path):

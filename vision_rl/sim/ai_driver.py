@@ -9,13 +9,17 @@ Steering, three terms added as road-wheel angles:
   path-following law in the distance domain; the heading error ``psi_e`` is that of the body less the steady-state
   body slip angle, so a drifting car (rear stepping out) counts as an error;
 - yaw damping: counter-steer on the difference between the yaw rate and the commanded path's ``v * kappa``,
-  which catches oversteer (braking into a corner) long before the car slides.
+  which catches oversteer (braking into a corner) long before the car slides;
+- and a cap: the command never asks the front tyres for more than their peak slip angle (more lock past the peak
+  loses front grip: on corner exits the gt3 ran 0.8 m wide with 0.35 rad of lock).
 
 Speed: a reference profile, the QSS limit profile recomputed with ``grip_usage`` of the tyres' friction (a driver
 at the exact peak of the tyre curve has no cornering stiffness left and spins), scaled by the driver's ``skill``
 in (0, 1] and read a little ahead (the throttle/brake lag); a force feedforward from its acceleration, a
 proportional feedback on the speed error, and drive and brake forces capped where an axle would leave its
-friction ellipse (the profile's braking zones are the braking look-ahead).
+friction ellipse (the profile's braking zones are the braking look-ahead). A car running wide of the line in a turn
+lifts (``wide_lift_per_m``), as a driver does: at skill 1.0 the gt3 and tt_cup otherwise touched the outside walls
+on corner exits under power (0.1-1.6 s over two laps).
 
 Opponent mode: with ``groups``, a car with another car of its group ahead of it in the same lane slows to keep a
 time gap. Disruption (:class:`Disruptor`) adds uniform random offsets to the commands for data collection.
@@ -31,7 +35,7 @@ from vision_rl.sim.racing_line import RacingLine
 from vision_rl.sim.speed_profile import CarLimits, SpeedProfile, profile_for_line
 from vision_rl.sim.vehicle import VehicleParams
 
-#: Default skill: 9.7-10.5 % slower than the limit on the built-in and the five real tracks with every preset
+#: Default skill: 9.8-10.6 % slower than the limit on the built-in and the five real tracks with every preset
 #: (measured; the issue asks for 8-12 %, as GT Sport's built-in AI is about 11 % slower than the papers' best agent).
 DEFAULT_SKILL = 0.92
 
@@ -56,6 +60,22 @@ class AIParams:
     the loop gain of yaw rate over steering grows as v / wheelbase, so a gain per rad/s would oscillate at speed."""
     steer_lead_s: float = 0.06
     """How far ahead the curvature feedforward reads, s: the steering lag (0.05 s) plus half a 0.02 s control step."""
+    front_slip_share: float = 1.0
+    """Largest front slip angle the steering asks for, as a share of the front tyre's peak slip angle (0: no cap)."""
+    wide_lift_per_m: float = 1.0
+    """Throttle taken off per metre that the car runs wide of the line beyond ``wide_deadband_m``, 1/m."""
+    wide_deadband_m: float = 0.3
+    """Running wide by less than this is left to the steering, m."""
+    wide_min_speed_share: float = 0.96
+    """... and only above this share of the reference speed (skill 1.0 drives at about 0.98-1.0 of it)."""
+    wide_min_curvature_1pm: float = 0.002
+    """Only in turns tighter than this (radius 500 m) is there an outside to run wide to, 1/m."""
+    rear_slip_share: float = 0.7
+    """Traction control: the drive fades out between this share of the rear tyres' peak slip angle and the peak
+    (1: off). Rarely active at skill 1.0 (the profile's drive limits keep the rear inside its ellipse): on the
+    technical track the gt3's wall contact went 0.69 -> 0.66 s with it."""
+    slip_limit_min_speed_mps: float = 5.0
+    """Below this speed the front slip cap is off (full lock to turn round or recover), m/s."""
     speed_lead_s: float = 0.15
     """How far ahead the speed target reads, s: the throttle/brake lag (0.1 s) plus half a control step."""
     speed_gain_per_mps: float = 0.3
@@ -122,6 +142,8 @@ class AIDriver:
             reference = profile if usage == 1.0 else profile_for_line(car, line, grip_scale=usage)
         self.reference = reference
         self._limits = CarLimits(car)
+        self._front_peak_slip_rad = min(car.tyre_front.peak_slip_angle_rad, car.steer_limit_rad)
+        self._rear_peak_slip_rad = car.tyre_rear.peak_slip_angle_rad
         # Closed, unwrapped tables of the line so that interpolation never jumps across the wrap.
         self._line_s_closed = np.append(line.s_m, line.length_m)
         self._heading_closed = np.unwrap(np.append(line.heading_rad, line.heading_rad[0]))
@@ -184,6 +206,14 @@ class AIDriver:
         kappa_fb = -2.0 * (err_lat + preview * np.sin(err_heading)) / preview**2
         yaw_rate_error = veh.yaw_rate_radps - speed * (kappa_now + kappa_fb)
         steer = steer_ff + car.wheelbase_m * (kappa_fb - p.yaw_rate_gain * yaw_rate_error / v_ctrl)
+        # Steering the front tyres past their peak slip angle loses front grip (the car runs wide, and more lock makes
+        # it worse): keep the front slip angle the command asks for within front_slip_share of the peak.
+        if p.front_slip_share > 0.0:
+            front_path_rad = np.arctan2(veh.vy_mps + car.cg_to_front_axle_m * veh.yaw_rate_radps, v_ctrl)
+            slip_cap = np.where(
+                speed > p.slip_limit_min_speed_mps, p.front_slip_share * self._front_peak_slip_rad, np.pi
+            )
+            steer = np.clip(steer, front_path_rad - slip_cap, front_path_rad + slip_cap)
         steer = np.clip(steer, -car.steer_limit_rad, car.steer_limit_rad)
 
         # Longitudinal: skill-scaled reference ahead, force feedforward, speed feedback, axle limits.
@@ -204,8 +234,21 @@ class AIDriver:
         engine = np.maximum(self._drive_force_n(v_ctrl), 1.0)
         omega_ff = np.where(force >= 0.0, force / engine, force / car.max_brake_force_n)
         omega = omega_ff + p.speed_gain_per_mps * (v_target - speed)
+        # Running wide (off the line towards the outside of the turn) at the limit: lift, as a driver does, so that
+        # the tyres have lateral grip to spare to bring the car back before it reaches the wall.
+        # Only near the limit: a slower car has grip to spare, and a disrupted one is wide on purpose.
+        near_limit = speed > p.wide_min_speed_share * self.reference.speed_at(line_s)
+        in_turn = np.abs(kappa_now) > p.wide_min_curvature_1pm
+        wide_m = np.where(in_turn & near_limit, -np.sign(kappa_now) * err_lat, 0.0)
+        omega = omega - p.wide_lift_per_m * np.maximum(wide_m - p.wide_deadband_m, 0.0)
         # Driving or braking harder than an axle's ellipse allows would take away its lateral force.
         omega = np.clip(omega, -brake_limit[n:] / car.max_brake_force_n, np.minimum(drive_limit[n:] / engine, 1.0))
+        # Traction control: with the rear tyres past rear_slip_share of their peak slip angle, drive less (to zero
+        # at the peak), so that power on the exit does not turn a rear slide into a spin or a wide line.
+        if p.rear_slip_share < 1.0:
+            rear_slip_rad = np.abs(np.arctan2(veh.vy_mps - car.cg_to_rear_axle_m * veh.yaw_rate_radps, v_ctrl))
+            excess = (rear_slip_rad / self._rear_peak_slip_rad - p.rear_slip_share) / (1.0 - p.rear_slip_share)
+            omega = np.where(omega > 0.0, omega * np.clip(1.0 - excess, 0.0, 1.0), omega)
         return steer, omega
 
 

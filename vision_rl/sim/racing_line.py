@@ -3,12 +3,20 @@
 The line is ``p_i = c_i + a_i * n_i`` on the track's centre-line samples, with ``a`` bounded by the walls less a
 margin. The first QP linearises the curvature with the centre line's tangent held fixed, as Heilmeier et al.
 (2019), "Minimum curvature trajectory planning and control for an autonomous race car", Vehicle System Dynamics
-58(10), do: that is the line of the racetrack-database (0.28-0.95 m from ours on average on its five tracks, margin
-1 m). That linearisation sees ``k - k^2 a`` where an offset curve has ``k + k^2 a``, so it puts the line on the
-inside of long constant-radius corners (on a ring: the inner wall). The next QPs are Gauss-Newton steps on the exact
-polyline curvature ``cross(p', p'') / |p'|^3``; they converge to the true minimum-curvature line, whose QSS lap is
-0.2-4.5 % faster (hatchback and gt3; most on the built-in tracks' arcs; Catalunya gt3 +0.2 %), so three QPs are the
-default and ``iterations=1`` gives the database's formulation.
+58(10), do. That linearisation sees ``k - k^2 a`` where an offset curve has ``k + k^2 a``, so it puts the line on the
+inside of long constant-radius corners (on a ring: the inner wall). The further QPs (``iterations``) either
+
+- ``"iqp"`` (default): hold the tangent of the previous QP's line instead of the centre line's, as the iterative QP
+  of Heilmeier et al.'s optimiser (``mincurv_iqp``, which re-linearises about the previous line) does: it removes
+  the error of linearising about a centre line metres away and keeps the inside bias, which on a real corner is a
+  lap-time gain (on a ring of radius R the lap time grows as sqrt(R), so the inside is faster). It is the closest
+  to the racetrack-database's lines: 0.42-0.58 m mean distance on its five tracks at a 1.25 m margin (the one-QP
+  line 0.43-0.91 m, the exact line below 0.72-1.76 m), and its QSS lap is 0.7-4.3 % faster than the one-QP line's;
+- ``"exact"``: Gauss-Newton steps on the exact polyline curvature ``cross(p', p'') / |p'|^3``, converging to the
+  true minimum-curvature line (on a ring: the outer wall). Its QSS lap is 0.3-1.4 % faster on the built-in tracks'
+  long arcs (expressway, flowing), 0.04-0.27 % faster on Monza and Spa and 0.1-0.9 % slower on the others, so
+  :func:`~vision_rl.sim.driving.line_and_profile` computes both and takes the exact line only where it is clearly
+  faster (``EXACT_LINE_MIN_GAIN`` there).
 """
 
 from __future__ import annotations
@@ -30,9 +38,12 @@ from vision_rl.sim.track import Track, TrackError
 #: distance against 1.01 m at 2 m and 1.11 m at 3 m, where the main straight leaves the objective nearly flat).
 DEFAULT_OPT_STEP_M = 1.0
 
-#: QPs solved: 1 is the Heilmeier et al. line; each further one is a Gauss-Newton step on the exact curvature (the
-#: third moves the line by millimetres).
+#: QPs solved: 1 is the Heilmeier et al. line; each further one re-linearises about the previous line (the third
+#: moves the line by centimetres: 6 QPs change QSS laps by < 0.05 %).
 DEFAULT_ITERATIONS = 3
+
+#: How the QPs after the first linearise the curvature (see the module docstring).
+CURVATURE_MODELS = ("iqp", "exact")
 
 #: Interior-point iterations before falling back to OSQP; 20-30 are typical.
 _IPM_MAX_ITER = 80
@@ -176,6 +187,7 @@ def _curvature_and_jacobian(
     normal: np.ndarray,
     lateral_m: np.ndarray,
     reference_tangent: bool = False,
+    tangent_xy_m: np.ndarray | None = None,
 ) -> tuple[np.ndarray, sparse.csc_matrix]:
     """Curvature of the periodic polyline ``p = c + a n`` from finite differences, and its Jacobian in ``a``.
 
@@ -184,12 +196,16 @@ def _curvature_and_jacobian(
     corners. With ``reference_tangent`` the first derivative is held at the centre line's,
     ``kappa = cross(c', p'') / |c'|^3``, which is linear in ``a``: the formulation of Heilmeier et al. (2019). It
     ignores that offsets towards the inside of a corner shorten the path, so it favours the inside of long corners.
+    ``tangent_xy_m`` (implies ``reference_tangent``) holds the tangent of that polyline instead of the centre line's
+    (the iterative QP: the previous line's).
     """
     n = len(lateral_m)
     w1, w2 = _difference_weights(centre_xy_m)
     p = centre_xy_m + normal * lateral_m[:, None]
     d2 = _apply(w2, p)
-    d1 = _apply(w1, centre_xy_m if reference_tangent else p)
+    if tangent_xy_m is not None:
+        reference_tangent = True
+    d1 = _apply(w1, p if not reference_tangent else centre_xy_m if tangent_xy_m is None else tangent_xy_m)
     cross = _cross(d1, d2)
     speed2 = np.einsum("nk,nk->n", d1, d1)
     speed3 = speed2**1.5
@@ -314,6 +330,7 @@ def optimise_racing_line(
     margin_m: float,
     opt_step_m: float = DEFAULT_OPT_STEP_M,
     iterations: int = DEFAULT_ITERATIONS,
+    curvature_model: str = "iqp",
 ) -> RacingLine:
     """Minimum-curvature racing line of ``track`` keeping ``margin_m`` from both walls.
 
@@ -323,6 +340,8 @@ def optimise_racing_line(
     """
     if margin_m < 0:
         raise ValueError(f"margin_m must be >= 0, got {margin_m}")
+    if curvature_model not in CURVATURE_MODELS:
+        raise ValueError(f"curvature_model must be one of {CURVATURE_MODELS}, got {curvature_model!r}")
     if iterations < 1:
         raise ValueError(f"iterations must be >= 1, got {iterations}")
     lower_full = -track.width_right_m + margin_m
@@ -347,7 +366,10 @@ def optimise_racing_line(
     normal = _polyline_normals(track)[idx]
     a = np.clip(np.zeros(n_opt), lower, upper)
     for iteration in range(iterations):
-        kappa0, jac = _curvature_and_jacobian(centre, normal, a, reference_tangent=iteration == 0)
+        held = None if iteration == 0 or curvature_model == "exact" else centre + normal * a[:, None]
+        kappa0, jac = _curvature_and_jacobian(
+            centre, normal, a, reference_tangent=iteration == 0 or held is not None, tangent_xy_m=held
+        )
         a = _solve_qp(kappa0, jac, a, lower, upper)
 
     # Interpolate in the polyline's own arc length, the parameter the offsets were optimised in.
