@@ -36,6 +36,15 @@ def test_unknown_command_fails_with_the_listing(capsys):
     assert "bench sim" in capsys.readouterr().out
 
 
+def test_a_group_word_lists_only_its_commands(capsys):
+    assert main(["bench", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "bench render" in out and "train-repr" not in out
+    assert main(["bench"]) == 2
+    assert main(["bench", "fly"]) == 2
+    assert "unknown command 'bench fly'" in capsys.readouterr().err
+
+
 def test_bad_input_is_a_one_line_error_not_a_traceback(tmp_path, capsys):
     bad = tmp_path / "bad.csv"
     bad.write_text("# x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,5,5\n1,0,5,5\n")

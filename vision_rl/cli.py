@@ -191,12 +191,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         name = " ".join(argv[:words])
         if len(argv) >= words and name in COMMANDS:
             return _run_command(name, argv[words:])
-    width = max(len(n) for n in COMMANDS)
-    listing = "\n".join(f"  {n:<{width}}  {c.help}" for n, c in COMMANDS.items())
+    # A group's first word alone (`vision-rl bench --help`) lists the group's commands.
+    group = {n: c for n, c in COMMANDS.items() if argv and n.startswith(f"{argv[0]} ")}
+    shown = group or COMMANDS
+    width = max(len(n) for n in shown)
+    listing = "\n".join(f"  {n:<{width}}  {c.help}" for n, c in shown.items())
     usage = f"usage: vision-rl COMMAND [options]\n\n{__doc__.splitlines()[0]}\n\ncommands:\n{listing}\n"
-    if not argv or argv[0] in ("-h", "--help"):
+    rest = argv[1:] if group else argv
+    if not rest or rest[0] in ("-h", "--help"):
         print(usage)
-        return 0 if argv else 2
+        return 0 if rest else 2
     print(f"{usage}\nvision-rl: error: unknown command {' '.join(argv[:2])!r}", file=sys.stderr)
     return 2
 
