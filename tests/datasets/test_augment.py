@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import numpy as np
+import pytest
 import torch
 
-from vision_rl.datasets.augment import FrameAugmentation, shift_frames
+from vision_rl.datasets.augment import FrameAugmentation, shift_frames, target_mirror
+from vision_rl.sim.sensors import TARGET_NAMES, WallRayCaster, environment_targets
+from vision_rl.sim.track import Track
+from vision_rl.sim.track_library import load_track
 
 
 def ramp_frames(n: int, h: int = 10, w: int = 16) -> torch.Tensor:
@@ -43,3 +48,35 @@ def test_photometric_changes_stay_in_range_and_brightness_scales() -> None:
     again = FrameAugmentation()(x, torch.Generator().manual_seed(3))
     assert torch.equal(full, again)
     assert not FrameAugmentation(brightness=0, contrast=0, saturation=0).enabled
+
+
+def test_mirrored_targets_are_the_targets_on_the_mirrored_track() -> None:
+    # Mirror the world about the y axis: the driving direction stays, left and right swap (so do the walls' widths),
+    # a car at (x, y, yaw) goes to (-x, y, pi - yaw). Its targets there are the mirror map of the original ones.
+    track = load_track("technical")
+    mirrored = Track(
+        "mirrored", track.centre_xy_m * [-1.0, 1.0], np.pi - track.heading_rad, -track.curvature_1pm,
+        track.width_right_m, track.width_left_m,
+    )  # fmt: skip
+    rng = np.random.default_rng(3)
+    s = rng.uniform(0.0, track.length_m, 40)
+    xy = track.position_at(s, rng.uniform(-0.8, 0.8, 40) * track.min_width_m / 2)
+    yaw = track.heading_at(s) + rng.uniform(-0.5, 0.5, 40)
+
+    def targets(t: Track, xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+        proj = t.project(xy)
+        return environment_targets(t, WallRayCaster(t), xy[:, 0], xy[:, 1], yaw, proj.s_m, proj.lateral_m)
+
+    original = targets(track, xy, yaw)
+    seen_mirrored = targets(mirrored, xy * [-1.0, 1.0], np.pi - yaw)
+    perm, sign = target_mirror(TARGET_NAMES)
+    assert sorted(perm) == list(range(len(TARGET_NAMES))) and set(sign) == {-1.0, 1.0}
+    np.testing.assert_allclose(original[:, perm] * sign, seen_mirrored, atol=1e-6)
+    assert np.abs(original[:, perm] * sign - original).max() > 1.0  # the map is not the identity on real data
+
+
+def test_unknown_targets_have_no_mirror() -> None:
+    with pytest.raises(ValueError, match="no mirrored value"):
+        target_mirror(["speed_mps"])
+    with pytest.raises(ValueError, match="not among the targets"):
+        target_mirror(["edge_distance_+15deg"])

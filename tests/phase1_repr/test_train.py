@@ -11,8 +11,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from tests.datasets.synthetic_capture import TARGET_NAMES, write_synthetic_capture
+from tests.datasets.synthetic_capture import TARGET_NAMES, frames_and_targets, write_synthetic_capture
 from vision_rl.datasets import TargetStandardiser
+from vision_rl.datasets.augment import target_mirror
 from vision_rl.phase1_repr import load_encoder
 from vision_rl.phase1_repr.encoder import EncoderConfig
 from vision_rl.phase1_repr.train import (
@@ -46,6 +47,28 @@ def test_loss_falls_on_sixteen_frames(tmp_path: Path) -> None:
         final = F.mse_loss(module.predict_standardised(images), targets).item()
     assert losses[0] > 0.5  # standardised targets: an untrained net is far off
     assert final < 0.25 * losses[0], (losses[0], final)
+
+
+def test_mirroring_flips_half_the_frames_with_their_targets() -> None:
+    frames, true, _ = frames_and_targets(32, (64, 96), seed=0)
+    images = torch.from_numpy(frames)
+    std = TargetStandardiser.from_targets(true)
+    targets = torch.from_numpy(std.transform(true))
+    cfg = EncoderConfig(input_height_px=64, input_width_px=96)
+    module = ReprModule(cfg.to_dict(), list(TARGET_NAMES), ["m"] * 27, std.mean.tolist(), std.std.tolist(),
+                        mirror=True)  # fmt: skip
+    torch.manual_seed(0)
+    out_images, out_targets = module.mirror_half(images, targets)
+    physical = std.inverse(out_targets.numpy())
+    perm, sign = target_mirror(TARGET_NAMES)
+    flipped = [not torch.equal(a, b) for a, b in zip(out_images, images, strict=True)]
+    assert 0 < sum(flipped) < len(images)
+    for k, was_flipped in enumerate(flipped):
+        if was_flipped:
+            assert torch.equal(out_images[k], images[k].flip(1))  # (H, W, 3): W is dim 1
+            np.testing.assert_allclose(physical[k], true[k, perm] * sign, rtol=1e-5, atol=1e-5)
+        else:
+            np.testing.assert_allclose(physical[k], true[k], rtol=1e-5, atol=1e-5)
 
 
 def test_metrics_per_target_and_group() -> None:

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 
@@ -65,3 +67,32 @@ def shift_frames(x: torch.Tensor, max_shift_px: int, generator: torch.Generator 
     # Advanced indices around the channel slice put their broadcast (n, h, w) first: result (n, h, w, c).
     out = x[batch, :, rows.view(n, h, 1), cols.view(n, 1, w)]
     return out.permute(0, 3, 1, 2).contiguous()
+
+
+_LEFT_RIGHT = {"min_distance_left_edge": "min_distance_right_edge", "min_distance_right_edge": "min_distance_left_edge"}
+
+
+def target_mirror(target_names: tuple[str, ...] | list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """How the targets of a frame change when the frame is mirrored left-right: ``mirrored = y[:, perm] * sign``.
+
+    A mirrored frame is what the car would see on the mirrored track at the mirrored pose (the camera sits on the
+    car's centre line), so every target has an exact mirrored value: the edge rays at +a and -a swap, so do the left
+    and right minimum distances, and the signed centre offset, heading angle and curvatures change sign.
+    """
+    names = list(target_names)
+    perm, sign = np.arange(len(names)), np.ones(len(names))
+    for i, name in enumerate(names):
+        edge = re.fullmatch(r"edge_distance_([+-])(\d+)deg", name)
+        if edge:
+            angle = int(edge.group(2))
+            partner = f"edge_distance_{-angle if edge.group(1) == '+' else angle:+03d}deg"
+        elif name in _LEFT_RIGHT:
+            partner = _LEFT_RIGHT[name]
+        elif name in ("centre_line_offset", "heading_angle_to_centre_line") or name.startswith("curvature_"):
+            partner, sign[i] = name, -1.0
+        else:
+            raise ValueError(f"no mirrored value known for target {name!r}")
+        if partner not in names:
+            raise ValueError(f"target {name!r} mirrors to {partner!r}, which is not among the targets")
+        perm[i] = names.index(partner)
+    return perm, sign

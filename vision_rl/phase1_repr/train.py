@@ -7,10 +7,12 @@ the best of 50 epochs on undisturbed-driving frames) and written as ``ckpt.pt`` 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
+import logging
 import shutil
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -21,7 +23,7 @@ import torch
 import torch.nn.functional as F
 
 from vision_rl.config import doc
-from vision_rl.datasets.augment import FrameAugmentation
+from vision_rl.datasets.augment import FrameAugmentation, target_mirror
 from vision_rl.datasets.capture_dataset import TargetStandardiser
 from vision_rl.phase1_repr.checkpoint import save_checkpoint
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
@@ -74,6 +76,7 @@ class ReprModule(L.LightningModule):
         lr: float = 2e-3,
         weight_decay: float = 1e-4,
         augmentation: dict[str, Any] | None = None,
+        mirror: bool = False,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -81,6 +84,10 @@ class ReprModule(L.LightningModule):
         self.augment = FrameAugmentation(**augmentation) if augmentation else None
         self.register_buffer("target_mean", torch.tensor(target_mean, dtype=torch.float32))
         self.register_buffer("target_std", torch.tensor(target_std, dtype=torch.float32))
+        if mirror:
+            perm, sign = target_mirror(target_names)
+            self.register_buffer("mirror_perm", torch.as_tensor(perm), persistent=False)
+            self.register_buffer("mirror_sign", torch.as_tensor(sign, dtype=torch.float32), persistent=False)
         self._val_pred: list[torch.Tensor] = []
         self._val_true: list[torch.Tensor] = []
         self.last_val_metrics: dict[str, Any] | None = None
@@ -99,8 +106,20 @@ class ReprModule(L.LightningModule):
         count = getattr(self, "_train_loss_count", 0)
         return self._train_loss_sum / count if count else None
 
+    def mirror_half(self, images: torch.Tensor, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mirror a random half of uint8 frames (N, H, W, 3) left-right, with their standardised targets."""
+        flip = torch.rand(len(images), device=images.device) < 0.5
+        physical = targets * self.target_std + self.target_mean
+        mirrored = (physical[:, self.mirror_perm] * self.mirror_sign - self.target_mean) / self.target_std
+        return (
+            torch.where(flip.view(-1, 1, 1, 1), images.flip(2), images),
+            torch.where(flip.view(-1, 1), mirrored, targets),
+        )
+
     def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> torch.Tensor:
         images, targets = batch
+        if self.hparams.mirror:
+            images, targets = self.mirror_half(images, targets)
         loss = F.mse_loss(self.predict_standardised(images, augment=True), targets)
         self.log("train_loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=len(images))
         self._train_loss_sum += float(loss.detach()) * len(images)
@@ -203,6 +222,8 @@ class TrainReprConfig:
     space2depth_block: int = field(default=4, metadata=doc("space2depth block side, pixels"))
     augment: bool = field(default=True, metadata=doc("random brightness, contrast and saturation"))
     shift_px: int = field(default=0, metadata=doc("random shift of up to this many pixels (0: off)"))
+    mirror: bool = field(default=True, metadata=doc("mirror half the training frames left-right with their targets "
+                                                    "(the view of the mirrored track)"))  # fmt: skip
     num_workers: int = field(default=2, metadata=doc("DataLoader worker processes"))
     seed: int = field(default=0, metadata=doc("seed of weights, split and batches"))
     device: str = field(default="auto", metadata=doc("auto, cpu or cuda"))
@@ -216,6 +237,18 @@ class TrainReprConfig:
 
 def _lightning_dir(out: Path) -> Path:
     return out / "lightning"
+
+
+@contextlib.contextmanager
+def _quiet_lightning() -> Iterator[None]:
+    """Lightning logs hardware summaries and tips at INFO on every fit; the command's own output is what matters."""
+    logger = logging.getLogger("lightning.pytorch")
+    level = logger.level
+    logger.setLevel(logging.WARNING)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 def train_repr(cfg: TrainReprConfig) -> dict[str, Any]:
@@ -271,27 +304,29 @@ def train_repr(cfg: TrainReprConfig) -> dict[str, Any]:
         lr=cfg.lr,
         weight_decay=cfg.weight_decay,
         augmentation=augmentation,
+        mirror=cfg.mirror,
     )
     history = MetricsHistory(out / "metrics.json", catalogue.target_units, catalogue.target_names)
     best_keeper = ModelCheckpoint(
         dirpath=_lightning_dir(out), filename="best", monitor="val_loss", mode="min", save_last=True,
         save_top_k=1, enable_version_counter=False,
     )  # fmt: skip
-    trainer = L.Trainer(
-        accelerator=cfg.device if cfg.device != "auto" else "auto",
-        devices=1,
-        precision=cfg.precision,
-        max_epochs=cfg.epochs,
-        max_steps=cfg.max_steps,
-        logger=TensorBoardLogger(save_dir=str(out), name="tensorboard", version=""),
-        callbacks=[best_keeper, history],
-        enable_progress_bar=cfg.progress,
-        enable_model_summary=False,
-        num_sanity_val_steps=0,
-        log_every_n_steps=max(1, min(50, len(dm.train_set) // max(1, cfg.batch_size))),
-        deterministic=False,
-    )
-    trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if cfg.resume else None)
+    with _quiet_lightning():
+        trainer = L.Trainer(
+            accelerator=cfg.device if cfg.device != "auto" else "auto",
+            devices=1,
+            precision=cfg.precision,
+            max_epochs=cfg.epochs,
+            max_steps=cfg.max_steps,
+            logger=TensorBoardLogger(save_dir=str(out), name="tensorboard", version=""),
+            callbacks=[best_keeper, history],
+            enable_progress_bar=cfg.progress,
+            enable_model_summary=False,
+            num_sanity_val_steps=0,
+            log_every_n_steps=max(1, min(50, len(dm.train_set) // max(1, cfg.batch_size))),
+            deterministic=False,
+        )
+        trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if cfg.resume else None)
 
     best_path = best_keeper.best_model_path or str(last_ckpt)
     best_module = ReprModule.load_from_checkpoint(best_path, map_location="cpu", weights_only=False)
