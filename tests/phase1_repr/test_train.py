@@ -71,6 +71,25 @@ def test_mirroring_flips_half_the_frames_with_their_targets() -> None:
             np.testing.assert_allclose(physical[k], true[k], rtol=1e-5, atol=1e-5)
 
 
+def test_balanced_loss_counts_each_target_group_alike() -> None:
+    cfg = EncoderConfig(input_height_px=64, input_width_px=96).to_dict()
+    names, zeros, ones = list(TARGET_NAMES), [0.0] * 27, [1.0] * 27
+    plain = ReprModule(cfg, names, ["m"] * 27, zeros, ones)
+    balanced = ReprModule(cfg, names, ["m"] * 27, zeros, ones, balance_groups=True)
+    heading = names.index("heading_angle_to_centre_line")
+    error = torch.zeros(4, 27)
+    error[:, heading] = 1.0  # a unit error on the heading angle only
+    assert plain.loss(error, torch.zeros(4, 27)).item() == pytest.approx(1 / 27)
+    # Five groups: the heading angle alone is a fifth of the loss.
+    assert balanced.loss(error, torch.zeros(4, 27)).item() == pytest.approx(1 / 5)
+    error[:] = 1.0
+    assert balanced.loss(error, torch.zeros(4, 27)).item() == pytest.approx(1.0)  # weights average to 1
+    edges = [i for i, n in enumerate(names) if n.startswith("edge_distance_")]
+    error[:] = 0.0
+    error[:, edges] = 1.0
+    assert balanced.loss(error, torch.zeros(4, 27)).item() == pytest.approx(1 / 5)
+
+
 def test_metrics_per_target_and_group() -> None:
     names = ["edge_distance_+00deg", "edge_distance_+15deg", "centre_line_offset", "curvature_40.0m_ahead", "x"]
     assert group_targets(names) == {"edge_distances": [0, 1], "centre_offset": [2], "curvature_ahead": [3],

@@ -20,7 +20,6 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from vision_rl.config import doc
 from vision_rl.datasets.augment import FrameAugmentation, target_mirror
@@ -77,6 +76,7 @@ class ReprModule(L.LightningModule):
         weight_decay: float = 1e-4,
         augmentation: dict[str, Any] | None = None,
         mirror: bool = False,
+        balance_groups: bool = False,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -84,6 +84,12 @@ class ReprModule(L.LightningModule):
         self.augment = FrameAugmentation(**augmentation) if augmentation else None
         self.register_buffer("target_mean", torch.tensor(target_mean, dtype=torch.float32))
         self.register_buffer("target_std", torch.tensor(target_std, dtype=torch.float32))
+        weights = np.ones(len(target_names))
+        if balance_groups:
+            groups = group_targets(target_names).values()
+            for idx in groups:
+                weights[idx] = len(target_names) / (len(groups) * len(idx))
+        self.register_buffer("loss_weights", torch.as_tensor(weights, dtype=torch.float32), persistent=False)
         if mirror:
             perm, sign = target_mirror(target_names)
             self.register_buffer("mirror_perm", torch.as_tensor(perm), persistent=False)
@@ -106,6 +112,10 @@ class ReprModule(L.LightningModule):
         count = getattr(self, "_train_loss_count", 0)
         return self._train_loss_sum / count if count else None
 
+    def loss(self, pred: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+        """MSE on standardised targets, each weighted by ``loss_weights`` (mean 1)."""
+        return ((pred - targets) ** 2 * self.loss_weights).mean()
+
     def mirror_half(self, images: torch.Tensor, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Mirror a random half of uint8 frames (N, H, W, 3) left-right, with their standardised targets."""
         flip = torch.rand(len(images), device=images.device) < 0.5
@@ -120,7 +130,7 @@ class ReprModule(L.LightningModule):
         images, targets = batch
         if self.hparams.mirror:
             images, targets = self.mirror_half(images, targets)
-        loss = F.mse_loss(self.predict_standardised(images, augment=True), targets)
+        loss = self.loss(self.predict_standardised(images, augment=True), targets)
         self.log("train_loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=len(images))
         self._train_loss_sum += float(loss.detach()) * len(images)
         self._train_loss_count += len(images)
@@ -129,7 +139,7 @@ class ReprModule(L.LightningModule):
     def validation_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> None:
         images, targets = batch
         pred = self.predict_standardised(images)
-        self.log("val_loss", F.mse_loss(pred, targets), on_epoch=True, prog_bar=True, batch_size=len(images))
+        self.log("val_loss", self.loss(pred, targets), on_epoch=True, prog_bar=True, batch_size=len(images))
         self._val_pred.append((pred * self.target_std + self.target_mean).detach().cpu())
         self._val_true.append((targets * self.target_std + self.target_mean).detach().cpu())
 
@@ -222,8 +232,12 @@ class TrainReprConfig:
     space2depth_block: int = field(default=4, metadata=doc("space2depth block side, pixels"))
     augment: bool = field(default=True, metadata=doc("random brightness, contrast and saturation"))
     shift_px: int = field(default=0, metadata=doc("random shift of up to this many pixels (0: off)"))
-    mirror: bool = field(default=True, metadata=doc("mirror half the training frames left-right with their targets "
-                                                    "(the view of the mirrored track)"))  # fmt: skip
+    balance_groups: bool = field(default=False, metadata=doc("weight the loss so that each target group counts "
+                                                             "alike (13 edge rays would otherwise outweigh the "
+                                                             "heading angle 13 to 1)"))  # fmt: skip
+    mirror: bool = field(default=False, metadata=doc("mirror half the training frames left-right with their targets "
+                                                    "(the view of the mirrored track): for encoders meant for other "
+                                                    "tracks; on the capture's own track it lowered R^2"))  # fmt: skip
     num_workers: int = field(default=2, metadata=doc("DataLoader worker processes"))
     seed: int = field(default=0, metadata=doc("seed of weights, split and batches"))
     device: str = field(default="auto", metadata=doc("auto, cpu or cuda"))
@@ -305,6 +319,7 @@ def train_repr(cfg: TrainReprConfig) -> dict[str, Any]:
         weight_decay=cfg.weight_decay,
         augmentation=augmentation,
         mirror=cfg.mirror,
+        balance_groups=cfg.balance_groups,
     )
     history = MetricsHistory(out / "metrics.json", catalogue.target_units, catalogue.target_names)
     best_keeper = ModelCheckpoint(

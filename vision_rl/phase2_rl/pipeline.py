@@ -42,10 +42,11 @@ class Phase2Sizes:
 SIZES: dict[str, Phase2Sizes] = {
     # CI: a few hundred steps on whatever track the test picks, short evaluation runs.
     "tiny": Phase2Sizes("cpu", 200, 120, 2, 2, 50, 40, 0, 32, 5_000, 100, 1, 1, 5, 30.0, 30.0),
-    # `pipeline --quick` on 2 cores (measured beside another training job): state 250k steps in 236 s, which
-    # drove lap 2 of the expressway in 2:17.4; vision 25k steps (10 cars, 470 x 280 frames) in 248 s; both
-    # evaluations 7 s; Phase 2 in all 8.2 min.
-    "quick": Phase2Sizes("cpu", 250_000, 25_000, 20, 10, -1, 5_000, 2, 0, 0, 50_000, 3, 1, 50, 0.0, 400.0),
+    # `pipeline --quick` on 2 cores: state 250k steps in 183 s, which drove lap 2 of the expressway in 2:18.0.
+    # Vision (236 x 140 frames) learns per update much as with 20 cars, and an update costs 36 ms with 10 cars
+    # against 50 ms with 20: with 10 cars it drove one lap after 150k steps (491 s) and two (lap 2 in 2:24.1)
+    # after 200k (648 s); 150k keeps the pipeline near 16 minutes.
+    "quick": Phase2Sizes("cpu", 250_000, 150_000, 20, 10, -1, 5_000, 0, 0, 0, 50_000, 3, 1, 50, 0.0, 400.0),
     # The paper's scale: 400 epochs of 20 trials of 100 s (vision paper, section 4, Figure 3) = 8M steps.
     "full": Phase2Sizes("paper", 8_000_000, 8_000_000, 20, 20, -1, -1, 0, 0, 0, 200_000, 3, 3, 100, 0.0, 0.0),
 }
