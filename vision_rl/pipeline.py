@@ -96,7 +96,7 @@ def run_pipeline_stages(cfg: PipelineConfig) -> dict[str, Any]:
     mode = "tiny" if cfg.tiny else "quick" if cfg.quick else "full"
     sizes = SIZES[mode]
     summary: dict[str, Any] = {"mode": mode, "track": cfg.track, "car": cfg.car}
-    t0 = time.perf_counter()
+    t_start = t0 = time.perf_counter()
     train_h5 = _capture(cfg, sizes, "train", sizes.train_laps, disrupt=True)
     eval_h5 = _capture(cfg, sizes, "eval", sizes.eval_laps, disrupt=False)
     summary["capture"] = {"train": str(train_h5), "eval": str(eval_h5), "seconds": time.perf_counter() - t0}
@@ -118,11 +118,33 @@ def run_pipeline_stages(cfg: PipelineConfig) -> dict[str, Any]:
     summary["phase2"] = pipeline_phase2(
         str(ckpt), track=cfg.track, car=cfg.car, runs=cfg.runs, quick=cfg.quick, tiny=cfg.tiny, seed=cfg.seed
     )
+    summary["seconds"] = time.perf_counter() - t_start
     return summary
+
+
+def format_pipeline(summary: dict[str, Any]) -> list[str]:
+    """Text lines of a :func:`run_pipeline_stages` summary: stage times, the encoder's R^2, Phase 2's results."""
+    from vision_rl.phase2_rl.pipeline import format_pipeline_phase2
+
+    capture = summary["capture"]
+    lines = [
+        f"vision-rl pipeline ({summary['mode']}) on {summary['track']} / {summary['car']}",
+        f"  capture: {capture['seconds']:.0f} s -> {capture['train']} (disrupted), {capture['eval']} (clean)",
+    ]
+    repr_result = summary.get("train_repr")
+    if repr_result is None:
+        lines.append(f"  train-repr: kept the existing encoder ({summary['train_repr_seconds']:.0f} s)")
+    else:
+        r2 = ", ".join(f"{group} {value:.3f}" for group, value in (repr_result["val_r2"] or {}).items())
+        scored = f"best epoch {repr_result['best_epoch']}; R^2 on the clean laps: {r2}" if r2 else "no epoch scored"
+        lines.append(
+            f"  train-repr: {summary['train_repr_seconds']:.0f} s on {repr_result['n_train_frames']} frames, {scored}"
+        )
+    return [*lines, *format_pipeline_phase2(summary["phase2"]), f"done in {summary['seconds'] / 60:.1f} min"]
 
 
 def run_pipeline(cfg: PipelineConfig) -> int:
     from vision_rl.cli import emit
 
-    emit(run_pipeline_stages(cfg), cfg.json)
+    emit(run_pipeline_stages(cfg), cfg.json, format_pipeline)
     return 0

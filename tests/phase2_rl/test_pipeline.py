@@ -30,7 +30,7 @@ def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path, monke
     if reason:
         pytest.skip(reason)
     from vision_rl.capture.h5format import open_capture
-    from vision_rl.pipeline import PipelineConfig, run_pipeline_stages
+    from vision_rl.pipeline import PipelineConfig, format_pipeline, run_pipeline_stages
 
     monkeypatch.setattr(lb, "reference_lap_times",
                         lambda track, car: {"limit_lap_time_s": 25.0, "ai_lap_time_s": 28.0, "source": "test"})
@@ -45,3 +45,7 @@ def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path, monke
     # A second call finds every stage's output and does not redo the capture or Phase 1.
     again = run_pipeline_stages(PipelineConfig(tiny=True, track=small_track, runs=str(runs)))
     assert "train_repr" not in again and again["capture"]["seconds"] < 1.0
+    text = "\n".join(format_pipeline(summary))
+    # (tiny stops after 3 optimiser steps, before a validation epoch)
+    assert "frames, no epoch scored" in text and "pipeline-vision" in text and "done in" in text
+    assert "kept the existing encoder" in "\n".join(format_pipeline(again))

@@ -12,6 +12,7 @@ import dataclasses
 import json
 import logging
 import shutil
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -255,12 +256,15 @@ def _lightning_dir(out: Path) -> Path:
 
 @contextlib.contextmanager
 def _quiet_lightning() -> Iterator[None]:
-    """Lightning logs hardware summaries and tips at INFO on every fit; the command's own output is what matters."""
+    """Lightning logs hardware summaries and tips at INFO on every fit, and Lightning 2.6 warns about its own use of
+    torch's pytree API; the command's own output is what matters."""
     logger = logging.getLogger("lightning.pytorch")
     level = logger.level
     logger.setLevel(logging.WARNING)
     try:
-        yield
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)")
+            yield
     finally:
         logger.setLevel(level)
 
