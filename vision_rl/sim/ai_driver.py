@@ -66,7 +66,7 @@ class AIParams:
     """Throttle taken off per metre that the car runs wide of the line beyond ``wide_deadband_m``, 1/m."""
     wide_deadband_m: float = 0.3
     """Running wide by less than this is left to the steering, m."""
-    wide_min_speed_share: float = 0.96
+    near_limit_speed_share: float = 0.96
     """The front slip cap and the lift act only above this share of the reference speed (skill 1.0 drives at about
     0.98-1.0 of it)."""
     wide_min_curvature_1pm: float = 0.002
@@ -209,10 +209,10 @@ class AIDriver:
         steer = steer_ff + car.wheelbase_m * (kappa_fb - p.yaw_rate_gain * yaw_rate_error / v_ctrl)
         # Steering the front tyres past their peak slip angle loses front grip (the car runs wide, and more lock makes
         # it worse): keep the front slip angle the command asks for within front_slip_share of the peak.
-        # Only near the limit (as the lift below): a slower car has grip to spare, and a disrupted one (skill 0.65)
-        # must be free to steer against its steering offsets (capped, 4 disrupted cars spun and were reset 34 times
-        # in 3 laps of the expressway, against none).
-        near_limit = speed > p.wide_min_speed_share * self.reference.speed_at(line_s)
+        # Only near the limit (near_limit_speed_share, as the lift below): a slower car has grip to spare, and a
+        # disrupted one (skill 0.65) must be free to steer against its steering offsets (capped, 4 disrupted cars
+        # spun and were reset 34 times in 3 laps of the expressway, against none).
+        near_limit = speed > p.near_limit_speed_share * self.reference.speed_at(line_s)
         if p.front_slip_share > 0.0:
             front_path_rad = np.arctan2(veh.vy_mps + car.cg_to_front_axle_m * veh.yaw_rate_radps, v_ctrl)
             slip_cap = np.where(
