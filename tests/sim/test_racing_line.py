@@ -152,13 +152,14 @@ def test_curvature_jacobian_matches_finite_differences():
     idx = np.arange(0, track.n_points, 5)
     centre, normal = track.centre_xy_m[idx], track.normal_left[idx]
     a = np.random.default_rng(1).uniform(-2.0, 2.0, len(idx))
-    for reference_tangent in (False, True):
-        kappa, jac = rl_mod._curvature_and_jacobian(centre, normal, a, reference_tangent)
+    # Exact curvature, the centre line's tangent held (the first QP), another polyline's held (the iterative QP).
+    for held in (None, centre, centre + normal * a[::-1, None]):
+        kappa, jac = rl_mod._curvature_and_jacobian(centre, normal, a, held)
         cols = [0, 7, len(idx) - 1]  # includes the wrap-around corner of the periodic Jacobian
         for j in cols:
             da = np.zeros(len(idx))
             da[j] = 1e-6
-            k2, _ = rl_mod._curvature_and_jacobian(centre, normal, a + da, reference_tangent)
+            k2, _ = rl_mod._curvature_and_jacobian(centre, normal, a + da, held)
             np.testing.assert_allclose(jac[:, [j]].toarray().ravel(), (k2 - kappa) / 1e-6, atol=1e-6)
 
 

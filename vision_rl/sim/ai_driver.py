@@ -10,8 +10,8 @@ Steering, three terms added as road-wheel angles:
   body slip angle, so a drifting car (rear stepping out) counts as an error;
 - yaw damping: counter-steer on the difference between the yaw rate and the commanded path's ``v * kappa``,
   which catches oversteer (braking into a corner) long before the car slides;
-- and a cap: the command never asks the front tyres for more than their peak slip angle (more lock past the peak
-  loses front grip: on corner exits the gt3 ran 0.8 m wide with 0.35 rad of lock).
+- and, near the limit, a cap: the command does not ask the front tyres for more than their peak slip angle (more
+  lock past the peak loses front grip: on corner exits the gt3 ran 0.8 m wide with 0.35 rad of lock).
 
 Speed: a reference profile, the QSS limit profile recomputed with ``grip_usage`` of the tyres' friction (a driver
 at the exact peak of the tyre curve has no cornering stiffness left and spins), scaled by the driver's ``skill``
@@ -263,10 +263,9 @@ class DisruptionParams:
     """Uniform random offsets added to the AI's commands for data collection (the vision paper, section 3)."""
 
     steer_offset_rad: float = 0.3
-    """Steering offsets are uniform in +-this, rad. The AI's yaw damping takes most of an offset out: over 10 laps
-    of the expressway the heading error reached 22-23 deg with 0.08 rad, 23.6-24.7 deg with 0.2 and 25.0 deg with
-    0.3 (hatchback), with no spin and no stuck car (yaw_rate_gain 8; at 12, 4 cars x 10 laps: up to 30 deg on technical;
-    on expressway one spin, recovered, and otherwise a 99th percentile of 18 deg; no stuck car)."""
+    """Steering offsets are uniform in +-this, rad. The AI's yaw damping takes most of an offset out: with 0.3, 4
+    hatchbacks x 10 laps reached heading errors of 30 deg on technical; on expressway one car spun once and
+    recovered (99th percentile 18 deg); no car got stuck (yaw_rate_gain 12; at 8: 30.5 and 27.5 deg, no spin)."""
     omega_offset: float = 0.5
     """Throttle/brake offsets are uniform in +-this."""
     hold_s: tuple[float, float] = (0.3, 2.0)

@@ -186,26 +186,22 @@ def _curvature_and_jacobian(
     centre_xy_m: np.ndarray,
     normal: np.ndarray,
     lateral_m: np.ndarray,
-    reference_tangent: bool = False,
-    tangent_xy_m: np.ndarray | None = None,
+    held_tangent_xy_m: np.ndarray | None = None,
 ) -> tuple[np.ndarray, sparse.csc_matrix]:
     """Curvature of the periodic polyline ``p = c + a n`` from finite differences, and its Jacobian in ``a``.
 
     Derivatives are taken in the centre line's arc length (unevenly spaced samples allowed), so ``p'`` and ``p''``
     are linear in ``a`` and kappa_i depends only on a_{i-1}, a_i, a_{i+1}: the Jacobian is tridiagonal plus two
-    corners. With ``reference_tangent`` the first derivative is held at the centre line's,
-    ``kappa = cross(c', p'') / |c'|^3``, which is linear in ``a``: the formulation of Heilmeier et al. (2019). It
-    ignores that offsets towards the inside of a corner shorten the path, so it favours the inside of long corners.
-    ``tangent_xy_m`` (implies ``reference_tangent``) holds the tangent of that polyline instead of the centre line's
-    (the iterative QP: the previous line's).
+    corners. With ``held_tangent_xy_m`` the first derivative is held at that polyline's, ``kappa = cross(h', p'') /
+    |h'|^3``, which is linear in ``a``: with the centre line, the formulation of Heilmeier et al. (2019), which
+    ignores that offsets towards the inside of a corner shorten the path and so favours the inside of long corners;
+    with the previous QP's line, the iterative QP.
     """
     n = len(lateral_m)
     w1, w2 = _difference_weights(centre_xy_m)
     p = centre_xy_m + normal * lateral_m[:, None]
     d2 = _apply(w2, p)
-    if tangent_xy_m is not None:
-        reference_tangent = True
-    d1 = _apply(w1, p if not reference_tangent else centre_xy_m if tangent_xy_m is None else tangent_xy_m)
+    d1 = _apply(w1, p if held_tangent_xy_m is None else held_tangent_xy_m)
     cross = _cross(d1, d2)
     speed2 = np.einsum("nk,nk->n", d1, d1)
     speed3 = speed2**1.5
@@ -216,7 +212,7 @@ def _curvature_and_jacobian(
         n_j = np.roll(normal, -offset, axis=0)
         dd2 = w2[k][:, None] * n_j
         dvals = _cross(d1, dd2) / speed3
-        if not reference_tangent:
+        if held_tangent_xy_m is None:
             dd1 = w1[k][:, None] * n_j
             dspeed2 = 2.0 * np.einsum("nk,nk->n", d1, dd1)
             dvals = dvals + _cross(dd1, d2) / speed3 - 1.5 * cross * dspeed2 / (speed3 * speed2)
@@ -366,10 +362,8 @@ def optimise_racing_line(
     normal = _polyline_normals(track)[idx]
     a = np.clip(np.zeros(n_opt), lower, upper)
     for iteration in range(iterations):
-        held = None if iteration == 0 or curvature_model == "exact" else centre + normal * a[:, None]
-        kappa0, jac = _curvature_and_jacobian(
-            centre, normal, a, reference_tangent=iteration == 0 or held is not None, tangent_xy_m=held
-        )
+        held = centre if iteration == 0 else None if curvature_model == "exact" else centre + normal * a[:, None]
+        kappa0, jac = _curvature_and_jacobian(centre, normal, a, held)
         a = _solve_qp(kappa0, jac, a, lower, upper)
 
     # Interpolate in the polyline's own arc length, the parameter the offsets were optimised in.

@@ -434,13 +434,15 @@ def _saturation_curvature(p, speeds):
 
 @functools.lru_cache(maxsize=16)
 def _limits_table(car: VehicleParams, grip_scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """Saturation curvature per grid speed (1/m) and the exact limits on the grid (4, speeds, fractions)."""
+    """Saturating lateral acceleration ``v^2 kappa_sat`` per grid speed (m/s^2, with v at least
+    ``_SATURATION_MIN_SPEED_MPS``) and the exact limits on the grid (4, speeds, fractions)."""
     p = _pack(car, grip_scale)
     kappa_sat = _saturation_curvature(p, _TABLE_SPEEDS_MPS)
     v = np.repeat(_TABLE_SPEEDS_MPS, len(_TABLE_FRACTIONS))
     kappa = (kappa_sat[:, None] * _TABLE_FRACTIONS[None, :]).ravel()
     exact = _car_limits_vec(p, v, kappa, slip_table(car.tyre_front), slip_table(car.tyre_rear))
-    return kappa_sat, np.stack(exact).reshape(4, len(_TABLE_SPEEDS_MPS), len(_TABLE_FRACTIONS))
+    lateral_accel_sat = kappa_sat * np.maximum(_TABLE_SPEEDS_MPS, _SATURATION_MIN_SPEED_MPS) ** 2
+    return lateral_accel_sat, np.stack(exact).reshape(4, len(_TABLE_SPEEDS_MPS), len(_TABLE_FRACTIONS))
 
 
 class CarLimits:
@@ -464,16 +466,14 @@ class CarLimits:
         self, speed_mps: np.ndarray, curvature_1pm: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         speeds, fractions = _TABLE_SPEEDS_MPS, _TABLE_FRACTIONS
-        kappa_sat, t = self._table
+        lateral_accel_sat, t = self._table
         fv = np.clip(np.asarray(speed_mps, dtype=np.float64) / speeds[1], 0.0, len(speeds) - 1.000001)
         i = fv.astype(np.int64)
         wv = fv - i
-        # The saturating lateral acceleration v^2 kappa_sat varies slowly with speed; kappa_sat itself goes as 1/v^2,
-        # which a linear interpolation over 0.5 m/s misplaces at low speed by more than the grid's fraction spacing.
-        v2 = np.maximum(speeds[i] * (1.0 - wv) + speeds[i + 1] * wv, _SATURATION_MIN_SPEED_MPS) ** 2
-        ay_lo = kappa_sat[i] * np.maximum(speeds[i], _SATURATION_MIN_SPEED_MPS) ** 2
-        ay_hi = kappa_sat[i + 1] * np.maximum(speeds[i + 1], _SATURATION_MIN_SPEED_MPS) ** 2
-        fraction = np.abs(curvature_1pm) * v2 / (ay_lo * (1.0 - wv) + ay_hi * wv)
+        # Interpolated as the saturating lateral acceleration, which varies slowly with speed: kappa_sat itself goes
+        # as 1/v^2, which a linear interpolation over 0.5 m/s misplaces at low speed by more than the fractions' step.
+        v2 = np.maximum(fv * speeds[1], _SATURATION_MIN_SPEED_MPS) ** 2
+        fraction = np.abs(curvature_1pm) * v2 / (lateral_accel_sat[i] * (1.0 - wv) + lateral_accel_sat[i + 1] * wv)
         j = np.clip(np.searchsorted(fractions, fraction, side="right") - 1, 0, len(fractions) - 2)
         wk = np.clip((fraction - fractions[j]) / (fractions[j + 1] - fractions[j]), 0.0, 1.0)
         out = (t[:, i, j] * (1.0 - wk) + t[:, i, j + 1] * wk) * (1.0 - wv) + (
