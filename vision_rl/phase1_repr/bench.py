@@ -7,9 +7,11 @@ with phi_rep on the host side (CUDA is synchronised), so conversion, normalisati
 from __future__ import annotations
 
 import json
+import logging
 import os
 import tempfile
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,8 +26,6 @@ from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet, count_paramete
 
 #: The vision paper's inference time per frame, measured there on a GPU (section 3: "averages around 8 ms").
 PAPER_BUDGET_MS = 8.0
-
-
 
 
 @dataclass
@@ -88,7 +88,9 @@ def _compiled_path(net: ReprNet, device: torch.device) -> Callable[[np.ndarray],
     return run
 
 
-def _onnx_path(net: ReprNet, frames: np.ndarray, threads: int) -> Callable[[np.ndarray], Any]:
+def onnx_runner(net: ReprNet, example_frames: np.ndarray, threads: int = 0) -> Callable[[np.ndarray], np.ndarray]:
+    """Export ``net.embed`` to ONNX (a temporary file) and return a function from uint8 frames (N, H, W, 3) of the
+    example's shape to phi_rep, run by ONNX Runtime on the CPU. Needs the ``onnx`` extra."""
     import onnxruntime as ort
 
     class _Embed(torch.nn.Module):
@@ -99,13 +101,21 @@ def _onnx_path(net: ReprNet, frames: np.ndarray, threads: int) -> Callable[[np.n
         def forward(self, x: torch.Tensor) -> torch.Tensor:
             return self.inner.embed(x)
 
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "encoder.onnx"
-        torch.onnx.export(_Embed(net.cpu()).eval(), (torch.from_numpy(frames),), str(path), input_names=["frames"])
-        options = ort.SessionOptions()
-        if threads > 0:
-            options.intra_op_num_threads = threads
-        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    export_logger = logging.getLogger("torch.onnx")
+    level = export_logger.level
+    export_logger.setLevel(logging.ERROR)  # it warns about torchvision operators it cannot register
+    try:
+        with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            path = Path(tmp) / "encoder.onnx"
+            torch.onnx.export(_Embed(net.cpu()).eval(), (torch.from_numpy(example_frames),), str(path),
+                              input_names=["frames"], verbose=False)  # fmt: skip
+            options = ort.SessionOptions()
+            if threads > 0:
+                options.intra_op_num_threads = threads
+            session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    finally:
+        export_logger.setLevel(level)
 
     def run(x: np.ndarray) -> np.ndarray:
         return session.run(None, {"frames": x})[0]
@@ -168,10 +178,10 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
             "torch_compile": lambda: _compiled_path(_copy(fused_net), device),
         }
         if device.type == "cpu":
-            builders["onnxruntime"] = lambda: _onnx_path(_copy(fused_net), frame, cfg.threads)
+            builders["onnxruntime"] = lambda: onnx_runner(_copy(fused_net), frame, cfg.threads)
         for name, build in builders.items():
             if name == "onnxruntime" and not _has_module("onnxruntime"):
-                variants[name] = {"skipped": "onnxruntime is not installed (pip install onnxruntime onnx)"}
+                variants[name] = {"skipped": "onnxruntime is not installed (pip install 'vision_rl[onnx]')"}
                 continue
             try:
                 t0 = time.perf_counter()
