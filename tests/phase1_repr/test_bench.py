@@ -3,6 +3,8 @@ variant computes the same representation."""
 
 from __future__ import annotations
 
+import dataclasses
+import importlib.util
 import json
 from pathlib import Path
 
@@ -75,3 +77,15 @@ def test_every_variant_is_timed_or_says_why_not() -> None:
     for name, figures in variants.items():
         assert ("p50_ms" in figures and figures["p50_ms"] > 0) or figures.get("error") or figures.get("skipped"), name
     assert "p50_ms" in variants["unfused"] and "p50_ms" in variants["channels_last"]
+
+
+def test_backbone_option_builds_that_encoder() -> None:
+    cfg = BenchLatencyConfig(backbone="mobilenet_v3_small", width=48, height=32, runs=2, warmup=0, batch_size=2,
+                             variants=False)  # fmt: skip
+    if importlib.util.find_spec("torchvision") is None:
+        with pytest.raises(ImportError, match="pip install torchvision"):
+            bench_latency(cfg)
+        return
+    s2d = bench_latency(dataclasses.replace(cfg, backbone="s2d"))
+    mobilenet = bench_latency(cfg)
+    assert "mobilenet_v3_small" in mobilenet["encoder"] and mobilenet["parameters"] > s2d["parameters"]

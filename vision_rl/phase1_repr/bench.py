@@ -33,6 +33,8 @@ class BenchLatencyConfig:
     """Measure the encoder's batch-1 latency (uint8 frame in, 64-D out) and batched throughput."""
 
     encoder: str = field(default="", metadata=doc("ckpt.pt to measure; empty: a freshly initialised default encoder"))
+    backbone: str = field(default="s2d", metadata=doc("backbone of the fresh encoder: s2d or mobilenet_v3_small "
+                                                     "(a checkpoint fixes its own)"))  # fmt: skip
     device: str = field(default="cpu", metadata=doc("cpu or cuda"))
     width: int = field(default=470, metadata=doc("frame width, pixels (a checkpoint fixes its own)"))
     height: int = field(default=280, metadata=doc("frame height, pixels (a checkpoint fixes its own)"))
@@ -138,12 +140,13 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
         source = str(cfg.encoder)
     else:
         torch.manual_seed(0)
-        trained = ReprNet(EncoderConfig(input_height_px=cfg.height, input_width_px=cfg.width)).eval()
+        enc_cfg = EncoderConfig(backbone=cfg.backbone, input_height_px=cfg.height, input_width_px=cfg.width)
+        trained = ReprNet(enc_cfg).eval()
         fused = ReprNet(trained.config).eval()
         fused.load_state_dict(trained.state_dict())
         fused.fuse_for_inference()
         frozen = None
-        source = "freshly initialised default encoder"
+        source = f"freshly initialised {cfg.backbone} encoder"
     fused_net = frozen.net if frozen is not None else fused.to(device)
     h, w = fused_net.config.input_height_px, fused_net.config.input_width_px
     rng = np.random.default_rng(0)
