@@ -7,11 +7,8 @@ with phi_rep on the host side (CUDA is synchronised), so conversion, normalisati
 from __future__ import annotations
 
 import json
-import logging
 import os
-import tempfile
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +20,7 @@ import torch
 from vision_rl.config import doc
 from vision_rl.phase1_repr.checkpoint import build_network, load_encoder
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet, count_parameters
+from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, onnxruntime_installed
 
 #: The vision paper's inference time per frame, measured there on a GPU (section 3: "averages around 8 ms").
 PAPER_BUDGET_MS = 8.0
@@ -90,41 +88,6 @@ def _compiled_path(net: ReprNet, device: torch.device) -> Callable[[np.ndarray],
     return run
 
 
-def onnx_runner(net: ReprNet, example_frames: np.ndarray, threads: int = 0) -> Callable[[np.ndarray], np.ndarray]:
-    """Export ``net.embed`` to ONNX (a temporary file) and return a function from uint8 frames (N, H, W, 3) of the
-    example's shape to phi_rep, run by ONNX Runtime on the CPU. Needs the ``onnx`` extra."""
-    import onnxruntime as ort
-
-    class _Embed(torch.nn.Module):
-        def __init__(self, inner: ReprNet) -> None:
-            super().__init__()
-            self.inner = inner
-
-        def forward(self, x: torch.Tensor) -> torch.Tensor:
-            return self.inner.embed(x)
-
-    export_logger = logging.getLogger("torch.onnx")
-    level = export_logger.level
-    export_logger.setLevel(logging.ERROR)  # it warns about torchvision operators it cannot register
-    try:
-        with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            path = Path(tmp) / "encoder.onnx"
-            torch.onnx.export(_Embed(net.cpu()).eval(), (torch.from_numpy(example_frames),), str(path),
-                              input_names=["frames"], verbose=False)  # fmt: skip
-            options = ort.SessionOptions()
-            if threads > 0:
-                options.intra_op_num_threads = threads
-            session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-    finally:
-        export_logger.setLevel(level)
-
-    def run(x: np.ndarray) -> np.ndarray:
-        return session.run(None, {"frames": x})[0]
-
-    return run
-
-
 def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
     """Time the encoder as configured; returns the figures (``p50_ms``, ``p90_ms``, ``p99_ms``, ``variants``...)."""
     if cfg.runs < 1 or cfg.warmup < 0 or cfg.batch_size < 1:
@@ -181,9 +144,9 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
             "torch_compile": lambda: _compiled_path(_copy(fused_net), device),
         }
         if device.type == "cpu":
-            builders["onnxruntime"] = lambda: onnx_runner(_copy(fused_net), frame, cfg.threads)
+            builders["onnxruntime"] = lambda: OnnxEmbedding(_copy(fused_net), cfg.threads)
         for name, build in builders.items():
-            if name == "onnxruntime" and not _has_module("onnxruntime"):
+            if name == "onnxruntime" and not onnxruntime_installed():
                 variants[name] = {"skipped": "onnxruntime is not installed (pip install 'vision_rl[onnx]')"}
                 continue
             try:
@@ -205,12 +168,6 @@ def _copy(net: ReprNet) -> ReprNet:
         clone.fuse_for_inference()
     clone.load_state_dict(net.state_dict())
     return clone.to(next(net.parameters()).device)
-
-
-def _has_module(name: str) -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec(name) is not None
 
 
 def _cpu_name() -> str:

@@ -24,6 +24,7 @@ import torch
 from torch import nn
 
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
+from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, export_embedding, resolve_runtime
 
 CKPT_FORMAT = "vision_rl.encoder"
 CKPT_FORMAT_VERSION = 1
@@ -130,12 +131,14 @@ def checkpoint_sha256(path: str | os.PathLike[str]) -> str:
 class FrozenEncoder(nn.Module):
     """uint8 frames (N, H, W, 3), numpy or torch, on any device -> phi_rep (N, rep_dim) float32, no gradients.
 
-    :meth:`predict_targets` gives phi_reg's 27 targets in physical units (m, rad, 1/m) for diagnostics.
+    :meth:`predict_targets` gives phi_reg's 27 targets in physical units (m, rad, 1/m) for diagnostics. With an
+    ``onnx`` embedding (CPU only), phi_rep is computed by ONNX Runtime; ``predict_targets`` stays on torch.
     """
 
-    def __init__(self, net: ReprNet, ckpt: Mapping[str, Any], path: Path) -> None:
+    def __init__(self, net: ReprNet, ckpt: Mapping[str, Any], path: Path, onnx: OnnxEmbedding | None = None) -> None:
         super().__init__()
         self.net = net
+        self.onnx = onnx
         self.path = path
         self.config: EncoderConfig = net.config
         self.target_names: list[str] = list(ckpt["target_names"])
@@ -149,6 +152,10 @@ class FrozenEncoder(nn.Module):
     @property
     def input_hw_px(self) -> tuple[int, int]:
         return self.config.input_height_px, self.config.input_width_px
+
+    @property
+    def runtime(self) -> str:
+        return "torch" if self.onnx is None else "onnxruntime"
 
     @property
     def rep_dim(self) -> int:
@@ -168,6 +175,9 @@ class FrozenEncoder(nn.Module):
         return x.to(self.device, non_blocking=True)
 
     def forward(self, frames: np.ndarray | torch.Tensor) -> torch.Tensor:
+        if self.onnx is not None:
+            x = self._frames(frames)
+            return torch.from_numpy(self.onnx(x.numpy()))
         with torch.no_grad():
             return self.net.embed(self._frames(frames))
 
@@ -185,6 +195,7 @@ def load_encoder(
     expected_input_hw: tuple[int, int] | None = None,
     expected_target_names: Sequence[str] | None = None,
     fuse: bool = True,
+    runtime: str = "torch",
 ) -> FrozenEncoder:
     """Load ``ckpt.pt`` as a frozen module from uint8 frames (N, H, W, 3) to (N, 64).
 
@@ -194,7 +205,11 @@ def load_encoder(
         expected_input_hw: refuse a checkpoint built for another frame size (height, width) in pixels.
         expected_target_names: refuse a checkpoint trained on other targets (count or names).
         fuse: fold BatchNorm, normalisation and space2depth into the convolutions (same outputs, faster).
+        runtime: ``"torch"``, ``"onnxruntime"`` (CPU; phi_rep by ONNX Runtime with torch's current thread count, the
+            same outputs to float rounding, about 5x faster on small CPUs) or ``"auto"`` (ONNX Runtime on the CPU
+            when installed).
     """
+    runtime = resolve_runtime(runtime, device)
     path = Path(path)
     ckpt = read_checkpoint(path)
     cfg = EncoderConfig.from_dict(ckpt["encoder_config"])
@@ -215,6 +230,23 @@ def load_encoder(
                 detail = f"other targets than expected (first difference: {first!r})"
             raise EncoderCheckpointError(f"{path}: checkpoint predicts {detail}")
     net = build_network(ckpt, path)
-    if fuse:
+    if fuse or runtime == "onnxruntime":
         net.fuse_for_inference()
-    return FrozenEncoder(net, ckpt, path).to(device)
+    onnx = None
+    if runtime == "onnxruntime":
+        onnx = OnnxEmbedding(_exported_embedding(path, checkpoint_sha256(path), net), threads=torch.get_num_threads())
+    return FrozenEncoder(net, ckpt, path, onnx).to(device)
+
+
+_EXPORTS: dict[tuple[str, str], bytes] = {}
+
+
+def _exported_embedding(path: Path, sha256: str, net: ReprNet) -> bytes:
+    """The ONNX export of a checkpoint's embedding, kept per process: an export takes seconds, and evaluation loads
+    the same encoder once per policy."""
+    key = (str(path.resolve()), sha256)
+    if key not in _EXPORTS:
+        if len(_EXPORTS) >= 4:
+            _EXPORTS.pop(next(iter(_EXPORTS)))
+        _EXPORTS[key] = export_embedding(net)
+    return _EXPORTS[key]

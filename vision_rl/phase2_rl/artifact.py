@@ -245,11 +245,15 @@ class LoadedPolicy:
 
 
 def load_policy(
-    path: str | os.PathLike[str], encoder: str | os.PathLike[str] = "", device: str = "cpu"
+    path: str | os.PathLike[str],
+    encoder: str | os.PathLike[str] = "",
+    device: str = "cpu",
+    encoder_runtime: str = "auto",
 ) -> LoadedPolicy:
     """Load a policy (run folder or zip) with the observer that feeds it; for vision, the frozen encoder too.
 
     ``encoder``: optional checkpoint path for a vision policy; refused when its hash is not the recorded one.
+    ``encoder_runtime``: see :func:`~vision_rl.phase1_repr.checkpoint.load_encoder`.
     """
     from stable_baselines3 import SAC
 
@@ -261,7 +265,7 @@ def load_policy(
         encoder_path = check_encoder(spec, encoder, source=f"policy {zip_path}")
         from vision_rl.phase1_repr.checkpoint import load_encoder
 
-        module = load_encoder(encoder_path, device=device)
+        module = load_encoder(encoder_path, device=device, runtime=encoder_runtime)
     elif encoder:
         check_encoder(spec, encoder, source=f"policy {zip_path}")  # raises: a state policy takes no encoder
     try:

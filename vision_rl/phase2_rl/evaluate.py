@@ -392,6 +392,7 @@ def evaluate_policy(
     name: str = "",
     device: str = "cpu",
     write: bool = True,
+    encoder_runtime: str = "auto",
 ) -> dict[str, Any]:
     """Run the protocol for a policy (path or loaded); returns the summary and, with ``write``, stores it as
     ``evaluation.json`` beside the policy for the leaderboard."""
@@ -399,7 +400,7 @@ def evaluate_policy(
         raise ValueError(f"seeds must be >= 1, got {seeds}")
     if video:
         check_video_dependencies()
-    loaded = policy if isinstance(policy, LoadedPolicy) else load_policy(policy, encoder=encoder, device=device)
+    loaded = policy if isinstance(policy, LoadedPolicy) else load_policy(policy, encoder, device, encoder_runtime)
     core = protocol_core(loaded.config, seeds)
     run = run_protocol(core, policy_controller(loaded), laps, list(range(seed, seed + seeds)), start, time_limit_s)
     result = run.summary()
@@ -451,6 +452,8 @@ class EvaluateConfig:
     name: str = field(default="", metadata=doc("name on the leaderboard (default: the run folder's name)"))
     device: str = field(default="cpu", metadata=doc("torch device of the policy and encoder"))
     write: bool = field(default=True, metadata=doc("store evaluation.json beside the policy for the leaderboard"))
+    encoder_runtime: str = field(default="auto", metadata=doc("vision: auto (ONNX Runtime on a CPU when installed, "
+                                                              "about 5x faster than torch), torch or onnxruntime"))
     json: bool = field(default=False, metadata=doc("print the result as JSON"))
 
 
@@ -478,7 +481,7 @@ def run_evaluate(cfg: EvaluateConfig) -> int:
         raise ValueError("evaluate needs --policy: a train-policy run folder or its policy.zip")
     result = evaluate_policy(
         cfg.policy, cfg.laps, cfg.seeds, cfg.seed, cfg.start, cfg.encoder, cfg.time_limit_s, cfg.video, cfg.plot,
-        cfg.name, cfg.device, cfg.write,
+        cfg.name, cfg.device, cfg.write, cfg.encoder_runtime,
     )  # fmt: skip
     print(json.dumps(result, indent=2) if cfg.json else "\n".join(format_evaluation(result)))
     return 0

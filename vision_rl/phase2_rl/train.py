@@ -117,6 +117,8 @@ class TrainPolicyConfig:
     learning_starts: int = field(default=-1, metadata=doc("override the preset's random start steps (-1: preset)"))
     gradient_steps: int = field(default=0, metadata=doc("override the preset's updates per vector step (0: preset)"))
     device: str = field(default="auto", metadata=doc("torch device: auto, cpu or cuda"))
+    encoder_runtime: str = field(default="auto", metadata=doc("vision: auto (ONNX Runtime on a CPU when installed, "
+                                                              "about 5x faster than torch), torch or onnxruntime"))
     progress: bool = field(default=True, metadata=doc("show a progress bar on stderr"))
     json: bool = field(default=False, metadata=doc("print the result as JSON"))
 
@@ -260,7 +262,7 @@ class _Run:
         self.venv = venv
         if self.kind == "vision":
             assert self.encoder_path is not None
-            self.encoder = load_encoder(self.encoder_path, device=self.device)
+            self.encoder = load_encoder(self.encoder_path, device=self.device, runtime=self.cfg.encoder_runtime)
             self.encoder_sha256 = checkpoint_sha256(self.encoder_path)
             if self.previous is not None:
                 normalizer = self.previous.normalizer
