@@ -1,7 +1,9 @@
 """`bench-latency`: batch-1 latency of the encoder, uint8 frame to 64-D vector, against the paper's 8 ms budget.
 
 Each timed call starts from a uint8 numpy frame (N, H, W, 3), as the renderer or a grabber hands it over, and ends
-with phi_rep on the host side (CUDA is synchronised), so conversion, normalisation and transfer are included.
+with phi_rep on the host side (CUDA is synchronised), so conversion, normalisation and transfer are included. The
+headline figures (``p50_ms``...) time the path Phase 2 runs (``--runtime auto``: ONNX Runtime on a CPU where it is
+installed, torch otherwise); ``variants`` times the others side by side.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import torch
 from vision_rl.config import doc
 from vision_rl.phase1_repr.checkpoint import build_network, load_encoder
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet, count_parameters
-from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, onnxruntime_installed
+from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, onnxruntime_installed, resolve_runtime
 
 #: The vision paper's inference time per frame, measured there on a GPU (section 3: "averages around 8 ms").
 PAPER_BUDGET_MS = 8.0
@@ -34,6 +36,8 @@ class BenchLatencyConfig:
     backbone: str = field(default="s2d", metadata=doc("backbone of the fresh encoder: s2d or mobilenet_v3_small "
                                                      "(a checkpoint fixes its own)"))  # fmt: skip
     device: str = field(default="cpu", metadata=doc("cpu or cuda"))
+    runtime: str = field(default="auto", metadata=doc("the timed default path: auto (what Phase 2 runs: ONNX Runtime "
+                                                      "on a CPU when installed, else torch), torch or onnxruntime"))
     width: int = field(default=470, metadata=doc("frame width, pixels (a checkpoint fixes its own)"))
     height: int = field(default=280, metadata=doc("frame height, pixels (a checkpoint fixes its own)"))
     runs: int = field(default=300, metadata=doc("timed batch-1 calls (>= 200 for the report)"))
@@ -97,6 +101,7 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     device = torch.device(cfg.device)
+    runtime = resolve_runtime(cfg.runtime, device)
     if cfg.encoder:
         frozen = load_encoder(cfg.encoder, device)
         trained = build_network(torch.load(cfg.encoder, map_location="cpu", weights_only=True), cfg.encoder)
@@ -117,7 +122,11 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
     batch = rng.integers(0, 256, (cfg.batch_size, h, w, 3), dtype=np.uint8)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
 
-    default_path = _torch_path(fused_net, device)
+    def onnx_path() -> Callable[[np.ndarray], Any]:
+        return OnnxEmbedding(_copy(fused_net), cfg.threads or torch.get_num_threads())
+
+    default_name = "onnxruntime" if runtime == "onnxruntime" else "eager"
+    default_path = onnx_path() if runtime == "onnxruntime" else _torch_path(fused_net, device)
     times = _time_calls(default_path, frame, cfg.runs, cfg.warmup, sync)
     batch_runs = max(3, min(20, cfg.runs // 10))
     batch_times = _time_calls(default_path, batch, batch_runs, 1, sync)
@@ -125,6 +134,7 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
         "encoder": source,
         "device": str(device),
         "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else _cpu_name(),
+        "runtime": runtime,
         "threads": torch.get_num_threads(),
         "input_hw_px": [h, w],
         "parameters": count_parameters(trained),
@@ -136,16 +146,19 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
         "torch_version": torch.__version__,
     }
     result["within_budget"] = result["p50_ms"] <= PAPER_BUDGET_MS
-    variants: dict[str, Any] = {"eager": _percentiles(times)}
+    variants: dict[str, Any] = {default_name: _percentiles(times)}
     if cfg.variants:
         builders: dict[str, Callable[[], Callable[[np.ndarray], Any]]] = {
+            "eager": lambda: _torch_path(fused_net, device),
             "unfused": lambda: _torch_path(_copy(trained).to(device), device),
             "channels_last": lambda: _torch_path(_copy(fused_net), device, channels_last=True),
             "torch_compile": lambda: _compiled_path(_copy(fused_net), device),
         }
         if device.type == "cpu":
-            builders["onnxruntime"] = lambda: OnnxEmbedding(_copy(fused_net), cfg.threads)
+            builders["onnxruntime"] = onnx_path
         for name, build in builders.items():
+            if name in variants:
+                continue
             if name == "onnxruntime" and not onnxruntime_installed():
                 variants[name] = {"skipped": "onnxruntime is not installed (pip install 'vision_rl[onnx]')"}
                 continue
@@ -184,7 +197,8 @@ def format_bench_latency(result: dict[str, Any]) -> list[str]:
     budget = result["budget_ms"]
     lines = [
         f"encoder: {result['encoder']} ({result['parameters']:,} parameters), frames {result['input_hw_px'][1]}x"
-        f"{result['input_hw_px'][0]}, {result['device']} ({result['device_name']}), {result['threads']} threads",
+        f"{result['input_hw_px'][0]}, {result['device']} ({result['device_name']}), {result['threads']} threads, "
+        f"runtime {result['runtime']}",
         f"batch 1 over {result['runs']} runs: p50 {result['p50_ms']:.2f} ms  p90 {result['p90_ms']:.2f} ms  "
         f"p99 {result['p99_ms']:.2f} ms   (paper's budget: {budget:.0f} ms per frame on a GPU: "
         f"{'within' if result['within_budget'] else 'OVER'})",
