@@ -51,3 +51,18 @@ def test_runtime_choice() -> None:
         resolve_runtime("onnxruntime", "cuda")
     with pytest.raises(ValueError, match="one of"):
         resolve_runtime("tensorrt", "cpu")
+
+
+@needs_onnxruntime
+def test_auto_falls_back_to_torch_when_the_export_fails(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "ckpt.pt"
+    write(path)
+
+    def fail(net):
+        raise RuntimeError("exporter broke")
+
+    monkeypatch.setattr("vision_rl.phase1_repr.checkpoint.export_embedding", fail)
+    with pytest.warns(RuntimeWarning, match="exporter broke"):
+        assert load_encoder(path, runtime="auto").runtime == "torch"
+    with pytest.raises(RuntimeError, match="exporter broke"):
+        load_encoder(path, runtime="onnxruntime")

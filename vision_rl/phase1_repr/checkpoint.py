@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -209,7 +210,7 @@ def load_encoder(
             same outputs to float rounding, about 5x faster on small CPUs) or ``"auto"`` (ONNX Runtime on the CPU
             when installed).
     """
-    runtime = resolve_runtime(runtime, device)
+    requested_runtime, runtime = runtime, resolve_runtime(runtime, device)
     path = Path(path)
     ckpt = read_checkpoint(path)
     cfg = EncoderConfig.from_dict(ckpt["encoder_config"])
@@ -234,7 +235,14 @@ def load_encoder(
         net.fuse_for_inference()
     onnx = None
     if runtime == "onnxruntime":
-        onnx = OnnxEmbedding(_exported_embedding(path, checkpoint_sha256(path), net), threads=torch.get_num_threads())
+        try:
+            model = _exported_embedding(path, checkpoint_sha256(path), net)
+            onnx = OnnxEmbedding(model, threads=torch.get_num_threads())
+        except Exception as exc:  # the exporter's and ONNX Runtime's errors have many types
+            if requested_runtime != "auto":
+                raise
+            warnings.warn(f"{path}: ONNX Runtime cannot run this encoder, torch will ({exc})", RuntimeWarning,
+                          stacklevel=2)  # fmt: skip
     return FrozenEncoder(net, ckpt, path, onnx).to(device)
 
 
