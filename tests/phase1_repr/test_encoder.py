@@ -116,3 +116,5 @@ def test_mobilenet_backbone_outputs_64() -> None:  # pragma: no cover - only whe
         net.fuse_for_inference()
         torch.testing.assert_close(net.embed(x), rep, rtol=1e-4, atol=1e-4)
     assert rep.shape == (2, 64)
+    norms = [m for m in net.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    assert norms and all(m.momentum == 0.1 for m in norms)  # torchvision's 0.01 left short runs unusable in eval
