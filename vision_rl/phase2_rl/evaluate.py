@@ -453,7 +453,7 @@ class EvaluateConfig:
     device: str = field(default="cpu", metadata=doc("torch device of the policy and encoder"))
     write: bool = field(default=True, metadata=doc("store evaluation.json beside the policy for the leaderboard"))
     encoder_runtime: str = field(default="auto", metadata=doc("vision: auto (ONNX Runtime on a CPU when installed, "
-                                                              "3-5x faster than torch here), torch or onnxruntime"))
+                                                              "2-6x faster than torch here), torch or onnxruntime"))
     json: bool = field(default=False, metadata=doc("print the result as JSON"))
 
 

@@ -118,7 +118,7 @@ class TrainPolicyConfig:
     gradient_steps: int = field(default=0, metadata=doc("override the preset's updates per vector step (0: preset)"))
     device: str = field(default="auto", metadata=doc("torch device: auto, cpu or cuda"))
     encoder_runtime: str = field(default="auto", metadata=doc("vision: auto (ONNX Runtime on a CPU when installed, "
-                                                              "3-5x faster than torch here), torch or onnxruntime"))
+                                                              "2-6x faster than torch here), torch or onnxruntime"))
     progress: bool = field(default=True, metadata=doc("show a progress bar on stderr"))
     json: bool = field(default=False, metadata=doc("print the result as JSON"))
 
