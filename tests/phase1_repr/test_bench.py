@@ -11,12 +11,7 @@ from pathlib import Path
 import pytest
 
 from tests.phase1_repr.test_checkpoint import write
-from vision_rl.phase1_repr.bench import (
-    PAPER_BUDGET_MS,
-    BenchLatencyConfig,
-    bench_latency,
-    run_bench_latency,
-)
+from vision_rl.phase1_repr.bench import PAPER_BUDGET_MS, BenchLatencyConfig, bench_latency, run_bench_latency
 
 
 def test_json_output_has_the_keys(capsys) -> None:
