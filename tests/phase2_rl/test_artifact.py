@@ -13,6 +13,7 @@ from vision_rl.phase2_rl.artifact import (
     PolicyError,
     PolicySpec,
     check_encoder,
+    load_policy,
     racing_config_from_dict,
     racing_config_to_dict,
     resolve_policy_paths,
@@ -94,3 +95,8 @@ def test_policy_paths_resolve_from_folder_zip_and_checkpoint(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(PolicyError, match="no policy here"):
         resolve_policy_paths(tmp_path / "empty")
+
+
+def test_bad_encoder_runtime_is_refused_before_loading(tmp_path):
+    with pytest.raises(ValueError, match="encoder runtime must be one of"):
+        load_policy(tmp_path / "nothing", encoder_runtime="tensorrt")  # before the missing policy is noticed

@@ -90,6 +90,8 @@ def test_existing_run_and_missing_run_are_refused(state_run, tmp_path):
         train_policy(tiny_train_config("technical", out, preset="gpu", force=True))
     with pytest.raises(FileNotFoundError, match="encoder checkpoint"):
         train_policy(tiny_train_config("technical", out, encoder=str(tmp_path / "no.pt"), force=True))
+    with pytest.raises(ValueError, match="encoder runtime"):
+        train_policy(tiny_train_config("technical", out, encoder_runtime="tensorrt", force=True))
     assert (out / "policy.zip").is_file()  # a bad option with --force left the run alone
 
 

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from vision_rl.config import doc
-from vision_rl.phase1_repr.checkpoint import build_network, load_encoder
+from vision_rl.phase1_repr.checkpoint import build_network, read_checkpoint
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet, count_parameters
 from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, onnxruntime_installed, resolve_runtime
 
@@ -103,19 +103,14 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
     device = torch.device(cfg.device)
     runtime = resolve_runtime(cfg.runtime, device)
     if cfg.encoder:
-        frozen = load_encoder(cfg.encoder, device)
-        trained = build_network(torch.load(cfg.encoder, map_location="cpu", weights_only=True), cfg.encoder)
+        trained = build_network(read_checkpoint(cfg.encoder), cfg.encoder)
         source = str(cfg.encoder)
     else:
         torch.manual_seed(0)
         enc_cfg = EncoderConfig(backbone=cfg.backbone, input_height_px=cfg.height, input_width_px=cfg.width)
         trained = ReprNet(enc_cfg).eval()
-        fused = ReprNet(trained.config).eval()
-        fused.load_state_dict(trained.state_dict())
-        fused.fuse_for_inference()
-        frozen = None
         source = f"freshly initialised {cfg.backbone} encoder"
-    fused_net = frozen.net if frozen is not None else fused.to(device)
+    fused_net = _copy(trained).fuse_for_inference().to(device)
     h, w = fused_net.config.input_height_px, fused_net.config.input_width_px
     rng = np.random.default_rng(0)
     frame = rng.integers(0, 256, (1, h, w, 3), dtype=np.uint8)
@@ -123,7 +118,7 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
 
     def onnx_path() -> Callable[[np.ndarray], Any]:
-        return OnnxEmbedding(_copy(fused_net), cfg.threads or torch.get_num_threads())
+        return OnnxEmbedding(_copy(fused_net), torch.get_num_threads())
 
     default_name = "onnxruntime" if runtime == "onnxruntime" else "eager"
     default_path = onnx_path() if runtime == "onnxruntime" else _torch_path(fused_net, device)

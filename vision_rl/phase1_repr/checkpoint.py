@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import warnings
@@ -236,7 +237,7 @@ def load_encoder(
     onnx = None
     if runtime == "onnxruntime":
         try:
-            model = _exported_embedding(path, checkpoint_sha256(path), net)
+            model = _exported_embedding(str(path.resolve()), checkpoint_sha256(path))
             onnx = OnnxEmbedding(model, threads=torch.get_num_threads())
         except Exception as exc:  # the exporter's and ONNX Runtime's errors have many types
             if requested_runtime != "auto":
@@ -246,15 +247,8 @@ def load_encoder(
     return FrozenEncoder(net, ckpt, path, onnx).to(device)
 
 
-_EXPORTS: dict[tuple[str, str], bytes] = {}
-
-
-def _exported_embedding(path: Path, sha256: str, net: ReprNet) -> bytes:
-    """The ONNX export of a checkpoint's embedding, kept per process: an export takes seconds, and evaluation loads
-    the same encoder once per policy."""
-    key = (str(path.resolve()), sha256)
-    if key not in _EXPORTS:
-        if len(_EXPORTS) >= 4:
-            _EXPORTS.pop(next(iter(_EXPORTS)))
-        _EXPORTS[key] = export_embedding(net)
-    return _EXPORTS[key]
+@functools.lru_cache(maxsize=4)
+def _exported_embedding(path: str, sha256: str) -> bytes:
+    """The ONNX export of a checkpoint's embedding, kept per process and file content: an export takes seconds, and
+    the pipeline loads the encoder it has just trained with again to evaluate."""
+    return export_embedding(build_network(read_checkpoint(path), path).fuse_for_inference())

@@ -257,6 +257,9 @@ def load_policy(
     """
     from stable_baselines3 import SAC
 
+    from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
+
+    resolve_runtime(encoder_runtime, device)  # refused for a state policy too, which would never use it
     zip_path, spec_path = resolve_policy_paths(path)
     spec = PolicySpec.read(spec_path)
     encoder_path = None

@@ -45,7 +45,8 @@ SIZES: dict[str, Phase2Sizes] = {
     # `pipeline --quick` on 2 cores: state 250k steps in 183 s, which drove lap 2 of the expressway in 2:18.0.
     # Vision (236 x 140 frames) learns per update much as with 20 cars, and an update costs 36 ms with 10 cars
     # against 50 ms with 20: with 10 cars it drove one lap after 150k steps (491 s) and two (lap 2 in 2:24.1)
-    # after 200k (648 s). The whole pipeline took 14.6 min with 150k vision steps, 15.6-17.1 with 200k.
+    # after 200k (648 s; 587 s with the encoder on ONNX Runtime). The whole pipeline took 14.6 min with 150k
+    # vision steps, 15.6-17.1 with 200k and 4 encoder epochs, 17.2 with 10.
     "quick": Phase2Sizes("cpu", 250_000, 200_000, 20, 10, -1, 5_000, 0, 0, 0, 50_000, 3, 3, 50, 0.0, 400.0),
     # The paper's scale: 400 epochs of 20 trials of 100 s (vision paper, section 4, Figure 3) = 8M steps.
     "full": Phase2Sizes("paper", 8_000_000, 8_000_000, 20, 20, -1, -1, 0, 0, 0, 200_000, 3, 3, 100, 0.0, 0.0),

@@ -31,6 +31,7 @@ from stable_baselines3.common.vec_env import VecMonitor
 from vision_rl.config import doc
 from vision_rl.envs.core import RacingConfig
 from vision_rl.envs.vector import make_sb3_vec_env
+from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
 from vision_rl.phase2_rl.artifact import (
     MODEL_NAME,
     SIDECAR_NAME,
@@ -209,6 +210,7 @@ class _Run:
         self.previous: PolicySpec | None = None
         if cfg.cars < 1 or cfg.steps < 1:
             raise ValueError("cars and steps must be >= 1")
+        resolve_runtime(cfg.encoder_runtime, self.device)  # a bad value is refused before the run folder is touched
         if cfg.resume:
             if not (self.out / MODEL_NAME).is_file() or not (self.out / SIDECAR_NAME).is_file():
                 raise FileNotFoundError(f"{self.out}: nothing to resume (no {MODEL_NAME} and {SIDECAR_NAME})")
