@@ -103,7 +103,8 @@ def test_overtaking_reward_and_info_on_setting_a():
 
 def test_opponents_act_at_the_ai_rate_and_stay_off_the_walls():
     core = _core(scenario="setting_b", n_groups=2)
-    assert core.ai_substeps == 5 and _core().ai_substeps == 1  # 10 Hz agents, 50 Hz built-in AI
+    # 10 Hz agents, 50 Hz built-in AI: the world steps at the AI's rate, the egos' commands held over 5 steps.
+    assert core.world_steps == 5 and core.world.model.config.control_dt_s == pytest.approx(0.02)
     core.reset_groups(np.arange(2))
     for _ in range(300):  # 30 s; the egos hold their lane at a crawl, the opponents race ahead
         core.step(np.array([[0.0, 0.1], [0.0, 0.1]]), autoreset=False)
@@ -145,14 +146,51 @@ def test_same_seed_same_rollout():
 
 def test_observation_normalisation_is_cached_and_reused(tmp_path, monkeypatch):
     monkeypatch.setenv("VISION_RL_CACHE", str(tmp_path))
-    first = RacingCore(RacingConfig(track=TRACK), seed=0).normalizer
+    first = RacingCore(RacingConfig(track=TRACK), seed=0).observer.normalizer
     files = list((tmp_path / "obs_stats").glob("*.json"))
     assert len(files) == 1
-    second = RacingCore(RacingConfig(track=TRACK), seed=5).normalizer
+    second = RacingCore(RacingConfig(track=TRACK), seed=5).observer.normalizer
     np.testing.assert_array_equal(first.offset, second.offset)
     files[0].write_text("{not json")
-    third = RacingCore(RacingConfig(track=TRACK), seed=0).normalizer
+    third = RacingCore(RacingConfig(track=TRACK), seed=0).observer.normalizer
     np.testing.assert_allclose(third.offset, first.offset)
+
+
+@pytest.mark.parametrize("env_id", ["vision_rl/TimeTrial-v0", "vision_rl/Overtaking-v0"])
+def test_same_seed_same_episode_in_every_env_builder(env_id):
+    from vision_rl.envs import make_sb3_vec_env
+
+    single = gym.make(env_id, track=TRACK).unwrapped
+    config = dataclasses.replace(single.config, n_groups=3)
+    actions = np.random.default_rng(0).uniform(-1.0, 1.0, (200, 3, 2)) * np.array([0.1, 1.0])
+
+    def first_group(reset, step) -> np.ndarray:
+        out = [np.asarray(reset())]
+        for a in actions:
+            out.append(np.asarray(step(a)))
+        return np.stack(out)
+
+    runs = {
+        "gym.make": first_group(lambda: single.reset(seed=3)[0], lambda a: single.step(a[0])[0]),
+    }
+    vec = make_vector_env(config, seed=3)
+    runs["make_vector_env(seed)"] = first_group(lambda: vec.reset()[0][0], lambda a: vec.step(a)[0][0])
+    vec = make_vector_env(config)
+    runs["reset(seed)"] = first_group(lambda: vec.reset(seed=3)[0][0], lambda a: vec.step(a)[0][0])
+    sb3 = make_sb3_vec_env(config)
+    sb3.seed(3)
+
+    def sb3_step(a):
+        sb3.step_async(a)
+        return sb3.step_wait()[0][0]
+
+    runs["make_sb3_vec_env"] = first_group(lambda: sb3.reset()[0], sb3_step)
+    reference = runs.pop("gym.make")
+    assert reference.shape[0] == 201
+    for name, obs in runs.items():
+        np.testing.assert_array_equal(obs, reference, err_msg=name)
+    other = make_vector_env(config, seed=4).reset()[0][0]
+    assert not np.array_equal(other, reference[0])
 
 
 @pytest.mark.parametrize("env_id", ["vision_rl/TimeTrial-v0", "vision_rl/Overtaking-v0"])

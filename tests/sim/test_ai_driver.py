@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver, AIParams, DisruptionParams, Disruptor, StuckDetector
+from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver, AIParams, DisruptionParams, Disruptor
 from vision_rl.sim.racing_line import optimise_racing_line
 from vision_rl.sim.speed_profile import profile_for_line
 from vision_rl.sim.track_library import load_track
@@ -136,22 +136,6 @@ def test_disruptor_is_seeded_bounded_and_holds_its_offsets():
     assert held_steps.min() >= 0.5 / dt - 1 and held_steps.max() <= 1.0 / dt + 1
     first = steer[0]
     assert 0.15 < np.mean(first == 0.0) < 0.35  # the quiet periods
-
-
-def test_stuck_detector_flags_once_per_window_and_never_a_moving_car():
-    window = 5
-    s_m = np.zeros(2)
-    detector = StuckDetector(s_m, window, min_progress_m=5.0)
-    flagged = []
-    for _ in range(12):
-        s_m = s_m + np.array([0.0, 2.0])  # car 0 parked, car 1 at 2 m per step
-        stuck = detector.update(s_m)
-        flagged.append(list(stuck))
-        if len(stuck):
-            detector.reset(stuck, s_m)
-    # Car 0 after a full window, then again only after a full window since its reset; car 1 never.
-    assert [step + 1 for step, ids in enumerate(flagged) if ids] == [5, 10]
-    assert all(ids in ([], [0]) for ids in flagged)
 
 
 def test_bad_arguments_raise():

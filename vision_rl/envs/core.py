@@ -8,16 +8,16 @@ groups, same-step autoreset) are thin layers over :class:`RacingCore`.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from vision_rl.envs import observations as obs_lib
+from vision_rl.envs.observer import OBSERVATION_KINDS, Observer
 from vision_rl.envs.rewards import overtaking_reward, racing_reward, wrapped_gap_m
-from vision_rl.sim import sensors
-from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE, AIDriver, Disruptor
-from vision_rl.sim.driving import AI_CONTROL_DT_S, line_and_profile
+from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE, Disruptor
+from vision_rl.sim.driving import line_and_profile
+from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import ACTION_STEER_LIMIT_RAD, get_preset
 from vision_rl.sim.world import StepEvents, World, WorldConfig
@@ -30,7 +30,8 @@ SCENARIOS: dict[str, tuple[int, float]] = {
     "setting_a": (5, 50.0),  # evaluation: five opponents ahead, 50 m apart (section IV-C)
     "setting_b": (5, 200.0),  # evaluation: five opponents ahead, 200 m apart
 }
-OBSERVATION_KINDS = ("state", "vision", "overtaking")
+#: Seed of the rollout that the normalisation statistics are sampled from: one set of numbers per configuration.
+STATS_SEED = 12345
 
 
 @dataclass(frozen=True)
@@ -63,12 +64,12 @@ class RacingConfig:
     """Opponents' skills are drawn uniformly in this range (share of the limit profile)."""
     start_skill: float = DEFAULT_SKILL
     """An episode starts at this share of the limit speed at the start point (the AI's speed there)."""
-    stuck_timeout_s: float | None = None
-    """If set, an episode terminates when the ego gained less than 1 m of progress over this many seconds."""
+    terminate_when_stuck: bool = False
+    """End (terminate) an episode when the ego is stuck by :data:`vision_rl.sim.fleet.STUCK_RULE`."""
     normalize: bool = True
     """Normalise vector observations (z-score; lidar min-max) with cached statistics."""
-    image_size_px: tuple[int, int] = (470, 280)
-    """Width, height of the ``vision`` frames."""
+    image_hw_px: tuple[int, int] = (280, 470)
+    """Height, width of the ``vision`` frames, px."""
     extra: dict = field(default_factory=dict, compare=False, hash=False)
     """Free-form notes carried with the config (not used by the environment)."""
 
@@ -81,6 +82,9 @@ class RacingConfig:
             raise ValueError(f"n_groups must be >= 1, got {self.n_groups}")
         if self.episode_s < self.control_dt_s:
             raise ValueError("episode_s must cover at least one control step")
+        ratio = self.control_dt_s / AI_CONTROL_DT_S
+        if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9:
+            raise ValueError(f"control_dt_s must be a whole multiple of the AI's {AI_CONTROL_DT_S} s")
 
     @property
     def opponents(self) -> int:
@@ -92,9 +96,24 @@ class RacingConfig:
 
 
 class RacingCore:
-    """M groups racing in one world; observations, rewards and episode bookkeeping for the M egos."""
+    """M groups racing in one world; rewards and episode bookkeeping for the M egos, observations through one
+    :class:`~vision_rl.envs.observer.Observer`.
 
-    def __init__(self, config: RacingConfig, seed: int | None = None) -> None:
+    Seeding: group g draws its episodes' start points (and opponents' skills) from its own generator, child g of
+    ``numpy.random.SeedSequence(seed)``, so the same seed gives group g the same episodes whatever the number of
+    groups and whichever builder made the environment.
+
+    The world steps at the built-in AI's 0.02 s; an ego's command is held over the control step (the same physics
+    as one 0.1 s step), opponents are driven by the AI at each world step.
+
+    Args:
+        config: the environment.
+        seed: see above (None: fresh entropy).
+        observer: the observation maker (default: ``config.observation`` with the cached normalisation when
+            ``config.normalize``, no encoder).
+    """
+
+    def __init__(self, config: RacingConfig, seed: int | None = None, observer: Observer | None = None) -> None:
         self.config = cfg = config
         self.track = load_track(cfg.track)
         self.car = get_preset(cfg.car)
@@ -102,31 +121,35 @@ class RacingCore:
         n_cars = cfg.n_groups * self.group_size
         self.ego_ids = np.arange(cfg.n_groups) * self.group_size
         self.groups = np.repeat(np.arange(cfg.n_groups), self.group_size)
-        # The built-in AI is tuned to act every AI_CONTROL_DT_S: with opponents on track a control step is several
-        # world steps, the AI acting at each and the egos' commands held (opponents acting at the agents' 10 Hz hit
-        # walls for up to 83 s of a 120 s run, measured on the expressway). Alone, an ego needs one world step.
-        self.ai_substeps = 1 if self.group_size == 1 else math.ceil(cfg.control_dt_s / AI_CONTROL_DT_S - 1e-9)
-        world_config = WorldConfig(control_dt_s=cfg.control_dt_s / self.ai_substeps)
-        self.world = World(self.track, self.car, n_cars, self.groups, world_config)
+        self.world_steps = round(cfg.control_dt_s / AI_CONTROL_DT_S)
+        self.world = World(self.track, self.car, n_cars, self.groups, WorldConfig(control_dt_s=AI_CONTROL_DT_S))
         self.line, self.profile = line_and_profile(self.track, self.car)
-        self.rng = np.random.default_rng(seed)
-        self.skill = np.full(n_cars, cfg.start_skill)
+        self.fleet = AIFleet(self.world, self.line, self.profile, skill=cfg.start_skill)
         self.unwrapped_at_reset = np.zeros(n_cars)
-        self.ai = AIDriver(self.car, self.line, self.profile, n_cars, skill=self.skill, groups=self.groups)
-        self.caster = sensors.WallRayCaster(self.track)
-        self.renderer = None
+        self.seed(seed)
         m = cfg.n_groups
         self.steps = np.zeros(m, dtype=np.int64)
         self.progress_m = np.zeros(m)
-        self.recent_progress_m = np.zeros(m)
-        self.recent_steps = np.zeros(m, dtype=np.int64)
         self.start_gap_m = np.zeros((m, cfg.opponents))
         self.gap_m = np.zeros((m, cfg.opponents))
-        self.normalizer: obs_lib.ObsNormalizer | None = None
-        if cfg.normalize and cfg.observation != "vision":
-            self.normalizer = obs_lib.load_or_compute_normalizer(
-                self.track, self.car.name, cfg.observation, self._sample_observations
-            )
+        self.stuck = StuckDetector(self.world.state.unwrapped_s_m[self.ego_ids], cfg.control_dt_s)
+        if observer is None:
+            observer = Observer(cfg.observation, self.track, self.car, self.groups, image_hw_px=cfg.image_hw_px)
+            if cfg.normalize and cfg.observation != "vision":
+                observer.normalizer = obs_lib.load_or_compute_normalizer(
+                    self.track, self.car.name, cfg.observation, lambda: self.sample_raw_observations(observer)
+                )
+        self.observer = observer
+
+    @property
+    def skill(self) -> np.ndarray:
+        """(n_cars,) skill of every car's AI (the egos' is used only when the AI drives them)."""
+        return self.fleet.skill
+
+    def seed(self, seed: int | None) -> None:
+        """New generators for every group (see the class docstring)."""
+        children = np.random.SeedSequence(seed).spawn(self.config.n_groups)
+        self.group_rngs = [np.random.default_rng(child) for child in children]
 
     # ------------------------------------------------------------------ placement
     def reset_groups(self, gids: np.ndarray) -> None:
@@ -135,24 +158,21 @@ class RacingCore:
         gids = np.asarray(gids, dtype=np.int64)
         if len(gids) == 0:
             return
-        s0 = self.rng.uniform(0.0, self.track.length_m, len(gids))
-        spacing = SCENARIOS[cfg.scenario][1]
-        offsets = np.arange(k) * spacing
-        car_ids = (gids[:, None] * k + np.arange(k)[None, :]).ravel()
-        s = (s0[:, None] + offsets[None, :]).ravel()
         skill = np.full((len(gids), k), cfg.start_skill)
-        if k > 1:
-            skill[:, 1:] = self.rng.uniform(cfg.opponent_skill[0], cfg.opponent_skill[1], (len(gids), k - 1))
+        s0 = np.empty(len(gids))
+        for row, g in enumerate(gids):  # one draw per group from its own generator (a reset, not a step)
+            rng = self.group_rngs[g]
+            s0[row] = rng.uniform(0.0, self.track.length_m)
+            if k > 1:
+                skill[row, 1:] = rng.uniform(cfg.opponent_skill[0], cfg.opponent_skill[1], k - 1)
+        offsets = np.arange(k) * SCENARIOS[cfg.scenario][1]
+        car_ids = (gids[:, None] * k + np.arange(k)[None, :]).ravel()
         self.skill[car_ids] = skill.ravel()
-        self.ai.skill[car_ids] = skill.ravel()
-        line_s = self.line.line_s_at(s)
-        speed = self.skill[car_ids] * self.profile.speed_at(line_s)
-        self.world.reset(s_m=s, lateral_m=self.line.lateral_at(s), speed_mps=speed, car_ids=car_ids)
+        self.fleet.place(car_ids, (s0[:, None] + offsets[None, :]).ravel())
         self.unwrapped_at_reset[car_ids] = self.world.state.unwrapped_s_m[car_ids]
         self.steps[gids] = 0
         self.progress_m[gids] = 0.0
-        self.recent_progress_m[gids] = 0.0
-        self.recent_steps[gids] = 0
+        self.stuck.reset(gids, self.world.state.unwrapped_s_m[self.ego_ids])
         if k > 1:
             self.gap_m[gids] = self._gaps()[gids]
             self.start_gap_m[gids] = self.gap_m[gids]
@@ -163,81 +183,37 @@ class RacingCore:
         return wrapped_gap_m(s[:, 1:], s[:, :1], self.track.length_m)
 
     # ------------------------------------------------------------------ observations
-    def raw_observation(self, ids: np.ndarray | None = None) -> np.ndarray:
-        """Vector observations (state or overtaking) of the egos (or the cars ``ids``), physical units."""
-        ids = self.ego_ids if ids is None else ids
-        st = self.world.state
-        if self.config.observation == "overtaking":
-            return obs_lib.overtaking_observation(
-                self.track, self.caster, st, ids, self.car.length_m, self.car.width_m, self.groups
-            )
-        return obs_lib.state_observation(self.track, self.caster, st, ids)
+    def raw_observation(self) -> np.ndarray:
+        """The egos' observation vectors before normalisation."""
+        return self.observer.raw(self.world.state, self.ego_ids)
 
-    def observation(self) -> np.ndarray | dict[str, np.ndarray]:
-        """The egos' observations as the environments return them (normalised vectors or a Dict for vision)."""
-        if self.config.observation == "vision":
-            return self._vision_observation()
-        raw = self.raw_observation()
-        return self.normalizer(raw) if self.normalizer is not None else raw.astype(np.float32)
+    def observation(self, gids: np.ndarray | None = None) -> np.ndarray | dict[str, np.ndarray]:
+        """The observations of the egos (or of groups ``gids``) as the environments return them."""
+        ids = self.ego_ids if gids is None else self.ego_ids[gids]
+        return self.observer(self.world.state, ids)
 
-    def _vision_observation(self) -> dict[str, np.ndarray]:
-        if self.renderer is None:
-            try:
-                from vision_rl.render import RenderConfig, Renderer
-            except ImportError as exc:
-                raise RuntimeError(
-                    "the vision observation needs the renderer layer (vision_rl.render: moderngl with EGL); "
-                    f"it could not be imported: {exc}"
-                ) from exc
-            width, height = self.config.image_size_px
-            self.renderer = Renderer(
-                self.track, RenderConfig(width_px=width, height_px=height, max_views=len(self.ego_ids)),
-                car_length_m=self.car.length_m, car_width_m=self.car.width_m,
-            )  # fmt: skip
-        st = self.world.state
-        v = st.vehicle
-        frames = self.renderer.render(v.x_m, v.y_m, v.yaw_rad, view_ids=self.ego_ids, groups=self.groups)
-        ids = self.ego_ids
-        features = sensors.dedicated_features(
-            type(v)(*(a[ids] for a in v)), st.wall_contact[ids], st.prev_steer_cmd_rad[ids]
-        )
-        return {"image": frames, "features": features.astype(np.float32)}
-
-    def _sample_observations(self, steps: int = 300) -> np.ndarray:
-        """Raw observations of 20 disrupted built-in AI cars (the egos) over ``steps`` control steps: the states
-        the normalisation statistics are computed from. Uses its own generator so env seeds do not change them."""
-        saved_rng = self.rng
-        self.rng = np.random.default_rng(12345)
-        disruptor = Disruptor(len(self.skill), seed=12345)
+    def sample_raw_observations(self, observer: Observer, steps: int = 300) -> np.ndarray:
+        """Raw observations by ``observer`` of the egos driven by the disrupted built-in AI from random starts over
+        ``steps`` control steps (at least 6,000 samples): what normalisation statistics are computed from. Uses
+        its own generators, so the environment's seeds neither change them nor are changed by them."""
+        saved = self.group_rngs
+        self.seed(STATS_SEED)
+        self.fleet.disruptor = Disruptor(self.world.n_cars, seed=STATS_SEED)
         samples = []
-        self.reset_groups(np.arange(self.config.n_groups))
-        for _ in range(max(steps, 20 * steps // self.config.n_groups)):
-            self.advance(disruptor=disruptor)
-            samples.append(self.raw_observation())
-        self.rng = saved_rng
+        try:
+            self.reset_groups(np.arange(self.config.n_groups))
+            for _ in range(max(steps, 20 * steps // self.config.n_groups)):
+                self.fleet.advance(self.world_steps)
+                samples.append(observer.raw(self.world.state, self.ego_ids))
+        finally:
+            self.fleet.disruptor = None
+            self.group_rngs = saved
         return np.concatenate(samples)
 
     # ------------------------------------------------------------------ stepping
-    def advance(
-        self, ego_steer_rad: np.ndarray | None = None, ego_omega: np.ndarray | None = None, disruptor=None
-    ) -> StepEvents:
-        """One control step of the world: ``ai_substeps`` world steps, the built-in AI driving every car at each
-        (through ``disruptor`` when given) except the egos when their commands are given, which are held."""
-        n = self.world.n_cars
-        lap_completed, lap_time_s = np.zeros(n, dtype=bool), np.full(n, np.nan)
-        for _ in range(self.ai_substeps):
-            if ego_steer_rad is not None and self.group_size == 1:
-                steer, omega = np.empty(n), np.empty(n)  # every car is an ego: the AI has nothing to drive
-            else:
-                steer, omega = self.ai.act(self.world.state)
-                if disruptor is not None:
-                    steer, omega = disruptor(steer, omega, self.world.model.config.control_dt_s)
-            if ego_steer_rad is not None:
-                steer[self.ego_ids], omega[self.ego_ids] = ego_steer_rad, ego_omega
-            events = self.world.step(steer, omega)
-            lap_completed |= events.lap_completed
-            lap_time_s = np.where(events.lap_completed, events.lap_time_s, lap_time_s)
-        return StepEvents(lap_completed, lap_time_s)
+    def advance(self, ego_steer_rad: np.ndarray, ego_omega: np.ndarray) -> StepEvents:
+        """One control step: the egos' commands held, the built-in AI driving every other car at its rate."""
+        return self.fleet.advance(self.world_steps, self.ego_ids, ego_steer_rad, ego_omega)
 
     def step(self, actions: np.ndarray, autoreset: bool) -> tuple:
         """Apply the egos' actions (M, 2) ``[steer rad, omega]``, the AI drives the opponents.
@@ -268,24 +244,19 @@ class RacingCore:
         self.steps += 1
         self.progress_m += progress
         terminated = np.zeros(cfg.n_groups, dtype=bool)
-        if cfg.stuck_timeout_s is not None:
-            window = round(cfg.stuck_timeout_s / cfg.control_dt_s)
-            self.recent_progress_m += progress
-            self.recent_steps += 1
-            full = self.recent_steps >= window
-            terminated = full & (self.recent_progress_m < 1.0)
-            self.recent_progress_m[full] = 0.0
-            self.recent_steps[full] = 0
+        stuck = self.stuck.update(st.unwrapped_s_m[ego])
+        if cfg.terminate_when_stuck:
+            terminated[stuck] = True
         truncated = (self.steps >= cfg.max_episode_steps) & ~terminated
         infos = [self._info(g, events) for g in range(cfg.n_groups)]
-        obs = self.observation()
         done = terminated | truncated
         if autoreset and done.any():
             gids = np.flatnonzero(done)
-            for g in gids:
-                infos[g] = {"final_observation": _take(obs, g), "final_info": infos[g]}
+            final = self.observation(gids)
+            for row, g in enumerate(gids):
+                infos[g] = {"final_observation": _take(final, row), "final_info": infos[g]}
             self.reset_groups(gids)
-            obs = self.observation()
+        obs = self.observation()
         return obs, reward.astype(np.float32), terminated, truncated, infos
 
     def _info(self, g: int, events) -> dict:

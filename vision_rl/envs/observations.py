@@ -46,7 +46,7 @@ OVERTAKING_LIDAR = slice(7, 79)
 OBS_NAMES = {"state": STATE_OBS_NAMES, "overtaking": OVERTAKING_OBS_NAMES}
 
 #: Bump when an observation's definition changes: cached statistics of older versions are then ignored.
-OBS_VERSION = 1
+OBS_VERSION = 2
 
 
 def _speed(state: WorldState, ids: np.ndarray) -> np.ndarray:

@@ -10,27 +10,13 @@ import numpy as np
 from gymnasium import spaces
 
 from vision_rl.envs.core import RacingConfig, RacingCore
-from vision_rl.envs.observations import OBS_NAMES
-from vision_rl.sim.sensors import DEDICATED_NAMES
 from vision_rl.sim.vehicle import ACTION_STEER_LIMIT_RAD
 
 
 def action_space() -> spaces.Box:
-    """``[steering angle rad in [-pi/6, pi/6], omega in [-1, 1] (throttle > 0, brake < 0)]`` (ARCHITECTURE)."""
+    """``[steering angle rad in [-pi/6, pi/6], omega in [-1, 1] (throttle > 0, brake < 0)]``, every environment's."""
     limit = np.array([ACTION_STEER_LIMIT_RAD, 1.0], dtype=np.float32)
     return spaces.Box(-limit, limit, dtype=np.float32)
-
-
-def observation_space(config: RacingConfig) -> spaces.Space:
-    if config.observation == "vision":
-        width, height = config.image_size_px
-        return spaces.Dict(
-            {
-                "image": spaces.Box(0, 255, (height, width, 3), dtype=np.uint8),
-                "features": spaces.Box(-np.inf, np.inf, (len(DEDICATED_NAMES),), dtype=np.float32),
-            }
-        )
-    return spaces.Box(-np.inf, np.inf, (len(OBS_NAMES[config.observation]),), dtype=np.float32)
 
 
 class _RacingEnv(gym.Env):
@@ -45,8 +31,8 @@ class _RacingEnv(gym.Env):
         self.config = RacingConfig(**{**self._defaults, **config, "n_groups": 1})
         self.render_mode = render_mode
         self.action_space = action_space()
-        self.observation_space = observation_space(self.config)
         self._core: RacingCore | None = None
+        self.observation_space = self.core.observer.space
 
     @property
     def core(self) -> RacingCore:
@@ -56,8 +42,8 @@ class _RacingEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        if seed is not None or self._core is None:
-            self._core = RacingCore(self.config, seed=seed)
+        if seed is not None:
+            self.core.seed(seed)
         self.core.reset_groups(np.array([0]))
         return self._single(self.core.observation()), {}
 
@@ -74,13 +60,11 @@ class _RacingEnv(gym.Env):
     def render(self):
         """The driver's view (H, W, 3) uint8 from the offscreen renderer."""
         core = self.core
-        if core.config.observation != "vision":
-            return core._vision_observation()["image"][0]
-        return core.observation()["image"][0]
+        return core.observer.frames(core.world.state, core.ego_ids)[0]
 
     def close(self) -> None:
-        if self._core is not None and self._core.renderer is not None:
-            self._core.renderer.close()
+        if self._core is not None:
+            self._core.observer.close()
         self._core = None
 
 
@@ -108,11 +92,13 @@ class TimeTrial(_RacingEnv):
 
     ## Starting State
     A uniformly random point of the track, on the built-in AI's racing line, heading along the track at the AI's
-    speed there (the papers start each 100 s trial at a new point).
+    speed there (the papers start each 100 s trial at a new point). ``reset(seed=k)`` gives the same episodes as
+    group 0 of a vector environment seeded with k (:class:`vision_rl.envs.core.RacingCore`'s seeding).
 
     ## Episode End
     Truncation after ``episode_s`` (100 s = 1,000 steps at 10 Hz). No termination unless asked for:
-    ``stuck_timeout_s=T`` terminates an episode whose progress over T seconds is below 1 m.
+    ``terminate_when_stuck=True`` terminates an episode when the car is stuck by the project's one rule
+    (``vision_rl.sim.fleet.STUCK_RULE``: less than 5 m of progress in 5 s).
 
     ## Info
     ``lap_times_s`` (completed laps of this episode), ``lap_completed``, ``progress_m``, ``wall_contact_s``,
@@ -120,8 +106,8 @@ class TimeTrial(_RacingEnv):
 
     ## Arguments
     Any field of :class:`vision_rl.envs.core.RacingConfig`: ``track`` (built-in name, ``random:SEED``, CSV path),
-    ``car``, ``observation``, ``control_dt_s``, ``episode_s``, ``wall_penalty_c_w``, ``stuck_timeout_s``,
-    ``normalize``, ``image_size_px``. For 20 cars in one world use :func:`vision_rl.envs.make_vector_env`.
+    ``car``, ``observation``, ``control_dt_s``, ``episode_s``, ``wall_penalty_c_w``, ``terminate_when_stuck``,
+    ``normalize``, ``image_hw_px``. For 20 cars in one world use :func:`vision_rl.envs.make_vector_env`.
 
     ## Version History
     - v0: first version.

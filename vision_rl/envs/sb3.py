@@ -9,24 +9,25 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from vision_rl.envs.core import RacingConfig, RacingCore
-from vision_rl.envs.racing_env import action_space, observation_space
+from vision_rl.envs.observer import Observer
+from vision_rl.envs.racing_env import action_space
 
 
 class RacingSB3VecEnv(VecEnv):
     """``config.n_groups`` egos as SB3 sub-environments: same-step reset, ``terminal_observation`` and
     ``TimeLimit.truncated`` in the infos, as SB3's own vectorised environments report them."""
 
-    def __init__(self, config: RacingConfig, seed: int | None = None) -> None:
+    def __init__(self, config: RacingConfig, seed: int | None = None, observer: Observer | None = None) -> None:
         self.config = config
-        self.core = RacingCore(config, seed=seed)
+        self.core = RacingCore(config, seed=seed, observer=observer)
         self.render_mode = None
-        super().__init__(config.n_groups, observation_space(config), action_space())
+        super().__init__(config.n_groups, self.core.observer.space, action_space())
         self._actions: np.ndarray | None = None
 
     def reset(self):
         seed = self._seeds[0] if self._seeds and self._seeds[0] is not None else None
         if seed is not None:
-            self.core.rng = np.random.default_rng(seed)
+            self.core.seed(seed)
         self._reset_seeds()
         self.core.reset_groups(np.arange(self.num_envs))
         return self.core.observation()
@@ -48,8 +49,7 @@ class RacingSB3VecEnv(VecEnv):
         return obs, reward, terminated | truncated, out
 
     def close(self) -> None:
-        if self.core.renderer is not None:
-            self.core.renderer.close()
+        self.core.observer.close()
 
     # The sub-environments are rows of one world, not separate objects: attribute access goes to the core.
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:

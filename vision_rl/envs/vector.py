@@ -15,7 +15,8 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from vision_rl.envs.core import RacingConfig, RacingCore
-from vision_rl.envs.racing_env import action_space, observation_space
+from vision_rl.envs.observer import Observer
+from vision_rl.envs.racing_env import action_space
 
 
 class RacingVectorEnv(VectorEnv):
@@ -23,19 +24,19 @@ class RacingVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
-    def __init__(self, config: RacingConfig, seed: int | None = None) -> None:
+    def __init__(self, config: RacingConfig, seed: int | None = None, observer: Observer | None = None) -> None:
         self.config = config
-        self.core = RacingCore(config, seed=seed)
+        self.core = RacingCore(config, seed=seed, observer=observer)
         self.num_envs = config.n_groups
         self.single_action_space = action_space()
-        self.single_observation_space = observation_space(config)
+        self.single_observation_space = self.core.observer.space
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._needs_reset = True
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         if seed is not None:
-            self.core.rng = np.random.default_rng(seed)
+            self.core.seed(seed)
         self.core.reset_groups(np.arange(self.num_envs))
         self._needs_reset = False
         return self.core.observation(), {}
@@ -56,23 +57,26 @@ class RacingVectorEnv(VectorEnv):
         return obs, reward, terminated, truncated, out
 
     def close_extras(self, **kwargs: Any) -> None:
-        if self.core.renderer is not None:
-            self.core.renderer.close()
+        self.core.observer.close()
 
 
-def make_vector_env(config: RacingConfig | None = None, seed: int | None = None, **overrides: Any) -> RacingVectorEnv:
+def make_vector_env(
+    config: RacingConfig | None = None, seed: int | None = None, observer: Observer | None = None, **overrides: Any
+) -> RacingVectorEnv:
     """A gymnasium vector env; by default 20 time-trial cars on the default track (as the papers sample)."""
     import dataclasses
 
     base = config or RacingConfig(n_groups=20)
-    return RacingVectorEnv(dataclasses.replace(base, **overrides), seed=seed)
+    return RacingVectorEnv(dataclasses.replace(base, **overrides), seed=seed, observer=observer)
 
 
-def make_sb3_vec_env(config: RacingConfig | None = None, seed: int | None = None, **overrides: Any):
+def make_sb3_vec_env(
+    config: RacingConfig | None = None, seed: int | None = None, observer: Observer | None = None, **overrides: Any
+):
     """The same batched world as a Stable-Baselines3 ``VecEnv`` (imports SB3, and so torch, on first use)."""
     import dataclasses
 
     from vision_rl.envs.sb3 import RacingSB3VecEnv
 
     base = config or RacingConfig(n_groups=20)
-    return RacingSB3VecEnv(dataclasses.replace(base, **overrides), seed=seed)
+    return RacingSB3VecEnv(dataclasses.replace(base, **overrides), seed=seed, observer=observer)

@@ -274,10 +274,6 @@ class DisruptionParams:
     """Probability that a new period has no offset at all (the AI recovers)."""
     skill: float = 0.65
     """Skill of a disrupted AI: slower, so that large heading errors end in recoveries, not crashes or spins."""
-    stuck_after_s: float = 3.0
-    """A car that has made less than ``stuck_progress_m`` of progress in this time is put back on track, s."""
-    stuck_progress_m: float = 5.0
-    """Progress below which a car counts as stuck, m."""
 
 
 class Disruptor:
@@ -303,32 +299,3 @@ class Disruptor:
             self.remaining_s[renew] = self.rng.uniform(p.hold_s[0], p.hold_s[1], k)
         self.remaining_s -= dt_s
         return steer_rad + self.steer_offset_rad, np.clip(omega + self.omega_offset, -1.0, 1.0)
-
-
-class StuckDetector:
-    """Flags cars that made less than ``min_progress_m`` of track progress over the last ``window_steps`` steps.
-
-    A car is judged only on progress made since its last reset: a freshly placed car gets a whole window before it
-    can be flagged again (judging it against a refilled history would flag it again at once, every step)."""
-
-    def __init__(self, unwrapped_s_m: np.ndarray, window_steps: int, min_progress_m: float) -> None:
-        self.window_steps = max(1, int(window_steps))
-        self.min_progress_m = float(min_progress_m)
-        # One slot more than the window: after writing step k, slot (k + 1) % size holds step k - window.
-        self._history_m = np.tile(np.asarray(unwrapped_s_m, dtype=np.float64), (self.window_steps + 1, 1))
-        self._steps_since_reset = np.zeros(len(unwrapped_s_m), dtype=np.int64)
-        self._step = 0
-
-    def update(self, unwrapped_s_m: np.ndarray) -> np.ndarray:
-        """Record one control step's progress; returns the indices of the cars stuck now."""
-        self._step += 1
-        size = self.window_steps + 1
-        self._history_m[self._step % size] = unwrapped_s_m
-        self._steps_since_reset += 1
-        progress_m = unwrapped_s_m - self._history_m[(self._step + 1) % size]
-        return np.flatnonzero((self._steps_since_reset >= self.window_steps) & (progress_m < self.min_progress_m))
-
-    def reset(self, car_ids: np.ndarray, unwrapped_s_m: np.ndarray) -> None:
-        """Cars ``car_ids`` were placed anew at ``unwrapped_s_m`` (all cars' values): restart their window."""
-        self._history_m[:, car_ids] = unwrapped_s_m[car_ids]
-        self._steps_since_reset[car_ids] = 0

@@ -408,9 +408,15 @@ def _clean_command(cmd: np.ndarray | float, limit: float, n: int) -> np.ndarray:
 
 
 def world_step(
-    model: WorldModel, state: WorldState, steer_cmd_rad: np.ndarray, omega_cmd: np.ndarray
+    model: WorldModel,
+    state: WorldState,
+    steer_cmd_rad: np.ndarray,
+    omega_cmd: np.ndarray,
+    control_steps: int = 1,
 ) -> tuple[WorldState, StepEvents]:
-    """Advance every car by one control step with the given commands; pure: ``state`` is not modified.
+    """Advance every car by ``control_steps`` control steps with the given commands held; pure: ``state`` is not
+    modified. Holding commands over k steps is the same physics as k calls, in one kernel call; the contact flags
+    then cover all k steps.
 
     ``steer_cmd_rad`` (n,) is the road-wheel angle command, clipped to +-pi/6 and the car's lock; ``omega_cmd`` (n,)
     is throttle (> 0) / brake (< 0) in [-1, 1]. Non-finite commands are treated as 0.
@@ -424,7 +430,7 @@ def world_step(
     lap_completed, lap_time = np.zeros(n, dtype=bool), np.full(n, np.nan)
     centre, tangent, heading_unwrapped, width_left, width_right = track.kernel_arrays
     _world_substeps(
-        car._packed, veh, steer, omega, cfg.physics_dt_s, cfg.substeps,
+        car._packed, veh, steer, omega, cfg.physics_dt_s, cfg.substeps * control_steps,
         centre, tangent, heading_unwrapped, width_left, width_right, track.spacing_m,
         0.5 * car.length_m, 0.5 * car.width_m, car.mass_kg, car.yaw_inertia_kgm2, cfg.wall_restitution,
         cfg.wall_friction, model.pair_i, model.pair_j, model.circle_offsets_m, model.circle_radius_m,
@@ -500,9 +506,10 @@ class World:
         for i in ids:
             self.lap_times_s[i] = []
 
-    def step(self, steer_cmd_rad: np.ndarray, omega_cmd: np.ndarray) -> StepEvents:
-        """Advance one control step (see :func:`world_step`) and record completed laps."""
-        self.state, events = world_step(self.model, self.state, steer_cmd_rad, omega_cmd)
+    def step(self, steer_cmd_rad: np.ndarray, omega_cmd: np.ndarray, control_steps: int = 1) -> StepEvents:
+        """Advance ``control_steps`` control steps with held commands (see :func:`world_step`) and record completed
+        laps."""
+        self.state, events = world_step(self.model, self.state, steer_cmd_rad, omega_cmd, control_steps)
         if events.lap_completed.any():
             for i in np.flatnonzero(events.lap_completed):
                 self.lap_times_s[i].append(float(events.lap_time_s[i]))

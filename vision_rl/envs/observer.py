@@ -1,0 +1,134 @@
+"""The one place where a world state becomes an observation, in training and evaluation alike.
+
+An :class:`Observer` turns the raw state of chosen cars of a world into one of the observations of
+:mod:`vision_rl.envs.observations`: ``state`` (38-D), ``overtaking`` (96-D) or ``vision``. It owns what that takes:
+the wall ray caster, the offscreen renderer (vision, created on first use), the frozen encoder (vision, when given)
+and the normalisation. ``vision`` without an encoder gives the gymnasium Dict ``{image, features}``; with one, the
+vector ``[embedding (rep_dim), 11 dedicated features]`` that Phase 2's policies read.
+
+The encoder is any callable from frames (n, H, W, 3) uint8 to (n, rep_dim) (a torch tensor or an array) with a
+``rep_dim`` attribute: this layer never imports torch.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+
+from vision_rl.envs import observations as obs_lib
+from vision_rl.sim import sensors
+from vision_rl.sim.track import Track
+from vision_rl.sim.vehicle import VehicleParams
+from vision_rl.sim.world import WorldState
+
+OBSERVATION_KINDS = ("state", "vision", "overtaking")
+
+
+class Observer:
+    """Observations of cars ``ids`` of a world on ``track`` with cars ``car`` in collision ``groups``.
+
+    Args:
+        kind: ``state``, ``overtaking`` or ``vision``.
+        normalizer: applied to the vector (state, overtaking, vision with an encoder); None: raw physical units.
+        encoder: vision only: the frozen frame encoder; None gives the Dict of frame and raw features.
+        image_hw_px: vision frame size, (height, width) px.
+    """
+
+    def __init__(
+        self,
+        kind: str,
+        track: Track,
+        car: VehicleParams,
+        groups: np.ndarray,
+        normalizer: obs_lib.ObsNormalizer | None = None,
+        encoder=None,
+        image_hw_px: tuple[int, int] = (280, 470),
+    ) -> None:
+        if kind not in OBSERVATION_KINDS:
+            raise ValueError(f"observation must be one of {OBSERVATION_KINDS}, got {kind!r}")
+        if encoder is not None and kind != "vision":
+            raise ValueError(f"the {kind!r} observation takes no encoder")
+        self.kind = kind
+        self.track = track
+        self.car = car
+        self.groups = np.asarray(groups)
+        self.normalizer = normalizer
+        self.encoder = encoder
+        self.image_hw_px = (int(image_hw_px[0]), int(image_hw_px[1]))
+        self.caster = sensors.WallRayCaster(track)
+        self.renderer = None
+
+    @property
+    def dim(self) -> int | None:
+        """Length of the observation vector (None: the vision Dict)."""
+        if self.kind == "vision":
+            return None if self.encoder is None else int(self.encoder.rep_dim) + len(sensors.DEDICATED_NAMES)
+        return len(obs_lib.OBS_NAMES[self.kind])
+
+    @property
+    def space(self) -> spaces.Space:
+        """The gymnasium space of one car's observation."""
+        if self.dim is None:
+            height, width = self.image_hw_px
+            return spaces.Dict(
+                {
+                    "image": spaces.Box(0, 255, (height, width, 3), dtype=np.uint8),
+                    "features": spaces.Box(-np.inf, np.inf, (len(sensors.DEDICATED_NAMES),), dtype=np.float32),
+                }
+            )
+        return spaces.Box(-np.inf, np.inf, (self.dim,), dtype=np.float32)
+
+    def frames(self, state: WorldState, ids: np.ndarray) -> np.ndarray:
+        """Driver's-view frames (len(ids), H, W, 3) uint8 of cars ``ids``; each sees the cars of its group."""
+        if self.renderer is None:
+            try:
+                from vision_rl.render import RenderConfig, Renderer
+            except ImportError as exc:
+                raise RuntimeError(
+                    "the vision observation needs the renderer (vision_rl.render: moderngl with EGL); "
+                    f"it could not be imported: {exc}"
+                ) from exc
+            height, width = self.image_hw_px
+            self.renderer = Renderer(
+                self.track, RenderConfig(width_px=width, height_px=height, max_views=len(np.unique(self.groups))),
+                car_length_m=self.car.length_m, car_width_m=self.car.width_m,
+            )  # fmt: skip
+        v = state.vehicle
+        return self.renderer.render(v.x_m, v.y_m, v.yaw_rad, view_ids=np.asarray(ids), groups=self.groups)
+
+    def _features(self, state: WorldState, ids: np.ndarray) -> np.ndarray:
+        v = state.vehicle
+        vehicle_ids = type(v)(*(a[ids] for a in v))
+        return sensors.dedicated_features(vehicle_ids, state.wall_contact[ids], state.prev_steer_cmd_rad[ids])
+
+    def raw(self, state: WorldState, ids: np.ndarray) -> np.ndarray:
+        """The observation vectors (len(ids), dim) before normalisation, float64."""
+        ids = np.asarray(ids)
+        if self.kind == "state":
+            return obs_lib.state_observation(self.track, self.caster, state, ids)
+        if self.kind == "overtaking":
+            return obs_lib.overtaking_observation(
+                self.track, self.caster, state, ids, self.car.length_m, self.car.width_m, self.groups
+            )
+        if self.encoder is None:
+            raise ValueError("the vision observation is a vector only with an encoder")
+        return self.embed(self.frames(state, ids), self._features(state, ids))
+
+    def embed(self, images: np.ndarray, features: np.ndarray) -> np.ndarray:
+        """(n, rep_dim + 11) float64 from frames (n, H, W, 3) uint8 and raw dedicated features (n, 11)."""
+        embedding = self.encoder(images)
+        embedding = embedding.cpu().numpy() if hasattr(embedding, "cpu") else np.asarray(embedding)
+        return np.hstack([embedding.astype(np.float64), np.asarray(features, dtype=np.float64)])
+
+    def __call__(self, state: WorldState, ids: np.ndarray) -> np.ndarray | dict[str, np.ndarray]:
+        """The observations of cars ``ids``: normalised float32 vectors (len(ids), dim), or the vision Dict."""
+        ids = np.asarray(ids)
+        if self.kind == "vision" and self.encoder is None:
+            return {"image": self.frames(state, ids), "features": self._features(state, ids).astype(np.float32)}
+        raw = self.raw(state, ids)
+        return self.normalizer(raw) if self.normalizer is not None else raw.astype(np.float32)
+
+    def close(self) -> None:
+        if self.renderer is not None:
+            self.renderer.close()
+            self.renderer = None

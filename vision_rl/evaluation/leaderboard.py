@@ -1,0 +1,104 @@
+"""The lap-time table of one track and car (the shape of the vision paper's Table 1), built only from results of
+the lap-time protocol: the built-in AI's row is measured with it when the table is made, each policy's comes
+from the ``evaluation.json`` that ``evaluate`` wrote with it.
+
+``gap_to_limit_pct = 100 (t - t_limit) / t_limit`` and ``gap_to_ai_pct = 100 (t - t_ai) / t_ai``: negative means
+faster (the paper's vision agent is about -8.4 % against the AI). The physical limit (the QSS lap on the racing
+line) is the reference of the first gap, not a driven lap. An evaluation written under another protocol version
+is refused with the command that re-measures it; one of another track geometry or car is not this table's.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+from vision_rl.evaluation.protocol import PROTOCOL_VERSION, BuiltinAI, LapTiming, time_laps
+
+EVALUATION_FORMAT = "vision_rl.evaluation"
+#: Seeds of the built-in AI's row: the same starts as ``evaluate``'s default.
+AI_SEEDS = (0, 1, 2)
+
+
+def evaluation_record(timing: LapTiming, driver: dict[str, Any], name: str) -> dict[str, Any]:
+    """What ``evaluation.json`` holds: the protocol's summary, the driver's identity and the row's name."""
+    return {"format": EVALUATION_FORMAT, "name": name, "driver": driver, **timing.summary()}
+
+
+def gap_pct(lap_time_s: float | None, reference_s: float | None) -> float | None:
+    """100 (t - reference) / reference, or None when either is missing."""
+    if lap_time_s is None or reference_s is None or not math.isfinite(lap_time_s) or reference_s <= 0:
+        return None
+    return 100.0 * (lap_time_s - reference_s) / reference_s
+
+
+def row(record: dict[str, Any], kind: str) -> dict[str, Any]:
+    """A table row of an evaluation record."""
+    return {
+        "name": record["name"],
+        "kind": kind,
+        "lap_time_s": record["best_lap_time_s"],
+        "median_lap_time_s": record["median_lap_time_s"],
+        "finished": f"{record['n_finished']}/{record['n_seeds']}",
+        "clean": record["clean"],
+        "wall_contact_s": None if record["best_lap"] is None else record["best_lap"]["wall_contact_s"],
+        "protocol_version": record["protocol"]["version"],
+        "track_geometry_hash": record["track_geometry_hash"],
+        "car": record["car"],
+        "driver": record["driver"],
+    }
+
+
+def find_evaluations(runs: str | os.PathLike[str]) -> tuple[list[dict[str, Any]], list[str]]:
+    """(records of this protocol version, refusals) from every ``*evaluation.json`` under ``runs``. A refusal
+    names the file and how to re-measure it; unreadable or foreign JSON files are not evaluations and are skipped."""
+    found, refused = [], []
+    root = Path(runs)
+    if not root.is_dir():
+        return found, refused
+    for path in sorted(root.rglob("*evaluation.json")):
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if not isinstance(data, dict) or data.get("format") != EVALUATION_FORMAT:
+            continue
+        version = (data.get("protocol") or {}).get("version")
+        if version != PROTOCOL_VERSION:
+            policy = (data.get("driver") or {}).get("policy") or data.get("policy") or "POLICY"
+            refused.append(
+                f"{path}: measured under protocol version {version or 'none (before versions)'}, this is version "
+                f"{PROTOCOL_VERSION}; re-measure it: vision-rl evaluate --policy {policy}"
+            )
+            continue
+        found.append({**data, "evaluation_json": str(path)})
+    return found, refused
+
+
+def leaderboard(track: str = "expressway", car: str = "hatchback", runs: str = "runs") -> dict[str, Any]:
+    """The table for (track, car): the limit, the built-in AI at its default skill and every policy evaluated on
+    them under ``runs``, fastest first; DNF rows last."""
+    ai = time_laps(BuiltinAI(), track, car, seeds=AI_SEEDS)
+    ai_record = evaluation_record(ai, BuiltinAI().identity, "built-in AI (default skill)")
+    limit_s, ai_s = ai.limit_lap_time_s, ai_record["best_lap_time_s"]
+    rows = [row(ai_record, "ai")]
+    records, refused = find_evaluations(runs)
+    for record in records:
+        if record["track_geometry_hash"] == ai.track.geometry_hash and record["car"] == ai.car.name:
+            rows.append({**row(record, f"policy ({record['driver'].get('observation', '?')})"),
+                         "evaluation_json": record["evaluation_json"]})  # fmt: skip
+    for r in rows:
+        r.update(gap_to_limit_pct=gap_pct(r["lap_time_s"], limit_s), gap_to_ai_pct=gap_pct(r["lap_time_s"], ai_s))
+    rows.sort(key=lambda r: (r["lap_time_s"] is None, r["lap_time_s"] or 0.0))
+    return {
+        "track": ai.track.name,
+        "track_geometry_hash": ai.track.geometry_hash,
+        "car": ai.car.name,
+        "protocol_version": PROTOCOL_VERSION,
+        "limit_lap_time_s": limit_s,
+        "rows": rows,
+        "refused": refused,
+    }

@@ -1,0 +1,330 @@
+"""The one lap-time protocol. Every lap time in the project comes from :func:`time_laps`, whoever drives.
+
+Rules (:data:`PROTOCOL_VERSION` 1; the vision paper's Sec. 4, after Fuchs et al.):
+
+- **Rate**: the protocol advances in steps of :data:`STEP_S` = 0.1 s, the policies' 10 Hz. A driver acts every
+  ``driver.control_dt_s``, a whole fraction of the step: a policy every 0.1 s, the built-in AI every 0.02 s (its
+  50 Hz controller). Physics runs in 0.01 s substeps either way, so the rate changes nobody's physics.
+- **Start**: rolling, the same for every driver. Seed k's car is placed on the start/finish line (s = 0) on the
+  car's racing line, heading along the centre line, at the built-in AI's default-skill speed there (0.92 x the QSS
+  limit profile), jittered by seed: lateral offset uniform in +-0.25 m, speed in +-2 %
+  (``numpy.random.default_rng(k)``). Placing a car on the line starts its first lap's clock.
+- **Laps**: ``laps`` consecutive laps (2); the last one is the score, so the start does not enter it.
+- **Seeds**: the seeds drive at once, each car alone (its own collision group: no contact between seeds). The
+  leaderboard's figure is the best scored lap over seeds (the papers' "best lap score"); the median is beside it.
+- **Stuck**: :data:`vision_rl.sim.fleet.STUCK_RULE` (less than 5 m of progress in 5 s). A stuck car's run ends
+  there: its unfinished laps are a DNF with the reason; nobody is put back on track.
+- **Time limit**: 3 x the QSS limit lap time per lap (``time_limit_s`` overrides); laps not done by then are a DNF.
+- **Per lap**: lap time; wall-contact, car-contact and off-track seconds (off track: the car's centre beyond the
+  painted edge line, on the kerb or shoulder band); average speed (centre-line length over lap time, km/h);
+  distance driven (the path length of the car's centre, m). Contact and distance are counted at the driver's
+  rate, so a lap's figures are exact to one driver step.
+- **Clean**: a scored lap with at most :data:`CLEAN_WALL_CONTACT_S` of wall contact.
+
+A driver (:class:`Driver`) is anything with ``control_dt_s``, ``reset(world, car_ids)`` and
+``act(state) -> (n, 2) [steer rad, omega]`` for its batch of cars; the built-in AI is one (:class:`BuiltinAI`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver, DisruptionParams, Disruptor
+from vision_rl.sim.driving import line_and_profile
+from vision_rl.sim.fleet import AI_CONTROL_DT_S, STUCK_RULE, StuckDetector
+from vision_rl.sim.track import Track
+from vision_rl.sim.track_library import load_track
+from vision_rl.sim.vehicle import VehicleParams, get_preset
+from vision_rl.sim.world import World, WorldConfig, WorldState
+
+#: Bump when a rule below changes: evaluations of another version are refused by the leaderboard.
+PROTOCOL_VERSION = 1
+#: The protocol's step, s: the papers' 10 Hz control rate.
+STEP_S = 0.1
+#: Speed of the rolling start, as a share of the QSS limit speed at the line: the built-in AI's default skill.
+START_SPEED_SHARE = DEFAULT_SKILL
+#: Uniform jitter of the start per seed: lateral offset from the racing line (m) and relative speed.
+START_JITTER_LATERAL_M = 0.25
+START_JITTER_SPEED = 0.02
+#: Time limit per lap, as a multiple of the QSS limit lap time.
+TIME_LIMIT_LIMIT_LAPS = 3.0
+#: A scored lap with at most this much wall contact is clean, s.
+CLEAN_WALL_CONTACT_S = 0.5
+
+
+def rules() -> dict[str, Any]:
+    """The protocol's rules as recorded with every evaluation."""
+    return {
+        "version": PROTOCOL_VERSION,
+        "step_s": STEP_S,
+        "start": "rolling",
+        "start_speed_share_of_limit": START_SPEED_SHARE,
+        "start_jitter": {"lateral_m": START_JITTER_LATERAL_M, "speed_fraction": START_JITTER_SPEED},
+        "stuck_rule": asdict(STUCK_RULE),
+        "time_limit_limit_laps_per_lap": TIME_LIMIT_LIMIT_LAPS,
+        "clean_wall_contact_s": CLEAN_WALL_CONTACT_S,
+    }
+
+
+class Driver(Protocol):
+    """Drives a batch of cars of one world."""
+
+    control_dt_s: float
+    """How often :meth:`act` is called, s: a whole fraction of :data:`STEP_S`."""
+
+    def reset(self, world: World, car_ids: np.ndarray) -> None:
+        """A new run: the driver drives cars ``car_ids`` of ``world`` (all its cars, in the protocol)."""
+
+    def act(self, state: WorldState) -> np.ndarray:
+        """Commands (len(car_ids), 2): steering angle in rad, omega in [-1, 1] (throttle > 0, brake < 0)."""
+
+
+class BuiltinAI:
+    """The built-in AI (:class:`vision_rl.sim.ai_driver.AIDriver`) as a protocol driver, acting at its 50 Hz."""
+
+    control_dt_s = AI_CONTROL_DT_S
+
+    def __init__(self, skill: float = DEFAULT_SKILL, disruption: DisruptionParams | None = None, seed: int = 0):
+        if not 0.0 < skill <= 1.0:
+            raise ValueError(f"skill must be in (0, 1], got {skill}")
+        self.skill = float(skill)
+        self.disruption = disruption
+        self.seed = seed
+        self._ai: AIDriver | None = None
+
+    @property
+    def identity(self) -> dict[str, Any]:
+        return {"driver": "built-in AI", "skill": self.skill, "disrupted": self.disruption is not None}
+
+    def reset(self, world: World, car_ids: np.ndarray) -> None:
+        line, profile = line_and_profile(world.track, world.car)
+        self._ids = np.asarray(car_ids)
+        self._ai = AIDriver(world.car, line, profile, world.n_cars, skill=self.skill, groups=world.model.groups)
+        self._disruptor = (
+            Disruptor(world.n_cars, self.disruption, seed=self.seed) if self.disruption is not None else None
+        )
+
+    def act(self, state: WorldState) -> np.ndarray:
+        assert self._ai is not None, "reset() first"
+        steer, omega = self._ai.act(state)
+        if self._disruptor is not None:
+            steer, omega = self._disruptor(steer, omega, self.control_dt_s)
+        return np.stack([steer, omega], axis=1)[self._ids]
+
+
+@dataclass
+class LapRecord:
+    """One completed lap."""
+
+    lap_time_s: float
+    wall_contact_s: float
+    car_contact_s: float
+    off_track_s: float
+    avg_speed_kmh: float
+    """Centre-line lap length over lap time."""
+    distance_m: float
+    """Path length driven by the car's centre."""
+
+
+@dataclass
+class SeedRun:
+    """One seed's run: its completed laps and, if it did not complete them all, why."""
+
+    seed: int
+    laps: list[LapRecord]
+    dnf_reason: str | None
+    distance_m: float
+    """Path length driven over the whole run, m."""
+    time_s: float
+    """Time the run lasted, s."""
+
+
+@dataclass
+class LapTiming:
+    """What :func:`time_laps` measured; with ``record``, every protocol step's poses of every seed."""
+
+    track: Track
+    car: VehicleParams
+    laps: int
+    runs: list[SeedRun]
+    limit_lap_time_s: float
+    time_limit_s: float
+    start_speed_mps: np.ndarray
+    time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """(T,) time of each recorded step, s; the arrays below are (T, n_seeds)."""
+    x_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    y_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    yaw_rad: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    speed_mps: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    wall_contact: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
+
+    def scored(self, i: int) -> LapRecord | None:
+        """Seed i's scored lap (the last of ``laps``), or None if it did not complete it."""
+        run = self.runs[i]
+        return run.laps[self.laps - 1] if len(run.laps) >= self.laps else None
+
+    def scored_window_s(self, i: int) -> tuple[float, float]:
+        """Start and end time of seed i's scored lap (the whole run if it has none), s."""
+        lap = self.scored(i)
+        if lap is None:
+            return 0.0, math.inf
+        start = float(sum(r.lap_time_s for r in self.runs[i].laps[: self.laps - 1]))
+        return start, start + lap.lap_time_s
+
+    def best_index(self) -> int:
+        """Index of the seed with the fastest scored lap (the first seed when none finished)."""
+        scores = [math.inf if self.scored(i) is None else self.scored(i).lap_time_s for i in range(len(self.runs))]
+        return int(np.argmin(scores))
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready figures: per seed and lap, and the best and median scored lap over seeds."""
+        seeds = []
+        for i, run in enumerate(self.runs):
+            lap = self.scored(i)
+            seeds.append(
+                {
+                    "seed": run.seed,
+                    "laps": [asdict(r) for r in run.laps],
+                    "lap_time_s": None if lap is None else lap.lap_time_s,
+                    "finished": lap is not None,
+                    "dnf_reason": run.dnf_reason,
+                    "clean": lap is not None and lap.wall_contact_s <= CLEAN_WALL_CONTACT_S,
+                    "distance_m": run.distance_m,
+                    "time_s": run.time_s,
+                }
+            )
+        scores = np.array([math.inf if s["lap_time_s"] is None else s["lap_time_s"] for s in seeds])
+        best = self.best_index()
+        median = float(np.median(scores))
+        best_lap = self.scored(best)
+        return {
+            "protocol": {**rules(), "laps": self.laps, "scored_lap": self.laps, "time_limit_s": self.time_limit_s},
+            "track_name": self.track.name,
+            "track_geometry_hash": self.track.geometry_hash,
+            "car": self.car.name,
+            "limit_lap_time_s": self.limit_lap_time_s,
+            "seeds": seeds,
+            "n_seeds": len(seeds),
+            "n_finished": int(np.isfinite(scores).sum()),
+            "best_seed": self.runs[best].seed,
+            "best_lap_time_s": None if best_lap is None else best_lap.lap_time_s,
+            "best_lap": None if best_lap is None else asdict(best_lap),
+            "median_lap_time_s": median if math.isfinite(median) else None,
+            "clean": seeds[best]["clean"],
+        }
+
+
+def _start(track: Track, car: VehicleParams, seeds: Sequence[int]) -> tuple[np.ndarray, np.ndarray, float]:
+    """(lateral offsets, speeds, limit lap time) of the seeds' rolling starts on the line."""
+    line, profile = line_and_profile(track, car)
+    u = np.array([np.random.default_rng(int(seed)).uniform(-1.0, 1.0, 2) for seed in seeds]).reshape(len(seeds), 2)
+    lateral = line.lateral_at(np.zeros(1))[0] + u[:, 0] * START_JITTER_LATERAL_M
+    speed = START_SPEED_SHARE * profile.speed_at(line.line_s_at(np.zeros(1)))[0] * (1.0 + u[:, 1] * START_JITTER_SPEED)
+    return lateral, speed, profile.lap_time_s
+
+
+def time_laps(
+    driver: Driver,
+    track: Track | str,
+    car: VehicleParams | str,
+    seeds: Sequence[int] = (0, 1, 2),
+    laps: int = 2,
+    time_limit_s: float = 0.0,
+    record: bool = False,
+) -> LapTiming:
+    """Run the protocol: ``driver`` drives one car per seed for ``laps`` laps (see the module's rules).
+
+    ``time_limit_s`` 0: 3 x the QSS limit lap time per lap. ``record`` keeps every step's poses (plots, videos).
+    """
+    track = track if isinstance(track, Track) else load_track(track)
+    car = car if isinstance(car, VehicleParams) else get_preset(car)
+    seeds = [int(s) for s in seeds]
+    n = len(seeds)
+    if n < 1:
+        raise ValueError("the protocol needs at least one seed")
+    if len(set(seeds)) != n:
+        raise ValueError(f"seeds must differ, got {seeds}")
+    if laps < 1:
+        raise ValueError(f"laps must be >= 1, got {laps}")
+    world_steps = round(STEP_S / driver.control_dt_s)
+    if world_steps < 1 or abs(world_steps * driver.control_dt_s - STEP_S) > 1e-9:
+        raise ValueError(f"a driver must act every {STEP_S} s or a whole fraction of it, not {driver.control_dt_s}")
+    dt = driver.control_dt_s
+    world = World(track, car, n_cars=n, groups=np.arange(n), config=WorldConfig(control_dt_s=dt))
+    lateral, speed, limit_lap_s = _start(track, car, seeds)
+    world.reset(s_m=np.zeros(n), lateral_m=lateral, speed_mps=speed)
+    ids = np.arange(n)
+    driver.reset(world, ids)
+    limit_s = time_limit_s if time_limit_s > 0 else laps * TIME_LIMIT_LIMIT_LAPS * limit_lap_s
+
+    active = np.ones(n, dtype=bool)
+    dnf: list[str | None] = [None] * n
+    end_time_s = np.zeros(n)
+    off_track_s = np.zeros(n)
+    distance_m = np.zeros(n)
+    # Cumulative (wall, car, off-track, distance) at each lap's end; a lap's figures are the differences.
+    marks: list[list[np.ndarray]] = [[np.zeros(4)] for _ in range(n)]
+    stuck = StuckDetector(world.state.unwrapped_s_m, STEP_S, STUCK_RULE)
+    rec: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "x", "y", "yaw", "v", "wall")}
+    for _ in range(math.ceil(limit_s / STEP_S - 1e-9)):
+        wall_step = np.zeros(n, dtype=bool)
+        for _ in range(world_steps):
+            action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(n, 2)
+            events = world.step(action[:, 0], action[:, 1])
+            st = world.state
+            veh = st.vehicle
+            wall_step |= st.wall_contact
+            off_track_s += dt * (active & track.beyond_edge_line(st.s_m, st.lateral_m))
+            distance_m += dt * active * np.hypot(veh.vx_mps, veh.vy_mps)
+            for i in np.flatnonzero(events.lap_completed & active):
+                marks[i].append(
+                    np.array([st.wall_contact_time_s[i], st.car_contact_time_s[i], off_track_s[i], distance_m[i]])
+                )
+        st = world.state
+        if record:
+            veh = st.vehicle
+            rec["t"].append(st.time_s[0])
+            rec["x"].append(veh.x_m.copy())
+            rec["y"].append(veh.y_m.copy())
+            rec["yaw"].append(veh.yaw_rad.copy())
+            rec["v"].append(np.hypot(veh.vx_mps, veh.vy_mps))
+            rec["wall"].append(wall_step)
+        finished = active & (st.laps_completed >= laps)
+        end_time_s[finished] = st.time_s[finished]
+        active &= ~finished
+        stuck_now = np.intersect1d(stuck.update(st.unwrapped_s_m), np.flatnonzero(active))
+        for i in stuck_now:
+            dnf[i] = f"stuck: {STUCK_RULE.describe()}, at {st.time_s[i]:.1f} s, {st.s_m[i]:.0f} m into the lap"
+        end_time_s[stuck_now] = st.time_s[stuck_now]
+        active[stuck_now] = False
+        if not active.any():
+            break
+    st = world.state
+    for i in np.flatnonzero(active):
+        dnf[i] = f"time limit: {laps} laps not done in {limit_s:.0f} s"
+        end_time_s[i] = st.time_s[i]
+
+    runs = []
+    for i, seed in enumerate(seeds):
+        lap_records = []
+        for k, lap_time_s in enumerate(world.lap_times_s[i][: len(marks[i]) - 1][:laps]):
+            wall, car_s, off, dist = marks[i][k + 1] - marks[i][k]
+            lap_records.append(
+                LapRecord(
+                    lap_time_s=float(lap_time_s), wall_contact_s=float(wall), car_contact_s=float(car_s),
+                    off_track_s=float(off), avg_speed_kmh=float(3.6 * track.length_m / lap_time_s),
+                    distance_m=float(dist),
+                )
+            )  # fmt: skip
+        runs.append(SeedRun(seed, lap_records, dnf[i], float(distance_m[i]), float(end_time_s[i])))
+    timing = LapTiming(track, car, laps, runs, float(limit_lap_s), float(limit_s), speed)
+    if record and rec["t"]:
+        timing.time_s = np.asarray(rec["t"])
+        timing.x_m, timing.y_m, timing.yaw_rad = (np.stack(rec[k]) for k in ("x", "y", "yaw"))
+        timing.speed_mps, timing.wall_contact = np.stack(rec["v"]), np.stack(rec["wall"])
+    return timing
