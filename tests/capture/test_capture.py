@@ -10,16 +10,6 @@ from vision_rl.capture.sim_capture import CaptureConfig, capture_sim, physics_st
 from vision_rl.sim import sensors
 from vision_rl.sim.track_library import load_track
 
-render = pytest.importorskip("vision_rl.render")
-
-
-@pytest.fixture(scope="module")
-def egl():
-    try:
-        render.create_context().release()
-    except render.RendererError as exc:
-        pytest.skip(f"no EGL context: {exc}")
-
 
 @pytest.fixture
 def circle_csv(tmp_path):
@@ -31,13 +21,8 @@ def circle_csv(tmp_path):
     return str(path)
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("VISION_RL_CACHE", str(tmp_path / "cache"))
-
-
 def _config(track, out, **kw):
-    base = CaptureConfig(out=str(out), track=track, laps=2, cars=2, fps=10, width=64, height=48, seed=3)
+    base = CaptureConfig(out=str(out), track=track, laps=2, cars=2, fps=10, image_hw_px=(48, 64), seed=3)
     return dataclasses.replace(base, **kw)
 
 
@@ -49,7 +34,7 @@ def test_physics_step_divides_the_capture_interval_and_the_ai_steers_at_50_hz_or
         physics_step_for(0)
 
 
-def test_capture_writes_the_contract_and_targets_match_the_poses(egl, circle_csv, tmp_path):
+def test_capture_writes_the_contract_and_targets_match_the_poses(gl_available, circle_csv, tmp_path):
     cfg = _config(circle_csv, tmp_path / "run.h5")
     result = capture_sim(cfg)
     assert result["complete"] and result["laps_in_file"] >= 2
@@ -57,7 +42,7 @@ def test_capture_writes_the_contract_and_targets_match_the_poses(egl, circle_csv
         assert f.complete
         n = f.n_frames
         assert n == result["frames_in_file"] > 0
-        assert f.image_hw == (48, 64)
+        assert f.image_hw_px == (48, 64)
         assert f.read_image(0).dtype == np.uint8 and f.read_image(0).shape == (48, 64, 3)
         assert f.targets.shape == (n, 27) and f.targets.dtype == np.float32
         assert f.dedicated.shape == (n, 11)
@@ -83,7 +68,7 @@ def test_capture_writes_the_contract_and_targets_match_the_poses(egl, circle_csv
             assert track.progress_delta(s[:-1], s[1:]).sum() > 0.95 * track.length_m
 
 
-def test_undisturbed_capture_keeps_the_ai_on_its_line_at_a_low_frame_rate(egl, circle_csv, tmp_path):
+def test_undisturbed_capture_keeps_the_ai_on_its_line_at_a_low_frame_rate(gl_available, circle_csv, tmp_path):
     # The AI steers at 50 Hz between frames 0.1 s apart; the frames' heading errors stay those of its line.
     cfg = _config(circle_csv, tmp_path / "clean.h5", cars=1, laps=1, disrupt_ai=False)
     capture_sim(cfg)
@@ -94,7 +79,7 @@ def test_undisturbed_capture_keeps_the_ai_on_its_line_at_a_low_frame_rate(egl, c
         assert f.dedicated[:, list(f.dedicated_names).index("wall_contact")].max() == 0.0
 
 
-def test_existing_file_is_not_overwritten_without_force(egl, circle_csv, tmp_path):
+def test_existing_file_is_not_overwritten_without_force(gl_available, circle_csv, tmp_path):
     out = tmp_path / "run.h5"
     out.write_bytes(b"precious")
     with pytest.raises(FileExistsError):
@@ -102,7 +87,7 @@ def test_existing_file_is_not_overwritten_without_force(egl, circle_csv, tmp_pat
     assert out.read_bytes() == b"precious"
 
 
-def test_interrupted_capture_keeps_its_frames_and_resume_completes_it(egl, circle_csv, tmp_path):
+def test_interrupted_capture_keeps_its_frames_and_resume_completes_it(gl_available, circle_csv, tmp_path):
     cfg = _config(circle_csv, tmp_path / "run.h5", laps=3)
 
     def interrupt_after_some_frames(laps, frames):
@@ -125,7 +110,7 @@ def test_interrupted_capture_keeps_its_frames_and_resume_completes_it(egl, circl
             assert not new_laps & laps_before[c]  # a lap cut by the interruption is never continued
 
 
-def test_video_and_pose_log_reproduce_the_sim_targets(egl, circle_csv, tmp_path):
+def test_video_and_pose_log_reproduce_the_sim_targets(gl_available, circle_csv, tmp_path):
     cv2 = pytest.importorskip("cv2")
     from vision_rl.capture.video_source import capture_video
 
@@ -135,14 +120,14 @@ def test_video_and_pose_log_reproduce_the_sim_targets(egl, circle_csv, tmp_path)
         images = f.read_images(np.arange(f.n_frames))
         pose, time_s, targets = f.pose, f.time_s, f.targets
     video_path = str(tmp_path / "screen.avi")
-    writer = cv2.VideoWriter(video_path, cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))
+    writer = cv2.VideoWriter(video_path, cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))  # cv2 takes (width, height)
     for frame in images:
         writer.write(np.ascontiguousarray(frame[:, :, ::-1]))
     writer.release()
     poses = tmp_path / "poses.csv"
     np.savetxt(poses, np.column_stack([time_s, pose]), delimiter=",", header="time_s,x_m,y_m,yaw_rad", comments="")
     out = tmp_path / "video.h5"
-    capture_video(dataclasses.replace(sim, out=str(out), source=f"video:{video_path}", poses=str(poses)))
+    capture_video(dataclasses.replace(sim, out=str(out)), video=video_path, poses_csv=str(poses))
     with open_capture(out) as f:
         assert f.n_frames == len(targets)
         np.testing.assert_allclose(f.targets, targets, rtol=1e-4, atol=1e-3)

@@ -21,7 +21,7 @@ from vision_rl.capture.h5format import (
     open_capture,
 )
 
-HW = (12, 20)
+HW_PX = (12, 20)
 NAMES = tuple(f"t{i}" for i in range(27))
 UNITS = ("m",) * 13 + ("m", "m", "m", "rad") + ("1/m",) * 10
 DED = tuple(f"d{i}" for i in range(11))
@@ -38,7 +38,7 @@ ATTRS = {
 def batch(k: int, start: int = 0) -> dict[str, np.ndarray]:
     """k frames whose every value encodes its frame number, so a misplaced frame is caught."""
     i = np.arange(start, start + k)
-    images = np.broadcast_to((i % 251).astype(np.uint8)[:, None, None, None], (k, *HW, 3)).copy()
+    images = np.broadcast_to((i % 251).astype(np.uint8)[:, None, None, None], (k, *HW_PX, 3)).copy()
     images[:, 0, 0, 0] = (i // 251).astype(np.uint8)
     return {
         "images": images,
@@ -52,7 +52,7 @@ def batch(k: int, start: int = 0) -> dict[str, np.ndarray]:
 
 
 def writer(path: Path, **kw) -> CaptureWriter:
-    return CaptureWriter(path, image_hw=HW, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
+    return CaptureWriter(path, image_hw_px=HW_PX, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
                          dedicated_units=DED_UNITS, attrs=ATTRS, **kw)  # fmt: skip
 
 
@@ -77,9 +77,9 @@ def test_round_trip_shapes_dtypes_attributes(tmp_path: Path, compression: str) -
     w.close(complete=True)
     with open_capture(path) as cap:
         assert cap.n_frames == 12 and cap.complete
-        assert cap.image_hw == HW
-        assert cap.images.dtype == np.uint8 and cap.images.shape == (12, *HW, 3)
-        assert cap.images.chunks == (1, *HW, 3)  # one frame per chunk: a random read decodes one frame
+        assert cap.image_hw_px == HW_PX
+        assert cap.images.dtype == np.uint8 and cap.images.shape == (12, *HW_PX, 3)
+        assert cap.images.chunks == (1, *HW_PX, 3)  # one frame per chunk: a random read decodes one frame
         assert cap.targets.dtype == np.float32 and cap.targets.shape == (12, 27)
         assert cap.dedicated.dtype == np.float32 and cap.pose.dtype == np.float64
         assert cap.lap.dtype == np.int32 and cap.car_id.dtype == np.int32
@@ -101,7 +101,7 @@ def noisy_batch(k: int, seed: int) -> dict[str, np.ndarray]:
     """A batch whose images are half random noise (incompressible) and half flat: every byte must survive."""
     out = batch(k)
     rng = np.random.default_rng(seed)
-    out["images"][:, : HW[0] // 2] = rng.integers(0, 256, (k, HW[0] // 2, HW[1], 3), dtype=np.uint8)
+    out["images"][:, : HW_PX[0] // 2] = rng.integers(0, 256, (k, HW_PX[0] // 2, HW_PX[1], 3), dtype=np.uint8)
     return out
 
 
@@ -148,7 +148,7 @@ def test_file_of_the_old_gzip_codec_reads_and_resumes_with_it(tmp_path: Path) ->
     with h5py.File(path, "r+") as f:
         old = f["images"][:]
         del f["images"]
-        f.create_dataset("images", data=old, maxshape=(None, *HW, 3), chunks=(1, *HW, 3), compression="gzip")
+        f.create_dataset("images", data=old, maxshape=(None, *HW_PX, 3), chunks=(1, *HW_PX, 3), compression="gzip")
     with open_capture(path) as cap:
         np.testing.assert_array_equal(cap.read_images(np.arange(4)), frames["images"][:4])
     w = writer(path, resume=True)  # the default codec is zstd: a resumed file keeps its own
@@ -212,7 +212,7 @@ def test_bad_input_is_refused(tmp_path: Path) -> None:
     assert w.n_frames == 2
     w.close()
     with pytest.raises(ValueError, match="attrs lack"):
-        CaptureWriter(tmp_path / "x.h5", image_hw=HW, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
+        CaptureWriter(tmp_path / "x.h5", image_hw_px=HW_PX, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
                       dedicated_units=DED_UNITS, attrs={"seed": 1})  # fmt: skip
 
 
@@ -258,11 +258,11 @@ def test_resume_refuses_other_settings_and_creates_missing_file(tmp_path: Path) 
     w.append(**batch(2))
     w.close()
     with pytest.raises(CaptureFormatError, match="track_geometry_hash"):
-        CaptureWriter(path, image_hw=HW, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
+        CaptureWriter(path, image_hw_px=HW_PX, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
                       dedicated_units=DED_UNITS, attrs={**ATTRS, "track_geometry_hash": "other"},
                       resume=True)  # fmt: skip
     with pytest.raises(CaptureFormatError, match="image_width"):
-        CaptureWriter(path, image_hw=(HW[0], HW[1] + 4), target_names=NAMES, target_units=UNITS,
+        CaptureWriter(path, image_hw_px=(HW_PX[0], HW_PX[1] + 4), target_names=NAMES, target_units=UNITS,
                       dedicated_names=DED, dedicated_units=DED_UNITS, attrs=ATTRS, resume=True)  # fmt: skip
     fresh = writer(tmp_path / "new.h5", resume=True)
     assert fresh.n_frames == 0

@@ -29,10 +29,10 @@ ATTRS = {
 }
 
 
-def frames_and_targets(n: int, hw: tuple[int, int], seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def frames_and_targets(n: int, image_hw_px: tuple[int, int], seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(images uint8 (n, H, W, 3), targets float32 (n, 27), latent (n, 2) = u, v)."""
     rng = np.random.default_rng(seed)
-    h, w = hw
+    h, w = image_hw_px
     u = rng.uniform(0.15, 0.85, n)
     v = rng.uniform(0.3, 0.9, n)
     images = np.empty((n, h, w, 3), dtype=np.uint8)
@@ -51,7 +51,7 @@ def write_synthetic_capture(
     *,
     n_laps: int = 4,
     frames_per_lap: int = 4,
-    hw: tuple[int, int] = (64, 96),
+    image_hw_px: tuple[int, int] = (64, 96),
     car_ids: tuple[int, ...] = (0,),
     seed: int = 0,
     complete: bool = True,
@@ -59,7 +59,7 @@ def write_synthetic_capture(
 ) -> dict[str, np.ndarray]:
     """Write a capture of len(car_ids) * n_laps * frames_per_lap frames; returns what was written."""
     n = len(car_ids) * n_laps * frames_per_lap
-    images, targets, latent = frames_and_targets(n, hw, seed)
+    images, targets, latent = frames_and_targets(n, image_hw_px, seed)
     car = np.repeat(np.asarray(car_ids, dtype=np.int32), n_laps * frames_per_lap)
     lap = np.tile(np.repeat(np.arange(n_laps, dtype=np.int32), frames_per_lap), len(car_ids))
     rng = np.random.default_rng(seed + 1)
@@ -68,7 +68,7 @@ def write_synthetic_capture(
     time_s = np.arange(n) / 60.0
     writer = CaptureWriter(
         path,
-        image_hw=hw,
+        image_hw_px=image_hw_px,
         target_names=TARGET_NAMES,
         target_units=TARGET_UNITS,
         dedicated_names=DEDICATED_NAMES,

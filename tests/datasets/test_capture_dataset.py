@@ -42,7 +42,7 @@ def test_catalogue_joins_shards_in_order(shards) -> None:
     np.testing.assert_array_equal(cat.targets, np.concatenate([w["targets"] for w in written]))
     np.testing.assert_array_equal(cat.file_index, np.repeat([0, 1], [18, 27]))
     np.testing.assert_array_equal(cat.frame_index[18:], np.arange(27))
-    assert cat.image_hw == (64, 96) and len(cat.target_names) == 27
+    assert cat.image_hw_px == (64, 96) and len(cat.target_names) == 27
     # Globs and comma lists name the same files.
     assert expand_paths(str(paths[0].parent / "shard_*.h5")) == paths
     assert expand_paths(f"{paths[0]},{paths[1]}") == paths
@@ -139,8 +139,8 @@ def test_readback_bench_reports_both_figures(shards) -> None:
 
 
 def test_shards_of_different_frame_sizes_are_refused(tmp_path: Path) -> None:
-    write_synthetic_capture(tmp_path / "a.h5", hw=(64, 96))
-    write_synthetic_capture(tmp_path / "b.h5", hw=(32, 48))
+    write_synthetic_capture(tmp_path / "a.h5", image_hw_px=(64, 96))
+    write_synthetic_capture(tmp_path / "b.h5", image_hw_px=(32, 48))
     with pytest.raises(CaptureFormatError, match="do not match"):
         FrameCatalogue.open([tmp_path / "a.h5", tmp_path / "b.h5"])
 

@@ -44,7 +44,7 @@ def test_round_trip_gives_the_same_embedding(tmp_path: Path) -> None:
     assert raw["encoder_config"]["input_height_px"] == 32 and raw["target_names"] == NAMES
     assert raw["encoder_config"]["pixel_mean"] == list(CFG.pixel_mean)
     frames = np.random.default_rng(3).integers(0, 256, (5, 32, 48, 3), dtype=np.uint8)
-    enc = load_encoder(path, expected_input_hw=(32, 48), expected_target_names=NAMES)
+    enc = load_encoder(path, expected_input_hw_px=(32, 48), expected_target_names=NAMES)
     with torch.no_grad():
         rep_ref, pred_ref = net(torch.from_numpy(frames))
     rep = enc(frames)
@@ -75,7 +75,7 @@ def test_other_input_size_or_target_count_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "ckpt.pt"
     write(path)
     with pytest.raises(EncoderCheckpointError, match=r"32x48 \(HxW\) frames, expected 280x470"):
-        load_encoder(path, expected_input_hw=(280, 470))
+        load_encoder(path, expected_input_hw_px=(280, 470))
     small = tmp_path / "five.pt"
     write(small, dataclasses.replace(CFG, n_targets=5))
     with pytest.raises(EncoderCheckpointError, match="5 targets, expected 27"):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -109,8 +109,8 @@ def test_train_repr_writes_run_and_resumes(tmp_path: Path) -> None:
     data = tmp_path / "d.h5"
     write_synthetic_capture(data, n_laps=4, frames_per_lap=4)
     out = tmp_path / "run"
-    cfg = TrainReprConfig(data=str(data), epochs=2, batch_size=8, num_workers=0, out=str(out), progress=False,
-                          width_mult=0.25, val_fraction=0.25)  # fmt: skip
+    cfg = TrainReprConfig(data=str(data), epochs=2, batch_size=8, num_workers=0, out=str(out), width_mult=0.25,
+                          val_fraction=0.25)  # fmt: skip
     result = train_repr(cfg)
     assert result["n_train_frames"] == 12 and result["n_val_frames"] == 4  # one lap of four held out
     metrics = json.loads((out / "metrics.json").read_text())
@@ -122,29 +122,15 @@ def test_train_repr_writes_run_and_resumes(tmp_path: Path) -> None:
     assert metrics["units"]["centre_line_offset"] == "m"
     assert (out / "pred_vs_true.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert list((out / "tensorboard").glob("events.out.tfevents.*"))
-    enc = load_encoder(result["ckpt"], expected_input_hw=(64, 96), expected_target_names=TARGET_NAMES)
+    enc = load_encoder(result["ckpt"], expected_input_hw_px=(64, 96), expected_target_names=TARGET_NAMES)
     assert enc.metrics["epoch"] == metrics["best"]["epoch"]
     assert enc(np.zeros((2, 64, 96, 3), dtype=np.uint8)).shape == (2, 64)
 
     with pytest.raises(FileExistsError, match="--resume"):
         train_repr(cfg)
-    resumed = TrainReprConfig(**{**cfg.__dict__, "epochs": 3, "resume": True})
-    train_repr(resumed)
+    steps = []
+    train_repr(dataclasses.replace(cfg, epochs=3, resume=True), lambda done, total, figures: steps.append(done))
+    assert steps and steps[-1] > steps[0]  # the progress callback hears every step of the resumed epoch
     metrics = json.loads((out / "metrics.json").read_text())
     assert [e["epoch"] for e in metrics["epochs"]] == [0, 1, 2]  # history kept, one more epoch run
 
-
-def test_command_configs_fit_the_cli_plumbing() -> None:
-    from vision_rl.config import add_config_arguments as _add_config_arguments
-    from vision_rl.config import config_from_args as _config_from_args
-    from vision_rl.phase1_repr.bench import BenchLatencyConfig
-
-    parser = argparse.ArgumentParser()
-    _add_config_arguments(parser, TrainReprConfig)
-    argv = ["--data", "a.h5,b.h5", "--val", "e.h5", "--epochs", "3", "--lr", "0.01", "--no-augment", "--resume"]
-    cfg = _config_from_args(TrainReprConfig, parser.parse_args(argv))
-    assert cfg.data == "a.h5,b.h5" and cfg.epochs == 3 and cfg.lr == 0.01 and not cfg.augment and cfg.resume
-    parser = argparse.ArgumentParser()
-    _add_config_arguments(parser, BenchLatencyConfig)
-    bench = _config_from_args(BenchLatencyConfig, parser.parse_args(["--device", "cpu", "--width", "96", "--json"]))
-    assert bench.width == 96 and bench.json and bench.runs >= 200

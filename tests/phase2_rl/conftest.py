@@ -1,31 +1,20 @@
-"""Shared fixtures of the Phase-2 tests: a private cache, a small track, tiny encoders and a tiny trained policy."""
+"""Shared fixtures of the Phase-2 tests: a small track, tiny encoders and a tiny trained policy (the private cache
+is the root conftest's)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.conftest import renderer_available  # noqa: F401  (the Phase-2 tests import it from here)
 from tests.sim.conftest import stadium_points
 from vision_rl.sim.sensors import TARGET_NAMES, TARGET_UNITS
 
 #: A stadium of 150 m straights and 60 m-radius bends, 6 m from the centre line to each wall: a 677 m lap, about 26 s
 #: at the limit (the built-in AI completes laps here; on tighter stadiums it hit walls when this was written).
 STADIUM = (150.0, 60.0, 6.0)
-
-
-@pytest.fixture(scope="session", autouse=True)
-def _private_cache(tmp_path_factory):
-    # Session-wide (not monkeypatch): the session-scoped trained policy below needs it too.
-    old = os.environ.get("VISION_RL_CACHE")
-    os.environ["VISION_RL_CACHE"] = str(tmp_path_factory.mktemp("cache"))
-    yield
-    if old is None:
-        os.environ.pop("VISION_RL_CACHE", None)
-    else:
-        os.environ["VISION_RL_CACHE"] = old
 
 
 def stadium_csv(path: Path, straight_m: float, radius_m: float, half_width_m: float) -> Path:
@@ -66,7 +55,7 @@ def tiny_train_config(track: str, out: Path, **kw):
     from vision_rl.phase2_rl.train import TrainPolicyConfig
 
     base = dict(track=track, cars=2, steps=200, out=str(out), learning_starts=50, batch_size=32, buffer_size=5_000,
-                eval_every_steps=100, eval_laps=1, checkpoint_every_steps=100, progress=False,
+                eval_every_steps=100, eval_laps=1, checkpoint_every_steps=100,
                 device="cpu")  # fmt: skip
     return TrainPolicyConfig(**{**base, **kw})
 
@@ -79,14 +68,3 @@ def state_run(tmp_path_factory, small_track) -> tuple[Path, dict]:
     out = tmp_path_factory.mktemp("runs") / "policy" / "tiny-state"
     return out, train_policy(tiny_train_config(small_track, out))
 
-
-def renderer_available() -> str:
-    """Empty if an EGL context can be made here, else the reason."""
-    try:
-        from vision_rl.render import create_context
-
-        ctx = create_context()
-        ctx.release()
-        return ""
-    except Exception as exc:  # no EGL library, no driver, no moderngl
-        return f"vision_rl.render cannot make an EGL context here: {exc}"

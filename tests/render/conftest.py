@@ -1,21 +1,9 @@
-"""Shared tracks and a guard that skips the render tests where no headless OpenGL context can be made."""
+"""Shared tracks of the render tests (the ``gl_available`` guard is the root conftest's)."""
 
 import numpy as np
 import pytest
 
 from vision_rl.sim.track import Track
-
-
-@pytest.fixture(scope="session")
-def gl_available() -> None:
-    """Skip (with the reason) when this machine has no EGL/OpenGL: the renderer cannot run here at all."""
-    from vision_rl.render import RendererError, create_context
-
-    try:
-        ctx = create_context()
-    except RendererError as exc:
-        pytest.skip(f"no headless OpenGL context on this machine: {exc}")
-    ctx.release()
 
 
 def circle_track(name: str, radius_m: float, width_m: float) -> Track:

@@ -56,7 +56,8 @@ def crossing_count(track: Track) -> int:
 
 # ---------------------------------------------------------------------------------------------- built-in tracks
 
-#: name: (length range m, wall-to-wall width range m, tightest radius range m), from the issue and the brief.
+#: name: (length range m, wall-to-wall width range m, tightest radius range m): what each built-in track was
+#: designed to.
 BUILTIN_SPECS = {
     "expressway": ((4200.0, 4600.0), (10.0, 14.0), (25.0, 40.0)),
     "flowing": ((4000.0, 5000.0), (16.0, 20.0), (80.0, 1e9)),

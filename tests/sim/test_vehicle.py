@@ -1,4 +1,4 @@
-"""Vehicle dynamics: hand-computed physics pieces, the issue's realism targets, robustness, determinism, speed paths.
+"""Vehicle dynamics: hand-computed physics pieces, realism targets, robustness, determinism, speed paths.
 
 Realism checks drive the presets with simple controllers on an open plane (no track); every car of a sweep runs in
 one batch.
@@ -116,11 +116,11 @@ def _random_state(n: int, rng: np.random.Generator) -> VehicleState:
 
 
 # ---------------------------------------------------------------------------------------------------- parameters
-def test_presets_carry_the_issues_figures():
+def test_presets_carry_the_identified_figures():
     assert set(PRESETS) == {"hatchback", "tt_cup", "gt3"}
     assert DEFAULT_CAR == "hatchback"
     hatch, tt, gt3 = get_preset("hatchback"), get_preset("tt_cup"), get_preset("gt3")
-    # GT Sport identified values quoted in issue 2.
+    # The values identified inside GT Sport.
     assert (hatch.mass_kg, hatch.yaw_inertia_kgm2, hatch.cg_to_front_axle_m, hatch.cg_to_rear_axle_m) == (
         1355.0,
         2064.0,

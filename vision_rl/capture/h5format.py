@@ -1,4 +1,4 @@
-"""The capture HDF5 file (ARCHITECTURE, "Files that cross a phase boundary"): writer and validating reader.
+"""The capture HDF5 file, the hand-over from capture to Phase 1: writer and validating reader.
 
 Layout of one file (one run or one shard), N frames:
 
@@ -51,8 +51,9 @@ import zstandard
 
 FORMAT_VERSION = 1
 
-#: Caller attributes every capture file must carry (ARCHITECTURE's list: track name and a hash of its geometry, car
-#: preset, renderer settings, seed; package version and the completion flag are added by the writer).
+#: Caller attributes every capture file must carry, so that a frame can be traced to how it was made (track name
+#: and a hash of its geometry, car preset, renderer settings, seed; package version and the completion flag are
+#: added by the writer).
 REQUIRED_ATTRS: tuple[str, ...] = ("track_name", "track_geometry_hash", "car_preset", "renderer_settings", "seed")
 
 #: Attributes a resumed file must share with the writer reopening it, or the frames would not belong together.
@@ -200,7 +201,7 @@ class CaptureWriter:
 
     Args:
         path: the ``.h5`` file.
-        image_hw: (height, width) of the frames in pixels.
+        image_hw_px: (height, width) of the frames in pixels.
         target_names, target_units: the 27 target names and units (``vision_rl.sim.sensors.TARGET_NAMES``...).
         dedicated_names, dedicated_units: the 11 dedicated feature names and units.
         attrs: run attributes; must hold :data:`REQUIRED_ATTRS`. Scalars and strings are stored as they are,
@@ -218,7 +219,7 @@ class CaptureWriter:
         self,
         path: str | os.PathLike[str],
         *,
-        image_hw: tuple[int, int],
+        image_hw_px: tuple[int, int],
         target_names: Sequence[str],
         target_units: Sequence[str],
         dedicated_names: Sequence[str],
@@ -231,7 +232,7 @@ class CaptureWriter:
         compress_threads: int = 0,
     ) -> None:
         self.path = Path(path)
-        self.image_hw = (int(image_hw[0]), int(image_hw[1]))
+        self.image_hw_px = (int(image_hw_px[0]), int(image_hw_px[1]))
         self.target_names = tuple(target_names)
         self.dedicated_names = tuple(dedicated_names)
         self.flush_interval_s = float(flush_interval_s)
@@ -244,8 +245,8 @@ class CaptureWriter:
             raise ValueError(f"compression must be one of {COMPRESSIONS}, got {compression!r}")
         if resume and force:
             raise ValueError("resume and force exclude each other: resume appends, force starts over")
-        if min(self.image_hw) <= 0:
-            raise ValueError(f"image_hw must be positive, got {image_hw}")
+        if min(self.image_hw_px) <= 0:
+            raise ValueError(f"image_hw_px must be positive, got {image_hw_px}")
 
         file_attrs = dict(attrs)
         file_attrs.update(
@@ -254,8 +255,8 @@ class CaptureWriter:
             target_units=list(target_units),
             dedicated_names=list(self.dedicated_names),
             dedicated_units=list(dedicated_units),
-            image_height=self.image_hw[0],
-            image_width=self.image_hw[1],
+            image_height=self.image_hw_px[0],
+            image_width=self.image_hw_px[1],
             compression=compression,
             package_version=package_version(),
         )
@@ -307,7 +308,7 @@ class CaptureWriter:
                 comp = {"compression": "gzip", "compression_opts": _GZIP_LEVEL}
             elif compression == "zstd":
                 comp = dict(hdf5plugin.Zstd(clevel=_ZSTD_LEVEL))
-            h, w = self.image_hw
+            h, w = self.image_hw_px
             f.create_dataset("images", shape=(0, h, w, 3), maxshape=(None, h, w, 3), dtype=np.uint8,
                              chunks=(1, h, w, 3), **comp)  # fmt: skip
             for name, (dtype, tail) in _FRAME_DATASETS.items():
@@ -370,7 +371,7 @@ class CaptureWriter:
             raise RuntimeError(f"{self.path}: writer is {'closed' if self._closed else 'broken by a failed write'}")
         images = np.asarray(images)
         k = images.shape[0] if images.ndim == 4 else -1
-        h, w = self.image_hw
+        h, w = self.image_hw_px
         if images.shape != (k, h, w, 3) or images.dtype != np.uint8:
             raise ValueError(f"images must be uint8 (k, {h}, {w}, 3), got {images.dtype} {images.shape}")
         columns = {
@@ -531,7 +532,7 @@ class CaptureFile:
         self.n_frames = n_frames
         self.attrs = attrs
         self.images: h5py.Dataset = handle["images"]
-        self._decode = _direct_decoder(self.images, self.image_hw)
+        self._decode = _direct_decoder(self.images, self.image_hw_px)
         self._pool: ThreadPoolExecutor | None = None
         self._pool_threads = 0
 
@@ -540,7 +541,7 @@ class CaptureFile:
         return bool(self.attrs["complete"])
 
     @property
-    def image_hw(self) -> tuple[int, int]:
+    def image_hw_px(self) -> tuple[int, int]:
         return int(self.attrs["image_height"]), int(self.attrs["image_width"])
 
     @property
@@ -593,7 +594,7 @@ class CaptureFile:
         """One frame, uint8 (H, W, 3)."""
         if not 0 <= index < self.n_frames:
             raise IndexError(f"{self.path}: frame {index} out of range [0, {self.n_frames})")
-        out = np.empty((*self.image_hw, 3), dtype=np.uint8)
+        out = np.empty((*self.image_hw_px, 3), dtype=np.uint8)
         self._decode_into(out, self._read_chunk(index), index)
         return out
 
@@ -630,7 +631,7 @@ class CaptureFile:
         idx = np.asarray(indices, dtype=np.int64).reshape(-1)
         if len(idx) and (idx.min() < 0 or idx.max() >= self.n_frames):
             raise IndexError(f"{self.path}: frame indices must lie in [0, {self.n_frames})")
-        shape = (len(idx), *self.image_hw, 3)
+        shape = (len(idx), *self.image_hw_px, 3)
         if out is None:
             out = np.empty(shape, dtype=np.uint8)
         elif out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
@@ -663,10 +664,10 @@ class CaptureFile:
         self.close()
 
 
-def _direct_decoder(ds: h5py.Dataset, image_hw: tuple[int, int]):
+def _direct_decoder(ds: h5py.Dataset, image_hw_px: tuple[int, int]):
     """The chunk decoder for images stored one frame per chunk with a single zstd or deflate filter, else None
     (other layouts are read through h5py)."""
-    if ds.chunks != (1, *image_hw, 3):
+    if ds.chunks != (1, *image_hw_px, 3):
         return None
     dcpl = ds.id.get_create_plist()
     if dcpl.get_nfilters() != 1:

@@ -1,65 +1,81 @@
-"""`capture`: game-screen frames paired with the 27 targets and 11 dedicated features, written to HDF5.
+"""Simulator capture: game-screen frames paired with the 27 targets and 11 dedicated features, written to HDF5.
 
 Two frame sources play the part of the vision paper's HDMI grabber (section 4.1):
 
-- ``sim`` (default): N built-in AI cars drive one world together (each its own collision group, so they are
-  ghosts to each other and every frame shows the bare track), disrupted by uniform random offsets held for random
-  durations ("the built-in AI with uniform random disruptions"); every car's driver's view is rendered at the
-  capture rate and the targets are computed at the same instant.
-- ``video:DEVICE_OR_FILE`` with ``--poses POSES.csv``: frames from ``cv2.VideoCapture`` (a V4L2 grabber or a
-  recorded video) paired by timestamp with a telemetry log, the targets computed from the track geometry (see
-  :mod:`vision_rl.capture.video_source`).
+- the simulator (:func:`capture_sim`): N built-in AI cars drive one world together (each its own collision group,
+  so they are ghosts to each other and every frame shows the bare track), disrupted by uniform random offsets held
+  for random durations ("the built-in AI with uniform random disruptions"); every car's driver's view is rendered
+  at the capture rate and the targets are computed at the same instant.
+- a grabber or a recorded video (:func:`vision_rl.capture.video_source.capture_video`): frames from
+  ``cv2.VideoCapture`` paired by timestamp with a telemetry log, the targets computed from the track geometry.
 
-``--laps`` counts laps over all cars. A capture stopped by Ctrl-C or a kill keeps the frames flushed so far in a
-valid file marked incomplete; ``--resume`` continues it up to the requested laps (the world restarts from a state
-derived from the seed and the frames already written, lap indices continue per car).
+``CaptureConfig.laps`` counts laps over all cars. A capture stopped by Ctrl-C or a kill keeps the frames flushed so
+far in a valid file marked incomplete; ``resume`` continues it up to the requested laps (the world restarts from a
+state derived from the seed and the frames already written, lap indices continue per car).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from vision_rl.capture.h5format import CaptureWriter, open_capture
-from vision_rl.config import doc
 from vision_rl.sim import sensors
-from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver, DisruptionParams, Disruptor, StuckDetector
-from vision_rl.sim.driving import AI_CONTROL_DT_S, line_and_profile
+from vision_rl.sim.ai_driver import DEFAULT_SKILL, DisruptionParams
+from vision_rl.sim.driving import line_and_profile
+from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector
 from vision_rl.sim.track import Track
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import get_preset
 from vision_rl.sim.world import World, WorldConfig
 
 
-@dataclass
+@dataclass(frozen=True)
 class CaptureConfig:
-    """Record frames, the 27 targets and the 11 dedicated features to an HDF5 file (see ARCHITECTURE)."""
+    """A simulator capture: built-in AI cars driving and their driver's views, the 27 targets and the 11 dedicated
+    features written to one HDF5 file."""
 
-    out: str = field(default="", metadata=doc("output .h5 file (required)"))
-    track: str = field(default="expressway", metadata=doc("track: built-in name, random:SEED or CSV path"))
-    car: str = field(default="hatchback", metadata=doc("car preset"))
-    laps: int = field(default=50, metadata=doc("laps to record, summed over all cars"))
-    disrupt_ai: bool = field(
-        default=True,
-        metadata=doc("uniform random disruptions of the AI (off: clean laps for evaluation)", "--no-disrupt"),
-    )
-    cars: int = field(default=4, metadata=doc("AI cars driving (and rendered) together"))
-    fps: float = field(default=60.0, metadata=doc("capture rate, frames per second per car (GT Sport: 60)"))
-    width: int = field(default=470, metadata=doc("frame width, px"))
-    height: int = field(default=280, metadata=doc("frame height, px"))
-    seed: int = field(default=0, metadata=doc("seed of the disruptions and start points"))
-    resume: bool = field(default=False, metadata=doc("continue an incomplete file up to --laps"))
-    force: bool = field(default=False, metadata=doc("overwrite an existing file"))
-    source: str = field(default="sim", metadata=doc("'sim' or 'video:DEVICE_OR_FILE' (an HDMI grabber or a video)"))
-    poses: str = field(default="", metadata=doc("video source: telemetry CSV (time_s, x_m, y_m, yaw_rad, ...)"))
-    frame_delay: int = field(default=0, metadata=doc("video source: frames the video lags the telemetry (paper: 4)"))
-    compression: str = field(default="zstd", metadata=doc("image compression: zstd, gzip, lzf or none"))
-    max_frames: int = field(default=0, metadata=doc("stop after this many new frames (0: when --laps are in)"))
-    json: bool = field(default=False, metadata=doc("print the summary as JSON"))
+    out: str = ""
+    """Output .h5 file (required)."""
+    track: str = "expressway"
+    """Track: built-in name, random:SEED or CSV path."""
+    car: str = "hatchback"
+    """Car preset."""
+    laps: int = 50
+    """Laps to record, summed over all cars."""
+    disrupt_ai: bool = True
+    """Uniform random disruptions of the AI (off: clean laps for evaluation)."""
+    cars: int = 4
+    """AI cars driving (and rendered) together."""
+    fps: float = 60.0
+    """Capture rate, frames per second per car (GT Sport: 60)."""
+    image_hw_px: tuple[int, int] = (280, 470)
+    """Frame height and width, px (the vision paper's network input is 470 wide, 280 high)."""
+    seed: int = 0
+    """Seed of the disruptions and start points."""
+    resume: bool = False
+    """Continue an incomplete file up to ``laps``."""
+    force: bool = False
+    """Overwrite an existing file."""
+    compression: str = "zstd"
+    """Image compression: zstd, gzip, lzf or none."""
+    max_frames: int = 0
+    """Stop after this many new frames (0: when ``laps`` are in)."""
+
+    @property
+    def height(self) -> int:
+        """Frame height, px: ``image_hw_px[0]`` (:func:`capture_sim` reads it by this name)."""
+        return self.image_hw_px[0]
+
+    @property
+    def width(self) -> int:
+        """Frame width, px: ``image_hw_px[1]``."""
+        return self.image_hw_px[1]
 
 
 def physics_step_for(fps: float) -> tuple[float, float, int]:
@@ -92,7 +108,7 @@ def capture_attrs(track: Track, cfg: CaptureConfig, renderer_settings: dict, sou
 def open_writer(path: Path, track: Track, cfg: CaptureConfig, renderer_settings: dict, source: str) -> CaptureWriter:
     return CaptureWriter(
         path,
-        image_hw=(cfg.height, cfg.width),
+        image_hw_px=cfg.image_hw_px,
         target_names=sensors.TARGET_NAMES,
         target_units=sensors.TARGET_UNITS,
         dedicated_names=sensors.DEDICATED_NAMES,
@@ -115,7 +131,7 @@ def _done_so_far(path: Path) -> tuple[int, np.ndarray, float]:
         return f.n_frames, next_lap, float(f.time_s.max())
 
 
-def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
+def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None = None) -> dict:
     """Drive, render and record until ``cfg.laps`` laps (over all cars) are in the file; returns a summary.
 
     ``progress(laps_done, frames)`` is called after every written batch (the command's progress bar).
@@ -148,23 +164,15 @@ def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
     rng = np.random.default_rng([cfg.seed, frames_before])
     world = World(track, car, n_cars=n, config=WorldConfig(physics_dt_s=physics_dt, control_dt_s=control_dt))
     line, profile = line_and_profile(track, car)
-    disruption = DisruptionParams()
-    skill = disruption.skill if cfg.disrupt_ai else DEFAULT_SKILL
-    ai = AIDriver(car, line, profile, n, skill=skill, groups=world.model.groups)
-    disruptor = Disruptor(n, disruption, seed=int(rng.integers(2**31))) if cfg.disrupt_ai else None
+    disruption = DisruptionParams() if cfg.disrupt_ai else None
+    skill = disruption.skill if disruption is not None else DEFAULT_SKILL
+    fleet = AIFleet(world, line, profile, skill=skill, disruption=disruption, seed=int(rng.integers(2**31)))
     s0 = np.mod(rng.uniform(0, track.length_m) + np.arange(n) * track.length_m / n, track.length_m)
-
-    def place(ids: np.ndarray, s: np.ndarray, speed_share: float) -> None:
-        speed = speed_share * skill * profile.speed_at(line.line_s_at(s))
-        world.reset(s_m=s, lateral_m=line.lateral_at(s), speed_mps=speed, car_ids=ids)
-
-    place(np.arange(n), s0, 1.0)
+    fleet.place(np.arange(n), s0)
     start_u = world.state.unwrapped_s_m.copy()
     caster = sensors.WallRayCaster(track)
-    # Stuck detection: progress over a sliding window (the disrupted AI may end up facing a wall).
-    stuck_detector = StuckDetector(
-        world.state.unwrapped_s_m, round(disruption.stuck_after_s / control_dt), disruption.stuck_progress_m
-    )
+    # The disrupted AI may end up facing a wall: the project's stuck rule, checked every frame.
+    stuck_detector = StuckDetector(world.state.unwrapped_s_m, steps_per_frame * control_dt)
     resets = 0
     frames = 0
     laps_done = laps_before
@@ -196,22 +204,18 @@ def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
                 if progress is not None:
                     progress(laps_done - laps_before, frames)
                 frame_step += 1
-                for _ in range(steps_per_frame):
-                    steer, omega = ai.act(world.state)
-                    if disruptor is not None:
-                        steer, omega = disruptor(steer, omega, control_dt)
-                    world.step(steer, omega)
-                    stuck = stuck_detector.update(world.state.unwrapped_s_m)
-                    if len(stuck):
-                        # Put a stuck car back on the racing line a little ahead, at half the AI's speed; it
-                        # starts a new lap index so that a lap never mixes two placements.
-                        done_now = np.floor((world.state.unwrapped_s_m[stuck] - start_u[stuck]) / track.length_m)
-                        lap_count_base[stuck] += done_now.astype(np.int64)
-                        lap_index_base[stuck] += done_now.astype(np.int64) + 1
-                        place(stuck, world.state.s_m[stuck] + 5.0, 0.5)
-                        start_u[stuck] = world.state.unwrapped_s_m[stuck]
-                        stuck_detector.reset(stuck, world.state.unwrapped_s_m)
-                        resets += len(stuck)
+                fleet.advance(steps_per_frame)
+                stuck = stuck_detector.update(world.state.unwrapped_s_m)
+                if len(stuck):
+                    # Capture wants frames, not a race: a stuck car goes back on the racing line a little ahead,
+                    # at half the AI's speed, and starts a new lap index so that a lap never mixes two placements.
+                    done_now = np.floor((world.state.unwrapped_s_m[stuck] - start_u[stuck]) / track.length_m)
+                    lap_count_base[stuck] += done_now.astype(np.int64)
+                    lap_index_base[stuck] += done_now.astype(np.int64) + 1
+                    fleet.place(stuck, world.state.s_m[stuck] + 5.0, speed_share=0.5)
+                    start_u[stuck] = world.state.unwrapped_s_m[stuck]
+                    stuck_detector.reset(stuck, world.state.unwrapped_s_m)
+                    resets += len(stuck)
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -231,31 +235,3 @@ def capture_sim(cfg: CaptureConfig, progress=None) -> dict:
         "elapsed_s": elapsed,
     }
 
-
-def run_capture(cfg: CaptureConfig) -> int:
-    """The `capture` command: a progress bar in laps (with frames/s) and a summary."""
-    from tqdm import tqdm
-
-    from vision_rl.cli import emit
-
-    if not cfg.out:
-        raise ValueError("--out PATH.h5 is required")
-    if cfg.source.startswith("video:"):
-        from vision_rl.capture.video_source import capture_video
-
-        emit(capture_video(cfg), cfg.json)
-        return 0
-    if cfg.source != "sim":
-        raise ValueError(f"--source must be 'sim' or 'video:DEVICE_OR_FILE', got {cfg.source!r}")
-    with tqdm(total=cfg.laps, unit="lap", desc="capture", disable=None) as bar:
-
-        def progress(laps: int, frames: int) -> None:
-            bar.n = laps
-            bar.set_postfix(frames=frames, refresh=False)
-            bar.update(0)
-
-        result = capture_sim(cfg, progress)
-    if result["interrupted"]:
-        result["note"] = f"interrupted: {result['frames_in_file']} frames kept; run again with --resume to continue"
-    emit(result, cfg.json)
-    return 130 if result["interrupted"] else 0

@@ -2,7 +2,7 @@
 
 The vision paper captured the PS4's screen with an HDMI grabber whose frames ran 4 frames (67 ms) behind the
 game's telemetry (section 4.1). Here frame k of a video of rate ``fps`` shows the car at time
-``t_k = k / fps - frame_delay / fps`` of the pose log; the pose at ``t_k`` is interpolated from the log and the
+``t_k = k / fps - frame_delay_frames / fps`` of the pose log; the pose at ``t_k`` is interpolated from the log and the
 27 targets are computed from the track geometry exactly as for a simulator capture.
 
 Pose log: a CSV with a header naming at least ``time_s, x_m, y_m, yaw_rad``; optional columns ``vx_mps, vy_mps,
@@ -12,6 +12,7 @@ derived: body velocity from the pose differences, yaw rate from the heading, acc
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -83,42 +84,52 @@ def poses_at(log: dict[str, np.ndarray], t_s: np.ndarray) -> SimpleNamespace:
     )
 
 
-def capture_video(cfg: CaptureConfig, batch: int = 64) -> dict:
-    """Read every frame of ``cfg.source`` (``video:PATH_OR_DEVICE``), pair it with the pose log, write HDF5."""
+def capture_video(
+    cfg: CaptureConfig,
+    *,
+    video: str,
+    poses_csv: str,
+    frame_delay_frames: int = 0,
+    batch: int = 64,
+    progress: Callable[[int], None] | None = None,
+) -> dict:
+    """Read every frame of ``video`` (a file path or a V4L2 device number), pair it with the pose log
+    ``poses_csv``, write HDF5 to ``cfg.out`` at ``cfg.image_hw_px``; ``cfg.fps`` is the rate when the video does
+    not give one. ``frame_delay_frames``: frames the video lags the telemetry (the paper's grabber: 4).
+    ``progress(frames)`` is called after every written batch."""
     try:
         import cv2
     except ImportError as exc:
         raise RuntimeError("the video source needs OpenCV: pip install opencv-python-headless") from exc
-    if not cfg.poses:
-        raise ValueError("--source video:... needs --poses POSES.csv (the telemetry to pair the frames with)")
-    spec = cfg.source.removeprefix("video:")
-    log = read_pose_log(cfg.poses)
+    if not poses_csv:
+        raise ValueError("a video capture needs a pose log (the telemetry to pair the frames with)")
+    log = read_pose_log(poses_csv)
     track = load_track(cfg.track)
-    device = int(spec) if spec.isdigit() else spec
-    video = cv2.VideoCapture(device)
-    if not video.isOpened():
-        raise ValueError(f"cannot open video source {spec!r} (a file path or a V4L2 device number)")
-    fps = video.get(cv2.CAP_PROP_FPS) or cfg.fps
+    device = int(video) if video.isdigit() else video
+    capture = cv2.VideoCapture(device)
+    if not capture.isOpened():
+        raise ValueError(f"cannot open video source {video!r} (a file path or a V4L2 device number)")
+    fps = capture.get(cv2.CAP_PROP_FPS) or cfg.fps
     caster = sensors.WallRayCaster(track)
-    writer = open_writer(
-        Path(cfg.out), track, cfg, {"source": spec, "frame_delay": cfg.frame_delay, "video_fps": fps}, cfg.source
-    )
+    settings = {"source": video, "frame_delay": frame_delay_frames, "video_fps": fps}
+    writer = open_writer(Path(cfg.out), track, cfg, settings, f"video:{video}")
+    h, w = cfg.image_hw_px
     frames, k, s_last, progress_m = 0, 0, None, 0.0
     try:
         done = False
         while not done:
             images = []
             while len(images) < batch:
-                ok, bgr = video.read()
+                ok, bgr = capture.read()
                 if not ok:
                     done = True
                     break
-                if bgr.shape[:2] != (cfg.height, cfg.width):
-                    bgr = cv2.resize(bgr, (cfg.width, cfg.height), interpolation=cv2.INTER_AREA)
+                if bgr.shape[:2] != (h, w):
+                    bgr = cv2.resize(bgr, (w, h), interpolation=cv2.INTER_AREA)  # cv2 takes (width, height)
                 images.append(bgr[:, :, ::-1])
             if not images:
                 break
-            t = (np.arange(k, k + len(images)) - cfg.frame_delay) / fps
+            t = (np.arange(k, k + len(images)) - frame_delay_frames) / fps
             k += len(images)
             inside = (t >= log["time_s"][0]) & (t <= log["time_s"][-1])  # frames outside the log have no pose
             if not inside.any():
@@ -129,8 +140,8 @@ def capture_video(cfg: CaptureConfig, batch: int = 64) -> dict:
             proj = track.project(xy)
             # Lap index from the progress since the first frame (the log may start anywhere on the track).
             s_prev = np.concatenate([[proj.s_m[0] if s_last is None else s_last], proj.s_m[:-1]])
-            progress = progress_m + np.cumsum(track.progress_delta(s_prev, proj.s_m))
-            progress_m, s_last = float(progress[-1]), float(proj.s_m[-1])
+            travelled_m = progress_m + np.cumsum(track.progress_delta(s_prev, proj.s_m))
+            progress_m, s_last = float(travelled_m[-1]), float(proj.s_m[-1])
             targets = sensors.environment_targets(
                 track, caster, pose.x_m, pose.y_m, pose.yaw_rad, proj.s_m, proj.lateral_m
             )
@@ -141,11 +152,13 @@ def capture_video(cfg: CaptureConfig, batch: int = 64) -> dict:
                 dedicated=dedicated.astype(np.float32),
                 pose=np.stack([pose.x_m, pose.y_m, pose.yaw_rad], axis=1),
                 time_s=t,
-                lap=np.floor(progress / track.length_m).astype(np.int32),
+                lap=np.floor(travelled_m / track.length_m).astype(np.int32),
                 car_id=np.zeros(len(t), dtype=np.int32),
             )
             frames += len(t)
+            if progress is not None:
+                progress(frames)
     finally:
-        video.release()
+        capture.release()
         writer.close(complete=True)
     return {"out": cfg.out, "frames_in_file": frames, "video_frames": k, "video_fps": fps}

@@ -27,7 +27,7 @@ def bench_readback(
     """Random frames per second read back from capture files by ``n_workers`` processes, medians over ``repeats``.
 
     ``readback_fps``: ``n_workers`` processes, each with its own HDF5 handle and one thread, read and decode
-    random frames in batches of ``batch_size`` (the issue's "random frames/s with decoding on 2 cores").
+    random frames in batches of ``batch_size`` (random access with decoding, as training reads).
     ``readback_loader_fps``: what a training loop receives from a DataLoader with ``n_workers`` worker processes
     over :class:`CaptureDataset` (adds moving each batch to the training process through shared memory).
     ``*_cpu_ms``: CPU time per frame of all processes involved; on a shared machine these are the figures to
@@ -55,7 +55,7 @@ def bench_readback(
 def _read_random_frames(path, n_frames, batch_size, seed, barrier, results) -> None:
     with open_capture(path) as cap:
         idx = np.random.default_rng(seed).integers(0, cap.n_frames, (max(1, n_frames // batch_size), batch_size))
-        out = np.empty((batch_size, *cap.image_hw, 3), dtype=np.uint8)
+        out = np.empty((batch_size, *cap.image_hw_px, 3), dtype=np.uint8)
         cap.read_images(idx[0], threads=1, out=out)  # first reads: file metadata, decoder set-up
         barrier.wait()
         t0, c0 = time.perf_counter(), time.process_time()

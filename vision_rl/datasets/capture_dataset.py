@@ -77,7 +77,7 @@ class FrameCatalogue:
     """Every frame of one or more capture files: where it is and its targets (arrays over all N frames)."""
 
     paths: tuple[Path, ...]
-    image_hw: tuple[int, int]
+    image_hw_px: tuple[int, int]
     target_names: tuple[str, ...]
     target_units: tuple[str, ...]
     file_index: np.ndarray
@@ -99,7 +99,7 @@ class FrameCatalogue:
         meta: tuple[tuple[int, int], list[str], list[str]] | None = None
         for i, path in enumerate(files):
             with open_capture(path) as cap:
-                this = (cap.image_hw, cap.target_names, cap.target_units)
+                this = (cap.image_hw_px, cap.target_names, cap.target_units)
                 if meta is None:
                     meta = this
                 elif this[:2] != meta[:2]:
@@ -119,7 +119,7 @@ class FrameCatalogue:
             raise CaptureFormatError(f"{', '.join(map(str, files))}: no frames")
         return cls(
             paths=tuple(files),
-            image_hw=meta[0],
+            image_hw_px=meta[0],
             target_names=tuple(meta[1]),
             target_units=tuple(meta[2]),
             file_index=np.concatenate(cols["file"]),
@@ -245,7 +245,7 @@ class CaptureDataset(Dataset):
         straight into the memory the batch leaves a worker process in. Collate it with :func:`collate_frames`."""
         idx = np.asarray(indices, dtype=np.int64)
         rows = self.rows[idx]
-        images = _batch_tensor((len(idx), *self.catalogue.image_hw, 3))
+        images = _batch_tensor((len(idx), *self.catalogue.image_hw_px, 3))
         out = images.numpy()
         files = self.catalogue.file_index[rows]
         file_ids = np.unique(files)

@@ -68,10 +68,13 @@ class CaptureDataModule(L.LightningDataModule):
         catalogue = FrameCatalogue.open(self.train_paths)
         if self.val_paths:
             val_catalogue = FrameCatalogue.open(self.val_paths)
-            if (val_catalogue.image_hw, val_catalogue.target_names) != (catalogue.image_hw, catalogue.target_names):
+            same_kind = (val_catalogue.image_hw_px, val_catalogue.target_names) == (
+                catalogue.image_hw_px, catalogue.target_names
+            )  # fmt: skip
+            if not same_kind:
                 raise CaptureFormatError(
-                    f"{self.val_paths[0]}: validation frames {val_catalogue.image_hw} / targets do not match the "
-                    f"training capture's {catalogue.image_hw}"
+                    f"{self.val_paths[0]}: validation frames {val_catalogue.image_hw_px} / targets do not match the "
+                    f"training capture's {catalogue.image_hw_px}"
                 )
             train_rows, val_rows = np.arange(len(catalogue)), np.arange(len(val_catalogue))
         else:

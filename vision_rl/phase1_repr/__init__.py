@@ -1,9 +1,8 @@
 """Phase 1: the space2depth + depthwise-separable encoder (phi_rep, 64-D) and its regressor (phi_reg, 27 targets),
-`train-repr`, `bench-latency` and :func:`load_encoder` for Phase 2.
+its training and latency bench, and :func:`load_encoder` for Phase 2.
 
-Commands (config dataclass, runner): ``TrainReprConfig``/``run_train_repr`` in :mod:`.train`,
-``BenchLatencyConfig``/``run_bench_latency`` in :mod:`.bench` (import those modules directly: train pulls in
-Lightning).
+Training is :func:`.train.train_repr` (``TrainReprConfig``), the latency bench :func:`.bench.bench_latency`
+(``BenchLatencyConfig``); import those modules directly (train pulls in Lightning).
 """
 
 from vision_rl.phase1_repr.checkpoint import (

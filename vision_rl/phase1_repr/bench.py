@@ -8,18 +8,16 @@ installed, torch otherwise); ``variants`` times the others side by side.
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from vision_rl.config import doc
 from vision_rl.phase1_repr.checkpoint import build_network, read_checkpoint
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet, count_parameters
 from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, onnxruntime_installed, resolve_runtime
@@ -28,24 +26,31 @@ from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, onnxruntime_instal
 PAPER_BUDGET_MS = 8.0
 
 
-@dataclass
+@dataclass(frozen=True)
 class BenchLatencyConfig:
     """Measure the encoder's batch-1 latency (uint8 frame in, 64-D out) and batched throughput."""
 
-    encoder: str = field(default="", metadata=doc("ckpt.pt to measure; empty: a freshly initialised default encoder"))
-    backbone: str = field(default="s2d", metadata=doc("backbone of the fresh encoder: s2d or mobilenet_v3_small "
-                                                     "(a checkpoint fixes its own)"))  # fmt: skip
-    device: str = field(default="cpu", metadata=doc("cpu or cuda"))
-    runtime: str = field(default="auto", metadata=doc("the timed default path: auto (what Phase 2 runs: ONNX Runtime "
-                                                      "on a CPU when installed, else torch), torch or onnxruntime"))
-    width: int = field(default=470, metadata=doc("frame width, pixels (a checkpoint fixes its own)"))
-    height: int = field(default=280, metadata=doc("frame height, pixels (a checkpoint fixes its own)"))
-    runs: int = field(default=300, metadata=doc("timed batch-1 calls (>= 200 for the report)"))
-    warmup: int = field(default=30, metadata=doc("untimed calls first"))
-    threads: int = field(default=0, metadata=doc("torch CPU threads (0: leave torch's default)"))
-    batch_size: int = field(default=32, metadata=doc("frames per call for the throughput figure"))
-    variants: bool = field(default=True, metadata=doc("also time unfused, channels_last, torch.compile, ONNX"))
-    json: bool = field(default=False, metadata=doc("print one JSON object"))
+    encoder: str = ""
+    """ckpt.pt to measure; empty: a freshly initialised default encoder."""
+    backbone: str = "s2d"
+    """Backbone of the fresh encoder: s2d or mobilenet_v3_small (a checkpoint fixes its own)."""
+    device: str = "cpu"
+    """cpu or cuda."""
+    runtime: str = "auto"
+    """The timed default path: auto (what Phase 2 runs: ONNX Runtime on a CPU when installed, else torch), torch or
+    onnxruntime."""
+    image_hw_px: tuple[int, int] = (280, 470)
+    """Frame height and width of the fresh encoder, px (a checkpoint fixes its own)."""
+    runs: int = 300
+    """Timed batch-1 calls (percentiles up to p99 want >= 200)."""
+    warmup: int = 30
+    """Untimed calls first."""
+    threads: int = 0
+    """torch CPU threads (0: leave torch's default)."""
+    batch_size: int = 32
+    """Frames per call for the throughput figure."""
+    variants: bool = True
+    """Also time unfused, channels_last, torch.compile, ONNX."""
 
 
 def _percentiles(times_s: list[float]) -> dict[str, float]:
@@ -107,7 +112,8 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
         source = str(cfg.encoder)
     else:
         torch.manual_seed(0)
-        enc_cfg = EncoderConfig(backbone=cfg.backbone, input_height_px=cfg.height, input_width_px=cfg.width)
+        h, w = cfg.image_hw_px
+        enc_cfg = EncoderConfig(backbone=cfg.backbone, input_height_px=h, input_width_px=w)
         trained = ReprNet(enc_cfg).eval()
         source = f"freshly initialised {cfg.backbone} encoder"
     fused_net = _copy(trained).fuse_for_inference().to(device)
@@ -187,29 +193,3 @@ def _cpu_name() -> str:
         pass
     return f"{os.cpu_count()} logical CPUs"
 
-
-def format_bench_latency(result: dict[str, Any]) -> list[str]:
-    budget = result["budget_ms"]
-    lines = [
-        f"encoder: {result['encoder']} ({result['parameters']:,} parameters), frames {result['input_hw_px'][1]}x"
-        f"{result['input_hw_px'][0]}, {result['device']} ({result['device_name']}), {result['threads']} threads, "
-        f"runtime {result['runtime']}",
-        f"batch 1 over {result['runs']} runs: p50 {result['p50_ms']:.2f} ms  p90 {result['p90_ms']:.2f} ms  "
-        f"p99 {result['p99_ms']:.2f} ms   (paper's budget: {budget:.0f} ms per frame on a GPU: "
-        f"{'within' if result['within_budget'] else 'OVER'})",
-        f"throughput at batch {result['batch_size']}: {result['throughput_fps']:.0f} frames/s",
-    ]
-    for name, v in result["variants"].items():
-        if "p50_ms" in v:
-            lines.append(f"  {name:<14s} p50 {v['p50_ms']:.2f} ms  p90 {v['p90_ms']:.2f} ms  p99 {v['p99_ms']:.2f} ms"
-                         f"   (budget {budget:.0f} ms)")  # fmt: skip
-        else:
-            lines.append(f"  {name:<14s} {v.get('error') or v.get('skipped')}")
-    return lines
-
-
-def run_bench_latency(cfg: BenchLatencyConfig) -> int:
-    """The `bench-latency` command: measure, then print the figures (or one JSON object with ``--json``)."""
-    result = bench_latency(cfg)
-    print(json.dumps(result, indent=2) if cfg.json else "\n".join(format_bench_latency(result)))
-    return 0

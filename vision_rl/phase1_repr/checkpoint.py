@@ -1,4 +1,4 @@
-"""The encoder checkpoint ``ckpt.pt`` (ARCHITECTURE, "Files that cross a phase boundary") and :func:`load_encoder`.
+"""The encoder checkpoint ``ckpt.pt``, the hand-over from Phase 1 to Phase 2, and :func:`load_encoder`.
 
 ``ckpt.pt`` is a plain dict that ``torch.load(path, weights_only=True)`` reads:
 
@@ -194,7 +194,7 @@ def load_encoder(
     path: str | os.PathLike[str],
     device: str | torch.device = "cpu",
     *,
-    expected_input_hw: tuple[int, int] | None = None,
+    expected_input_hw_px: tuple[int, int] | None = None,
     expected_target_names: Sequence[str] | None = None,
     fuse: bool = True,
     runtime: str = "torch",
@@ -204,7 +204,7 @@ def load_encoder(
     Args:
         path: the checkpoint.
         device: where the module runs (``"cpu"``, ``"cuda"``...); numpy frames are moved there.
-        expected_input_hw: refuse a checkpoint built for another frame size (height, width) in pixels.
+        expected_input_hw_px: refuse a checkpoint built for another frame size (height, width) in pixels.
         expected_target_names: refuse a checkpoint trained on other targets (count or names).
         fuse: fold BatchNorm, normalisation and space2depth into the convolutions (same outputs, faster).
         runtime: ``"torch"``, ``"onnxruntime"`` (CPU; phi_rep by ONNX Runtime with torch's current thread count, the
@@ -215,8 +215,8 @@ def load_encoder(
     path = Path(path)
     ckpt = read_checkpoint(path)
     cfg = EncoderConfig.from_dict(ckpt["encoder_config"])
-    if expected_input_hw is not None:
-        want = (int(expected_input_hw[0]), int(expected_input_hw[1]))
+    if expected_input_hw_px is not None:
+        want = (int(expected_input_hw_px[0]), int(expected_input_hw_px[1]))
         have = (cfg.input_height_px, cfg.input_width_px)
         if want != have:
             raise EncoderCheckpointError(

@@ -43,7 +43,7 @@ class EncoderConfig:
     stem_channels: int = 32
     """Channels of the 1x1 convolution right after space2depth (it mixes the pixels of each block; a 3x3 one there
     cost 5 ms of the budget on these CPUs for little gain, the depthwise stages see the neighbourhood)."""
-    # Defaults chosen by measurement (Phase-1 report): batch-1 p50 about 5.4 ms on 1 thread, 3.1 ms on 2, of these
+    # Defaults chosen by measurement: batch-1 p50 about 5.4 ms on 1 thread, 3.1 ms on 2, of these
     # 2-core CPUs with preprocessing, 242k parameters; 1.5x wider and deeper cost 6.9 ms / 4.4 ms.
     stage_channels: tuple[int, ...] = (64, 128, 160, 256)
     """Output channels of each stage of depthwise-separable blocks."""

@@ -11,10 +11,11 @@ import contextlib
 import dataclasses
 import json
 import logging
+import math
 import shutil
 import warnings
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,13 +23,12 @@ import lightning as L
 import numpy as np
 import torch
 
-from vision_rl.config import doc
 from vision_rl.datasets.augment import FrameAugmentation, target_mirror
 from vision_rl.datasets.capture_dataset import TargetStandardiser
 from vision_rl.phase1_repr.checkpoint import save_checkpoint
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
 
-#: Target groups reported with R^2 (issue 6), matched by name prefix; any other target lands in "other".
+#: Target groups reported with R^2, matched by name prefix; any other target lands in "other".
 TARGET_GROUPS: dict[str, str] = {
     "edge_distances": "edge_distance_",
     "min_edge_distances": "min_distance_",
@@ -215,40 +215,86 @@ class MetricsHistory(L.Callback):
 
 
 
-
-@dataclass
+@dataclass(frozen=True)
 class TrainReprConfig:
     """Train the Phase-1 encoder on capture files; writes ckpt.pt, metrics.json, TensorBoard logs and a figure."""
 
-    data: str = field(default="", metadata=doc("training capture file(s): a path, a comma-separated list or a glob"))
-    val: str = field(default="", metadata=doc("validation capture (undisturbed laps); empty: laps of --data"))
-    val_fraction: float = field(default=0.1, metadata=doc("share of frames held out by lap when --val is empty"))
-    epochs: int = field(default=50, metadata=doc("training epochs (the paper: best of 50)"))
-    max_steps: int = field(default=-1, metadata=doc("stop after this many optimiser steps (-1: no limit)"))
-    batch_size: int = field(default=64, metadata=doc("frames per batch"))
-    lr: float = field(default=2e-3, metadata=doc("AdamW peak learning rate (cosine decay to 0)"))
-    weight_decay: float = field(default=1e-4, metadata=doc("AdamW weight decay on weights (not biases)"))
-    backbone: str = field(default="s2d", metadata=doc("s2d (the paper's design) or mobilenet_v3_small"))
-    width_mult: float = field(default=1.0, metadata=doc("multiply every channel count of the s2d encoder"))
-    space2depth_block: int = field(default=4, metadata=doc("space2depth block side, pixels"))
-    augment: bool = field(default=True, metadata=doc("random brightness, contrast and saturation"))
-    shift_px: int = field(default=0, metadata=doc("random shift of up to this many pixels (0: off)"))
-    balance_groups: bool = field(default=False, metadata=doc("weight the loss so that each target group counts "
-                                                             "alike (the 13 edge rays otherwise outweigh the "
-                                                             "heading angle 13 to 1): raises the heading's R^2, "
-                                                             "lowers the edges' and curvature's"))  # fmt: skip
-    mirror: bool = field(default=False, metadata=doc("mirror half the training frames left-right with their targets "
-                                                    "(the view of the mirrored track): for encoders meant for other "
-                                                    "tracks; on the capture's own track it lowered R^2"))  # fmt: skip
-    num_workers: int = field(default=2, metadata=doc("DataLoader worker processes"))
-    seed: int = field(default=0, metadata=doc("seed of weights, split and batches"))
-    device: str = field(default="auto", metadata=doc("auto, cpu or cuda"))
-    precision: str = field(default="32-true", metadata=doc("Lightning precision, e.g. 32-true, bf16-mixed"))
-    out: str = field(default="runs/repr/default", metadata=doc("output folder"))
-    resume: bool = field(default=False, metadata=doc("continue the run in --out from its last checkpoint"))
-    force: bool = field(default=False, metadata=doc("start over in an --out that holds a run"))
-    progress: bool = field(default=True, metadata=doc("show a progress bar"))
-    json: bool = field(default=False, metadata=doc("print the result as JSON"))
+    data: str = ""
+    """Training capture file(s): a path, a comma-separated list or a glob."""
+    val: str = ""
+    """Validation capture (undisturbed laps); empty: laps held out of ``data``."""
+    val_fraction: float = 0.1
+    """Share of frames held out by lap when ``val`` is empty."""
+    epochs: int = 50
+    """Training epochs (the paper: best of 50)."""
+    max_steps: int = -1
+    """Stop after this many optimiser steps (-1: no limit)."""
+    batch_size: int = 64
+    """Frames per batch."""
+    lr: float = 2e-3
+    """AdamW peak learning rate (cosine decay to 0)."""
+    weight_decay: float = 1e-4
+    """AdamW weight decay on weights (not biases)."""
+    backbone: str = "s2d"
+    """s2d (the paper's design) or mobilenet_v3_small."""
+    width_mult: float = 1.0
+    """Multiply every channel count of the s2d encoder."""
+    space2depth_block_px: int = 4
+    """Space2depth block side, px."""
+    augment: bool = True
+    """Random brightness, contrast and saturation."""
+    shift_px: int = 0
+    """Random shift of up to this many pixels (0: off)."""
+    balance_groups: bool = False
+    """Weight the loss so that each target group counts alike (the 13 edge rays otherwise outweigh the heading
+    angle 13 to 1): raises the heading's R^2, lowers the edges' and curvature's."""
+    mirror: bool = False
+    """Mirror half the training frames left-right with their targets (the view of the mirrored track): for
+    encoders meant for other tracks; on the capture's own track it lowered R^2."""
+    num_workers: int = 2
+    """DataLoader worker processes."""
+    seed: int = 0
+    """Seed of weights, split and batches."""
+    device: str = "auto"
+    """auto, cpu or cuda."""
+    precision: str = "32-true"
+    """Lightning precision, e.g. 32-true, bf16-mixed."""
+    out: str = "runs/repr/default"
+    """Output folder."""
+    resume: bool = False
+    """Continue the run in ``out`` from its last checkpoint."""
+    force: bool = False
+    """Start over in an ``out`` that holds a run."""
+
+
+#: ``progress(steps_done, steps_total, figures)``: called by :func:`train_repr` after every optimiser step and every
+#: validation; ``figures`` holds the epoch and the latest ``train_loss`` / ``val_loss``.
+TrainProgress = Callable[[int, int, dict[str, float]], None]
+
+
+class _ReportProgress(L.Callback):
+    """Hands the step count and the latest losses to a :data:`TrainProgress` callback."""
+
+    def __init__(self, report: TrainProgress) -> None:
+        self.report = report
+        self.figures: dict[str, float] = {}
+
+    def _send(self, trainer: L.Trainer) -> None:
+        total = trainer.estimated_stepping_batches
+        self.figures["epoch"] = int(trainer.current_epoch)
+        self.report(int(trainer.global_step), int(total) if math.isfinite(total) else 0, dict(self.figures))
+
+    def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs, batch, batch_idx) -> None:
+        metrics = trainer.callback_metrics
+        loss = metrics.get("train_loss_step", metrics.get("train_loss"))
+        if loss is not None:
+            self.figures["train_loss"] = float(loss)
+        self._send(trainer)
+
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if not trainer.sanity_checking and "val_loss" in trainer.callback_metrics:
+            self.figures["val_loss"] = float(trainer.callback_metrics["val_loss"])
+            self._send(trainer)
 
 
 def _lightning_dir(out: Path) -> Path:
@@ -270,23 +316,23 @@ def _quiet_lightning() -> Iterator[None]:
         logger.setLevel(level)
 
 
-def train_repr(cfg: TrainReprConfig) -> dict[str, Any]:
-    """Run training as configured; returns the paths written and the kept epoch's figures. Prints nothing itself
-    (Lightning shows its progress bar when ``cfg.progress``)."""
+def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> dict[str, Any]:
+    """Run training as configured; returns the paths written and the kept epoch's figures. Prints nothing;
+    ``progress`` (see :data:`TrainProgress`) hears of every step."""
     from lightning.pytorch.callbacks import ModelCheckpoint
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from vision_rl.datasets.datamodule import CaptureDataModule
 
     if not cfg.data:
-        raise ValueError("train-repr needs --data: one or more capture files")
+        raise ValueError("training needs data: one or more capture files")
     out = Path(cfg.out)
     last_ckpt = _lightning_dir(out) / "last.ckpt"
     if cfg.resume and not last_ckpt.is_file():
         raise FileNotFoundError(f"{out}: nothing to resume (no {last_ckpt.name})")
     if not cfg.resume and (last_ckpt.exists() or (out / "ckpt.pt").exists()):
         if not cfg.force:
-            raise FileExistsError(f"{out} holds a run: pass --resume to continue it or --force to start over")
+            raise FileExistsError(f"{out} holds a run: resume it (--resume) or start over (--force)")
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
@@ -303,12 +349,12 @@ def train_repr(cfg: TrainReprConfig) -> dict[str, Any]:
     dm.setup("fit")
     catalogue = dm.catalogue
     assert dm.standardiser is not None
-    h, w = catalogue.image_hw
+    h, w = catalogue.image_hw_px
     enc_cfg = EncoderConfig(
         backbone=cfg.backbone,
         input_height_px=h,
         input_width_px=w,
-        space2depth_block=cfg.space2depth_block,
+        space2depth_block=cfg.space2depth_block_px,
         n_targets=len(catalogue.target_names),
     ).scaled(cfg.width_mult)
     photometric = {} if cfg.augment else {"brightness": 0.0, "contrast": 0.0, "saturation": 0.0}
@@ -339,8 +385,8 @@ def train_repr(cfg: TrainReprConfig) -> dict[str, Any]:
             max_epochs=cfg.epochs,
             max_steps=cfg.max_steps,
             logger=TensorBoardLogger(save_dir=str(out), name="tensorboard", version=""),
-            callbacks=[best_keeper, history],
-            enable_progress_bar=cfg.progress,
+            callbacks=[best_keeper, history, *([_ReportProgress(progress)] if progress else [])],
+            enable_progress_bar=False,
             enable_model_summary=False,
             num_sanity_val_steps=0,
             log_every_n_steps=max(1, min(50, len(dm.train_set) // max(1, cfg.batch_size))),
@@ -424,21 +470,3 @@ def plot_predictions(
     plt.close(fig)
     return path
 
-
-def format_train_repr(result: dict[str, Any]) -> list[str]:
-    lines = [
-        f"ckpt.pt: {result['ckpt']}",
-        f"metrics: {result['metrics_json']}   figure: {result['figure']}   TensorBoard: {result['tensorboard']}",
-        f"frames: {result['n_train_frames']} training, {result['n_val_frames']} validation; "
-        f"kept epoch {result['best_epoch']} (val loss {result['val_loss']})",
-    ]
-    for group, value in (result.get("val_r2") or {}).items():
-        lines.append(f"  R^2 {group:<20s} {value:.4f}")
-    return lines
-
-
-def run_train_repr(cfg: TrainReprConfig) -> int:
-    """The `train-repr` command: train, then print where things went and the kept epoch's R^2 per group."""
-    result = train_repr(cfg)
-    print(json.dumps(result, indent=2) if cfg.json else "\n".join(format_train_repr(result)))
-    return 0

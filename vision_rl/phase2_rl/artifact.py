@@ -1,8 +1,8 @@
-"""The policy artifact: an SB3 zip plus ``policy.json`` (ARCHITECTURE, "Files that cross a phase boundary").
+"""The policy artifact: an SB3 zip plus ``policy.json``, and the protocol driver that a loaded policy becomes.
 
 ``policy.json`` holds what evaluation needs to rebuild the policy's inputs exactly as in training:
 
-- ``format`` ("vision_rl.policy"), ``format_version`` (1), ``package_version``;
+- ``format`` ("vision_rl.policy"), ``format_version`` (2), ``package_version``;
 - ``observation``: ``"state"`` (the 38-D privileged vector) or ``"vision"`` (64-D embedding + 11 dedicated features);
 - ``racing_config``: the :class:`~vision_rl.envs.RacingConfig` trained on, as a dict;
 - ``obs_normalizer``: ``{"offset", "scale"}`` of the policy's input (state: the environment's cached statistics;
@@ -26,12 +26,16 @@ from typing import Any
 
 import numpy as np
 
-from vision_rl.envs.core import RacingConfig, RacingCore
+from vision_rl.envs.core import RacingConfig
 from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
+from vision_rl.envs.observer import Observer
 from vision_rl.sim.sensors import DEDICATED_NAMES
+from vision_rl.sim.world import World, WorldState
 
 POLICY_FORMAT = "vision_rl.policy"
-POLICY_FORMAT_VERSION = 1
+#: 2: the racing config's frame size is ``image_hw_px`` (height, width) and stuck termination a flag; the
+#: normalisation statistics come from the AI at its 50 Hz. Version 1 files are refused: retrain.
+POLICY_FORMAT_VERSION = 2
 SIDECAR_NAME = "policy.json"
 MODEL_NAME = "policy.zip"
 POLICY_KINDS = ("state", "vision")
@@ -115,8 +119,14 @@ class PolicySpec:
     def from_dict(cls, data: Mapping[str, Any], source: str = "policy.json") -> PolicySpec:
         if data.get("format") != POLICY_FORMAT:
             raise PolicyError(f"{source}: not a vision_rl policy sidecar (no format {POLICY_FORMAT!r})")
-        if int(data.get("format_version", 0)) > POLICY_FORMAT_VERSION:
-            raise PolicyError(f"{source}: policy format {data['format_version']} is newer than this code's")
+        version = int(data.get("format_version", 0))
+        if version > POLICY_FORMAT_VERSION:
+            raise PolicyError(f"{source}: policy format {version} is newer than this code's")
+        if version < POLICY_FORMAT_VERSION:
+            raise PolicyError(
+                f"{source}: policy format {version} was trained on observations this version no longer makes "
+                f"(format {POLICY_FORMAT_VERSION}); train it again with train-policy"
+            )
         names = {f.name for f in dataclasses.fields(cls)}
         try:
             return cls(**{k: v for k, v in data.items() if k in names})
@@ -188,60 +198,95 @@ def check_encoder(spec: PolicySpec, encoder: str | os.PathLike[str] = "", source
     return path
 
 
-class Observer:
-    """A racing core's egos -> the policy's input vectors (n_groups, obs_dim) float32.
+class PolicyDriver:
+    """A policy as a driver of the lap-time protocol: observations of its cars by an
+    :class:`~vision_rl.envs.observer.Observer` built like the one it was trained with, deterministic actions.
 
-    ``state``: the 38-D vector with the stored normaliser (the core itself may run with ``normalize=False``).
-    ``vision``: the frozen encoder's embedding of each ego's frame, then the 11 raw dedicated features, z-scored
-    with the stored statistics (or raw while they are being computed: ``normalizer=None``).
+    Args:
+        predict: observations (n, obs_dim) -> actions (n, 2) ``[steer rad, omega]``.
+        kind, normalizer, encoder, image_hw_px: the observation it reads (as in training).
+        control_dt_s: how often it acts, s (its training environment's control step).
+        identity: who it is, for the record (policy path, hashes, training steps).
     """
 
-    def __init__(self, kind: str, normalizer: ObsNormalizer | None, encoder=None) -> None:
-        if kind not in POLICY_KINDS:
-            raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {kind!r}")
-        if kind == "vision" and encoder is None:
-            raise PolicyError("the vision observation needs an encoder")
-        self.kind = kind
-        self.normalizer = normalizer
-        self.encoder = encoder
+    def __init__(
+        self,
+        predict,
+        kind: str,
+        normalizer: ObsNormalizer | None,
+        encoder=None,
+        image_hw_px: tuple[int, int] = (280, 470),
+        control_dt_s: float = 0.1,
+        identity: dict[str, Any] | None = None,
+    ) -> None:
+        self.predict = predict
+        self.kind, self.normalizer, self.encoder = kind, normalizer, encoder
+        self.image_hw_px = image_hw_px
+        self.control_dt_s = control_dt_s
+        self.identity = identity or {"driver": "policy", "observation": kind}
+        self.observer: Observer | None = None
 
-    @property
-    def dim(self) -> int:
-        return obs_dim(self.kind, self.encoder.rep_dim if self.encoder is not None else 64)
+    def reset(self, world: World, car_ids: np.ndarray) -> None:
+        if self.observer is not None:
+            self.observer.close()
+        self.observer = Observer(
+            self.kind, world.track, world.car, world.model.groups, self.normalizer, self.encoder, self.image_hw_px
+        )
+        self.car_ids = np.asarray(car_ids)
 
-    def vision_vector(self, images: np.ndarray, features: np.ndarray) -> np.ndarray:
-        """(n, rep_dim + 11) from frames (n, H, W, 3) uint8 and raw dedicated features (n, 11)."""
-        embedding = self.encoder(images).cpu().numpy().astype(np.float64)
-        raw = np.hstack([embedding, np.asarray(features, dtype=np.float64)])
-        return self.normalizer(raw) if self.normalizer is not None else raw.astype(np.float32)
+    def act(self, state: WorldState) -> np.ndarray:
+        assert self.observer is not None, "reset() first"
+        action = np.asarray(self.predict(self.observer(state, self.car_ids)), dtype=np.float64)
+        return action.reshape(len(self.car_ids), 2)
 
-    def __call__(self, core: RacingCore) -> np.ndarray:
-        if self.kind == "state":
-            raw = core.raw_observation()
-            return self.normalizer(raw) if self.normalizer is not None else raw.astype(np.float32)
-        obs = core.observation()
-        return self.vision_vector(obs["image"], obs["features"])
+    def close(self) -> None:
+        if self.observer is not None:
+            self.observer.close()
+            self.observer = None
 
 
 @dataclass
 class LoadedPolicy:
-    """A trained policy ready to drive: the SB3 model, its sidecar and its observer."""
+    """A trained policy ready to drive: the SB3 model, its sidecar and, for vision, its frozen encoder."""
 
     model: Any
     spec: PolicySpec
-    observer: Observer
     zip_path: Path
     spec_path: Path
+    encoder: Any = None
     encoder_path: Path | None = None
 
     @property
     def config(self) -> RacingConfig:
         return self.spec.config
 
+    @property
+    def obs_dim(self) -> int:
+        return obs_dim(self.spec.observation, self.encoder.rep_dim if self.encoder is not None else 64)
+
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Deterministic actions (n, 2) ``[steer rad, omega]`` for observations (n, obs_dim)."""
         action, _ = self.model.predict(obs, deterministic=True)
         return np.asarray(action, dtype=np.float64).reshape(len(obs), 2)
+
+    def driver(self) -> PolicyDriver:
+        """This policy as a protocol driver, reading what it was trained on."""
+        from vision_rl.phase1_repr.checkpoint import checkpoint_sha256
+
+        spec = self.spec
+        identity = {
+            "driver": "policy",
+            "observation": spec.observation,
+            "policy": str(self.zip_path),
+            "policy_sha256": checkpoint_sha256(self.zip_path),
+            "encoder_sha256": spec.encoder_sha256,
+            "num_timesteps": spec.num_timesteps,
+            "train_time_s": spec.train_time_s,
+            "seed": spec.seed,
+        }
+        config = self.config
+        return PolicyDriver(self.act, spec.observation, spec.normalizer, self.encoder, config.image_hw_px,
+                            config.control_dt_s, identity)  # fmt: skip
 
 
 def load_policy(
@@ -275,9 +320,9 @@ def load_policy(
         model = SAC.load(zip_path, device=device)
     except Exception as exc:  # SB3 raises several types for a corrupt or foreign zip
         raise PolicyError(f"{zip_path}: not a loadable SB3 SAC policy: {exc}") from exc
-    observer = Observer(spec.observation, spec.normalizer, module)
-    want = (observer.dim,)
+    loaded = LoadedPolicy(model, spec, zip_path, spec_path, module, encoder_path)
+    want = (loaded.obs_dim,)
     if tuple(model.observation_space.shape) != want:
         raise PolicyError(f"{zip_path}: the model takes inputs of shape {model.observation_space.shape}, "
                           f"its sidecar describes {want}")  # fmt: skip
-    return LoadedPolicy(model, spec, observer, zip_path, spec_path, encoder_path)
+    return loaded

@@ -14,10 +14,9 @@ import dataclasses
 import json
 import os
 import shutil
-import signal
-import sys
 import time
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,20 +27,21 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecMonitor
 
-from vision_rl.config import doc
 from vision_rl.envs.core import RacingConfig
+from vision_rl.envs.observations import ObsNormalizer
+from vision_rl.envs.observer import Observer
 from vision_rl.envs.vector import make_sb3_vec_env
+from vision_rl.evaluation.protocol import time_laps
 from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
 from vision_rl.phase2_rl.artifact import (
     MODEL_NAME,
     SIDECAR_NAME,
-    Observer,
+    PolicyDriver,
     PolicyError,
     PolicySpec,
     check_encoder,
     racing_config_to_dict,
 )
-from vision_rl.phase2_rl.evaluate import ProtocolRun, format_lap_time, protocol_core, run_protocol
 
 BUFFER_NAME = "replay_buffer.pkl"
 METRICS_NAME = "metrics.jsonl"
@@ -88,40 +88,60 @@ PRESETS: dict[str, SACPreset] = {
 }
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrainPolicyConfig:
-    """Train a SAC driving policy on the batched time-trial env (state, or vision with --encoder)."""
+    """Train a SAC driving policy on the batched time-trial env (state, or vision with an encoder)."""
 
-    encoder: str = field(default="", metadata=doc("encoder ckpt.pt: vision observation (64-D embedding + 11); "
-                                                  "empty: the 38-D state observation"))  # fmt: skip
-    track: str = field(default="expressway", metadata=doc("track: built-in name, random:SEED or CSV path"))
-    car: str = field(default="hatchback", metadata=doc("car preset"))
-    cars: int = field(default=20, metadata=doc("cars sampled at once (one world, the papers' 20)"))
-    steps: int = field(default=1_000_000, metadata=doc("total environment steps (transitions over all cars)"))
-    preset: str = field(default="cpu", metadata=doc("paper (the paper's SAC recipe) or cpu (learns on 2 cores)"))
-    out: str = field(default="", metadata=doc("run folder (default runs/policy/<kind>-<track>-<car>-s<seed>)"))
-    seed: int = field(default=0, metadata=doc("seed of the networks, exploration and start points"))
-    resume: bool = field(default=False, metadata=doc("continue the run in --out up to --steps (its own track, car, "
-                                                     "cars, encoder and SAC settings; weights, buffer)"))
-    force: bool = field(default=False, metadata=doc("start over in an --out that holds a run"))
-    eval_every_steps: int = field(default=100_000, metadata=doc("evaluate the current policy every N steps (0: off)"))
-    eval_seeds: int = field(default=1, metadata=doc("start seeds of the periodic evaluation"))
-    eval_laps: int = field(default=2, metadata=doc("laps of the periodic evaluation (the last is scored)"))
-    checkpoint_every_steps: int = field(default=200_000, metadata=doc("save weights and buffer every N steps"))
-    save_buffer: bool = field(default=True, metadata=doc("save the replay buffer with checkpoints (for --resume)"))
-    episode_s: float = field(default=100.0, metadata=doc("training episode length, s (the papers' 100 s trials)"))
-    wall_penalty_c_w: float = field(default=0.005, metadata=doc("c_w of the reward's wall penalty"))
-    stats_steps: int = field(default=50, metadata=doc("vision: control steps of the feature-statistics rollout"))
-    learning_rate: float = field(default=0.0, metadata=doc("override the preset's learning rate (0: preset)"))
-    batch_size: int = field(default=0, metadata=doc("override the preset's batch size (0: preset)"))
-    buffer_size: int = field(default=0, metadata=doc("override the preset's buffer size (0: preset)"))
-    learning_starts: int = field(default=-1, metadata=doc("override the preset's random start steps (-1: preset)"))
-    gradient_steps: int = field(default=0, metadata=doc("override the preset's updates per vector step (0: preset)"))
-    device: str = field(default="auto", metadata=doc("torch device: auto, cpu or cuda"))
-    encoder_runtime: str = field(default="auto", metadata=doc("vision: auto (ONNX Runtime on a CPU when installed, "
-                                                              "2-6x faster than torch here), torch or onnxruntime"))
-    progress: bool = field(default=True, metadata=doc("show a progress bar on stderr"))
-    json: bool = field(default=False, metadata=doc("print the result as JSON"))
+    encoder: str = ""
+    """Encoder ckpt.pt: vision observation (64-D embedding + 11); empty: the 38-D state observation."""
+    track: str = "expressway"
+    """Track: built-in name, random:SEED or CSV path."""
+    car: str = "hatchback"
+    """Car preset."""
+    cars: int = 20
+    """Cars sampled at once (one world, the papers' 20)."""
+    steps: int = 1_000_000
+    """Total environment steps (transitions over all cars)."""
+    preset: str = "cpu"
+    """`paper` (the paper's SAC recipe) or `cpu` (learns on 2 cores)."""
+    out: str = ""
+    """Run folder (default runs/policy/<kind>-<track>-<car>-s<seed>)."""
+    seed: int = 0
+    """Seed of the networks, exploration and start points."""
+    resume: bool = False
+    """Continue the run in --out up to --steps (its own track, car, cars, encoder and SAC settings; weights, buffer)."""
+    force: bool = False
+    """Start over in an --out that holds a run."""
+    eval_every_steps: int = 100_000
+    """Evaluate the current policy every N steps (0: off)."""
+    eval_seeds: int = 1
+    """Start seeds of the periodic evaluation."""
+    eval_laps: int = 2
+    """Laps of the periodic evaluation (the last is scored)."""
+    checkpoint_every_steps: int = 200_000
+    """Save weights and buffer every N steps."""
+    save_buffer: bool = True
+    """Save the replay buffer with checkpoints (for --resume)."""
+    episode_s: float = 100.0
+    """Training episode length, s (the papers' 100 s trials)."""
+    wall_penalty_c_w: float = 0.005
+    """c_w of the reward's wall penalty."""
+    stats_steps: int = 50
+    """Vision: control steps of the feature-statistics rollout."""
+    learning_rate: float = 0.0
+    """Override the preset's learning rate (0: preset)."""
+    batch_size: int = 0
+    """Override the preset's batch size (0: preset)."""
+    buffer_size: int = 0
+    """Override the preset's buffer size (0: preset)."""
+    learning_starts: int = -1
+    """Override the preset's random start steps (-1: preset)."""
+    gradient_steps: int = 0
+    """Override the preset's updates per vector step (0: preset)."""
+    device: str = "auto"
+    """Torch device: auto, cpu or cuda."""
+    encoder_runtime: str = "auto"
+    """Vision: `auto` (ONNX Runtime on a CPU when installed, 2-6x faster than torch here), torch or onnxruntime."""
 
 
 def resolve_preset(cfg: TrainPolicyConfig) -> SACPreset:
@@ -158,42 +178,32 @@ def _atomic_zip_save(model: SAC, path: Path) -> None:
     os.replace(tmp, path)
 
 
-class _TrainingLoop(BaseCallback):
-    """Progress bar, periodic evaluation (TensorBoard + metrics.jsonl) and checkpoints, on environment steps."""
+#: ``progress(num_timesteps, total_steps, last_evaluation_or_None)``, called as training goes.
+Progress = Callable[[int, int, "dict[str, Any] | None"], None]
 
-    def __init__(self, run: _Run) -> None:
+
+class _TrainingLoop(BaseCallback):
+    """Progress, periodic evaluation (TensorBoard + metrics.jsonl) and checkpoints, on environment steps."""
+
+    def __init__(self, run: _Run, progress: Progress | None) -> None:
         super().__init__()
         self.run = run
-        self.bar = None
+        self.progress = progress
         cfg = run.cfg
         self.next_eval = _next_multiple(run.start_steps, cfg.eval_every_steps)
         self.next_checkpoint = _next_multiple(run.start_steps, cfg.checkpoint_every_steps)
 
-    def _on_training_start(self) -> None:
-        if self.run.cfg.progress:
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=self.run.cfg.steps, initial=self.num_timesteps, unit="step", file=sys.stderr,
-                            dynamic_ncols=True, desc=f"train-policy {self.run.kind}")  # fmt: skip
-
     def _on_step(self) -> bool:
         n = self.num_timesteps
-        if self.bar is not None:
-            self.bar.update(n - self.bar.n)
         if self.next_eval is not None and n >= self.next_eval:
-            record = self.run.evaluate(self.model)
+            self.run.evaluate(self.model)
             self.next_eval = _next_multiple(n, self.run.cfg.eval_every_steps)
-            if self.bar is not None:
-                self.bar.set_postfix(lap=format_lap_time(record["lap_time_s"]), refresh=False)
+        if self.progress is not None:
+            self.progress(n, self.run.cfg.steps, self.run.last_eval)
         if self.next_checkpoint is not None and n >= self.next_checkpoint:
             self.run.save(self.model, snapshot=True)
             self.next_checkpoint = _next_multiple(n, self.run.cfg.checkpoint_every_steps)
         return True
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-            self.bar = None
 
 
 def _next_multiple(n: int, every: int) -> int | None:
@@ -237,16 +247,16 @@ class _Run:
             self.train_time_before_s = self.previous.train_time_s
         else:
             self.kind = "vision" if cfg.encoder else "state"
-            image_size = RacingConfig().image_size_px
+            image_hw = RacingConfig().image_hw_px
             if cfg.encoder:
                 from vision_rl.phase1_repr.checkpoint import read_checkpoint
 
                 self.encoder_path = Path(cfg.encoder)
                 enc = read_checkpoint(self.encoder_path)["encoder_config"]
-                image_size = (int(enc["input_width_px"]), int(enc["input_height_px"]))
+                image_hw = (int(enc["input_height_px"]), int(enc["input_width_px"]))
             self.racing = RacingConfig(
                 track=cfg.track, car=cfg.car, observation=self.kind, n_groups=cfg.cars, episode_s=cfg.episode_s,
-                wall_penalty_c_w=cfg.wall_penalty_c_w, image_size_px=image_size,
+                wall_penalty_c_w=cfg.wall_penalty_c_w, image_hw_px=image_hw,
             )  # fmt: skip
             self.start_steps = 0
             self.train_time_before_s = 0.0
@@ -262,27 +272,30 @@ class _Run:
         # A resumed session draws new start points: reusing the first session's would replay its episodes.
         venv = make_sb3_vec_env(self.racing, seed=self.cfg.seed + self.start_steps)
         self.venv = venv
+        core = venv.core
         if self.kind == "vision":
             assert self.encoder_path is not None
             self.encoder = load_encoder(self.encoder_path, device=self.device, runtime=self.cfg.encoder_runtime)
             self.encoder_sha256 = checkpoint_sha256(self.encoder_path)
+            # The SAC input is the 75-D vector: the env's observer embeds the frames with the frozen encoder, so the
+            # replay buffer holds vectors, not images.
+            observer = Observer(
+                "vision", core.track, core.car, core.groups, None, self.encoder, self.racing.image_hw_px
+            )
             if self.previous is not None:
-                normalizer = self.previous.normalizer
+                observer.normalizer = self.previous.normalizer
             else:
-                from vision_rl.phase2_rl.vision_env import sample_vision_statistics
-
-                normalizer = sample_vision_statistics(venv.core, self.encoder, self.cfg.stats_steps)
-            from vision_rl.phase2_rl.vision_env import EmbeddingVecEnv
-
-            self.observer = Observer("vision", normalizer, self.encoder)
-            env = EmbeddingVecEnv(venv, self.observer)
-        else:
-            normalizer = self.previous.normalizer if self.previous is not None else venv.core.normalizer
-            venv.core.normalizer = normalizer  # evaluation uses the same numbers as training
-            self.observer = Observer("state", normalizer)
-            env = venv
-        self.normalizer = normalizer
-        env = VecMonitor(env)
+                # Statistics of the embedding are not cached per track: they belong to this encoder, and are stored
+                # with the policy and never recomputed for it.
+                samples = core.sample_raw_observations(observer, self.cfg.stats_steps)
+                observer.normalizer = ObsNormalizer.from_samples("vision", samples)
+            core.observer.close()
+            core.observer = observer
+            venv.observation_space = observer.space
+        elif self.previous is not None:
+            core.observer.normalizer = self.previous.normalizer  # the numbers it was trained with, not the cache's
+        self.normalizer = core.observer.normalizer
+        env = VecMonitor(venv)
         self.env = env
         if self.previous is not None:
             model = SAC.load(self.out / MODEL_NAME, env=env, device=self.device)
@@ -297,7 +310,7 @@ class _Run:
                 policy_kwargs={"net_arch": list(p.hidden_units)}, seed=self.cfg.seed, device=self.device, verbose=0,
             )  # fmt: skip
         model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
-        self.eval_core = None
+        self.eval_driver: PolicyDriver | None = None
         return model
 
     # ------------------------------------------------------------------ periodic work
@@ -309,16 +322,13 @@ class _Run:
         """The protocol (cfg.eval_laps laps, last scored) with the current deterministic policy, logged."""
         cfg = self.cfg
         t0 = time.perf_counter()
-        if self.eval_core is None:
-            self.eval_core = protocol_core(self.racing, cfg.eval_seeds)
-
-        def act(core):
-            a, _ = model.predict(self.observer(core), deterministic=True)
-            return a[:, 0], a[:, 1]
-
-        run: ProtocolRun = run_protocol(self.eval_core, act, cfg.eval_laps, list(range(cfg.eval_seeds)),
-                                        record=False)  # fmt: skip
-        summary = run.summary()
+        if self.eval_driver is None:
+            self.eval_driver = PolicyDriver(
+                lambda obs: model.predict(obs, deterministic=True)[0], self.kind, self.normalizer, self.encoder,
+                self.racing.image_hw_px, self.racing.control_dt_s,
+            )  # fmt: skip
+        timing = time_laps(self.eval_driver, self.racing.track, self.racing.car, range(cfg.eval_seeds), cfg.eval_laps)
+        summary = timing.summary()
         eval_time = time.perf_counter() - t0
         self.session_start += eval_time  # evaluation time is not training time
         episodes = list(model.ep_info_buffer or [])
@@ -327,11 +337,13 @@ class _Run:
             "train_time_s": round(self.train_time_s, 2),
             "n_updates": int(getattr(model, "_n_updates", 0)),
             "lap_time_s": summary["best_lap_time_s"],
-            "lap_times_s": [s["lap_times_s"] for s in summary["seeds"]],
+            "lap_times_s": [[lap["lap_time_s"] for lap in s["laps"]] for s in summary["seeds"]],
             "finished": summary["n_finished"],
+            "dnf_reasons": [s["dnf_reason"] for s in summary["seeds"]],
             "distance_m": float(np.mean([s["distance_m"] for s in summary["seeds"]])),
-            "wall_contact_s": summary["wall_contact_s"],
-            "wall_contact_total_s": float(np.mean([s["wall_contact_total_s"] for s in summary["seeds"]])),
+            "wall_contact_s": None if summary["best_lap"] is None else summary["best_lap"]["wall_contact_s"],
+            "wall_contact_per_lap_s": float(np.mean([lap["wall_contact_s"] for s in summary["seeds"]
+                                                     for lap in s["laps"]] or [np.nan])),
             "ep_rew_mean": float(np.mean([e["r"] for e in episodes])) if episodes else None,
             "eval_time_s": round(eval_time, 2),
         }
@@ -340,7 +352,7 @@ class _Run:
         logger = model.logger
         logger.record("eval/distance_m", record["distance_m"])
         logger.record("eval/laps_finished", record["finished"])
-        logger.record("eval/wall_contact_total_s", record["wall_contact_total_s"])
+        logger.record("eval/wall_contact_per_lap_s", record["wall_contact_per_lap_s"])
         if record["lap_time_s"] is not None:
             logger.record("eval/lap_time_s", record["lap_time_s"])
         logger.record("time/train_time_s", record["train_time_s"])
@@ -388,8 +400,8 @@ class _Run:
 
     def close(self) -> None:
         self.env.close()
-        if self.eval_core is not None and self.eval_core.renderer is not None:
-            self.eval_core.renderer.close()
+        if self.eval_driver is not None:
+            self.eval_driver.close()
 
 
 def _preset_from_spec(spec: PolicySpec) -> SACPreset:
@@ -398,12 +410,12 @@ def _preset_from_spec(spec: PolicySpec) -> SACPreset:
     return SACPreset(**sac)
 
 
-def train_policy(cfg: TrainPolicyConfig) -> dict[str, Any]:
-    """Train (or resume) as configured; returns where things went and the last evaluation. Prints nothing itself
-    (the progress bar goes to stderr when ``cfg.progress``)."""
+def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> dict[str, Any]:
+    """Train (or resume) as configured; returns where things went and the last evaluation. A KeyboardInterrupt
+    (Ctrl-C, or SIGTERM where the caller maps it) saves everything and returns with ``interrupted``."""
     run = _Run(cfg)
     model = run.build()
-    loop = _TrainingLoop(run)
+    loop = _TrainingLoop(run, progress)
     remaining = cfg.steps - run.start_steps
     interrupted = False
     try:
@@ -411,8 +423,6 @@ def train_policy(cfg: TrainPolicyConfig) -> dict[str, Any]:
             model.learn(total_timesteps=remaining, callback=loop, reset_num_timesteps=False, log_interval=4)
     except KeyboardInterrupt:
         interrupted = True
-    finally:
-        loop.close()
     run.save(model, snapshot=not interrupted and remaining > 0)
     run.close()
     return {
@@ -430,36 +440,6 @@ def train_policy(cfg: TrainPolicyConfig) -> dict[str, Any]:
     }
 
 
-def format_train_policy(result: dict[str, Any]) -> list[str]:
-    lines = [
-        f"policy: {result['policy']} ({result['observation']}), {result['num_timesteps']} steps, "
-        f"{result['n_updates']} updates, {result['train_time_s']:.0f} s of training"
-        + (" (interrupted: saved, continue with --resume)" if result["interrupted"] else ""),
-        f"metrics: {result['metrics_jsonl']}   TensorBoard: {result['tensorboard']}",
-    ]
-    last = result.get("last_eval")
-    if last:
-        lines.append(f"last evaluation at {last['num_timesteps']} steps: lap {format_lap_time(last['lap_time_s'])}, "
-                     f"{last['distance_m']:.0f} m driven")  # fmt: skip
-    return lines
-
-
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
-def run_train_policy(cfg: TrainPolicyConfig) -> int:
-    """The `train-policy` command. SIGTERM (a scheduler's stop, ``kill``) saves and exits like Ctrl-C: a job started
-    in the background of a non-interactive shell ignores SIGINT. Exit code 130 after an interruption."""
-    previous = signal.signal(signal.SIGTERM, _interrupt)
-    try:
-        result = train_policy(cfg)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    print(json.dumps(result, indent=2) if cfg.json else "\n".join(format_train_policy(result)))
-    return 130 if result["interrupted"] else 0
-
-
 def read_metrics(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     """The records of a run's metrics.jsonl (a torn last line, from a kill mid-write, is skipped)."""
     records = []
@@ -475,9 +455,7 @@ __all__ = [
     "PRESETS",
     "SACPreset",
     "TrainPolicyConfig",
-    "format_train_policy",
     "read_metrics",
     "resolve_preset",
-    "run_train_policy",
     "train_policy",
 ]

@@ -90,6 +90,7 @@ class CameraConfig:
     """
 
     preset: str = "hood"
+    """``hood`` or ``chase``: the values of the fields left ``None``."""
     fov_deg: float | None = None
     """Horizontal field of view (deg); hood 65, chase 70 (racing games use 60-75 at 16:9)."""
     height_m: float | None = None
@@ -99,6 +100,7 @@ class CameraConfig:
     pitch_deg: float | None = None
     """Downward tilt of the view (deg, positive looks down); hood 1.5, chase 9."""
     near_m: float = 0.15
+    """Near clip plane, m."""
     far_m: float = 8000.0
     """Far clip plane: past the skyline and hills around every built-in track."""
     draw_own_car: bool | None = None
@@ -128,9 +130,11 @@ class RenderConfig:
     width_px: int = 470
     """Frame width; 470x280 is the vision paper's network input."""
     height_px: int = 280
+    """Frame height."""
     samples: int = 0
     """MSAA samples per pixel (0 = off, 2, 4, 8); 4 samples cost llvmpipe about 2.5x the CPU time per frame."""
     camera: CameraConfig = field(default_factory=CameraConfig)
+    """Where the camera sits on each car."""
     max_views: int = 20
     """Views per pass (tiles in one framebuffer); more views in one call run in several passes."""
     trilinear: bool = False
@@ -448,7 +452,7 @@ class Renderer:
         import moderngl
 
         cfg = self.config
-        w, h = cfg.width_px, cfg.height_px
+        h, w = cfg.height_px, cfg.width_px
         max_size = min(int(ctx.info["GL_MAX_RENDERBUFFER_SIZE"]), *map(int, ctx.info["GL_MAX_VIEWPORT_DIMS"]))
         rows = max(1, min(cfg.max_views, max_size // h))
         cols = math.ceil(cfg.max_views / rows)
@@ -459,7 +463,7 @@ class Renderer:
         if cfg.max_views * _VIEW_BYTES > max_block:
             raise ValueError(f"max_views={cfg.max_views} exceeds this GL device's {max_block // _VIEW_BYTES} views")
         self._rows, self._cols = rows, cols
-        self._fb_size = (cols * w, rows * h)
+        self._fb_size = (cols * w, rows * h)  # moderngl takes sizes as (width, height)
         if cfg.samples > int(ctx.info.get("GL_MAX_SAMPLES", 0)):
             raise ValueError(f"samples={cfg.samples} exceeds this GL device's maximum {ctx.info.get('GL_MAX_SAMPLES')}")
 

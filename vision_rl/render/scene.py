@@ -81,7 +81,7 @@ class SceneStyle:
     city: bool
     """True: concrete ground, dense blocks along the track and a skyline ring; False: grass, towers and hills."""
     wall_height_m: float = 1.1
-    """Concrete barrier height; issue 5 asks for about 1-1.2 m."""
+    """Concrete barrier height, m (real circuit barriers stand about 1-1.2 m)."""
     wall_thickness_m: float = 0.35
     wall_panel_m: float = 3.0
     """Length of one wall panel (the texture holds two): a pattern every few metres makes speed visible."""

@@ -103,8 +103,8 @@ def _kerb(rng: np.random.Generator) -> np.ndarray:
 def _wall(rng: np.random.Generator) -> np.ndarray:
     """Two concrete panels along u (light, slightly darker) with dark joints; v = 0 at the foot, 1 at the top.
 
-    A band of alternating blue and white blocks near the top moves past fast at speed: the speed cue the issue asks
-    for. The dark strip at the foot is dirt and tyre rubber.
+    A band of alternating blue and white blocks near the top moves past fast at speed: a speed cue for a
+    network that sees one frame. The dark strip at the foot is dirt and tyre rubber.
     """
     u, v = _uv()
     grain = _fractal_noise(rng, (8, 32)) - 0.5

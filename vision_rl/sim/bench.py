@@ -10,7 +10,7 @@ from vision_rl.sim import sensors, vehicle
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.world import World, WorldConfig
 
-#: Issue targets on a 2-core CPU, printed beside the figures.
+#: What each figure should reach on a 2-core CPU, printed beside the figures.
 TARGETS = {
     "physics_car_substeps_per_s": ">= 2,000,000 (1,000 cars)",
     "control_car_steps_per_s": ">= 20,000 (20 cars, 10 Hz step with 27 targets and 11 features)",
@@ -47,7 +47,7 @@ def bench_control_step(track_spec: str, car: str, n_cars: int = 20, steps: int =
 
 
 def bench_sim(track_spec: str = "expressway", car: str = "hatchback", repeats: int = 7) -> dict:
-    """All `bench sim` figures (medians over ``repeats``) with the issue's targets."""
+    """All `bench sim` figures (medians over ``repeats``) with their targets."""
     result: dict = {}
     result.update(vehicle.bench_physics(n_cars=1000))
     result["control_car_steps_per_s"] = bench_control_step(track_spec, car, repeats=repeats)

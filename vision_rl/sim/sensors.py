@@ -1,7 +1,7 @@
 """Batched sensors: wall/car ray casting, the 27 Phase-1 targets, the 11 dedicated features and the 72-beam lidar.
 
-Layouts and names follow ARCHITECTURE.md ("The observation contracts"). Every function takes arrays over cars and
-returns ``(n_cars, ...)`` float64 arrays.
+Layouts and names are the papers' observations (see :data:`TARGET_NAMES`). Every function takes arrays over cars
+and returns ``(n_cars, ...)`` float64 arrays.
 
 Ray casting runs in numba over a uniform grid of the wall segments (a cell holds the segments whose bounding box
 overlaps it, stored as CSR arrays). A ray walks the cells it crosses in order (Amanatides & Woo, "A fast voxel
@@ -39,7 +39,7 @@ CURVATURE_AHEAD_M = np.linspace(40.0, 120.0, 10)
 #: section 4: "the position of the car after 1.0 to 2.8 seconds").
 STATE_CURVATURE_TIMES_S = np.linspace(1.0, 2.8, 10)
 
-#: Look-ahead times (s) of the overtaking observation's curvature (ARCHITECTURE: 0.2 s to 3.0 s, 14 points).
+#: Look-ahead times (s) of the overtaking observation's curvature: 14 points from 0.2 s to 3.0 s.
 OVERTAKING_CURVATURE_TIMES_S = np.linspace(0.2, 3.0, 14)
 
 #: 72 lidar beams evenly over -108..+108 deg inclusive, body frame (overtaking paper, section III: "72 equally
@@ -49,7 +49,8 @@ LIDAR_RANGE_M = 20.0
 
 _EDGE_DEG = np.rint(np.rad2deg(EDGE_RAY_ANGLES_RAD)).astype(int)
 
-#: The 27 Phase-1 targets in ARCHITECTURE's order.
+#: The 27 Phase-1 targets: 13 edge rays, the two minimum edge distances, centre-line offset, heading angle and 10
+#: curvatures ahead. Capture files, checkpoints and policies store them in this order.
 TARGET_NAMES: tuple[str, ...] = (
     *(f"edge_distance_{d:+03d}deg" for d in _EDGE_DEG),
     "min_distance_left_edge",
@@ -60,7 +61,7 @@ TARGET_NAMES: tuple[str, ...] = (
 )
 TARGET_UNITS: tuple[str, ...] = ("m",) * 13 + ("m", "m", "m", "rad") + ("1/m",) * 10
 
-#: The 11 dedicated features in ARCHITECTURE's order (body frame: x forward, y left, z up).
+#: The 11 dedicated features, in the order observations stack them (body frame: x forward, y left, z up).
 DEDICATED_NAMES: tuple[str, ...] = (
     "velocity_body_x",
     "velocity_body_y",
@@ -486,15 +487,10 @@ def lidar(
 
 # ---------------------------------------------------------------------------------------------------- benchmark
 def _bench_track() -> Track:
-    """The built-in default track (expressway) when the loader exists, else a walled 4.5 km loop with six bends."""
-    try:
-        from vision_rl.sim import load_track  # type: ignore[attr-defined]
+    """The built-in default track (expressway)."""
+    from vision_rl.sim.track_library import load_track
 
-        return load_track("expressway")
-    except (ImportError, AttributeError):
-        phi = np.linspace(0.0, 2.0 * np.pi, 800, endpoint=False)
-        xy = np.stack([900.0 * np.cos(phi), 400.0 * np.sin(phi) + 60.0 * np.sin(3.0 * phi)], axis=1)
-        return Track.from_centre_line("bench_loop", xy, 6.0, 6.0)
+    return load_track("expressway")
 
 
 def bench_sensors(

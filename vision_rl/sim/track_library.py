@@ -580,7 +580,7 @@ def _builtin_track(name: str, spacing_m: float) -> Track:
 
 # ---------------------------------------------------------------------------------------------- random tracks
 
-#: Bounds every ``random:SEED`` track meets (issue 2 and the track-library brief).
+#: Bounds every ``random:SEED`` track meets: lengths and widths of real circuits, no corner tighter than 12 m.
 RANDOM_LENGTH_M = (2000.0, 6000.0)
 RANDOM_WIDTH_M = (10.0, 16.0)
 RANDOM_MAX_CURVATURE_1PM = 1.0 / 12.0

@@ -26,8 +26,8 @@ Model, per car and per substep (explicit / semi-implicit Euler, default ``dt_s``
   still sliding when it slows down keeps sliding instead of snapping onto the no-slip state.
 - Body motion for the angular-rate features: quasi-static roll and pitch with a first-order lag.
 
-Sign conventions (ARCHITECTURE.md): world x, y on the ground, z up, yaw counter-clockwise from +x; body x forward,
-y left, z up. ``vx_mps, vy_mps`` and ``ax_mps2, ay_mps2`` are in the body frame; ``ax, ay`` are what an
+Sign conventions (the whole package's): world x, y on the ground, z up, yaw counter-clockwise from +x; body x
+forward, y left, z up. ``vx_mps, vy_mps`` and ``ax_mps2, ay_mps2`` are in the body frame; ``ax, ay`` are what an
 accelerometer without gravity reads (``dv/dt + omega x v``). Roll is the right-handed rotation about body x, so a
 left turn (ay > 0) rolls the body to the right: roll > 0. Pitch is the right-handed rotation about body y (left),
 so braking (ax < 0) dives the nose: pitch > 0.
@@ -55,10 +55,10 @@ from numba.extending import register_jitable
 #: Standard gravity, m/s^2.
 GRAVITY_MPS2 = 9.80665
 
-#: Steering action limit of every environment, rad (ARCHITECTURE.md: delta in [-pi/6, pi/6]).
+#: Steering action limit of every environment, rad (the papers' action: delta in [-pi/6, pi/6]).
 ACTION_STEER_LIMIT_RAD = math.pi / 6.0
 
-#: Default internal step, s (issue 2: a fixed internal step of 100-200 Hz).
+#: Default internal step, s: a fixed step of 100 Hz, fine enough for the tyre and actuator dynamics.
 DEFAULT_DT_S = 0.01
 
 _DRIVES = ("fwd", "rwd", "awd")
@@ -217,8 +217,8 @@ class VehicleParams:
     max_steer_rate_radps: float = 1.5
     """Road-wheel steering rate limit, rad/s."""
     steer_lag_s: float = 0.05
-    """Time constant of the first-order steering actuator lag, s (issue 2 asks for a short one; 0.05 s is an estimate
-    for a power-steering rack)."""
+    """Time constant of the first-order steering actuator lag, s (short: 0.05 s is an estimate for a power-steering
+    rack)."""
     omega_lag_s: float = 0.1
     """Time constant of the first-order throttle/brake lag (engine response, brake pressure build-up, typically
     0.1-0.2 s), s."""
@@ -720,7 +720,7 @@ PRESETS: dict[str, VehicleParams] = {
     "hatchback": VehicleParams(
         name="hatchback",
         source="Mazda Demio XD Touring '15 (Mazda2 DJ 1.5 SKYACTIV-D)",
-        # Mass, yaw inertia and CG position identified inside GT Sport (issue 2); Mazda's kerb mass is about
+        # Mass, yaw inertia and CG position as identified inside GT Sport; Mazda's kerb mass is about
         # 1,130 kg plus a 75 kg driver, GT Sport's car is heavier.
         mass_kg=1355.0,
         yaw_inertia_kgm2=2064.0,
@@ -739,7 +739,7 @@ PRESETS: dict[str, VehicleParams] = {
         max_drive_force_n=9_400.0,
         drive="fwd",
         # Manual transaxle, typically 85-92 %; the low end also stands for the gear-shift time a gearless model
-        # leaves out (0-100 km/h: 9.9 s, the issue asks for about 10 s).
+        # leaves out (0-100 km/h: 9.9 s, about the real car's 10 s).
         drivetrain_efficiency=0.85,
         # Published top speed 178 km/h; the constant-power model with this car's drag would reach about 190 km/h,
         # because the overdrive sixth gear keeps the real engine below its power peak there.
@@ -759,7 +759,7 @@ PRESETS: dict[str, VehicleParams] = {
     "tt_cup": VehicleParams(
         name="tt_cup",
         source="Audi TT Cup (Audi Sport TT Cup 2015)",
-        mass_kg=1195.0,  # GT Sport identified (issue 2); Audi's figure is 1,125 kg without driver
+        mass_kg=1195.0,  # GT Sport identified; Audi's figure is 1,125 kg without driver
         yaw_inertia_kgm2=1185.0,  # GT Sport identified
         cg_to_front_axle_m=1.020,  # GT Sport identified; 2.504 m wheelbase (TT Mk3: 2,505 mm)
         cg_to_rear_axle_m=1.484,

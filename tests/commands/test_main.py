@@ -1,8 +1,12 @@
+"""The dispatcher: the command listing, groups, console-script aliases, one-line errors."""
+
 import json
+from pathlib import Path
 
 import pytest
 
-from vision_rl.cli import COMMANDS, main
+from vision_rl.commands import main as commands_main
+from vision_rl.commands.main import COMMANDS, main
 
 
 def test_tracks_json_lists_the_builtin_tracks(capsys):
@@ -10,6 +14,14 @@ def test_tracks_json_lists_the_builtin_tracks(capsys):
     rows = json.loads(capsys.readouterr().out)
     assert [r["name"] for r in rows] == ["expressway", "flowing", "technical"]
     assert all({"name", "length_m", "min_width_m", "corners"} <= set(r) for r in rows)
+
+
+def test_limit_prints_the_lap_time(capsys):
+    assert main(["limit", "--track", "technical", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["track"] == "technical" and 60.0 < result["lap_time_s"] < 200.0
+    assert main(["limit", "--track", "technical"]) == 0
+    assert "lap_time_s: " in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("name", list(COMMANDS))
@@ -21,11 +33,9 @@ def test_every_command_has_help(name, capsys):
 
 
 def test_console_script_aliases_run_the_same_commands(monkeypatch, capsys):
-    from vision_rl import cli
-
     monkeypatch.setattr("sys.argv", ["capture", "--help"])
     with pytest.raises(SystemExit):
-        cli.capture_main()
+        commands_main.capture_main()
     assert "usage: vision-rl capture" in capsys.readouterr().out
 
 
@@ -45,9 +55,22 @@ def test_a_group_word_lists_only_its_commands(capsys):
     assert "unknown command 'bench fly'" in capsys.readouterr().err
 
 
-def test_bad_input_is_a_one_line_error_not_a_traceback(tmp_path, capsys):
+def test_bad_input_is_a_one_line_error_not_a_traceback(tmp_path, capsys, monkeypatch):
     bad = tmp_path / "bad.csv"
     bad.write_text("# x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,5,5\n1,0,5,5\n")
     assert main(["bench", "sim", "--track", str(bad), "--repeats", "1"]) == 2
     err = capsys.readouterr().err
     assert "bench sim: error:" in err and "bad.csv" in err
+    monkeypatch.setenv("VISION_RL_DEBUG", "1")
+    with pytest.raises(ValueError):
+        main(["limit", "--track", str(bad)])
+
+
+def test_only_the_emitter_and_the_dispatcher_print():
+    # Every command prints through output.emit; the dispatcher prints the listing and one-line errors.
+    package = Path(commands_main.__file__).parent
+    texts = {p.name: p.read_text() for p in package.glob("*.py")}
+    assert sorted(name for name, text in texts.items() if "print(" in text or "json.dumps" in text) == [
+        "main.py",
+        "output.py",
+    ]

@@ -1,0 +1,106 @@
+"""Options from config dataclasses: help from attribute docstrings (the bases' too), bools, pairs, extra switches."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import pytest
+
+from vision_rl.commands.options import add_config_arguments, config_from_args, field_docs, parse_config
+
+
+@dataclass(frozen=True)
+class LibraryConfig:
+    """A library config: docstrings only, nothing from the command layer."""
+
+    speed_mps: float = 2.0
+    """Target speed, m/s;
+    on two lines."""
+    image_hw_px: tuple[int, int] = (280, 470)
+    """Frame height and width, px."""
+    disrupt_ai: bool = True
+    """Disrupt the AI."""
+
+
+@dataclass(frozen=True)
+class CommandOptions(LibraryConfig):
+    """A command's options: the library config plus output options."""
+
+    negative_switches: ClassVar[dict[str, str]] = {"disrupt_ai": "--no-disrupt"}
+
+    json: bool = False
+    """Print JSON."""
+
+
+@dataclass
+class MetadataConfig:
+    laps: int = field(default=1, metadata={"help": "laps to drive"})
+    disrupt: bool = field(default=False, metadata={"help": "disrupt", "negative": "--calm"})
+
+
+def _help(cls) -> str:
+    parser = argparse.ArgumentParser(prog="x")
+    add_config_arguments(parser, cls)
+    return " ".join(parser.format_help().split())
+
+
+def test_help_comes_from_the_attribute_docstrings_of_the_class_and_its_bases():
+    assert field_docs(CommandOptions) == {
+        "speed_mps": "Target speed, m/s; on two lines.",
+        "image_hw_px": "Frame height and width, px.",
+        "disrupt_ai": "Disrupt the AI.",
+        "json": "Print JSON.",
+    }
+    text = _help(CommandOptions)
+    assert "Target speed, m/s; on two lines (default: 2.0)" in text and "Print JSON" in text
+    assert "laps to drive (default: 1)" in _help(MetadataConfig)  # metadata help, the fallback
+
+
+def test_options_parse_into_the_config():
+    opts = parse_config(CommandOptions, ["--speed-mps", "3", "--image-hw-px", "140", "236", "--no-disrupt", "--json"])
+    assert opts == CommandOptions(speed_mps=3.0, image_hw_px=(140, 236), disrupt_ai=False, json=True)
+    assert parse_config(CommandOptions, []) == CommandOptions()
+    assert not parse_config(CommandOptions, ["--no-disrupt-ai"]).disrupt_ai
+    assert parse_config(MetadataConfig, ["--disrupt", "--calm"]).disrupt is False
+
+
+def test_an_option_type_the_command_line_cannot_express_is_refused():
+    @dataclass
+    class Bad:
+        names: list = field(default_factory=list)
+
+    with pytest.raises(TypeError, match=r"Bad\.names"):
+        add_config_arguments(argparse.ArgumentParser(), Bad)
+
+
+def test_the_command_configs_fit_the_plumbing():
+    from vision_rl.commands.bench_latency import BenchLatencyOptions
+    from vision_rl.commands.train_repr import TrainReprOptions
+
+    argv = ["--data", "a.h5,b.h5", "--val", "e.h5", "--epochs", "3", "--lr", "0.01", "--no-augment", "--resume"]
+    cfg = parse_config(TrainReprOptions, argv)
+    assert cfg.data == "a.h5,b.h5" and cfg.epochs == 3 and cfg.lr == 0.01 and not cfg.augment and cfg.resume
+    bench = parse_config(BenchLatencyOptions, ["--device", "cpu", "--image-hw-px", "64", "96", "--json"])
+    assert bench.image_hw_px == (64, 96) and bench.json and bench.runs >= 200
+    parser = argparse.ArgumentParser()
+    add_config_arguments(parser, TrainReprOptions)
+    assert config_from_args(TrainReprOptions, parser.parse_args([])) == TrainReprOptions()
+
+
+def test_every_config_of_these_commands_is_frozen_with_a_docstring_per_field():
+    from vision_rl.capture.sim_capture import CaptureConfig
+    from vision_rl.commands.main import COMMANDS
+    from vision_rl.phase1_repr.bench import BenchLatencyConfig
+    from vision_rl.phase1_repr.train import TrainReprConfig
+
+    mine = [c for c in COMMANDS.values() if c.module.startswith("vision_rl.commands.")]
+    classes = [CaptureConfig, BenchLatencyConfig, TrainReprConfig]
+    classes += [getattr(importlib.import_module(c.module), c.options) for c in mine]
+    for cls in classes:
+        missing = {f.name for f in dataclasses.fields(cls)} - set(field_docs(cls))
+        assert not missing, f"{cls.__name__}: {missing}"
+        assert cls.__dataclass_params__.frozen, cls.__name__

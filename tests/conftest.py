@@ -1,0 +1,45 @@
+"""Fixtures of every test: a private cache and working folder, and the guard of the tests that render."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _private_cache_and_runs(tmp_path_factory):
+    """Racing lines, profiles and statistics go to a temporary ``VISION_RL_CACHE``, and relative run folders (the
+    commands' default ``runs/...``) to a temporary working folder: no test writes to ``~/.cache`` or the checkout.
+
+    Session-wide (not monkeypatch) because session-scoped fixtures, such as a trained policy, need it too."""
+    old_cache, old_cwd = os.environ.get("VISION_RL_CACHE"), os.getcwd()
+    os.environ["VISION_RL_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    os.chdir(tmp_path_factory.mktemp("work"))
+    try:
+        yield
+    finally:
+        os.chdir(old_cwd)
+        if old_cache is None:
+            os.environ.pop("VISION_RL_CACHE", None)
+        else:
+            os.environ["VISION_RL_CACHE"] = old_cache
+
+
+def renderer_available() -> str:
+    """Empty if a headless EGL context can be made here, else the reason."""
+    try:
+        from vision_rl.render import create_context
+
+        create_context().release()
+        return ""
+    except Exception as exc:  # no EGL library, no driver, no moderngl
+        return f"vision_rl.render cannot make an EGL context here: {exc}"
+
+
+@pytest.fixture(scope="session")
+def gl_available() -> None:
+    """Skip (with the reason) when this machine has no EGL/OpenGL: the renderer cannot run here at all."""
+    reason = renderer_available()
+    if reason:
+        pytest.skip(reason)

@@ -1,0 +1,145 @@
+"""The lap-time protocol: a hand-computed lap, the built-in AI as an outside driver, DNFs, contact accounting."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.phase2_rl.conftest import STADIUM, small_track  # noqa: F401  (fixture)
+from vision_rl.evaluation.leaderboard import leaderboard
+from vision_rl.evaluation.protocol import STEP_S, BuiltinAI, time_laps
+from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver
+from vision_rl.sim.driving import line_and_profile
+from vision_rl.sim.fleet import STUCK_RULE
+
+CRUISE_MPS = 15.0
+
+
+class CentreLineFollower:
+    """At 10 Hz: curvature feedforward plus lateral and heading feedback towards ``target_lateral(s)``, speed held."""
+
+    control_dt_s = STEP_S
+
+    def __init__(self, target_lateral=lambda s: 0.0 * s, speed_mps: float = CRUISE_MPS) -> None:
+        self.target_lateral = target_lateral
+        self.speed_mps = speed_mps
+        self.seen: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def reset(self, world, car_ids):
+        self.world = world
+
+    def act(self, state):
+        track = self.world.track
+        v = state.vehicle
+        heading_error = np.mod(v.yaw_rad - track.heading_at(state.s_m) + np.pi, 2 * np.pi) - np.pi
+        self.seen.append((state.s_m.copy(), state.lateral_m.copy(), heading_error))
+        error = state.lateral_m - self.target_lateral(state.s_m)
+        steer = self.world.car.wheelbase_m * track.curvature_at(state.s_m) - 0.05 * error - 0.5 * heading_error
+        omega = np.clip(2.0 * (self.speed_mps - np.hypot(v.vx_mps, v.vy_mps)), -0.3, 1.0)
+        return np.stack([steer, omega], axis=1)
+
+
+def test_second_lap_is_scored_and_matches_the_hand_computed_lap(small_track):
+    timing = time_laps(CentreLineFollower(), small_track, "hatchback", seeds=[0, 1], laps=2, record=True)
+    s = timing.summary()
+    expected_s = timing.track.length_m / CRUISE_MPS  # on the centre line at constant speed
+    for seed in s["seeds"]:
+        assert seed["finished"] and seed["dnf_reason"] is None and len(seed["laps"]) == 2
+        scored = seed["laps"][1]
+        assert seed["lap_time_s"] == scored["lap_time_s"] == pytest.approx(expected_s, rel=0.01)
+        assert scored["wall_contact_s"] == 0.0 and scored["off_track_s"] == 0.0 and seed["clean"]
+        assert scored["avg_speed_kmh"] == pytest.approx(3.6 * CRUISE_MPS, rel=0.01)
+        assert scored["distance_m"] == pytest.approx(timing.track.length_m, rel=0.01)
+    assert s["best_lap_time_s"] == min(x["lap_time_s"] for x in s["seeds"])
+    # The run stops once every car has its laps; the trajectory covers it at 10 Hz.
+    assert timing.time_s[-1] == pytest.approx(sum(lap["lap_time_s"] for lap in s["seeds"][0]["laps"]), abs=0.15)
+    assert timing.x_m.shape == (len(timing.time_s), 2)
+    # Rolling start at the built-in AI's speed on the line, jittered per seed by at most 2 %.
+    line, profile = line_and_profile(timing.track, timing.car)
+    ai_speed = DEFAULT_SKILL * profile.speed_at(line.line_s_at(np.zeros(1)))[0]
+    assert np.all(np.abs(timing.start_speed_mps / ai_speed - 1.0) <= 0.02)
+    assert timing.start_speed_mps[0] != timing.start_speed_mps[1]
+
+
+class OutsideAI:
+    """The built-in AI's controller called from an outside driver, as a user would wrap their own."""
+
+    control_dt_s = 0.02
+
+    def reset(self, world, car_ids):
+        line, profile = line_and_profile(world.track, world.car)
+        self.ai = AIDriver(world.car, line, profile, world.n_cars, skill=DEFAULT_SKILL, groups=world.model.groups)
+
+    def act(self, state):
+        return np.stack(self.ai.act(state), axis=1)
+
+
+def test_the_ai_wrapped_as_an_outside_driver_gets_the_ai_rows_lap_time(small_track, tmp_path):
+    outside = time_laps(OutsideAI(), small_track, "hatchback", seeds=(0, 1, 2)).summary()
+    builtin = time_laps(BuiltinAI(), small_track, "hatchback", seeds=(0, 1, 2)).summary()
+    assert outside["seeds"] == builtin["seeds"]
+    assert outside["n_finished"] == 3
+    table = leaderboard(small_track, "hatchback", str(tmp_path / "no-runs"))
+    (ai_row,) = [r for r in table["rows"] if r["kind"] == "ai"]
+    assert ai_row["lap_time_s"] == outside["best_lap_time_s"]
+    assert ai_row["protocol_version"] == builtin["protocol"]["version"]
+    assert ai_row["gap_to_limit_pct"] > 0.0 and ai_row["gap_to_ai_pct"] == 0.0
+
+
+class Parker:
+    """Brakes to a stop and stays there."""
+
+    control_dt_s = STEP_S
+
+    def reset(self, world, car_ids):
+        self.n = len(car_ids)
+
+    def act(self, state):
+        return np.tile([0.0, -1.0], (self.n, 1))
+
+
+def test_a_driver_that_stops_is_a_dnf_with_its_reason_not_put_back(small_track):
+    timing = time_laps(Parker(), small_track, "hatchback", seeds=[3], laps=2)
+    run = timing.runs[0]
+    s = timing.summary()
+    assert run.laps == [] and s["n_finished"] == 0 and s["best_lap_time_s"] is None and not s["clean"]
+    assert run.dnf_reason.startswith("stuck: " + STUCK_RULE.describe())
+    # It stopped within a few seconds, was judged over one window and never moved again (no re-placement).
+    assert run.time_s < 20.0 and run.distance_m < 100.0
+    assert run.time_s == pytest.approx(STUCK_RULE.window_s, abs=8.0)
+
+
+def test_time_limit_is_a_dnf_and_bad_arguments_are_refused(small_track):
+    timing = time_laps(CentreLineFollower(speed_mps=5.0), small_track, "hatchback", seeds=[0], time_limit_s=20.0)
+    assert timing.runs[0].dnf_reason.startswith("time limit")
+    assert timing.runs[0].time_s == pytest.approx(20.0, abs=0.11)
+    with pytest.raises(ValueError, match="whole fraction"):
+        slow = CentreLineFollower()
+        slow.control_dt_s = 0.3
+        time_laps(slow, small_track, "hatchback", seeds=[0])
+    with pytest.raises(ValueError, match="seeds must differ"):
+        time_laps(CentreLineFollower(), small_track, "hatchback", seeds=[1, 1])
+    with pytest.raises(ValueError, match="laps"):
+        time_laps(CentreLineFollower(), small_track, "hatchback", laps=0)
+
+
+def test_wall_contact_of_a_car_scraping_the_left_wall_along_the_straight_matches_the_geometry(small_track):
+    half_width_m = STADIUM[2]
+    straight_m = STADIUM[0]
+    # Steered gently to a line 0.5 m from the left wall (closer than half the car) along the bottom straight.
+    driver = CentreLineFollower(
+        lambda s: np.interp(s, [0, 10, 60, 110, 140], [0, 0, half_width_m - 0.5, half_width_m - 0.5, 0]), 12.0
+    )
+    timing = time_laps(driver, small_track, "hatchback", seeds=[0], laps=1)
+    lap = timing.runs[0].laps[0]
+    car = timing.car
+    s, lateral, heading = (np.array([seen[k][0] for seen in driver.seen]) for k in range(3))
+    # The footprint's reach across the track at its heading (sampled at 10 Hz); touching where it reaches the wall.
+    reach = lateral + 0.5 * (car.length_m * np.abs(np.sin(heading)) + car.width_m * np.cos(heading))
+    touching = reach >= half_width_m - 1e-3  # a car that reaches the wall is put back exactly onto it
+    on_straight = s[touching] < straight_m
+    expected_s = STEP_S * touching.sum()
+    assert 2.0 < lap.wall_contact_s and on_straight.all()
+    assert lap.wall_contact_s == pytest.approx(expected_s, abs=STEP_S + 1e-9)  # within one control step
+    assert lap.off_track_s >= lap.wall_contact_s - STEP_S  # against the wall the centre is on the shoulder band
+    assert not timing.summary()["clean"]

@@ -1,0 +1,185 @@
+"""The package's layering, read from the source: imports point only down the layers, no module imports in a cycle,
+heavy dependencies stay in their layers, and importing the package or the simulator stays light."""
+
+from __future__ import annotations
+
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PACKAGE_DIR = Path(__file__).resolve().parents[1] / "vision_rl"
+PACKAGE = PACKAGE_DIR.name
+#: Lowest first; a module may import from its own layer and the layers below. ``vision_rl/__init__.py`` sits
+#: below them all and imports only gymnasium.
+LAYERS = ("sim", "render", "envs", "capture", "datasets", "phase1_repr", "evaluation", "phase2_rl", "commands")
+#: Third-party packages kept out of some layers: name -> the layers that may import it.
+HEAVY = {
+    "torch": ("datasets", "phase1_repr", "evaluation", "phase2_rl", "commands"),
+    "lightning": ("datasets", "phase1_repr", "phase2_rl", "commands"),
+    "moderngl": ("render",),
+}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE_DIR.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _parse_imports(path: Path) -> tuple[set[tuple[str, tuple[str, ...]]], set[str]]:
+    """(imports of the package as (module, names imported from it), top-level names of outside packages), from
+    every import statement in the file, those inside functions included."""
+    mod = module_name(path)
+    own, outside = set(), set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == PACKAGE:
+                    own.add((alias.name, ()))
+                else:
+                    outside.add(alias.name.split(".")[0])
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = mod.split(".") if path.name == "__init__.py" else mod.split(".")[:-1]
+                base = base[: len(base) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            elif node.module and node.module.split(".")[0] == PACKAGE:
+                target = node.module
+            else:
+                outside.add((node.module or "").split(".")[0])
+                continue
+            own.add((target, tuple(alias.name for alias in node.names)))
+    return own, outside
+
+
+def import_graph() -> tuple[dict[str, set[str]], dict[str, set[str]]]:
+    """(module -> the package's modules it imports, module -> outside packages it imports). ``from pkg import
+    name`` counts as an import of the submodule ``pkg.name`` where one exists, else of ``pkg``."""
+    parsed = {module_name(p): _parse_imports(p) for p in sorted(PACKAGE_DIR.rglob("*.py"))}
+    known = set(parsed)
+    graph: dict[str, set[str]] = {}
+    for mod, (own, _) in parsed.items():
+        deps = set()
+        for target, names in own:
+            subs = {f"{target}.{n}" for n in names if f"{target}.{n}" in known}
+            deps |= subs if names and len(subs) == len(names) else subs | {target}
+        graph[mod] = {d for d in deps if d in known and d != mod}
+    return graph, {mod: outside for mod, (_, outside) in parsed.items()}
+
+
+def layer_of(module: str) -> str | None:
+    """The module's layer: the package itself is ``""`` (the lowest), a module in no layer ``None``."""
+    parts = module.split(".")
+    if parts == [PACKAGE]:
+        return ""
+    return parts[1] if parts[1] in LAYERS else None
+
+
+def rank(module: str) -> int:
+    layer = layer_of(module)
+    return -1 if layer == "" else LAYERS.index(layer)
+
+
+def strongly_connected(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Tarjan's strongly connected components of more than one module (an import cycle each)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    components: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                components.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return components
+
+
+def test_tarjan_finds_a_cycle_and_nothing_in_a_chain():
+    assert strongly_connected({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert strongly_connected({"a": {"b"}, "b": {"c"}, "c": set()}) == []
+
+
+def test_every_module_belongs_to_a_layer():
+    graph, _ = import_graph()
+    stray = {m: sorted(n for n, deps in graph.items() if m in deps) for m in graph if layer_of(m) is None}
+    assert not stray, "modules in no layer (and who imports them): " + json.dumps(stray, indent=1)
+
+
+def test_imports_point_down_the_layers():
+    graph, _ = import_graph()
+    upward = sorted(
+        f"{m} ({layer_of(m) or 'package root'}) -> {d} ({layer_of(d)})"
+        for m, deps in graph.items()
+        for d in deps
+        if layer_of(m) is not None and layer_of(d) is not None and rank(d) > rank(m)
+    )
+    assert not upward, "upward imports:\n" + "\n".join(upward)
+
+
+def test_no_import_cycles():
+    graph, _ = import_graph()
+    cycles = strongly_connected(graph)
+    assert not cycles, "import cycles:\n" + "\n".join(", ".join(c) for c in cycles)
+
+
+def test_the_package_root_imports_only_gymnasium():
+    graph, outside = import_graph()
+    assert graph[PACKAGE] == set()
+    assert outside[PACKAGE] <= {"gymnasium", "__future__"}
+
+
+def test_heavy_dependencies_stay_in_their_layers():
+    _, outside = import_graph()
+    misplaced = sorted(
+        f"{m} imports {dep}"
+        for m, deps in outside.items()
+        for dep in deps & set(HEAVY)
+        if layer_of(m) not in HEAVY[dep]
+    )
+    assert not misplaced, "\n".join(misplaced)
+
+
+def _modules_after(code: str) -> set[str]:
+    probe = f"{code}\nimport json, sys\nprint(json.dumps(sorted(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True, timeout=120)
+    return set(json.loads(out.stdout.splitlines()[-1]))
+
+
+@pytest.mark.slow
+def test_import_vision_rl_registers_the_environments_and_loads_nothing_heavy():
+    probe = "import vision_rl, gymnasium\nassert 'vision_rl/TimeTrial-v0' in gymnasium.registry\n" \
+            "assert 'vision_rl/Overtaking-v0' in gymnasium.registry"  # fmt: skip
+    loaded = _modules_after(probe)
+    assert not {"torch", "moderngl", "vision_rl.envs"} & loaded
+    assert not {"torch", "moderngl", "vision_rl.commands"} & _modules_after("import vision_rl.sim")
+
+
+@pytest.mark.slow
+def test_gymnasium_make_works_after_import_vision_rl():
+    probe = "import vision_rl, gymnasium\nenv = gymnasium.make('vision_rl/TimeTrial-v0', track='technical')\n" \
+            "obs, _ = env.reset(seed=0)\nassert obs.shape == (38,)"  # fmt: skip
+    _modules_after(probe)

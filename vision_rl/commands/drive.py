@@ -1,0 +1,60 @@
+"""`vision-rl drive`: the built-in AI through the lap-time protocol: lap times, contact, speed, a plot."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from vision_rl.commands.evaluate import format_timing
+from vision_rl.commands.output import emit
+from vision_rl.sim.ai_driver import DEFAULT_SKILL
+
+
+@dataclass(frozen=True)
+class DriveOptions:
+    """Drive the built-in AI through the lap-time protocol (the rules every lap time of the project follows)."""
+
+    track: str = "expressway"
+    """Track: built-in name, random:SEED or CSV path."""
+    car: str = "hatchback"
+    """Car preset."""
+    driver: str = "ai"
+    """Who drives: 'ai' (the built-in AI); policies are driven by `evaluate`."""
+    skill: float = DEFAULT_SKILL
+    """Share of the limit speed profile the AI aims for, in (0, 1]."""
+    laps: int = 2
+    """Consecutive laps; the last one is scored (the papers: 2)."""
+    seeds: int = 3
+    """Start seeds (one car each, driven at once)."""
+    seed: int = 0
+    """First seed."""
+    disrupt: bool = False
+    """Add the data-collection disruptions (random command offsets)."""
+    plot: str = ""
+    """Write a PNG of the walls and the best seed's scored lap, coloured by speed."""
+    json: bool = False
+    """Print the figures as JSON."""
+
+
+def run_drive(opts: DriveOptions) -> int:
+    from vision_rl.evaluation.leaderboard import evaluation_record
+    from vision_rl.evaluation.outputs import format_lap_time, plot_trajectory
+    from vision_rl.evaluation.protocol import BuiltinAI, time_laps
+    from vision_rl.sim.ai_driver import DisruptionParams
+
+    if opts.driver != "ai":
+        raise ValueError(f"--driver {opts.driver!r}: only 'ai' is built in; policies are driven by `evaluate`")
+    if opts.seeds < 1:
+        raise ValueError(f"--seeds must be >= 1, got {opts.seeds}")
+    disruption = DisruptionParams() if opts.disrupt else None
+    driver = BuiltinAI(opts.skill, disruption, seed=opts.seed)
+    timing = time_laps(driver, opts.track, opts.car, range(opts.seed, opts.seed + opts.seeds), opts.laps,
+                       record=bool(opts.plot))  # fmt: skip
+    result: dict[str, Any] = evaluation_record(timing, driver.identity, f"built-in AI (skill {opts.skill:g})")
+    if opts.plot:
+        best = timing.best_index()
+        title = (f"{timing.track.name}, {timing.car.name}, AI skill {opts.skill:g}: lap {opts.laps} "
+                 f"{format_lap_time(result['best_lap_time_s'])}")  # fmt: skip
+        result["plot"] = str(plot_trajectory(timing, best, opts.plot, title))
+    emit(result, opts.json, format_timing)
+    return 0

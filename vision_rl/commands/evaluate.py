@@ -1,0 +1,131 @@
+"""`evaluate` (a policy through the lap-time protocol) and `vision-rl leaderboard` (the protocol's table)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from vision_rl.commands.output import emit
+
+
+def _lap(seconds: float | None) -> str:
+    from vision_rl.evaluation.outputs import format_lap_time
+
+    return format_lap_time(seconds)
+
+
+def format_timing(result: dict[str, Any]) -> list[str]:
+    """Text lines of an evaluation record: the scored lap over seeds, then each seed's laps or its DNF."""
+    driver = result["driver"]
+    what = driver.get("observation") or f"skill {driver.get('skill', '?'):g}"
+    protocol = result["protocol"]
+    lines = [
+        f"{result['name']} ({what}, {result['track_name']}, {result['car']}), protocol v{protocol['version']}: "
+        f"best lap {protocol['scored_lap']} {_lap(result['best_lap_time_s'])}, median "
+        f"{_lap(result['median_lap_time_s'])}, {result['n_finished']}/{result['n_seeds']} seeds finished"
+        + ("" if result["best_lap_time_s"] is None else (", clean" if result["clean"] else ", not clean")),
+    ]
+    for s in result["seeds"]:
+        laps = "; ".join(
+            f"{_lap(lap['lap_time_s'])} (wall {lap['wall_contact_s']:.1f} s, off track {lap['off_track_s']:.1f} s, "
+            f"{lap['avg_speed_kmh']:.1f} km/h)"
+            for lap in s["laps"]
+        )
+        status = "" if s["dnf_reason"] is None else f"; DNF: {s['dnf_reason']}"
+        lines.append(f"  seed {s['seed']}: {laps or 'no lap'}; {s['distance_m']:.0f} m driven{status}")
+    for key in ("plot", "video", "evaluation_json"):
+        if result.get(key):
+            lines.append(f"{key}: {result[key]}")
+    return lines
+
+
+@dataclass(frozen=True)
+class EvaluateOptions:
+    """Evaluate a policy with the lap-time protocol: two consecutive laps from a rolling start, lap 2 scored, best
+    and median over start seeds; stores evaluation.json beside the policy for the leaderboard."""
+
+    policy: str = ""
+    """Policy: a train-policy run folder or its policy.zip."""
+    laps: int = 2
+    """Consecutive laps; the last one is the score (the papers: 2)."""
+    seeds: int = 3
+    """Start seeds (small start jitter each), driven at once."""
+    seed: int = 0
+    """First seed."""
+    encoder: str = ""
+    """Vision: encoder ckpt.pt (refused unless the one it was trained with)."""
+    time_limit_s: float = 0.0
+    """Stop a run after this long, s (0: 3 x the limit lap time per lap)."""
+    video: str = ""
+    """Write the best seed's driver's view with a track map (mp4)."""
+    plot: str = ""
+    """Write the best seed's trajectory coloured by speed (png)."""
+    name: str = ""
+    """Name on the leaderboard (default: the run folder's name)."""
+    device: str = "cpu"
+    """Torch device of the policy and encoder."""
+    write: bool = True
+    """Store evaluation.json beside the policy for the leaderboard."""
+    encoder_runtime: str = "auto"
+    """Vision: auto (ONNX Runtime on a CPU when installed, 2-6x faster than torch here), torch or onnxruntime."""
+    json: bool = False
+    """Print the result as JSON."""
+
+
+def run_evaluate(opts: EvaluateOptions) -> int:
+    from vision_rl.phase2_rl.evaluate import evaluate_policy
+
+    if not opts.policy:
+        raise ValueError("evaluate needs --policy: a train-policy run folder or its policy.zip")
+    result = evaluate_policy(
+        opts.policy, laps=opts.laps, seeds=opts.seeds, seed=opts.seed, encoder=opts.encoder,
+        time_limit_s=opts.time_limit_s, video=opts.video, plot=opts.plot, name=opts.name, device=opts.device,
+        write=opts.write, encoder_runtime=opts.encoder_runtime,
+    )  # fmt: skip
+    emit(result, opts.json, format_timing)
+    return 0
+
+
+def format_leaderboard(result: dict[str, Any]) -> list[str]:
+    """The table as text; refused evaluations after it."""
+
+    def pct(v: float | None) -> str:
+        return "-" if v is None else f"{v:+.2f}"
+
+    rows = result["rows"]
+    width = max(26, *(len(r["name"]) for r in rows))
+    lines = [
+        f"{result['track']} / {result['car']} (lap-time protocol v{result['protocol_version']}; "
+        f"physical limit {_lap(result['limit_lap_time_s'])})",
+        f"{'name':<{width}}  {'lap':>9}  {'vs limit %':>10}  {'vs AI %':>8}  {'median':>9}  {'finished':>8}  clean",
+    ]
+    for r in rows:
+        clean = "-" if r["lap_time_s"] is None else ("yes" if r["clean"] else "no")
+        lines.append(
+            f"{r['name']:<{width}}  {_lap(r['lap_time_s']):>9}  {pct(r['gap_to_limit_pct']):>10}  "
+            f"{pct(r['gap_to_ai_pct']):>8}  {_lap(r['median_lap_time_s']):>9}  {r['finished']:>8}  {clean}"
+        )
+    lines += [f"refused: {why}" for why in result.get("refused", [])]
+    return lines
+
+
+@dataclass(frozen=True)
+class LeaderboardOptions:
+    """Lap-time table of one track and car (Table 1 of the vision paper): the built-in AI measured now and every
+    evaluated policy, all through the lap-time protocol, with gaps to the physical limit and to the AI."""
+
+    track: str = "expressway"
+    """Track: built-in name, random:SEED or CSV path."""
+    car: str = "hatchback"
+    """Car preset."""
+    runs: str = "runs"
+    """Folder searched for evaluation.json files."""
+    json: bool = False
+    """Print the table as JSON."""
+
+
+def run_leaderboard(opts: LeaderboardOptions) -> int:
+    from vision_rl.evaluation.leaderboard import leaderboard
+
+    emit(leaderboard(opts.track, opts.car, opts.runs), opts.json, format_leaderboard)
+    return 0

@@ -1,0 +1,115 @@
+"""vision-rl: simulate, capture, train and race cars that drive from what they see.
+
+`capture`, `train-repr`, `train-policy` and `bench-latency` are also console scripts of their own (aliases of the
+same commands).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import inspect
+import os
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from vision_rl.commands.options import add_config_arguments, config_from_args
+
+
+@dataclass(frozen=True)
+class Command:
+    help: str
+    """One line for `vision-rl --help`."""
+    module: str
+    """Module holding the options class and the run function, imported only when the command runs."""
+    options: str
+    """Name of the options dataclass in ``module``."""
+    run: str
+    """Name of the ``run(options) -> exit code`` function in ``module``."""
+
+
+_C = "vision_rl.commands"
+
+COMMANDS: dict[str, Command] = {
+    "tracks": Command("list the built-in tracks", f"{_C}.tracks", "TracksOptions", "run_tracks"),
+    "limit": Command("physical-limit (QSS) lap time of a car", f"{_C}.limit", "LimitOptions", "run_limit"),
+    "drive": Command("the built-in AI through the lap-time protocol", f"{_C}.drive", "DriveOptions", "run_drive"),
+    "bench sim": Command("simulator throughput", f"{_C}.bench", "BenchSimOptions", "run_bench_sim"),
+    "bench env": Command("environment throughput", f"{_C}.bench", "BenchEnvOptions", "run_bench_env"),
+    "bench render": Command("renderer and capture throughput", f"{_C}.bench", "BenchRenderOptions", "run_bench_render"),
+    "capture": Command("record frames and targets to HDF5", f"{_C}.capture", "CaptureOptions", "run_capture"),
+    "train-repr": Command(
+        "Phase 1: train the frame encoder on capture files", f"{_C}.train_repr", "TrainReprOptions", "run_train_repr"
+    ),
+    "bench-latency": Command(
+        "Phase 1: encoder latency, batch 1", f"{_C}.bench_latency", "BenchLatencyOptions", "run_bench_latency"
+    ),
+    "train-policy": Command(
+        "Phase 2: SAC on the state or the frozen embedding", f"{_C}.train_policy", "TrainPolicyOptions",
+        "run_train_policy",
+    ),
+    "evaluate": Command("a policy through the lap-time protocol", f"{_C}.evaluate", "EvaluateOptions", "run_evaluate"),
+    "leaderboard": Command(
+        "lap-time table: AI, limit, policies (Table 1)", f"{_C}.evaluate", "LeaderboardOptions", "run_leaderboard"
+    ),
+    "pipeline": Command("the whole job (--quick: small)", f"{_C}.pipeline", "PipelineOptions", "run_pipeline"),
+}  # fmt: skip
+
+
+def _debug() -> bool:
+    return os.environ.get("VISION_RL_DEBUG", "") not in ("", "0")
+
+
+def run_command(name: str, argv: Sequence[str]) -> int:
+    """Parse ``argv`` into the command's options and run it; bad input is a one-line error (exit 2)."""
+    command = COMMANDS[name]
+    prog = f"vision-rl {name}"
+    module = importlib.import_module(command.module)
+    options_cls = getattr(module, command.options)
+    parser = argparse.ArgumentParser(prog=prog, description=inspect.getdoc(options_cls))
+    add_config_arguments(parser, options_cls)
+    args = parser.parse_args(list(argv))
+    try:
+        return int(getattr(module, command.run)(config_from_args(options_cls, args)))
+    except (ValueError, OSError) as exc:  # bad input (a track file, a checkpoint, a dataset): say what, not a trace
+        if _debug():
+            raise
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    for words in (2, 1):
+        name = " ".join(argv[:words])
+        if len(argv) >= words and name in COMMANDS:
+            return run_command(name, argv[words:])
+    # A group's first word alone (`vision-rl bench --help`) lists the group's commands.
+    group = {n: c for n, c in COMMANDS.items() if argv and n.startswith(f"{argv[0]} ")}
+    shown = group or COMMANDS
+    width = max(len(n) for n in shown)
+    listing = "\n".join(f"  {n:<{width}}  {c.help}" for n, c in shown.items())
+    usage = f"usage: vision-rl COMMAND [options]\n\n{__doc__.splitlines()[0]}\n\ncommands:\n{listing}\n"
+    rest = argv[1:] if group else argv
+    if not rest or rest[0] in ("-h", "--help"):
+        print(usage)
+        return 0 if rest else 2
+    print(f"{usage}\nvision-rl: error: unknown command {' '.join(argv[:2])!r}", file=sys.stderr)
+    return 2
+
+
+def _alias(command: str) -> Callable[[], int]:
+    def entry() -> int:
+        return main([command, *sys.argv[1:]])
+
+    return entry
+
+
+capture_main = _alias("capture")
+train_repr_main = _alias("train-repr")
+train_policy_main = _alias("train-policy")
+bench_latency_main = _alias("bench-latency")
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,39 @@
+"""The one emitter of every command's figures, and progress bars (tqdm, on stderr)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+
+def emit(result: Any, as_json: bool, lines: Callable[[Any], list[str]] | None = None) -> None:
+    """Print a command's result on stdout: one JSON document, the given text lines, or ``key: value`` rows."""
+    if as_json:
+        print(json.dumps(result, indent=2))
+    elif lines is not None:
+        print("\n".join(lines(result)))
+    else:
+        for key, value in result.items():
+            print(f"{key}: {value}")
+
+
+@contextmanager
+def progress_bar(total: int | None, unit: str, desc: str, enabled: bool = True) -> Iterator[Any]:
+    """A tqdm bar on stderr (hidden when stderr is not a terminal, or when not ``enabled``)."""
+    from tqdm import tqdm
+
+    with tqdm(total=total, unit=unit, desc=desc, disable=None if enabled else True, file=sys.stderr) as bar:
+        yield bar
+
+
+def show(bar: Any, done: int, total: int | None = None, **postfix: Any) -> None:
+    """Move ``bar`` to ``done`` (of ``total`` when given) with the figures after it."""
+    if total:
+        bar.total = total
+    bar.n = done
+    if postfix:
+        bar.set_postfix(postfix, refresh=False)
+    bar.update(0)

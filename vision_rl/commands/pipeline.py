@@ -1,0 +1,309 @@
+"""`vision-rl pipeline`: the whole two-phase job of the vision paper on one track and car.
+
+1. capture: disrupted built-in AI laps (training frames) and clean laps (the evaluation set, as the paper's
+   "undisturbed driving");
+2. train-repr: the space2depth encoder on those frames, best checkpoint on the clean laps;
+3. Phase 2: train-policy on the state, then on the frozen encoder's embedding; the papers' evaluation of both; the
+   leaderboard.
+
+``--quick`` shrinks every stage to finish in about 20 minutes on 2 CPU cores; without it the paper-scale recipe
+runs (50 disrupted laps at 60 fps, 50 epochs, millions of SAC steps: days on a CPU). ``--tiny`` is for tests.
+Each stage's outputs stay under ``--runs`` and a stage whose output is complete is not redone (the policies are
+trained again), so an interrupted pipeline continues where it stopped.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from vision_rl.commands.output import emit
+
+
+@dataclass(frozen=True)
+class PipelineSizes:
+    """How much of every stage a pipeline mode runs. Steps count transitions over all cars."""
+
+    train_laps: int
+    """Disrupted laps captured for training, summed over the capture cars."""
+    eval_laps: int
+    """Clean laps captured for validation."""
+    capture_cars: int
+    """Built-in AI cars driving (and rendered) together in the captures."""
+    capture_fps: float
+    """Capture rate, frames per second per car."""
+    image_hw_px: tuple[int, int]
+    """Frame height and width, px, of the captures and so of the encoder."""
+    repr_epochs: int
+    """Epochs of train-repr."""
+    repr_max_steps: int
+    """Optimiser steps of train-repr at most (-1: no limit)."""
+    sac_preset: str
+    """train-policy's SAC preset (paper or cpu)."""
+    state_steps: int
+    """SAC steps of the state policy."""
+    vision_steps: int
+    """SAC steps of the vision policy."""
+    state_cars: int
+    """Cars sampled at once by the state policy's training."""
+    vision_cars: int
+    """Cars sampled at once by the vision policy's training. Vision sampling renders and embeds every car's frame
+    each step (about 6-10 ms per car on 2 cores), so fewer cars per vector step give more updates per transition
+    in a short run."""
+    state_learning_starts: int
+    """Random-action steps before the state policy's first update (-1: the preset's)."""
+    vision_learning_starts: int
+    """Random-action steps before the vision policy's first update (-1: the preset's)."""
+    vision_gradient_steps: int
+    """Updates per vector step of the vision policy (0: the preset's)."""
+    batch_size: int
+    """SAC batch size (0: the preset's)."""
+    buffer_size: int
+    """Replay buffer capacity, transitions (0: the preset's)."""
+    eval_every_steps: int
+    """Evaluate the policy in training every this many steps."""
+    state_eval_seeds: int
+    """Start seeds of the state policy's final evaluation."""
+    vision_eval_seeds: int
+    """Start seeds of the vision policy's final evaluation."""
+    stats_steps: int
+    """Vision: control steps of the feature-statistics rollout."""
+    state_eval_time_limit_s: float
+    """Time limit of one state evaluation run, s (0: the protocol's default, 3 x the limit lap time per lap)."""
+    vision_eval_time_limit_s: float
+    """Time limit of one vision evaluation run, s (0: the protocol's default)."""
+
+
+SIZES: dict[str, PipelineSizes] = {
+    # CI: a few hundred steps on whatever track the test picks, short evaluation runs.
+    "tiny": PipelineSizes(
+        train_laps=1, eval_laps=1, capture_cars=2, capture_fps=5, image_hw_px=(64, 96), repr_epochs=1,
+        repr_max_steps=3, sac_preset="cpu", state_steps=200, vision_steps=120, state_cars=2, vision_cars=2,
+        state_learning_starts=50, vision_learning_starts=40, vision_gradient_steps=0, batch_size=32,
+        buffer_size=5_000, eval_every_steps=100, state_eval_seeds=1, vision_eval_seeds=1, stats_steps=5,
+        state_eval_time_limit_s=30.0, vision_eval_time_limit_s=30.0,
+    ),
+    # Frames at half the paper's side: training the encoder on 470 x 280 frames ran at about 30 frames/s on one of
+    # these cores, on 236 x 140 at about 230 (measured side by side), which is what fits the quick budget.
+    # On the 8,048 frames of 4 disrupted laps, R^2 on the clean lap was 0.90-0.99 (by target group) after 4 epochs
+    # (86 s) and 0.966-0.997 after 10 (214 s; measured in `make quick`).
+    # Phase 2 on 2 cores: state 250k steps in 183 s, which drove lap 2 of the expressway in 2:18.0.
+    # Vision (236 x 140 frames) learns per update much as with 20 cars, and an update costs 36 ms with 10 cars
+    # against 50 ms with 20: with 10 cars it drove one lap after 150k steps (491 s) and two (lap 2 in 2:24.1)
+    # after 200k (648 s; 587 s with the encoder on ONNX Runtime). The whole pipeline took 14.6 min with 150k
+    # vision steps, 15.6-17.1 with 200k and 4 encoder epochs, 17.2 with 10.
+    "quick": PipelineSizes(
+        train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
+        repr_max_steps=-1, sac_preset="cpu", state_steps=250_000, vision_steps=200_000, state_cars=20,
+        vision_cars=10, state_learning_starts=-1, vision_learning_starts=5_000, vision_gradient_steps=0,
+        batch_size=0, buffer_size=0, eval_every_steps=50_000, state_eval_seeds=3, vision_eval_seeds=3,
+        stats_steps=50, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=400.0,
+    ),
+    # The paper's scale: 50 disrupted laps at 60 fps and 470 x 280, 50 encoder epochs; SAC for 400 epochs of 20
+    # trials of 100 s (vision paper, section 4, Figure 3) = 8M steps.
+    "full": PipelineSizes(
+        train_laps=50, eval_laps=5, capture_cars=4, capture_fps=60, image_hw_px=(280, 470), repr_epochs=50,
+        repr_max_steps=-1, sac_preset="paper", state_steps=8_000_000, vision_steps=8_000_000, state_cars=20,
+        vision_cars=20, state_learning_starts=-1, vision_learning_starts=-1, vision_gradient_steps=0,
+        batch_size=0, buffer_size=0, eval_every_steps=200_000, state_eval_seeds=3, vision_eval_seeds=3,
+        stats_steps=100, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=0.0,
+    ),
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class PipelineOptions:
+    """The whole two-phase job: capture, train-repr, train-policy (state and vision), evaluate, leaderboard."""
+
+    quick: bool = False
+    """Small sizes that finish in about 20 minutes on 2 CPU cores."""
+    tiny: bool = False
+    """Minimal sizes, for tests (seconds; results mean nothing)."""
+    track: str = "expressway"
+    """Track: built-in name, random:SEED or CSV path."""
+    car: str = "hatchback"
+    """Car preset."""
+    runs: str = "runs"
+    """Folder for every stage's outputs."""
+    image_hw_px: tuple[int, int] = (0, 0)
+    """Frame height and width, px (0 0: the mode's; full: 280 470, the paper's; quick: 140 236)."""
+    seed: int = 0
+    """Seed of every stage."""
+    json: bool = False
+    """Print the summary as JSON."""
+
+    @property
+    def mode(self) -> str:
+        return "tiny" if self.tiny else "quick" if self.quick else "full"
+
+
+def _capture(opts: PipelineOptions, sizes: PipelineSizes, name: str, laps: int, disrupt: bool) -> Path:
+    from vision_rl.capture.h5format import CaptureFormatError, open_capture
+    from vision_rl.capture.sim_capture import CaptureConfig, capture_sim
+
+    out = Path(opts.runs) / "capture" / f"{name}.h5"
+    resume = False
+    if out.exists():
+        try:
+            with open_capture(out) as f:
+                if f.complete:
+                    return out
+            resume = True
+        except CaptureFormatError:
+            pass
+    capture_sim(
+        CaptureConfig(
+            out=str(out), track=opts.track, car=opts.car, laps=laps, disrupt_ai=disrupt, cars=sizes.capture_cars,
+            fps=sizes.capture_fps, image_hw_px=opts.image_hw_px if all(opts.image_hw_px) else sizes.image_hw_px,
+            seed=opts.seed + (0 if disrupt else 1), resume=resume, force=not resume,
+        )
+    )  # fmt: skip
+    return out
+
+
+def pipeline_phase2(
+    encoder: str,
+    sizes: PipelineSizes,
+    *,
+    mode: str,
+    track: str = "expressway",
+    car: str = "hatchback",
+    runs: str = "runs",
+    seed: int = 0,
+    device: str = "auto",
+) -> dict[str, Any]:
+    """Train (state, then vision if ``encoder``), evaluate, leaderboard; returns a summary dict.
+
+    Runs go to ``runs/policy/pipeline-<kind>`` (replaced if present)."""
+    from vision_rl.evaluation.leaderboard import leaderboard
+    from vision_rl.phase2_rl.evaluate import evaluate_policy
+    from vision_rl.phase2_rl.train import TrainPolicyConfig, train_policy
+
+    summary: dict[str, Any] = {"mode": mode, "track": track, "car": car}
+    kinds = [("state", "", sizes.state_steps, sizes.state_cars, sizes.state_learning_starts, 0,
+              sizes.state_eval_seeds, sizes.state_eval_time_limit_s)]  # fmt: skip
+    if encoder:
+        kinds.append(
+            (
+                "vision",
+                encoder,
+                sizes.vision_steps,
+                sizes.vision_cars,
+                sizes.vision_learning_starts,
+                sizes.vision_gradient_steps,
+                sizes.vision_eval_seeds,
+                sizes.vision_eval_time_limit_s,
+            )
+        )
+    else:
+        summary["vision"] = {"skipped": "no encoder checkpoint given"}
+    for kind, enc, steps, cars, learning_starts, gradient_steps, eval_seeds, time_limit_s in kinds:
+        t0 = time.perf_counter()
+        out = Path(runs) / "policy" / f"pipeline-{kind}"
+        trained = train_policy(
+            TrainPolicyConfig(
+                encoder=enc, track=track, car=car, cars=cars, steps=steps, preset=sizes.sac_preset, out=str(out),
+                seed=seed, force=True, eval_every_steps=sizes.eval_every_steps, checkpoint_every_steps=0,
+                save_buffer=False, stats_steps=sizes.stats_steps, learning_starts=learning_starts,
+                gradient_steps=gradient_steps, batch_size=sizes.batch_size, buffer_size=sizes.buffer_size,
+                device=device,
+            )
+        )  # fmt: skip
+        t1 = time.perf_counter()
+        evaluation = evaluate_policy(
+            out, seeds=eval_seeds, time_limit_s=time_limit_s, name=f"pipeline-{kind}", device="cpu"
+        )
+        summary[kind] = {
+            "policy": trained["policy"],
+            "num_timesteps": trained["num_timesteps"],
+            "train_time_s": trained["train_time_s"],
+            "best_lap_time_s": evaluation["best_lap_time_s"],
+            "median_lap_time_s": evaluation["median_lap_time_s"],
+            "n_finished": evaluation["n_finished"],
+            "n_seeds": evaluation["n_seeds"],
+            "clean": evaluation["clean"],
+            "distance_m": max(s["distance_m"] for s in evaluation["seeds"]),
+            "evaluation_json": evaluation.get("evaluation_json"),
+            "wall_time_s": {"train": round(t1 - t0, 1), "evaluate": round(time.perf_counter() - t1, 1)},
+        }
+    t0 = time.perf_counter()
+    table = leaderboard(track, car, runs)
+    summary["leaderboard"] = table
+    summary["leaderboard_time_s"] = round(time.perf_counter() - t0, 1)
+    return summary
+
+
+def run_pipeline_stages(opts: PipelineOptions) -> dict[str, Any]:
+    """Run every stage; returns a summary with each stage's figures and durations."""
+    from vision_rl.phase1_repr.train import TrainReprConfig, train_repr
+
+    sizes = SIZES[opts.mode]
+    summary: dict[str, Any] = {"mode": opts.mode, "track": opts.track, "car": opts.car}
+    t_start = t0 = time.perf_counter()
+    train_h5 = _capture(opts, sizes, "train", sizes.train_laps, disrupt=True)
+    eval_h5 = _capture(opts, sizes, "eval", sizes.eval_laps, disrupt=False)
+    summary["capture"] = {"train": str(train_h5), "eval": str(eval_h5), "seconds": time.perf_counter() - t0}
+
+    t0 = time.perf_counter()
+    repr_out = Path(opts.runs) / "repr" / "pipeline"
+    ckpt = repr_out / "ckpt.pt"
+    if not ckpt.is_file():
+        result = train_repr(
+            TrainReprConfig(
+                data=str(train_h5), val=str(eval_h5), epochs=sizes.repr_epochs, max_steps=sizes.repr_max_steps,
+                out=str(repr_out), force=True, seed=opts.seed, num_workers=0 if opts.tiny else 2,
+            )
+        )  # fmt: skip
+        summary["train_repr"] = {k: result.get(k) for k in ("best_epoch", "val_r2", "n_train_frames", "n_val_frames")}
+    summary["train_repr_seconds"] = time.perf_counter() - t0
+
+    summary["phase2"] = pipeline_phase2(
+        str(ckpt), sizes, mode=opts.mode, track=opts.track, car=opts.car, runs=opts.runs, seed=opts.seed
+    )
+    summary["seconds"] = time.perf_counter() - t_start
+    return summary
+
+
+def format_phase2(summary: dict[str, Any]) -> list[str]:
+    """Text lines of a :func:`pipeline_phase2` summary: each policy's result, then the leaderboard."""
+    from vision_rl.commands.evaluate import format_leaderboard
+    from vision_rl.evaluation.outputs import format_lap_time
+
+    lines = [f"Phase 2 ({summary['mode']}) on {summary['track']} / {summary['car']}"]
+    for kind in ("state", "vision"):
+        r = summary.get(kind, {})
+        if "skipped" in r:
+            lines.append(f"  {kind}: skipped ({r['skipped']})")
+        elif r:
+            lines.append(
+                f"  {kind}: {r['num_timesteps']} steps in {r['wall_time_s']['train']:.0f} s; lap 2 best "
+                f"{format_lap_time(r['best_lap_time_s'])} ({r['n_finished']}/{r['n_seeds']} seeds finished, "
+                f"{r['distance_m']:.0f} m driven at most); {r['policy']}"
+            )
+    return lines + format_leaderboard(summary["leaderboard"])
+
+
+def format_pipeline(summary: dict[str, Any]) -> list[str]:
+    """Text lines of a :func:`run_pipeline_stages` summary: stage times, the encoder's R^2, Phase 2's results."""
+    capture = summary["capture"]
+    lines = [
+        f"vision-rl pipeline ({summary['mode']}) on {summary['track']} / {summary['car']}",
+        f"  capture: {capture['seconds']:.0f} s -> {capture['train']} (disrupted), {capture['eval']} (clean)",
+    ]
+    repr_result = summary.get("train_repr")
+    if repr_result is None:
+        lines.append(f"  train-repr: kept the existing encoder ({summary['train_repr_seconds']:.0f} s)")
+    else:
+        r2 = ", ".join(f"{group} {value:.3f}" for group, value in (repr_result["val_r2"] or {}).items())
+        scored = f"best epoch {repr_result['best_epoch']}; R^2 on the clean laps: {r2}" if r2 else "no epoch scored"
+        lines.append(
+            f"  train-repr: {summary['train_repr_seconds']:.0f} s on {repr_result['n_train_frames']} frames, {scored}"
+        )
+    return [*lines, *format_phase2(summary["phase2"]), f"done in {summary['seconds'] / 60:.1f} min"]
+
+
+def run_pipeline(opts: PipelineOptions) -> int:
+    emit(run_pipeline_stages(opts), opts.json, format_pipeline)
+    return 0

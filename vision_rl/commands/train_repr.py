@@ -1,0 +1,47 @@
+"""`train-repr`: Phase 1, the frame encoder trained on capture files (:func:`vision_rl.phase1_repr.train.train_repr`).
+
+Prints where the run went and the kept epoch's R^2 per target group, or one JSON object with ``--json``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from vision_rl.commands.output import emit, progress_bar, show
+from vision_rl.phase1_repr.train import TrainReprConfig
+
+
+@dataclass(frozen=True)
+class TrainReprOptions(TrainReprConfig):
+    """Train the Phase-1 encoder on capture files; writes ckpt.pt, metrics.json, TensorBoard logs and a figure."""
+
+    progress: bool = True
+    """Show a progress bar (optimiser steps) on stderr."""
+    json: bool = False
+    """Print the result as JSON."""
+
+
+def format_train_repr(result: dict[str, Any]) -> list[str]:
+    lines = [
+        f"ckpt.pt: {result['ckpt']}",
+        f"metrics: {result['metrics_json']}   figure: {result['figure']}   TensorBoard: {result['tensorboard']}",
+        f"frames: {result['n_train_frames']} training, {result['n_val_frames']} validation; "
+        f"kept epoch {result['best_epoch']} (val loss {result['val_loss']})",
+    ]
+    for group, value in (result.get("val_r2") or {}).items():
+        lines.append(f"  R^2 {group:<20s} {value:.4f}")
+    return lines
+
+
+def run_train_repr(opts: TrainReprOptions) -> int:
+    from vision_rl.phase1_repr.train import train_repr
+
+    with progress_bar(None, "step", "train-repr", enabled=opts.progress) as bar:
+
+        def progress(done: int, total: int, figures: dict[str, float]) -> None:
+            show(bar, done, total, **{k: round(v, 4) if isinstance(v, float) else v for k, v in figures.items()})
+
+        result = train_repr(opts, progress if opts.progress else None)
+    emit(result, opts.json, format_train_repr)
+    return 0
