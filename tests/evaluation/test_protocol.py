@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.phase2_rl.conftest import STADIUM, small_track  # noqa: F401  (fixture)
+from tests.phase2_rl.conftest import STADIUM
 from vision_rl.evaluation.leaderboard import leaderboard
 from vision_rl.evaluation.protocol import STEP_S, BuiltinAI, time_laps
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver

@@ -21,7 +21,7 @@ from vision_rl.phase2_rl.artifact import (
 
 
 def _vision_spec(encoder_path, sha) -> PolicySpec:
-    cfg = RacingConfig(track="technical", observation="vision", n_groups=3, image_size_px=(96, 64))
+    cfg = RacingConfig(track="technical", observation="vision", n_groups=3, image_hw_px=(64, 96))
     return PolicySpec(
         observation="vision", racing_config=racing_config_to_dict(cfg),
         obs_normalizer={"offset": [0.0] * 75, "scale": [1.0] * 75},
@@ -30,10 +30,10 @@ def _vision_spec(encoder_path, sha) -> PolicySpec:
 
 
 def test_racing_config_round_trips_through_json():
-    cfg = RacingConfig(track="flowing", car="gt3", n_groups=7, image_size_px=(96, 64), stuck_timeout_s=5.0)
+    cfg = RacingConfig(track="flowing", car="gt3", n_groups=7, image_hw_px=(64, 96), terminate_when_stuck=True)
     back = racing_config_from_dict(json.loads(json.dumps(racing_config_to_dict(cfg))))
     assert back == cfg
-    assert back.image_size_px == (96, 64) and isinstance(back.opponent_skill, tuple)
+    assert back.image_hw_px == (64, 96) and isinstance(back.opponent_skill, tuple)
     with pytest.raises(PolicyError, match="unknown fields"):
         racing_config_from_dict({**racing_config_to_dict(cfg), "warp_drive": True})
 
@@ -42,7 +42,7 @@ def test_spec_round_trip_and_bad_sidecars(tmp_path, tiny_encoders):
     spec = _vision_spec(tiny_encoders[0], "ab" * 32)
     path = spec.write(tmp_path / "policy.json")
     assert PolicySpec.read(path) == spec
-    assert PolicySpec.read(path).config.image_size_px == (96, 64)
+    assert PolicySpec.read(path).config.image_hw_px == (64, 96)
     (tmp_path / "other.json").write_text(json.dumps({"format": "something.else"}))
     with pytest.raises(PolicyError, match="not a vision_rl policy"):
         PolicySpec.read(tmp_path / "other.json")

@@ -39,9 +39,9 @@ def test_train_writes_a_policy_that_evaluate_loads(state_run, small_track):
 
     policy = load_policy(out)
     assert policy.model.num_timesteps == 200
-    np.testing.assert_allclose(policy.observer.normalizer.scale, spec.obs_normalizer["scale"])
+    np.testing.assert_allclose(policy.spec.normalizer.scale, spec.obs_normalizer["scale"])
     ev = evaluate_policy(out, laps=2, seeds=2, time_limit_s=20.0)
-    assert ev["observation"] == "state" and ev["n_seeds"] == 2 and ev["protocol"]["scored_lap"] == 2
+    assert ev["driver"]["observation"] == "state" and ev["n_seeds"] == 2 and ev["protocol"]["scored_lap"] == 2
     assert ev["protocol"]["start"] == "rolling"
     stored = json.loads((out / "evaluation.json").read_text())
     assert stored["best_lap_time_s"] == ev["best_lap_time_s"] and stored["name"] == "tiny-state"
@@ -111,7 +111,9 @@ def test_sigterm_saves_like_ctrl_c(small_track, tmp_path, monkeypatch, capsys):
     import os
     import signal
 
-    from vision_rl.phase2_rl.train import run_train_policy
+    import dataclasses
+
+    from vision_rl.commands.train_policy import TrainPolicyOptions, run_train_policy
 
     original = _TrainingLoop._on_step
 
@@ -123,7 +125,8 @@ def test_sigterm_saves_like_ctrl_c(small_track, tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(_TrainingLoop, "_on_step", terminate)
     handler = signal.getsignal(signal.SIGTERM)
     out = tmp_path / "run"
-    assert run_train_policy(tiny_train_config(small_track, out, eval_every_steps=0)) == 130
+    config = tiny_train_config(small_track, out, eval_every_steps=0)
+    assert run_train_policy(TrainPolicyOptions(**dataclasses.asdict(config), progress=False)) == 130
     assert "interrupted: saved" in capsys.readouterr().out
     assert 100 <= PolicySpec.read(out / "policy.json").num_timesteps < 200
     assert signal.getsignal(signal.SIGTERM) == handler  # the command's handler is gone again

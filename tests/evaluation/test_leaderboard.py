@@ -1,0 +1,64 @@
+"""Leaderboard rows and gaps against hand-computed values; which evaluations enter the table, which are refused."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from vision_rl.commands.evaluate import format_leaderboard
+from vision_rl.evaluation import leaderboard as lb
+from vision_rl.evaluation.protocol import PROTOCOL_VERSION
+from vision_rl.sim.track_library import load_track
+
+
+def test_gaps_reproduce_the_papers_table_1():
+    # Vision paper, Table 1: built-in AI 1:52.075, Fuchs et al. 1:39.408, vision 1:42.717.
+    assert lb.gap_pct(102.717, 112.075) == pytest.approx(-8.3498, abs=1e-4)  # "8.4 % faster than the AI"
+    assert lb.gap_pct(102.717, 99.408) == pytest.approx(3.3287, abs=1e-4)  # "3.3 % slower than privileged state"
+    assert lb.gap_pct(None, 100.0) is None and lb.gap_pct(100.0, None) is None
+
+
+def _evaluation(path, name, lap, track, car="hatchback", version=PROTOCOL_VERSION, wall_s=0.0):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    best = None if lap is None else {"lap_time_s": lap, "wall_contact_s": wall_s}
+    data = {"format": lb.EVALUATION_FORMAT, "name": name, "protocol": {"version": version},
+            "driver": {"driver": "policy", "observation": "state", "policy": f"runs/{name}"},
+            "best_lap_time_s": lap, "median_lap_time_s": lap, "best_lap": best, "clean": wall_s <= 0.5,
+            "n_finished": 3 if lap else 0, "n_seeds": 3, "car": car,
+            "track_geometry_hash": load_track(track).geometry_hash}  # fmt: skip
+    path.write_text(json.dumps(data))
+
+
+def test_leaderboard_holds_protocol_rows_of_its_track_and_car_and_refuses_old_ones(tmp_path, small_track):
+    runs = tmp_path / "runs"
+    ai_s = lb.leaderboard(small_track, "hatchback", str(tmp_path / "none"))["rows"][0]["lap_time_s"]
+    _evaluation(runs / "fast" / "evaluation.json", "fast", 0.9 * ai_s, small_track)
+    _evaluation(runs / "slow" / "checkpoints" / "policy_100.evaluation.json", "slow", 1.1 * ai_s, small_track, wall_s=2)
+    _evaluation(runs / "dnf" / "evaluation.json", "dnf", None, small_track)
+    _evaluation(runs / "other-car" / "evaluation.json", "other-car", 1.0, small_track, car="gt3")
+    _evaluation(runs / "other-track" / "evaluation.json", "other-track", 1.0, "flowing")
+    _evaluation(runs / "old" / "evaluation.json", "old", 1.0, small_track, version=None)
+    (runs / "broken").mkdir()
+    (runs / "broken" / "evaluation.json").write_text("{half a file")
+    result = lb.leaderboard(small_track, "hatchback", str(runs))
+    assert [r["name"] for r in result["rows"]] == ["fast", "built-in AI (default skill)", "slow", "dnf"]
+    fast, ai, slow, dnf = result["rows"]
+    limit_s = result["limit_lap_time_s"]
+    assert ai["lap_time_s"] == ai_s and ai["gap_to_ai_pct"] == 0.0
+    assert fast["gap_to_ai_pct"] == pytest.approx(-10.0) and slow["gap_to_ai_pct"] == pytest.approx(10.0)
+    assert fast["gap_to_limit_pct"] == pytest.approx(100 * (0.9 * ai_s / limit_s - 1))
+    assert fast["clean"] and not slow["clean"] and dnf["gap_to_limit_pct"] is None
+    assert all(r["protocol_version"] == PROTOCOL_VERSION for r in result["rows"])
+    (refused,) = result["refused"]
+    assert "old" in refused and "vision-rl evaluate --policy runs/old" in refused
+    text = "\n".join(format_leaderboard(result))
+    assert "-10.00" in text and "refused:" in text and " no" in text
+
+
+def test_the_limit_is_the_reference_of_the_gap(small_track, tmp_path):
+    result = lb.leaderboard(small_track, "hatchback", str(tmp_path))
+    # A 677 m lap at about 26 m/s: the racing line uses the width to open the 60 m bends.
+    assert result["limit_lap_time_s"] == pytest.approx(25.6, abs=0.5)
+    # The built-in AI aims at a fraction of the limit profile (its default skill): slower than the limit, not by much.
+    assert 1.0 < result["rows"][0]["lap_time_s"] / result["limit_lap_time_s"] < 1.3
