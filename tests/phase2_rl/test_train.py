@@ -108,10 +108,9 @@ def test_presets_and_overrides():
 
 
 def test_sigterm_saves_like_ctrl_c(small_track, tmp_path, monkeypatch, capsys):
+    import dataclasses
     import os
     import signal
-
-    import dataclasses
 
     from vision_rl.commands.train_policy import TrainPolicyOptions, run_train_policy
 
