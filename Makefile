@@ -6,7 +6,7 @@ TORCH_SPEC ?= torch==2.13.0
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup quick test lint bench clean
+.PHONY: setup quick test faults lint bench clean
 
 $(BIN)/vision-rl: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +22,10 @@ quick: setup
 
 test: setup
 	$(BIN)/python -m pytest -q
+
+# The fault-injection suite alone, regenerating its table of outcomes in docs/faults.md.
+faults: setup
+	$(BIN)/python -m pytest -q tests/faults --fault-table docs/faults.md
 
 lint: setup
 	$(BIN)/ruff check vision_rl tests

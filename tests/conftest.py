@@ -43,3 +43,11 @@ def gl_available() -> None:
     reason = renderer_available()
     if reason:
         pytest.skip(reason)
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--fault-table",
+        default="",
+        help="write the fault suite's outcomes (tests/faults) as a Markdown table to this path (make faults)",
+    )

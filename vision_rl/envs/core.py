@@ -8,6 +8,7 @@ groups, same-step autoreset) are thin layers over :class:`RacingCore`.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +33,8 @@ SCENARIOS: dict[str, tuple[int, float]] = {
 }
 #: Seed of the rollout that the normalisation statistics are sampled from: one set of numbers per configuration.
 STATS_SEED = 12345
+#: Groups of the world whose disrupted-AI drive gives the normalisation statistics (the papers' 20 cars).
+STATS_GROUPS = 20
 
 
 @dataclass(frozen=True)
@@ -137,7 +140,7 @@ class RacingCore:
             observer = Observer(cfg.observation, self.track, self.car, self.groups, image_hw_px=cfg.image_hw_px)
             if cfg.normalize and cfg.observation != "vision":
                 observer.normalizer = obs_lib.load_or_compute_normalizer(
-                    self.track, self.car.name, cfg.observation, lambda: self.sample_raw_observations(observer)
+                    self.track, self.car.name, cfg.observation, lambda: _statistics_sample(cfg)
                 )
         self.observer = observer
 
@@ -290,3 +293,14 @@ def _take(obs, g: int):
     if isinstance(obs, dict):
         return {k: v[g] for k, v in obs.items()}
     return obs[g]
+
+
+def _statistics_sample(config: RacingConfig) -> np.ndarray:
+    """Raw observations for the cached normalisation of ``config``'s track, car and observation kind, always from
+    :data:`STATS_GROUPS` groups: the statistics (and so the normalised observations) must not depend on which
+    environment happened to compute them first."""
+    core = RacingCore(dataclasses.replace(config, n_groups=STATS_GROUPS, normalize=False))
+    try:
+        return core.sample_raw_observations(core.observer)
+    finally:
+        core.observer.close()

@@ -45,8 +45,9 @@ OVERTAKING_OBS_NAMES: tuple[str, ...] = (
 OVERTAKING_LIDAR = slice(7, 79)
 OBS_NAMES = {"state": STATE_OBS_NAMES, "overtaking": OVERTAKING_OBS_NAMES}
 
-#: Bump when an observation's definition changes: cached statistics of older versions are then ignored.
-OBS_VERSION = 2
+#: Bump when an observation's definition or its statistics' sampling changes: cached statistics of older versions
+#: are then ignored. 3: statistics always come from a 20-group world, whatever the environment that asks.
+OBS_VERSION = 3
 
 
 def _speed(state: WorldState, ids: np.ndarray) -> np.ndarray:
