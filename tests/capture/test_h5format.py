@@ -139,18 +139,11 @@ def test_caller_may_reuse_its_buffers_while_frames_are_compressed(tmp_path: Path
         np.testing.assert_array_equal(cap.lap, frames["lap"])
 
 
-def test_file_of_the_old_gzip_codec_reads_and_resumes_with_it(tmp_path: Path) -> None:
+def test_gzip_file_resumes_with_its_own_codec(tmp_path: Path) -> None:
     path = tmp_path / "old.h5"
     frames = noisy_batch(6, seed=4)
     with writer(path, compression="gzip") as w:
         w.append(**{k: v[:4] for k, v in frames.items()})
-    # As a file of the earlier format: images compressed by h5py's own deflate filter (level 6), not by this module.
-    with h5py.File(path, "r+") as f:
-        old = f["images"][:]
-        del f["images"]
-        f.create_dataset("images", data=old, maxshape=(None, *HW_PX, 3), chunks=(1, *HW_PX, 3), compression="gzip")
-    with open_capture(path) as cap:
-        np.testing.assert_array_equal(cap.read_images(np.arange(4)), frames["images"][:4])
     w = writer(path, resume=True)  # the default codec is zstd: a resumed file keeps its own
     assert w.compression == "gzip" and w.n_frames == 4
     w.append(**{k: v[4:] for k, v in frames.items()})
@@ -159,6 +152,34 @@ def test_file_of_the_old_gzip_codec_reads_and_resumes_with_it(tmp_path: Path) ->
         assert cap.attrs["compression"] == "gzip"
         np.testing.assert_array_equal(cap.read_images(np.arange(6), threads=2), frames["images"])
         np.testing.assert_array_equal(cap.read_image(5), frames["images"][5])
+
+
+def test_files_of_format_1_without_checksums_are_refused(tmp_path: Path) -> None:
+    path = _complete_file(tmp_path / "v1.h5")
+    with h5py.File(path, "r+") as f:
+        f.attrs["format_version"] = 1
+    with pytest.raises(CaptureFormatError, match=r"no checksums.*capture it again"):
+        open_capture(path)
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lzf"])
+def test_fingerprint_and_content_digest(tmp_path: Path, compression: str) -> None:
+    path = tmp_path / "cap.h5"
+    w = writer(path, compression=compression)
+    w.append(**noisy_batch(5, seed=1))
+    w.close(complete=True)
+    with open_capture(path) as cap:
+        fp = cap.fingerprint
+        assert fp["track_geometry_hash"] == "abc123" and fp["seed"] == 42 and fp["image_width"] == HW_PX[1]
+        assert fp["renderer_settings"] == ATTRS["renderer_settings"]
+        assert h5format.fingerprint_sha256(fp) == cap.attrs["fingerprint_sha256"]
+        digest = cap.content_sha256()
+        assert digest == cap.attrs["content_sha256"]
+        np.testing.assert_array_equal(cap.read_images(np.arange(5)), noisy_batch(5, seed=1)["images"])
+    with h5py.File(path, "r+") as f:  # an edit that keeps every checksum valid still changes the digest
+        f["lap"][0] = 99
+    with open_capture(path) as cap, pytest.raises(CaptureFormatError, match="content_sha256"):
+        cap.content_sha256()
 
 
 def test_corrupt_zstd_frame_is_named(tmp_path: Path) -> None:
@@ -180,7 +201,7 @@ def test_existing_file_needs_force_and_complete_file_cannot_resume(tmp_path: Pat
     w = writer(path)
     w.append(**batch(3))
     w.close(complete=True)
-    with pytest.raises(FileExistsError, match="force"):
+    with pytest.raises(FileExistsError, match="--force"):
         writer(path)
     with pytest.raises(CaptureFormatError, match="complete"):
         writer(path, resume=True)

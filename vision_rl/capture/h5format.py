@@ -13,6 +13,7 @@ dataset               dtype      shape            notes
 ``time``              float64    (N,)             simulation time, s
 ``lap``               int32      (N,)             lap index of the car at that frame (datasets split on it)
 ``car_id``            int32      (N,)             which car's view the frame is
+``image_crc32``       uint32     (N,)             CRC-32 of each frame's stored image chunk (see below)
 ====================  =========  ===============  ==============================================================
 
 File attributes: ``format_version``, ``target_names``, ``target_units``, ``dedicated_names``, ``dedicated_units``,
@@ -20,6 +21,20 @@ File attributes: ``format_version``, ``target_names``, ``target_units``, ``dedic
 committed by the last flush), plus the caller's attributes; :data:`REQUIRED_ATTRS` are mandatory (track name and
 geometry hash, car preset, renderer settings, seed). Dict or list values are stored as JSON text and listed in the
 attribute ``json_attrs`` so the reader gives them back decoded.
+
+Fingerprint: ``fingerprint`` (JSON) holds what the frames were made from (:data:`FINGERPRINT_KEYS` that the file
+has: source, track and its geometry hash, car, number of cars, fps, disruption, renderer settings with the frame
+size, seed, target names, package version at creation) and ``fingerprint_sha256`` its hash; a resumed writer
+refuses any difference but the package version, naming the field. A completed file also records
+``content_sha256`` (:meth:`CaptureFile.content_sha256`), the digest a trained encoder records of its data.
+
+Checksums (format version 2), checked on every read: the image chunks are written directly (HDF5's filter pipeline
+is bypassed, so its fletcher32 filter cannot cover them): ``image_crc32`` holds the CRC-32 of each stored chunk
+(zstd or deflate stream; of the raw frame bytes for the codecs h5py decodes, attribute ``image_crc32_of``), checked
+before a frame is decoded. Every other dataset, ``image_crc32`` included, carries HDF5's fletcher32 filter, checked
+by HDF5 on read per chunk of 4,096 rows. A mismatch raises :class:`CaptureFormatError` naming the file, the dataset
+and the frame (for a table, the frames of the damaged chunk). Files of format version 1 carry no checksums and are
+refused with the advice to capture again: nothing would tell a damaged frame from a good one.
 
 Crash safety: the writer flushes at most every ``flush_interval_s`` seconds, data first and then ``n_frames``, so
 the count on disk never covers frames whose bytes are not there. Between flushes the rows of the small datasets
@@ -34,6 +49,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import json
 import os
 import threading
@@ -49,17 +65,25 @@ import hdf5plugin  # registers HDF5's Zstandard filter, so h5py reads zstd image
 import numpy as np
 import zstandard
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: The first format version whose files carry checksums; older files are refused.
+_CHECKSUMMED_SINCE = 2
 
 #: Caller attributes every capture file must carry, so that a frame can be traced to how it was made (track name
 #: and a hash of its geometry, car preset, renderer settings, seed; package version and the completion flag are
 #: added by the writer).
 REQUIRED_ATTRS: tuple[str, ...] = ("track_name", "track_geometry_hash", "car_preset", "renderer_settings", "seed")
 
-#: Attributes a resumed file must share with the writer reopening it, or the frames would not belong together.
-_RESUME_MUST_MATCH: tuple[str, ...] = (
-    *REQUIRED_ATTRS, "target_names", "dedicated_names", "image_height", "image_width",
+#: What the frames were made from, in the order a difference is reported: the attributes of the file's
+#: ``fingerprint`` (those the file has; a video capture has no ``cars`` or ``disrupted``).
+FINGERPRINT_KEYS: tuple[str, ...] = (
+    "source", "track_name", "track_geometry_hash", "car_preset", "cars", "fps", "disrupted", "seed",
+    "image_height", "image_width", "renderer_settings", "target_names", "dedicated_names", "package_version",
 )  # fmt: skip
+
+#: Fingerprint fields a resumed file must share with the writer reopening it, or the frames would not belong
+#: together. The package version may differ (a resumed run records the version that finished it).
+_RESUME_MUST_MATCH: tuple[str, ...] = tuple(k for k in FINGERPRINT_KEYS if k != "package_version")
 
 #: Per-frame datasets other than the images: name -> (dtype, trailing shape or None when sized by the names).
 _FRAME_DATASETS: dict[str, tuple[np.dtype, tuple[int, ...] | None]] = {
@@ -70,8 +94,10 @@ _FRAME_DATASETS: dict[str, tuple[np.dtype, tuple[int, ...] | None]] = {
     "lap": (np.dtype(np.int32), ()),
     "car_id": (np.dtype(np.int32), ()),
 }
-_UNITS = {"pose": "m, m, rad", "time": "s", "lap": "1", "car_id": "1"}
-ALL_DATASETS: tuple[str, ...] = ("images", *_FRAME_DATASETS)
+_UNITS = {"pose": "m, m, rad", "time": "s", "lap": "1", "car_id": "1", "image_crc32": "1"}
+#: The per-frame table datasets with HDF5's fletcher32 checksum: the caller's columns and the images' CRC-32s.
+_TABLE_DATASETS: tuple[str, ...] = (*_FRAME_DATASETS, "image_crc32")
+ALL_DATASETS: tuple[str, ...] = ("images", *_TABLE_DATASETS)
 
 #: Rows per chunk of the small per-frame datasets: 4,096 rows of 27 float32 is 432 KiB, near HDF5's sweet spot,
 #: and small enough that the last, partly filled chunk costs little.
@@ -116,6 +142,11 @@ def _zstd_compress(frame: np.ndarray) -> bytes:
     if comp is None:
         comp = _codec_state.compressor = zstandard.ZstdCompressor(level=_ZSTD_LEVEL, write_content_size=True)
     return comp.compress(frame)
+
+
+def _encode_with_crc(encode, frame: np.ndarray) -> tuple[bytes, int]:
+    blob = encode(frame)
+    return blob, zlib.crc32(blob)
 
 
 def _zstd_decompress(blob: bytes) -> bytes:
@@ -191,6 +222,35 @@ def _as_str_list(value: Any) -> list[str]:
     return [v.decode() if isinstance(v, bytes) else str(v) for v in np.atleast_1d(value)]
 
 
+def fingerprint_of(attrs: Mapping[str, Any]) -> dict[str, Any]:
+    """The :data:`FINGERPRINT_KEYS` of ``attrs`` that are present, normalised (JSON types)."""
+    return {k: _normalise(attrs[k]) for k in FINGERPRINT_KEYS if k in attrs}
+
+
+def fingerprint_sha256(fingerprint: Mapping[str, Any]) -> str:
+    """Hex SHA-256 of a fingerprint's canonical JSON (sorted keys)."""
+    return hashlib.sha256(json.dumps(_normalise(fingerprint), sort_keys=True).encode()).hexdigest()
+
+
+def first_difference(old: Any, new: Any, name: str) -> tuple[str, Any, Any] | None:
+    """(dotted field name, old value, new value) of the first leaf where two JSON-like values differ, else None:
+    a mismatch is reported as one field, not as two whole dicts."""
+    old, new = _normalise(old), _normalise(new)
+    if isinstance(old, dict) and isinstance(new, dict):
+        for key in [*old, *(k for k in new if k not in old)]:
+            diff = first_difference(old.get(key), new.get(key), f"{name}.{key}")
+            if diff is not None:
+                return diff
+        return None
+    if isinstance(old, list) and isinstance(new, list) and len(old) == len(new):
+        for i, (a, b) in enumerate(zip(old, new, strict=True)):
+            diff = first_difference(a, b, f"{name}[{i}]")
+            if diff is not None:
+                return diff
+        return None
+    return None if old == new else (name, old, new)
+
+
 def _is_disk_full(exc: BaseException) -> bool:
     # h5py turns HDF5's write failure into an OSError whose errno is often unset; the text keeps the system's.
     return getattr(exc, "errno", None) == errno.ENOSPC or "No space left" in str(exc) or "errno = 28" in str(exc)
@@ -260,6 +320,8 @@ class CaptureWriter:
             compression=compression,
             package_version=package_version(),
         )
+        file_attrs["fingerprint"] = fingerprint_of(file_attrs)
+        file_attrs["fingerprint_sha256"] = fingerprint_sha256(file_attrs["fingerprint"])
         self._closed = True
         self._broken = False
         if self.path.exists() and resume:
@@ -267,7 +329,7 @@ class CaptureWriter:
             compression = str(self._file.attrs["compression"])
         else:
             if self.path.exists() and not force:
-                raise FileExistsError(f"{self.path} exists: pass force to overwrite it or resume to continue it")
+                raise FileExistsError(f"{self.path} exists: pass --force to overwrite it or --resume to continue it")
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._file = self._create(file_attrs, compression)
         self.compression = compression
@@ -282,7 +344,7 @@ class CaptureWriter:
         self._pending: list[tuple[int, list[Future[bytes]]]] = []
         # Rows of the small per-frame datasets not yet on disk, and how many are: written at a flush (or every
         # _ROW_CHUNK rows) in one call per dataset instead of a resize and a write per dataset and append.
-        self._rows: dict[str, list[np.ndarray]] = {name: [] for name in _FRAME_DATASETS}
+        self._rows: dict[str, list[np.ndarray]] = {name: [] for name in _TABLE_DATASETS}
         self._n_buffered_rows = 0
         self._n_rows_on_disk = int(self._ds["targets"].shape[0])
         self._closed = False
@@ -301,6 +363,7 @@ class CaptureWriter:
             f.attrs["json_attrs"] = np.array(json_keys, dtype=h5py.string_dtype())
             f.attrs["complete"] = False
             f.attrs["n_frames"] = 0
+            f.attrs["image_crc32_of"] = "chunk" if compression in _ENCODERS else "frame"
             comp: dict[str, Any] = {}
             if compression == "lzf":
                 comp = {"compression": "lzf"}
@@ -311,11 +374,12 @@ class CaptureWriter:
             h, w = self.image_hw_px
             f.create_dataset("images", shape=(0, h, w, 3), maxshape=(None, h, w, 3), dtype=np.uint8,
                              chunks=(1, h, w, 3), **comp)  # fmt: skip
-            for name, (dtype, tail) in _FRAME_DATASETS.items():
+            tables = {**_FRAME_DATASETS, "image_crc32": (np.dtype(np.uint32), ())}
+            for name, (dtype, tail) in tables.items():
                 if tail is None:
                     tail = (len(self.target_names) if name == "targets" else len(self.dedicated_names),)
                 f.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail), dtype=dtype,
-                                 chunks=(_ROW_CHUNK, *tail))  # fmt: skip
+                                 chunks=(_ROW_CHUNK, *tail), fletcher32=True)  # fmt: skip
             f["targets"].attrs["names"] = file_attrs["target_names"]
             f["targets"].attrs["units"] = file_attrs["target_units"]
             f["dedicated"].attrs["names"] = file_attrs["dedicated_names"]
@@ -331,13 +395,18 @@ class CaptureWriter:
     def _reopen(self, file_attrs: dict[str, Any]) -> h5py.File:
         with open_capture(self.path) as existing:
             if existing.complete:
-                raise CaptureFormatError(f"{self.path}: the file is complete; nothing to resume (use force to redo it)")
-            stored = existing.attrs
+                raise CaptureFormatError(
+                    f"{self.path}: the file is complete; nothing to resume (use --force to capture it again)"
+                )
+            stored = existing.attrs.get("fingerprint", {})
+            mine = file_attrs["fingerprint"]
             for key in _RESUME_MUST_MATCH:
-                mine, theirs = _normalise(file_attrs.get(key)), _normalise(stored.get(key))
-                if mine != theirs:
+                diff = first_difference(stored.get(key), mine.get(key), key)
+                if diff is not None:
+                    field, theirs, now = diff
                     raise CaptureFormatError(
-                        f"{self.path}: cannot resume: attribute {key!r} is {theirs!r} in the file, {mine!r} now"
+                        f"{self.path}: cannot resume: {field} is {theirs!r} in the file but {now!r} now; resume with "
+                        "the file's settings or start over with --force"
                     )
             n_committed = existing.n_frames
         f = h5py.File(self.path, "r+")
@@ -421,24 +490,33 @@ class CaptureWriter:
         ds.resize(start + len(images), axis=0)
         if self._pool is None:
             ds[start:] = images
+            # h5py decodes these codecs: the checksum covers the frame bytes (one C call per frame).
+            crcs = [zlib.crc32(np.ascontiguousarray(frame)) for frame in images]
+            self._rows["image_crc32"].append(np.asarray(crcs, dtype=np.uint32))
             return
         # The same stream HDF5's deflate or Zstandard filter writes, so any HDF5 reader decodes these chunks. A
         # copy: the caller may reuse its buffer once append returns.
         frames = np.array(images, dtype=np.uint8, order="C", copy=True)
         encode = _ENCODERS[self.compression]
-        self._pending.append((start, [self._pool.submit(encode, frame) for frame in frames]))
+        self._pending.append((start, [self._pool.submit(_encode_with_crc, encode, frame) for frame in frames]))
         while len(self._pending) > 1:  # the batch before this one, compressed while the caller made this one
             self._write_pending()
 
     def _write_pending(self) -> None:
         start, futures = self._pending.pop(0)
         ds = self._ds["images"]
+        crcs = np.empty(len(futures), dtype=np.uint32)
         for j, future in enumerate(futures):
-            ds.id.write_direct_chunk((start + j, 0, 0, 0), future.result())
+            blob, crcs[j] = future.result()
+            ds.id.write_direct_chunk((start + j, 0, 0, 0), blob)
+        self._rows["image_crc32"].append(crcs)
 
     def _write_rows(self) -> None:
         if self._n_buffered_rows == 0:
             return
+        # The images' checksums are known once their chunks are compressed: write those first.
+        while self._pending:
+            self._write_pending()
         end = self._n_rows_on_disk + self._n_buffered_rows
         for name, parts in self._rows.items():
             ds = self._ds[name]
@@ -484,6 +562,7 @@ class CaptureWriter:
         try:
             self.flush()
             if complete:
+                self._file.attrs["content_sha256"] = _content_sha256(self._file, self.n_frames)
                 self._file.attrs["complete"] = True
         except OSError as exc:
             self._broken = True
@@ -503,6 +582,34 @@ class CaptureWriter:
     def __exit__(self, *exc: object) -> None:
         # Leaving the block never marks the file complete: only an explicit close(complete=True) does.
         self.close(complete=False)
+
+
+def _content_sha256(f: h5py.File, n_frames: int, path: Path | None = None) -> str:
+    """Hex SHA-256 of the first ``n_frames`` rows of every table dataset; ``image_crc32`` stands for the images."""
+    digest = hashlib.sha256()
+    for name in _TABLE_DATASETS:
+        digest.update(name.encode())
+        digest.update(_read_table(f[name], n_frames, path or Path(f.filename)).tobytes())
+    return digest.hexdigest()
+
+
+def _read_table(ds: h5py.Dataset, n_frames: int, path: Path) -> np.ndarray:
+    """The first ``n_frames`` rows; a failed fletcher32 checksum is named with the frames of the damaged chunk."""
+    try:
+        return ds[:n_frames]
+    except OSError as exc:
+        name = ds.name.lstrip("/")
+        rows = ds.chunks[0] if ds.chunks else max(n_frames, 1)
+        for start in range(0, n_frames, rows):  # one read per chunk: find the damaged one
+            stop = min(start + rows, n_frames)
+            try:
+                ds[start:stop]
+            except OSError:
+                raise CaptureFormatError(
+                    f"{path}: dataset {name!r}, frames {start}..{stop - 1}: the data fail their checksum or cannot "
+                    f"be read (damaged file): restore or capture it again ({exc})"
+                ) from exc
+        raise CaptureFormatError(f"{path}: cannot read dataset {name!r}: {exc}") from exc
 
 
 def _normalise(value: Any) -> Any:
@@ -533,6 +640,12 @@ class CaptureFile:
         self.attrs = attrs
         self.images: h5py.Dataset = handle["images"]
         self._decode = _direct_decoder(self.images, self.image_hw_px)
+        # The images' CRC-32s, read on the first image read; "chunk": of the stored chunk, "frame": of its bytes.
+        self._crc: np.ndarray | None = None
+        self._crc_of = str(attrs.get("image_crc32_of", "frame"))
+        if self._crc_of == "chunk" and self._decode is None:
+            raise CaptureFormatError(f"{path}: image checksums cover zstd/deflate chunks but the images are stored "
+                                     "otherwise (a rewritten file?)")  # fmt: skip
         self._pool: ThreadPoolExecutor | None = None
         self._pool_threads = 0
 
@@ -561,10 +674,29 @@ class CaptureFile:
         return list(self.attrs["dedicated_units"])
 
     def _column(self, name: str) -> np.ndarray:
-        try:
-            return self._f[name][: self.n_frames]
-        except OSError as exc:
-            raise CaptureFormatError(f"{self.path}: cannot read dataset {name!r}: {exc}") from exc
+        return _read_table(self._f[name], self.n_frames, self.path)
+
+    @property
+    def fingerprint(self) -> dict[str, Any]:
+        """What the frames were made from (see the module doc), as a dict."""
+        return dict(self.attrs.get("fingerprint", {}))
+
+    def content_sha256(self) -> str:
+        """Hex SHA-256 of the committed rows of every table (the images through their CRC-32s); a completed file
+        must match the digest recorded when it was completed."""
+        digest = _content_sha256(self._f, self.n_frames, self.path)
+        recorded = self.attrs.get("content_sha256")
+        if self.complete and recorded is not None and recorded != digest:
+            raise CaptureFormatError(
+                f"{self.path}: content_sha256 is {digest[:16]}... but {str(recorded)[:16]}... was recorded when the "
+                "capture completed (the file was changed since): restore or capture it again"
+            )
+        return digest
+
+    def _crcs(self) -> np.ndarray:
+        if self._crc is None:
+            self._crc = self._column("image_crc32")
+        return self._crc
 
     @property
     def targets(self) -> np.ndarray:
@@ -595,29 +727,43 @@ class CaptureFile:
         if not 0 <= index < self.n_frames:
             raise IndexError(f"{self.path}: frame {index} out of range [0, {self.n_frames})")
         out = np.empty((*self.image_hw_px, 3), dtype=np.uint8)
+        self._crcs()
         self._decode_into(out, self._read_chunk(index), index)
         return out
 
-    def _read_chunk(self, index: int) -> bytes | None:
-        """The compressed chunk of a frame when this module decodes it itself, else None (h5py decodes)."""
+    def _read_chunk(self, index: int) -> tuple[bytes, bool] | None:
+        """(the stored chunk of a frame, whether this module decodes it) when the checksum covers the chunk or this
+        module decodes it, else None (h5py reads and decodes the frame)."""
         if self._decode is None:
             return None
         try:
             mask, blob = self.images.id.read_direct_chunk((int(index), 0, 0, 0))
         except OSError as exc:
-            raise CaptureFormatError(f"{self.path}: frame {index} cannot be read: {exc}") from exc
+            raise CaptureFormatError(f"{self.path}: dataset 'images', frame {index} cannot be read: {exc}") from exc
         # A set bit in the mask means HDF5 skipped an optional filter for this chunk: let h5py decode it.
-        return blob if mask == 0 else None
+        return blob, mask == 0
 
-    def _decode_into(self, out: np.ndarray, blob: bytes | None, index: int) -> None:
+    def _checksum_error(self, index: int, stored: int, read: int) -> CaptureFormatError:
+        return CaptureFormatError(
+            f"{self.path}: dataset 'images', frame {index}: CRC-32 {read:08x} of the stored {self._crc_of} differs "
+            f"from the recorded {stored:08x} (damaged file): restore or capture it again"
+        )
+
+    def _decode_into(self, out: np.ndarray, chunk: tuple[bytes, bool] | None, index: int) -> None:
+        assert self._crc is not None
+        stored = int(self._crc[index])
+        if chunk is not None and self._crc_of == "chunk" and zlib.crc32(chunk[0]) != stored:
+            raise self._checksum_error(index, stored, zlib.crc32(chunk[0]))
         try:
-            if blob is None:
+            if chunk is None or not chunk[1]:
                 out[...] = self.images[index]
             else:
                 assert self._decode is not None
-                out.reshape(-1)[:] = np.frombuffer(self._decode(blob), dtype=np.uint8)
+                out.reshape(-1)[:] = np.frombuffer(self._decode(chunk[0]), dtype=np.uint8)
         except (OSError, *_DECODE_ERRORS) as exc:
-            raise CaptureFormatError(f"{self.path}: frame {index} cannot be decoded: {exc}") from exc
+            raise CaptureFormatError(f"{self.path}: dataset 'images', frame {index} cannot be decoded: {exc}") from exc
+        if self._crc_of == "frame" and zlib.crc32(out) != stored:
+            raise self._checksum_error(index, stored, zlib.crc32(out))
 
     def read_images(
         self, indices: Sequence[int] | np.ndarray, threads: int = 0, out: np.ndarray | None = None
@@ -637,6 +783,7 @@ class CaptureFile:
         elif out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
             raise ValueError(f"out must be a C-contiguous uint8 array of shape {shape}, got {out.dtype} {out.shape}")
         # HDF5 calls are serialised by h5py's lock anyway: read the compressed chunks here, decode in threads.
+        self._crcs()
         blobs = [self._read_chunk(int(i)) for i in idx]
         n_threads = threads if threads > 0 else _default_threads()
         if len(idx) < 2 or n_threads < 2 or self._decode is None:
@@ -703,6 +850,17 @@ def open_capture(path: str | os.PathLike[str]) -> CaptureFile:
     return CaptureFile(path, f, n_frames, attrs)
 
 
+def _check_version(path: Path, attrs: Mapping[str, Any]) -> None:
+    version = int(attrs["format_version"])
+    if version > FORMAT_VERSION:
+        raise CaptureFormatError(f"{path}: format version {version} is newer than this reader's {FORMAT_VERSION}")
+    if version < _CHECKSUMMED_SINCE:
+        raise CaptureFormatError(
+            f"{path}: format version {version} carries no checksums, so damaged frames would go unnoticed: capture "
+            f"it again (capture --force writes format {FORMAT_VERSION})"
+        )
+
+
 def _validate(path: Path, f: h5py.File) -> tuple[dict[str, Any], int]:
     def fail(problem: str) -> CaptureFormatError:
         return CaptureFormatError(f"{path}: {problem}")
@@ -715,8 +873,12 @@ def _validate(path: Path, f: h5py.File) -> tuple[dict[str, Any], int]:
     missing = [k for k in needed if k not in attrs]
     if missing:
         raise fail(f"missing attributes {missing}")
-    if int(attrs["format_version"]) > FORMAT_VERSION:
-        raise fail(f"format version {attrs['format_version']} is newer than this reader's {FORMAT_VERSION}")
+    _check_version(path, attrs)
+    missing = [k for k in ("fingerprint", "fingerprint_sha256", "image_crc32_of") if k not in attrs]
+    if missing:
+        raise fail(f"missing attributes {missing}")
+    if fingerprint_sha256(attrs["fingerprint"]) != attrs["fingerprint_sha256"]:
+        raise fail("the fingerprint does not match its recorded fingerprint_sha256 (the attributes were edited)")
     for key in ("target_names", "dedicated_names"):
         attrs[key] = _as_str_list(attrs[key])
         units_key = key.replace("names", "units")
@@ -726,11 +888,15 @@ def _validate(path: Path, f: h5py.File) -> tuple[dict[str, Any], int]:
     h, w = int(attrs["image_height"]), int(attrs["image_width"])
     expected_tail = {
         "images": (h, w, 3),
+        "image_crc32": (),
         "targets": (len(attrs["target_names"]),),
         "dedicated": (len(attrs["dedicated_names"]),),
         **{name: tail for name, (_, tail) in _FRAME_DATASETS.items() if tail is not None},
     }
-    expected_dtype = {"images": np.dtype(np.uint8), **{name: d for name, (d, _) in _FRAME_DATASETS.items()}}
+    expected_dtype = {
+        "images": np.dtype(np.uint8), "image_crc32": np.dtype(np.uint32),
+        **{name: d for name, (d, _) in _FRAME_DATASETS.items()},
+    }  # fmt: skip
     lengths = {}
     for name in ALL_DATASETS:
         if name not in f:
@@ -743,6 +909,8 @@ def _validate(path: Path, f: h5py.File) -> tuple[dict[str, Any], int]:
         if ds.shape[1:] != expected_tail[name]:
             tail = ", ".join(map(str, expected_tail[name]))
             raise fail(f"dataset {name!r} has shape {ds.shape}, expected (N, {tail})")
+        if name != "images" and not ds.fletcher32:
+            raise fail(f"dataset {name!r} has no fletcher32 checksum (rewritten by another tool?): capture it again")
         lengths[name] = ds.shape[0]
     n_frames = int(attrs["n_frames"])
     attrs["complete"] = bool(attrs["complete"])

@@ -17,6 +17,7 @@ state derived from the seed and the frames already written, lap indices continue
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -66,6 +67,31 @@ class CaptureConfig:
     """Image compression: zstd, gzip, lzf or none."""
     max_frames: int = 0
     """Stop after this many new frames (0: when ``laps`` are in)."""
+    flush_interval_s: float = 2.0
+    """Longest time between writes to disk, s: a kill loses at most the frames of this interval (0: every batch)."""
+
+    def __post_init__(self) -> None:
+        # Bounds of every number, checked when the configuration is made (the command line reports them as one
+        # line), not when a run is minutes in or the operating system kills it for memory.
+        h, w = self.image_hw_px
+        checks = (
+            (self.laps >= 1, f"--laps must be >= 1, got {self.laps}"),
+            (self.cars >= 1, f"--cars must be >= 1, got {self.cars}"),
+            (math.isfinite(self.fps) and self.fps > 0, f"--fps must be > 0, got {self.fps}"),
+            (h > 0 and w > 0, f"--image-hw-px must be two positive sizes (height, width), got {h} {w}"),
+            (self.max_frames >= 0, f"--max-frames must be >= 0 (0: no limit), got {self.max_frames}"),
+            (self.flush_interval_s >= 0, f"--flush-interval-s must be >= 0, got {self.flush_interval_s}"),
+        )
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(message)
+        limit = max_cars_for_memory(self.image_hw_px)
+        if self.cars > limit:
+            need_gb = self.cars * BYTES_PER_CAR_PIXEL * h * w / 1e9
+            raise ValueError(
+                f"--cars {self.cars} needs about {need_gb:.1f} GB for {h}x{w} px frames but "
+                f"{available_memory_bytes() / 1e9:.1f} GB of memory is available: at most {limit} cars at this size"
+            )
 
     @property
     def height(self) -> int:
@@ -76,6 +102,36 @@ class CaptureConfig:
     def width(self) -> int:
         """Frame width, px: ``image_hw_px[1]``."""
         return self.image_hw_px[1]
+
+
+#: Memory of one car's view per frame pixel during a capture, bytes: the renderer's colour and depth tiles (4 + 4,
+#: and again for the label pass), the read-back (3), the writer's copy and up to two batches waiting for
+#: compression (3 x 3); rounded up to leave room for the simulation and the compressed chunks.
+BYTES_PER_CAR_PIXEL = 32
+
+#: Share of the available memory a capture may plan to use for its cars' frames.
+_MEMORY_SHARE = 0.5
+
+
+def available_memory_bytes() -> int:
+    """Memory the system can give a new process (MemAvailable), or the physical memory where that is unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30  # unknown: assume a small machine
+
+
+def max_cars_for_memory(image_hw_px: tuple[int, int]) -> int:
+    """The most cars whose frames of ``image_hw_px`` (height, width) fit in half the available memory (>= 1)."""
+    per_car = BYTES_PER_CAR_PIXEL * max(1, int(image_hw_px[0])) * max(1, int(image_hw_px[1]))
+    return max(1, int(_MEMORY_SHARE * available_memory_bytes() // per_car))
 
 
 def physics_step_for(fps: float) -> tuple[float, float, int]:
@@ -99,9 +155,10 @@ def capture_attrs(track: Track, cfg: CaptureConfig, renderer_settings: dict, sou
         "renderer_settings": renderer_settings,
         "seed": cfg.seed,
         "source": source,
-        "fps": cfg.fps,
+        "fps": float(cfg.fps),
         "disrupted": bool(cfg.disrupt_ai),
         "requested_laps": cfg.laps,
+        **({"cars": int(cfg.cars)} if source == "sim" else {}),
     }
 
 
@@ -117,6 +174,7 @@ def open_writer(path: Path, track: Track, cfg: CaptureConfig, renderer_settings:
         resume=cfg.resume,
         force=cfg.force,
         compression=cfg.compression,
+        flush_interval_s=cfg.flush_interval_s,
     )
 
 
@@ -143,8 +201,6 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
     car = get_preset(cfg.car)
     physics_dt, control_dt, steps_per_frame = physics_step_for(cfg.fps)
     n = cfg.cars
-    if n < 1:
-        raise ValueError(f"cars must be >= 1, got {n}")
     render_cfg = RenderConfig(width_px=cfg.width, height_px=cfg.height, max_views=n)
     renderer_settings = {**asdict(render_cfg), "camera": asdict(render_cfg.camera)}
     writer = open_writer(path, track, cfg, renderer_settings, "sim")
@@ -234,4 +290,3 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
         "bytes_per_frame": path.stat().st_size / max(frames_before + frames, 1),
         "elapsed_s": elapsed,
     }
-

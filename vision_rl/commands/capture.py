@@ -3,10 +3,18 @@
 ``--source sim`` (default) drives built-in AI cars and renders their views (:func:`capture_sim`);
 ``--source video:DEVICE_OR_FILE --poses POSES.csv`` pairs an HDMI grabber's or a video's frames with a telemetry
 log (:func:`vision_rl.capture.video_source.capture_video`).
+
+A simulator capture stops cleanly on SIGTERM or Ctrl-C: the signal is noted and the run stops after the batch being
+written, so the file keeps every frame made so far (exit 143 or 130; a second signal stops at once, losing at most
+the frames since the last flush). ``--resume`` continues it.
 """
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -30,6 +38,39 @@ class CaptureOptions(CaptureConfig):
     """Print the summary as JSON."""
 
 
+class _StopRequest:
+    """The first SIGTERM or SIGINT asks the capture to stop between batches; a second one acts as usual."""
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+        self._previous: dict[int, object] = {}
+
+    def _handle(self, signum: int, frame: object) -> None:
+        if self.signal is not None:  # the second signal: the default action, no more waiting
+            signal.signal(signum, self._previous.get(signum, signal.SIG_DFL))
+            signal.raise_signal(signum)
+            return
+        self.signal = signum
+
+    def check(self) -> None:
+        """Called between batches: stop here (the writer closes the file with every frame written)."""
+        if self.signal is not None:
+            raise KeyboardInterrupt
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[_StopRequest]:
+        if threading.current_thread() is not threading.main_thread():  # signals reach only the main thread
+            yield self
+            return
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            self._previous[signum] = signal.signal(signum, self._handle)
+        try:
+            yield self
+        finally:
+            for signum, handler in self._previous.items():
+                signal.signal(signum, handler)  # type: ignore[arg-type]
+
+
 def run_capture(opts: CaptureOptions) -> int:
     """A progress bar in laps (frames after it), then the summary."""
     from vision_rl.capture.sim_capture import capture_sim
@@ -50,9 +91,17 @@ def run_capture(opts: CaptureOptions) -> int:
         return 0
     if opts.source != "sim":
         raise ValueError(f"--source must be 'sim' or 'video:DEVICE_OR_FILE', got {opts.source!r}")
-    with progress_bar(opts.laps, "lap", "capture") as bar:
-        result = capture_sim(opts, lambda laps, frames: show(bar, laps, frames=frames))
+    stop = _StopRequest()
+    with progress_bar(opts.laps, "lap", "capture") as bar, stop.installed():
+
+        def progress(laps: int, frames: int) -> None:
+            show(bar, laps, frames=frames)
+            stop.check()
+
+        result = capture_sim(opts, progress)
     if result["interrupted"]:
         result["note"] = f"interrupted: {result['frames_in_file']} frames kept; run again with --resume to continue"
     emit(result, opts.json)
-    return 130 if result["interrupted"] else 0
+    if not result["interrupted"]:
+        return 0
+    return 143 if stop.signal == signal.SIGTERM else 130
