@@ -1,4 +1,5 @@
-"""The policy sidecar: round trips, path resolution, and the encoder-hash check."""
+"""The policy sidecar: round trips, path resolution, and the encoder-hash check. (Tampered and foreign policy files
+are in tests/faults/test_policy.py.)"""
 
 from __future__ import annotations
 
@@ -24,9 +25,15 @@ def _vision_spec(encoder_path, sha) -> PolicySpec:
     cfg = RacingConfig(track="technical", observation="vision", n_groups=3, image_hw_px=(64, 96))
     return PolicySpec(
         observation="vision", racing_config=racing_config_to_dict(cfg),
-        obs_normalizer={"offset": [0.0] * 75, "scale": [1.0] * 75},
+        obs_normalizer={"offset": [0.0] * 75, "scale": [1.0] * 75}, fingerprint={}, weights_sha256="",
         encoder={"path": str(encoder_path), "sha256": sha, "rep_dim": 64, "input_hw_px": [64, 96]},
     )  # fmt: skip
+
+
+def _state_spec(**kw) -> PolicySpec:
+    return PolicySpec(observation="state", racing_config=racing_config_to_dict(RacingConfig()),
+                      obs_normalizer={"offset": [0.0] * 38, "scale": [1.0] * 38}, fingerprint={}, weights_sha256="",
+                      **kw)  # fmt: skip
 
 
 def test_racing_config_round_trips_through_json():
@@ -50,7 +57,7 @@ def test_spec_round_trip_and_bad_sidecars(tmp_path, tiny_encoders):
     with pytest.raises(PolicyError, match="not valid JSON"):
         PolicySpec.read(tmp_path / "broken.json")
     with pytest.raises(PolicyError, match="must record its encoder"):
-        PolicySpec(observation="vision", racing_config={}, obs_normalizer={})
+        PolicySpec(observation="vision", racing_config={}, obs_normalizer={}, fingerprint={}, weights_sha256="")
 
 
 def test_encoder_hash_mismatch_is_refused(tmp_path, tiny_encoders):
@@ -69,32 +76,28 @@ def test_encoder_hash_mismatch_is_refused(tmp_path, tiny_encoders):
         check_encoder(_vision_spec(moved, sha_a))
     with pytest.raises(PolicyError, match="--encoder"):
         check_encoder(_vision_spec(tmp_path / "gone.pt", sha_a))
-    state = PolicySpec(observation="state", racing_config=racing_config_to_dict(RacingConfig()),
-                       obs_normalizer={"offset": [0.0] * 38, "scale": [1.0] * 38})  # fmt: skip
     with pytest.raises(PolicyError, match="takes no encoder"):
-        check_encoder(state, enc_a)
+        check_encoder(_state_spec(), enc_a)
 
 
-def test_policy_paths_resolve_from_folder_zip_and_checkpoint(tmp_path):
+def test_policy_paths_resolve_from_folder_weights_and_snapshot(tmp_path):
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
-    for name in ("policy.zip", "checkpoints/policy_100.zip"):
-        (run / name).write_bytes(b"zip")
-    spec = PolicySpec(observation="state", racing_config=racing_config_to_dict(RacingConfig()),
-                      obs_normalizer={"offset": [0.0] * 38, "scale": [1.0] * 38})  # fmt: skip
-    with pytest.raises(PolicyError, match=r"no policy\.json sidecar"):
+    for name in ("policy.pt", "checkpoints/policy_100.pt"):
+        (run / name).write_bytes(b"weights")
+    with pytest.raises(PolicyError, match=r"no sidecar \(policy\.json\)"):
         resolve_policy_paths(run)
-    spec.write(run / "policy.json")
-    assert resolve_policy_paths(run) == (run / "policy.zip", run / "policy.json")
-    assert resolve_policy_paths(run / "policy.zip") == (run / "policy.zip", run / "policy.json")
-    assert resolve_policy_paths(run / "checkpoints" / "policy_100.zip") == (
-        run / "checkpoints" / "policy_100.zip", run / "policy.json"
-    )  # fmt: skip
+    _state_spec().write(run / "policy.json")
+    _state_spec(model="policy_100.pt").write(run / "checkpoints" / "policy_100.json")
+    assert resolve_policy_paths(run) == (run / "policy.pt", run / "policy.json")
+    assert resolve_policy_paths(run / "policy.pt") == (run / "policy.pt", run / "policy.json")
+    snapshot = run / "checkpoints" / "policy_100.pt"
+    assert resolve_policy_paths(snapshot) == (snapshot, snapshot.with_suffix(".json"))
     with pytest.raises(PolicyError, match="no such policy"):
         resolve_policy_paths(tmp_path / "nothing")
-    (tmp_path / "empty").mkdir()
-    with pytest.raises(PolicyError, match="no policy here"):
-        resolve_policy_paths(tmp_path / "empty")
+    (run / "policy.pt").unlink()
+    with pytest.raises(PolicyError, match="no policy weights here"):
+        resolve_policy_paths(run)
 
 
 def test_bad_encoder_runtime_is_refused_before_loading(tmp_path):

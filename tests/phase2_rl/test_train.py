@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 
@@ -31,14 +32,18 @@ def test_train_writes_a_policy_that_evaluate_loads(state_run, small_track):
     assert spec.observation == "state" and spec.num_timesteps == 200 and spec.encoder is None
     assert spec.config == RacingConfig(track=small_track, n_groups=2)
     assert len(spec.obs_normalizer["offset"]) == len(STATE_OBS_NAMES) == 38
-    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["policy_100.zip", "policy_200.zip"]
-    assert (out / "replay_buffer.pkl").is_file() and any((out / "tensorboard").iterdir())
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == [
+        "policy_100.json", "policy_100.pt", "policy_200.json", "policy_200.pt"
+    ]  # fmt: skip
+    assert (out / "replay_buffer.npz").is_file() and any((out / "tensorboard").iterdir())
     metrics = read_metrics(out / "metrics.jsonl")
     assert [m["num_timesteps"] for m in metrics] == [100, 200]
     assert all(m["distance_m"] != 0.0 for m in metrics)
 
     policy = load_policy(out)
-    assert policy.model.num_timesteps == 200
+    assert policy.spec.num_timesteps == 200 and policy.weights_path == out / "policy.pt"
+    snapshot = load_policy(out / "checkpoints" / "policy_100.pt")
+    assert snapshot.spec.num_timesteps == 100 and snapshot.spec.weights_sha256 != policy.spec.weights_sha256
     np.testing.assert_allclose(policy.spec.normalizer.scale, spec.obs_normalizer["scale"])
     ev = evaluate_policy(out, laps=2, seeds=2, time_limit_s=20.0)
     assert ev["driver"]["observation"] == "state" and ev["n_seeds"] == 2 and ev["protocol"]["scored_lap"] == 2
@@ -54,6 +59,7 @@ def test_resume_continues_the_step_count(state_run, tmp_path):
     result = train_policy(tiny_train_config("ignored-on-resume", out, steps=300, resume=True))
     assert result["resumed_from_steps"] == 200 and result["num_timesteps"] == 300
     assert result["n_updates"] == first["n_updates"] + 100 // 2  # the buffer came back: no new random phase
+    assert result["buffer_restored"] == 200 // 2  # transitions per car
     spec = PolicySpec.read(out / "policy.json")
     assert spec.num_timesteps == 300 and spec.train_time_s > PolicySpec.read(src / "policy.json").train_time_s
     assert spec.train_config["track"] == spec.config.track != "ignored-on-resume"  # the run's own options win
@@ -75,7 +81,7 @@ def test_ctrl_c_saves_and_resume_finishes(small_track, tmp_path, monkeypatch):
     result = train_policy(tiny_train_config(small_track, out, eval_every_steps=0))
     assert result["interrupted"] and result["num_timesteps"] == 120
     assert PolicySpec.read(out / "policy.json").num_timesteps == 120
-    assert load_policy(out).model.num_timesteps == 120
+    assert load_policy(out).spec.num_timesteps == 120
     monkeypatch.setattr(_TrainingLoop, "_on_step", original)
     assert train_policy(tiny_train_config(small_track, out, resume=True))["num_timesteps"] == 200
 
@@ -92,7 +98,33 @@ def test_existing_run_and_missing_run_are_refused(state_run, tmp_path):
         train_policy(tiny_train_config("technical", out, encoder=str(tmp_path / "no.pt"), force=True))
     with pytest.raises(ValueError, match="encoder runtime"):
         train_policy(tiny_train_config("technical", out, encoder_runtime="tensorrt", force=True))
-    assert (out / "policy.zip").is_file()  # a bad option with --force left the run alone
+    assert (out / "policy.pt").is_file()  # a bad option with --force left the run alone
+
+
+def test_light_checkpoints_on_time_survive_a_crash_and_resume_refills_the_buffer(small_track, tmp_path,
+                                                                                 monkeypatch):
+    """A crash that saves nothing (as a SIGKILL) after light checkpoints: the weights of the last one remain, with
+    no buffer, and resume collects fresh random transitions before it updates again."""
+    original = _TrainingLoop._on_step
+
+    def crash(self):
+        if self.num_timesteps >= 150:
+            raise SystemExit("killed")
+        return original(self)
+
+    monkeypatch.setattr(_TrainingLoop, "_on_step", crash)
+    out = tmp_path / "run"
+    config = tiny_train_config(small_track, out, eval_every_steps=0, checkpoint_every_steps=0,
+                               checkpoint_every_min=1e-9)  # fmt: skip
+    with pytest.raises(SystemExit):
+        train_policy(config)
+    assert PolicySpec.read(out / "policy.json").num_timesteps == 148  # the last step before the crash
+    assert not (out / "replay_buffer.npz").exists() and not list(out.glob(".*.tmp"))
+    monkeypatch.setattr(_TrainingLoop, "_on_step", original)
+    result = train_policy(dataclasses.replace(config, resume=True, steps=300, checkpoint_every_min=10.0))
+    assert result["buffer_restored"] == 0 and result["num_timesteps"] == 300
+    new_updates = result["n_updates"] - (148 - 50) // 2
+    assert abs(new_updates - (300 - 148 - 50) // 2) <= 1  # a new random phase of 50 steps (76 updates without)
 
 
 def test_presets_and_overrides():
@@ -108,7 +140,6 @@ def test_presets_and_overrides():
 
 
 def test_sigterm_saves_like_ctrl_c(small_track, tmp_path, monkeypatch, capsys):
-    import dataclasses
     import os
     import signal
 

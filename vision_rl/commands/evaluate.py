@@ -45,7 +45,7 @@ class EvaluateOptions:
     and median over start seeds; stores evaluation.json beside the policy for the leaderboard."""
 
     policy: str = ""
-    """Policy: a train-policy run folder or its policy.zip."""
+    """Policy: a train-policy run folder or its policy.pt."""
     laps: int = 2
     """Consecutive laps; the last one is the score (the papers: 2)."""
     seeds: int = 3
@@ -76,7 +76,7 @@ def run_evaluate(opts: EvaluateOptions) -> int:
     from vision_rl.phase2_rl.evaluate import evaluate_policy
 
     if not opts.policy:
-        raise ValueError("evaluate needs --policy: a train-policy run folder or its policy.zip")
+        raise ValueError("evaluate needs --policy: a train-policy run folder or its policy.pt")
     result = evaluate_policy(
         opts.policy, laps=opts.laps, seeds=opts.seeds, seed=opts.seed, encoder=opts.encoder,
         time_limit_s=opts.time_limit_s, video=opts.video, plot=opts.plot, name=opts.name, device=opts.device,

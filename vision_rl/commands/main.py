@@ -53,6 +53,10 @@ COMMANDS: dict[str, Command] = {
     "leaderboard": Command(
         "lap-time table: AI, limit, policies (Table 1)", f"{_C}.evaluate", "LeaderboardOptions", "run_leaderboard"
     ),
+    "convert-policy": Command(
+        "a policy of format 2 (SB3 zip) to format 3 (no pickle)", f"{_C}.convert_policy", "ConvertPolicyOptions",
+        "run_convert_policy",
+    ),
     "pipeline": Command("the whole job (--quick: small)", f"{_C}.pipeline", "PipelineOptions", "run_pipeline"),
 }  # fmt: skip
 

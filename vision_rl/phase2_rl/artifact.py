@@ -1,17 +1,24 @@
-"""The policy artifact: an SB3 zip plus ``policy.json``, and the protocol driver that a loaded policy becomes.
+"""The policy artifact: ``policy.pt`` (weights, no pickle) plus ``policy.json``, and the protocol driver that a
+loaded policy becomes.
 
 ``policy.json`` holds what evaluation needs to rebuild the policy's inputs exactly as in training:
 
-- ``format`` ("vision_rl.policy"), ``format_version`` (2), ``package_version``;
+- ``format`` ("vision_rl.policy"), ``format_version`` (3), ``package_version``;
 - ``observation``: ``"state"`` (the 38-D privileged vector) or ``"vision"`` (64-D embedding + 11 dedicated features);
 - ``racing_config``: the :class:`~vision_rl.envs.RacingConfig` trained on, as a dict;
 - ``obs_normalizer``: ``{"offset", "scale"}`` of the policy's input (state: the environment's cached statistics;
   vision: z-score statistics of the 75-D vector, computed once from a short disrupted-AI rollout);
 - ``encoder``: for vision, ``{"path", "sha256", "rep_dim", "input_hw_px"}`` of the frozen encoder checkpoint;
-- ``model``: the zip's file name; ``preset``, ``sac`` (hyper-parameters), ``seed``, ``num_timesteps``,
-  ``train_time_s`` and ``train_config`` (the command's options) for the record.
+- ``model`` and ``weights_sha256``: the agent file's name and SHA-256 (:mod:`vision_rl.phase2_rl.persist`);
+- ``fingerprint``: the track's geometry hash, the car, the observation kind, its length and the encoder's hash,
+  also stored inside the agent file;
+- ``preset``, ``sac`` (hyper-parameters), ``seed``, ``num_timesteps``, ``train_time_s`` and ``train_config`` (the
+  command's options) for the record.
 
-A policy refuses an encoder whose checkpoint hash differs from the one it was trained with.
+Loading refuses a changed agent file (its SHA-256), a sidecar whose track, car or observation no longer matches the
+weights' fingerprint or the track's geometry, and an encoder whose checkpoint hash differs from the recorded one.
+Format 2 (a Stable-Baselines3 zip, whose pickled objects can run code when loaded) is refused with the command
+that converts a file the user trusts.
 """
 
 from __future__ import annotations
@@ -29,15 +36,28 @@ import numpy as np
 from vision_rl.envs.core import RacingConfig
 from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
 from vision_rl.envs.observer import Observer
+from vision_rl.envs.racing_env import action_space
+from vision_rl.phase2_rl.persist import (
+    ArtifactError,
+    atomic_write,
+    check_fingerprint,
+    read_agent,
+    save_agent,
+    save_buffer,
+)
 from vision_rl.sim.sensors import DEDICATED_NAMES
+from vision_rl.sim.track_library import load_track
 from vision_rl.sim.world import World, WorldState
 
 POLICY_FORMAT = "vision_rl.policy"
-#: 2: the racing config's frame size is ``image_hw_px`` (height, width) and stuck termination a flag; the
-#: normalisation statistics come from the AI at its 50 Hz. Version 1 files are refused: retrain.
-POLICY_FORMAT_VERSION = 2
+#: 3: weights in an agent file without pickle (``policy.pt``) with a fingerprint. Format 2 (an SB3 zip) is
+#: converted by ``vision-rl convert-policy``; format 1 (observations this code no longer makes) is refused.
+POLICY_FORMAT_VERSION = 3
 SIDECAR_NAME = "policy.json"
-MODEL_NAME = "policy.zip"
+MODEL_NAME = "policy.pt"
+BUFFER_NAME = "replay_buffer.npz"
+#: What format 2 stored the weights in.
+SB3_ZIP_NAME = "policy.zip"
 POLICY_KINDS = ("state", "vision")
 
 
@@ -69,6 +89,17 @@ def obs_dim(kind: str, rep_dim: int = 64) -> int:
     raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {kind!r}")
 
 
+def policy_fingerprint(config: RacingConfig, observation: str, obs_dim: int, encoder_sha256: str | None) -> dict:
+    """What a policy's weights belong to: checked against its sidecar and the track on every load."""
+    return {
+        "track_geometry_hash": load_track(config.track).geometry_hash,
+        "car": config.car,
+        "observation": observation,
+        "obs_dim": int(obs_dim),
+        "encoder_sha256": encoder_sha256,
+    }
+
+
 @dataclass(frozen=True)
 class PolicySpec:
     """The contents of ``policy.json``."""
@@ -76,6 +107,10 @@ class PolicySpec:
     observation: str
     racing_config: dict[str, Any]
     obs_normalizer: dict[str, list[float]]
+    fingerprint: dict[str, Any]
+    """See :func:`policy_fingerprint`."""
+    weights_sha256: str
+    """SHA-256 of the agent file ``model``."""
     encoder: dict[str, Any] | None = None
     model: str = MODEL_NAME
     preset: str = ""
@@ -105,6 +140,10 @@ class PolicySpec:
     def encoder_sha256(self) -> str | None:
         return self.encoder["sha256"] if self.encoder else None
 
+    @property
+    def hidden_units(self) -> list[int]:
+        return [int(n) for n in self.sac["hidden_units"]]
+
     def to_dict(self) -> dict[str, Any]:
         from vision_rl.capture.h5format import package_version
 
@@ -122,6 +161,12 @@ class PolicySpec:
         version = int(data.get("format_version", 0))
         if version > POLICY_FORMAT_VERSION:
             raise PolicyError(f"{source}: policy format {version} is newer than this code's")
+        if version == 2:
+            raise PolicyError(
+                f"{source}: policy format 2 keeps its weights in a Stable-Baselines3 zip, whose pickled objects can "
+                f"run code when loaded, so it is not read; if you trust the file, convert it with "
+                f"`vision-rl convert-policy --run {Path(source).parent} --trust-pickle`"
+            )
         if version < POLICY_FORMAT_VERSION:
             raise PolicyError(
                 f"{source}: policy format {version} was trained on observations this version no longer makes "
@@ -136,9 +181,7 @@ class PolicySpec:
     def write(self, path: str | os.PathLike[str]) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=2))
-        os.replace(tmp, path)  # a reader never sees half a sidecar
+        atomic_write(path, lambda tmp: tmp.write_text(json.dumps(self.to_dict(), indent=2)))
         return path
 
     @classmethod
@@ -153,26 +196,31 @@ class PolicySpec:
         return cls.from_dict(data, str(path))
 
 
+def snapshot_sidecar(weights: Path) -> Path:
+    """The sidecar of a snapshot ``checkpoints/policy_<steps>.pt``: ``policy_<steps>.json`` beside it."""
+    return weights.with_suffix(".json")
+
+
 def resolve_policy_paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
-    """(zip, sidecar) of a policy given as a run folder, its ``policy.zip``, or a checkpoint zip inside the run
-    (``checkpoints/policy_<steps>.zip``, whose sidecar is the run's)."""
+    """(weights, sidecar) of a policy given as a run folder, its ``policy.pt``, or a snapshot
+    ``checkpoints/policy_<steps>.pt`` (whose sidecar is ``policy_<steps>.json`` beside it)."""
     path = Path(path)
-    if not path.exists() and not path.with_suffix(".zip").exists():
-        raise PolicyError(f"{path}: no such policy (give a train-policy run folder or its policy.zip)")
     if path.is_dir():
         spec_path = path / SIDECAR_NAME
-        zip_path = path / MODEL_NAME
-        if spec_path.is_file():
-            zip_path = path / PolicySpec.read(spec_path).model
+        weights = path / MODEL_NAME
+    elif path.suffix == ".json":
+        spec_path, weights = path, path.with_suffix(".pt")
     else:
-        zip_path = path if path.suffix == ".zip" else path.with_suffix(".zip")
-        candidates = [zip_path.parent / SIDECAR_NAME, zip_path.parent.parent / SIDECAR_NAME]
-        spec_path = next((c for c in candidates if c.is_file()), candidates[0])
-    if not zip_path.is_file():
-        raise PolicyError(f"{path}: no policy here (missing {zip_path})")
+        weights = path
+        spec_path = path.parent / SIDECAR_NAME if path.name == MODEL_NAME else snapshot_sidecar(path)
     if not spec_path.is_file():
-        raise PolicyError(f"{path}: the policy has no {SIDECAR_NAME} sidecar beside it")
-    return zip_path, spec_path
+        if not path.exists():
+            raise PolicyError(f"{path}: no such policy (give a train-policy run folder or its {MODEL_NAME})")
+        raise PolicyError(f"{path}: the policy has no sidecar ({spec_path.name}) beside it")
+    weights = spec_path.parent / PolicySpec.read(spec_path).model
+    if not weights.is_file():
+        raise PolicyError(f"{path}: no policy weights here (missing {weights})")
+    return weights, spec_path
 
 
 def check_encoder(spec: PolicySpec, encoder: str | os.PathLike[str] = "", source: str = "policy") -> Path:
@@ -247,11 +295,12 @@ class PolicyDriver:
 
 @dataclass
 class LoadedPolicy:
-    """A trained policy ready to drive: the SB3 model, its sidecar and, for vision, its frozen encoder."""
+    """A trained policy ready to drive: the SB3 actor-critic in evaluation mode, its sidecar and, for vision, its
+    frozen encoder."""
 
-    model: Any
+    policy: Any
     spec: PolicySpec
-    zip_path: Path
+    weights_path: Path
     spec_path: Path
     encoder: Any = None
     encoder_path: Path | None = None
@@ -266,19 +315,17 @@ class LoadedPolicy:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Deterministic actions (n, 2) ``[steer rad, omega]`` for observations (n, obs_dim)."""
-        action, _ = self.model.predict(obs, deterministic=True)
+        action, _ = self.policy.predict(obs, deterministic=True)
         return np.asarray(action, dtype=np.float64).reshape(len(obs), 2)
 
     def driver(self) -> PolicyDriver:
         """This policy as a protocol driver, reading what it was trained on."""
-        from vision_rl.phase1_repr.checkpoint import checkpoint_sha256
-
         spec = self.spec
         identity = {
             "driver": "policy",
             "observation": spec.observation,
-            "policy": str(self.zip_path),
-            "policy_sha256": checkpoint_sha256(self.zip_path),
+            "policy": str(self.weights_path),
+            "policy_sha256": spec.weights_sha256,
             "encoder_sha256": spec.encoder_sha256,
             "num_timesteps": spec.num_timesteps,
             "train_time_s": spec.train_time_s,
@@ -289,40 +336,98 @@ class LoadedPolicy:
                             config.control_dt_s, identity)  # fmt: skip
 
 
+def sac_policy(obs_dim: int, hidden_units: list[int], device: str = "cpu"):
+    """An SB3 SAC actor-critic for ``obs_dim`` inputs and the racing action space, untrained."""
+    from gymnasium import spaces
+    from stable_baselines3.sac.policies import SACPolicy
+
+    space = spaces.Box(-np.inf, np.inf, (obs_dim,), dtype=np.float32)
+    return SACPolicy(space, action_space(), lambda _: 0.0, net_arch=list(hidden_units)).to(device)
+
+
 def load_policy(
     path: str | os.PathLike[str],
     encoder: str | os.PathLike[str] = "",
     device: str = "cpu",
     encoder_runtime: str = "auto",
 ) -> LoadedPolicy:
-    """Load a policy (run folder or zip) with the observer that feeds it; for vision, the frozen encoder too.
+    """Load a policy (run folder, ``policy.pt`` or a snapshot) with, for vision, its frozen encoder.
 
+    The weights must have the recorded SHA-256 and the fingerprint the sidecar and the track's geometry give.
     ``encoder``: optional checkpoint path for a vision policy; refused when its hash is not the recorded one.
     ``encoder_runtime``: see :func:`~vision_rl.phase1_repr.checkpoint.load_encoder`.
     """
-    from stable_baselines3 import SAC
-
     from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
 
     resolve_runtime(encoder_runtime, device)  # refused for a state policy too, which would never use it
-    zip_path, spec_path = resolve_policy_paths(path)
+    weights_path, spec_path = resolve_policy_paths(path)
     spec = PolicySpec.read(spec_path)
     encoder_path = None
     module = None
     if spec.observation == "vision":
-        encoder_path = check_encoder(spec, encoder, source=f"policy {zip_path}")
+        encoder_path = check_encoder(spec, encoder, source=f"policy {weights_path}")
         from vision_rl.phase1_repr.checkpoint import load_encoder
 
         module = load_encoder(encoder_path, device=device, runtime=encoder_runtime)
     elif encoder:
-        check_encoder(spec, encoder, source=f"policy {zip_path}")  # raises: a state policy takes no encoder
+        check_encoder(spec, encoder, source=f"policy {weights_path}")  # raises: a state policy takes no encoder
+    dim = obs_dim(spec.observation, module.rep_dim if module is not None else 64)
+    expected = policy_fingerprint(spec.config, spec.observation, dim, spec.encoder_sha256)
     try:
-        model = SAC.load(zip_path, device=device)
-    except Exception as exc:  # SB3 raises several types for a corrupt or foreign zip
-        raise PolicyError(f"{zip_path}: not a loadable SB3 SAC policy: {exc}") from exc
-    loaded = LoadedPolicy(model, spec, zip_path, spec_path, module, encoder_path)
-    want = (loaded.obs_dim,)
-    if tuple(model.observation_space.shape) != want:
-        raise PolicyError(f"{zip_path}: the model takes inputs of shape {model.observation_space.shape}, "
-                          f"its sidecar describes {want}")  # fmt: skip
-    return loaded
+        # The sidecar's claim against the track as it loads today, then the weights' own record against both.
+        check_fingerprint(spec.fingerprint, expected, str(spec_path))
+        state = read_agent(weights_path, expected, spec.weights_sha256)
+        policy = sac_policy(dim, spec.hidden_units, device)
+        policy.load_state_dict(state["policy"])
+    except ArtifactError as exc:
+        raise PolicyError(str(exc)) from None
+    except RuntimeError as exc:
+        raise PolicyError(f"{weights_path}: the weights do not fit a {spec.hidden_units} network of {dim} inputs: "
+                          f"{str(exc).splitlines()[0]}") from None  # fmt: skip
+    policy.set_training_mode(False)
+    return LoadedPolicy(policy, spec, weights_path, spec_path, module, encoder_path)
+
+
+def convert_sb3_run(run: str | os.PathLike[str], trust_pickle: bool = False) -> list[Path]:
+    """Convert a format-2 run folder (``policy.zip``, ``checkpoints/policy_<steps>.zip``, ``replay_buffer.pkl``)
+    to format 3 in place; returns the files written. Loading the zip and the buffer unpickles them, which runs any
+    code they hold: ``trust_pickle`` must say that the files are the user's own."""
+    from stable_baselines3 import SAC
+
+    run = Path(run)
+    if not trust_pickle:
+        raise PolicyError("converting unpickles the old files, which can run code: pass --trust-pickle for files "
+                          "you made yourself")  # fmt: skip
+    spec_path = run / SIDECAR_NAME
+    try:
+        data = json.loads(spec_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise PolicyError(f"{spec_path}: cannot read the sidecar: {exc}") from None
+    if data.get("format") != POLICY_FORMAT or int(data.get("format_version", 0)) != 2:
+        raise PolicyError(f"{spec_path}: not a format-2 policy sidecar (nothing to convert)")
+    data = {**data, "format_version": POLICY_FORMAT_VERSION}
+    config = racing_config_from_dict(data["racing_config"])
+    written = []
+    zips = [run / data.get("model", SB3_ZIP_NAME), *sorted((run / "checkpoints").glob("policy_*.zip"))]
+    for zip_path in zips:
+        try:
+            model = SAC.load(zip_path, device="cpu")
+        except Exception as exc:  # SB3 raises several types for a corrupt or foreign zip
+            raise PolicyError(f"{zip_path}: not a loadable SB3 SAC policy: {exc}") from None
+        dim = int(model.observation_space.shape[0])
+        encoder_sha = data["encoder"]["sha256"] if data.get("encoder") else None
+        fingerprint = policy_fingerprint(config, data["observation"], dim, encoder_sha)
+        weights = zip_path.with_suffix(".pt")
+        sha = save_agent(model, weights, fingerprint)
+        entry = {**data, "model": weights.name, "weights_sha256": sha, "fingerprint": fingerprint,
+                 "num_timesteps": int(model.num_timesteps)}  # fmt: skip
+        sidecar = spec_path if zip_path.parent == run else snapshot_sidecar(weights)
+        if sidecar == spec_path:
+            buffer_pkl = run / "replay_buffer.pkl"
+            if buffer_pkl.is_file():
+                model.load_replay_buffer(buffer_pkl)
+                save_buffer(model.replay_buffer, run / BUFFER_NAME, fingerprint)
+                written.append(run / BUFFER_NAME)
+        PolicySpec.from_dict(entry, str(sidecar)).write(sidecar)
+        written += [weights, sidecar]
+    return written

@@ -14,20 +14,21 @@ from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.outputs import check_video_dependencies, format_lap_time, plot_trajectory, write_video
 from vision_rl.evaluation.protocol import time_laps
 from vision_rl.phase2_rl.artifact import MODEL_NAME, LoadedPolicy, load_policy
+from vision_rl.phase2_rl.persist import atomic_write
 
 
-def evaluation_path(zip_path: Path) -> Path:
-    """``evaluation.json`` beside a run's ``policy.zip``; ``<stem>.evaluation.json`` beside any other zip."""
-    name = "evaluation.json" if zip_path.name == MODEL_NAME else f"{zip_path.stem}.evaluation.json"
-    return zip_path.parent / name
+def evaluation_path(weights: Path) -> Path:
+    """``evaluation.json`` beside a run's ``policy.pt``; ``<stem>.evaluation.json`` beside a snapshot."""
+    name = "evaluation.json" if weights.name == MODEL_NAME else f"{weights.stem}.evaluation.json"
+    return weights.parent / name
 
 
-def default_policy_name(zip_path: Path) -> str:
-    if zip_path.name == MODEL_NAME:
-        return zip_path.parent.name
-    if zip_path.parent.name == "checkpoints":
-        return f"{zip_path.parent.parent.name}/{zip_path.stem}"
-    return zip_path.stem
+def default_policy_name(weights: Path) -> str:
+    if weights.name == MODEL_NAME:
+        return weights.parent.name
+    if weights.parent.name == "checkpoints":
+        return f"{weights.parent.parent.name}/{weights.stem}"
+    return weights.stem
 
 
 def evaluate_policy(
@@ -58,16 +59,14 @@ def evaluate_policy(
                            record=bool(plot or video))  # fmt: skip
     finally:
         driver.close()
-    result = evaluation_record(timing, driver.identity, name or default_policy_name(loaded.zip_path))
+    result = evaluation_record(timing, driver.identity, name or default_policy_name(loaded.weights_path))
     best = timing.best_index()
     title = (f"{result['name']}: lap {laps} {format_lap_time(result['best_lap_time_s'])} "
              f"(seed {result['best_seed']}, {timing.track.name}, {timing.car.name})")  # fmt: skip
     result["plot"] = str(plot_trajectory(timing, best, plot, title)) if plot else None
     result["video"] = str(write_video(timing, best, video, config.image_hw_px)) if video else None
     if write:
-        out = evaluation_path(loaded.zip_path)
-        tmp = out.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(result, indent=2))
-        os.replace(tmp, out)
+        out = evaluation_path(loaded.weights_path)
+        atomic_write(out, lambda tmp: tmp.write_text(json.dumps(result, indent=2)))
         result["evaluation_json"] = str(out)
     return result

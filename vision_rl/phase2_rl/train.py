@@ -2,10 +2,16 @@
 ``--encoder``, from the frozen 64-D frame embedding plus the 11 dedicated features (vision paper, section 3
 "Phase 2" and section 4).
 
-A run folder holds ``policy.zip`` + ``policy.json`` (the artifact), ``replay_buffer.pkl``, snapshots in
+A run folder holds ``policy.pt`` + ``policy.json`` (the artifact), ``replay_buffer.npz``, snapshots in
 ``checkpoints/``, ``metrics.jsonl`` (one line per periodic evaluation: the protocol's lap time of the current
-policy against environment steps and training time) and TensorBoard logs in ``tensorboard/``. ``--resume`` continues
-the step count with the stored weights, optimiser state and replay buffer; Ctrl-C saves all of it and exits cleanly.
+policy against environment steps and training time) and TensorBoard logs in ``tensorboard/``. No file is pickled
+(:mod:`vision_rl.phase2_rl.persist`).
+
+What survives a kill: the weights, optimiser states and counters are saved every ``checkpoint_every_min`` minutes
+of wall-clock time (a light checkpoint) and at every ``checkpoint_every_steps`` with the replay buffer and a
+snapshot; Ctrl-C (and SIGTERM, which the command maps to it) saves all of it and exits cleanly. ``--resume``
+continues the step count with the stored weights, optimiser states and the last saved buffer; a run with no saved
+buffer collects ``learning_starts`` fresh random transitions before it updates again.
 """
 
 from __future__ import annotations
@@ -34,17 +40,21 @@ from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import time_laps
 from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
 from vision_rl.phase2_rl.artifact import (
+    BUFFER_NAME,
     MODEL_NAME,
     SIDECAR_NAME,
     PolicyDriver,
     PolicyError,
     PolicySpec,
     check_encoder,
+    policy_fingerprint,
     racing_config_to_dict,
+    snapshot_sidecar,
 )
+from vision_rl.phase2_rl.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
 
-BUFFER_NAME = "replay_buffer.pkl"
 METRICS_NAME = "metrics.jsonl"
+MAX_CARS = 1000
 
 
 @dataclass(frozen=True)
@@ -119,9 +129,11 @@ class TrainPolicyConfig:
     eval_laps: int = 2
     """Laps of the periodic evaluation (the last is scored)."""
     checkpoint_every_steps: int = 200_000
-    """Save weights and buffer every N steps."""
+    """Save weights, buffer and a snapshot every N steps (0: off)."""
+    checkpoint_every_min: float = 10.0
+    """Save weights, optimisers and counters (not the buffer) every N minutes of wall-clock time (0: off)."""
     save_buffer: bool = True
-    """Save the replay buffer with checkpoints (for --resume)."""
+    """Save the replay buffer with step checkpoints and on Ctrl-C (for --resume)."""
     episode_s: float = 100.0
     """Training episode length, s (the papers' 100 s trials)."""
     wall_penalty_c_w: float = 0.005
@@ -172,12 +184,6 @@ def _device(name: str) -> str:
     return name
 
 
-def _atomic_zip_save(model: SAC, path: Path) -> None:
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.zip")
-    model.save(tmp)
-    os.replace(tmp, path)
-
-
 #: ``progress(num_timesteps, total_steps, last_evaluation_or_None)``, called as training goes.
 Progress = Callable[[int, int, "dict[str, Any] | None"], None]
 
@@ -192,6 +198,7 @@ class _TrainingLoop(BaseCallback):
         cfg = run.cfg
         self.next_eval = _next_multiple(run.start_steps, cfg.eval_every_steps)
         self.next_checkpoint = _next_multiple(run.start_steps, cfg.checkpoint_every_steps)
+        self.last_save_s = time.perf_counter()
 
     def _on_step(self) -> bool:
         n = self.num_timesteps
@@ -201,8 +208,13 @@ class _TrainingLoop(BaseCallback):
         if self.progress is not None:
             self.progress(n, self.run.cfg.steps, self.run.last_eval)
         if self.next_checkpoint is not None and n >= self.next_checkpoint:
-            self.run.save(self.model, snapshot=True)
+            self.run.save(self.model, buffer=True, snapshot=True)
             self.next_checkpoint = _next_multiple(n, self.run.cfg.checkpoint_every_steps)
+            self.last_save_s = time.perf_counter()
+        every_s = 60.0 * self.run.cfg.checkpoint_every_min
+        if every_s > 0 and time.perf_counter() - self.last_save_s >= every_s:
+            self.run.save(self.model, buffer=False)
+            self.last_save_s = time.perf_counter()
         return True
 
 
@@ -218,14 +230,18 @@ class _Run:
         self.out = Path(cfg.out) if cfg.out else default_out(cfg)
         self.device = _device(cfg.device)
         self.previous: PolicySpec | None = None
-        if cfg.cars < 1 or cfg.steps < 1:
-            raise ValueError("cars and steps must be >= 1")
+        check_bounds(cfg)
         resolve_runtime(cfg.encoder_runtime, self.device)  # a bad value is refused before the run folder is touched
         if cfg.resume:
             if not (self.out / MODEL_NAME).is_file() or not (self.out / SIDECAR_NAME).is_file():
                 raise FileNotFoundError(f"{self.out}: nothing to resume (no {MODEL_NAME} and {SIDECAR_NAME})")
             self.previous = PolicySpec.read(self.out / SIDECAR_NAME)
         self.preset = resolve_preset(cfg) if self.previous is None else _preset_from_spec(self.previous)
+        if self.previous is None and cfg.steps <= self.preset.learning_starts:
+            raise ValueError(
+                f"--steps {cfg.steps} is not above the {self.preset.learning_starts} random start steps "
+                f"(--learning-starts, preset {cfg.preset!r}): training would make no update"
+            )
         if self.previous is None and cfg.encoder and not Path(cfg.encoder).is_file():
             raise FileNotFoundError(f"{cfg.encoder}: no such encoder checkpoint")
         # Checked only now, so that a bad option never deletes the run it would have replaced.
@@ -297,21 +313,35 @@ class _Run:
         self.normalizer = core.observer.normalizer
         env = VecMonitor(venv)
         self.env = env
+        p = self.preset
+        model = SAC(
+            "MlpPolicy", env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
+            learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
+            train_freq=(p.train_freq_steps, "step"), gradient_steps=p.gradient_steps,
+            policy_kwargs={"net_arch": list(p.hidden_units)}, seed=self.cfg.seed + self.start_steps,
+            device=self.device, verbose=0,
+        )  # fmt: skip
+        encoder_sha = self.encoder_sha256 if self.kind == "vision" else None
+        self.fingerprint = policy_fingerprint(self.racing, self.kind, venv.observation_space.shape[0], encoder_sha)
+        self.buffer_restored = 0
         if self.previous is not None:
-            model = SAC.load(self.out / MODEL_NAME, env=env, device=self.device)
-            if (self.out / BUFFER_NAME).is_file():
-                model.load_replay_buffer(self.out / BUFFER_NAME)
-        else:
-            p = self.preset
-            model = SAC(
-                "MlpPolicy", env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
-                learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
-                train_freq=(p.train_freq_steps, "step"), gradient_steps=p.gradient_steps,
-                policy_kwargs={"net_arch": list(p.hidden_units)}, seed=self.cfg.seed, device=self.device, verbose=0,
-            )  # fmt: skip
+            self._restore(model)
         model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
         self.eval_driver: PolicyDriver | None = None
         return model
+
+    def _restore(self, model: SAC) -> None:
+        """Weights, optimisers and counters of the run, and its buffer when one was saved."""
+        assert self.previous is not None
+        try:
+            state = read_agent(self.out / self.previous.model, self.fingerprint, self.previous.weights_sha256)
+            restore_agent(model, state, str(self.out / self.previous.model))
+            if (self.out / BUFFER_NAME).is_file():
+                self.buffer_restored = load_buffer(model.replay_buffer, self.out / BUFFER_NAME, self.fingerprint)
+        except ArtifactError as exc:
+            raise PolicyError(f"cannot resume: {exc}") from None
+        if self.buffer_restored == 0:  # never update on an empty buffer: refill it first
+            model.learning_starts = model.num_timesteps + self.preset.learning_starts
 
     # ------------------------------------------------------------------ periodic work
     @property
@@ -342,8 +372,9 @@ class _Run:
             "dnf_reasons": [s["dnf_reason"] for s in summary["seeds"]],
             "distance_m": float(np.mean([s["distance_m"] for s in summary["seeds"]])),
             "wall_contact_s": None if summary["best_lap"] is None else summary["best_lap"]["wall_contact_s"],
-            "wall_contact_per_lap_s": float(np.mean([lap["wall_contact_s"] for s in summary["seeds"]
-                                                     for lap in s["laps"]] or [np.nan])),
+            "wall_contact_per_lap_s": float(
+                np.mean([lap["wall_contact_s"] for s in summary["seeds"] for lap in s["laps"]] or [np.nan])
+            ),
             "ep_rew_mean": float(np.mean([e["r"] for e in episodes])) if episodes else None,
             "eval_time_s": round(eval_time, 2),
         }
@@ -360,7 +391,7 @@ class _Run:
         self.last_eval = record
         return record
 
-    def spec(self, model: SAC) -> PolicySpec:
+    def spec(self, model: SAC, weights_name: str, weights_sha256: str) -> PolicySpec:
         encoder = None
         if self.kind == "vision":
             assert self.encoder_path is not None and self.encoder is not None
@@ -375,8 +406,10 @@ class _Run:
             observation=self.kind,
             racing_config=racing_config_to_dict(self.racing),
             obs_normalizer=self.normalizer.to_dict(),
+            fingerprint=self.fingerprint,
+            weights_sha256=weights_sha256,
             encoder=encoder,
-            model=MODEL_NAME,
+            model=weights_name,
             preset=self.previous.preset if self.previous is not None else self.cfg.preset,
             sac=json.loads(json.dumps(sac)),
             seed=self.previous.seed if self.previous is not None else self.cfg.seed,
@@ -386,22 +419,47 @@ class _Run:
             train_config=self.previous.train_config if self.previous is not None else dataclasses.asdict(self.cfg),
         )
 
-    def save(self, model: SAC, snapshot: bool = False) -> None:
-        """Weights (policy.zip), sidecar, replay buffer; with ``snapshot`` also checkpoints/policy_<steps>.zip."""
-        _atomic_zip_save(model, self.out / MODEL_NAME)
-        self.spec(model).write(self.out / SIDECAR_NAME)
-        if self.cfg.save_buffer and model.replay_buffer is not None:
-            tmp = self.out / f".{BUFFER_NAME}.{os.getpid()}.tmp"
-            model.save_replay_buffer(tmp)
-            os.replace(tmp, self.out / BUFFER_NAME)
+    def save(self, model: SAC, buffer: bool = True, snapshot: bool = False) -> None:
+        """Weights (policy.pt) and sidecar; the replay buffer when ``buffer`` (and cfg.save_buffer); with
+        ``snapshot`` also checkpoints/policy_<steps>.pt and its sidecar. The sidecar is written after the weights
+        it describes, so a kill between the two leaves the previous pair, whose checksum then refuses the new
+        weights: resume from the last snapshot in that case."""
+        sha = save_agent(model, self.out / MODEL_NAME, self.fingerprint)
+        spec = self.spec(model, MODEL_NAME, sha)
+        spec.write(self.out / SIDECAR_NAME)
+        if buffer and self.cfg.save_buffer and model.replay_buffer is not None:
+            save_buffer(model.replay_buffer, self.out / BUFFER_NAME, self.fingerprint)
         if snapshot:
-            (self.out / "checkpoints").mkdir(exist_ok=True)
-            shutil.copyfile(self.out / MODEL_NAME, self.out / "checkpoints" / f"policy_{model.num_timesteps}.zip")
+            weights = self.out / "checkpoints" / f"policy_{model.num_timesteps}.pt"
+            weights.parent.mkdir(exist_ok=True)
+            shutil.copyfile(self.out / MODEL_NAME, weights)
+            dataclasses.replace(spec, model=weights.name).write(snapshot_sidecar(weights))
 
     def close(self) -> None:
         self.env.close()
         if self.eval_driver is not None:
             self.eval_driver.close()
+
+
+def check_bounds(cfg: TrainPolicyConfig) -> None:
+    """One clear line for an option out of range, before anything is built or written."""
+    checks = {
+        "cars": cfg.cars >= 1, "steps": cfg.steps >= 1, "eval_every_steps": cfg.eval_every_steps >= 0,
+        "eval_seeds": cfg.eval_seeds >= 1 or cfg.eval_every_steps == 0, "eval_laps": cfg.eval_laps >= 1,
+        "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
+        "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "episode_s": cfg.episode_s > 0,
+        "wall_penalty_c_w": cfg.wall_penalty_c_w >= 0, "stats_steps": cfg.stats_steps >= 1,
+        "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
+        "gradient_steps": cfg.gradient_steps >= 0,
+    }  # fmt: skip
+    bad = [name for name, ok in checks.items() if not ok]
+    if bad:
+        name = bad[0]
+        raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
+    # The world holds every car's state and, for vision, renders every car's frame each step; 1,000 cars is far
+    # beyond the papers' 20 and what one process can step at a useful rate.
+    if cfg.cars > MAX_CARS:
+        raise ValueError(f"--cars {cfg.cars} is more than {MAX_CARS} cars in one world")
 
 
 def _preset_from_spec(spec: PolicySpec) -> SACPreset:
@@ -423,7 +481,7 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
             model.learn(total_timesteps=remaining, callback=loop, reset_num_timesteps=False, log_interval=4)
     except KeyboardInterrupt:
         interrupted = True
-    run.save(model, snapshot=not interrupted and remaining > 0)
+    run.save(model, buffer=True, snapshot=not interrupted and remaining > 0)
     run.close()
     return {
         "out": str(run.out),
@@ -434,6 +492,7 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
         "train_time_s": round(run.train_time_s, 2),
         "interrupted": interrupted,
         "resumed_from_steps": run.start_steps if cfg.resume else None,
+        "buffer_restored": run.buffer_restored if cfg.resume else None,
         "last_eval": run.last_eval,
         "metrics_jsonl": str(run.out / METRICS_NAME),
         "tensorboard": str(run.out / "tensorboard"),

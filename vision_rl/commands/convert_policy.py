@@ -1,0 +1,31 @@
+"""`vision-rl convert-policy`: a policy of format 2 (a Stable-Baselines3 zip) to format 3 (no pickle)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from vision_rl.commands.output import emit
+
+
+@dataclass(frozen=True)
+class ConvertPolicyOptions:
+    """Convert a train-policy run folder of format 2 (policy.zip, replay_buffer.pkl) to format 3 (policy.pt,
+    replay_buffer.npz), in place. Reading the old files unpickles them, which can run any code they hold: convert
+    only files you made yourself."""
+
+    run: str = ""
+    """The run folder (holding policy.json and policy.zip)."""
+    trust_pickle: bool = False
+    """Say that the files are your own and may be unpickled."""
+    json: bool = False
+    """Print the files written as JSON."""
+
+
+def run_convert_policy(opts: ConvertPolicyOptions) -> int:
+    from vision_rl.phase2_rl.artifact import convert_sb3_run
+
+    if not opts.run:
+        raise ValueError("convert-policy needs --run: a train-policy run folder of format 2")
+    written = convert_sb3_run(opts.run, opts.trust_pickle)
+    emit({"written": [str(p) for p in written]}, opts.json)
+    return 0
