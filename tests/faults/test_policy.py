@@ -1,0 +1,233 @@
+"""Policies and replay buffers: files that would run code, tampered or damaged files, a full disk, kills of
+train-policy, and out-of-range options."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from tests.phase2_rl.conftest import small_track, state_run, tiny_train_config  # noqa: F401  (fixtures)
+from vision_rl.phase2_rl.artifact import PolicyError, PolicySpec, convert_sb3_run, load_policy
+from vision_rl.phase2_rl.persist import ArtifactWriteError, file_sha256
+from vision_rl.phase2_rl.train import train_policy
+
+
+class _WritesAMarker:
+    """Unpickling this calls ``Path.touch(marker)``: what a crafted file does to whoever loads it with pickle."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
+@pytest.fixture
+def run_copy(state_run, tmp_path) -> Path:
+    out = tmp_path / "run"
+    shutil.copytree(state_run[0], out)
+    return out
+
+
+def _rewrite_spec(run: Path, **changes) -> None:
+    data = json.loads((run / "policy.json").read_text())
+    for key, value in changes.items():
+        target = data
+        *parents, leaf = key.split(".")
+        for p in parents:
+            target = target[p]
+        target[leaf] = value
+    (run / "policy.json").write_text(json.dumps(data))
+
+
+def test_a_crafted_pickle_is_refused_and_never_runs(run_copy, tmp_path, fault):
+    marker = tmp_path / "marker"
+    torch.save({"format": "vision_rl.agent", "payload": _WritesAMarker(marker)}, run_copy / "policy.pt")
+    _rewrite_spec(run_copy, weights_sha256=file_sha256(run_copy / "policy.pt"))  # even with a matching checksum
+    with pytest.raises(PolicyError, match="not a vision_rl agent file") as excinfo:
+        load_policy(run_copy)
+    assert not marker.exists()
+    fault.refused("policy.pt holding a pickled object that runs code (with a matching checksum)", str(excinfo.value))
+    with pytest.raises(PolicyError, match="cannot resume") as excinfo:
+        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+    assert not marker.exists()
+    fault.refused("--resume from that policy.pt", str(excinfo.value))
+
+
+def test_a_flipped_byte_in_the_weights_is_refused(run_copy, fault):
+    data = bytearray((run_copy / "policy.pt").read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    (run_copy / "policy.pt").write_bytes(bytes(data))
+    with pytest.raises(PolicyError, match="changed after it was written") as excinfo:
+        load_policy(run_copy)
+    fault.refused("one flipped byte in policy.pt", str(excinfo.value))
+
+
+def test_a_sidecar_edited_to_another_track_is_refused(run_copy, fault):
+    _rewrite_spec(run_copy, **{"racing_config.track": "technical"})
+    with pytest.raises(PolicyError, match="track_geometry_hash") as excinfo:
+        load_policy(run_copy)
+    fault.refused("policy.json's track edited", str(excinfo.value))
+    # Editing the recorded geometry hash too is caught by the fingerprint stored inside the weights.
+    from vision_rl.sim.track_library import load_track
+
+    _rewrite_spec(run_copy, **{"fingerprint.track_geometry_hash": load_track("technical").geometry_hash})
+    with pytest.raises(PolicyError, match=r"policy\.pt was made for track_geometry_hash") as excinfo:
+        load_policy(run_copy)
+    fault.refused("policy.json's track and fingerprint both edited", str(excinfo.value))
+    _rewrite_spec(run_copy, **{"racing_config.car": "gt3"})
+    with pytest.raises(PolicyError, match="car") as excinfo:
+        load_policy(run_copy)
+    fault.refused("policy.json's car edited", str(excinfo.value))
+
+
+def test_a_damaged_or_foreign_buffer_stops_resume_with_a_message(run_copy, fault):
+    buffer = run_copy / "replay_buffer.npz"
+    original = buffer.read_bytes()
+    damaged = bytearray(original)
+    damaged[len(damaged) // 2] ^= 0xFF
+    buffer.write_bytes(bytes(damaged))
+    with pytest.raises(PolicyError, match="replay_buffer.npz") as excinfo:
+        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+    fault.refused("one flipped byte in replay_buffer.npz on --resume", str(excinfo.value))
+    buffer.write_bytes(original[: len(original) // 3])
+    with pytest.raises(PolicyError, match="replay_buffer.npz") as excinfo:
+        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+    fault.refused("replay_buffer.npz cut short on --resume", str(excinfo.value))
+    np.savez(buffer, observations=np.zeros(3))
+    with pytest.raises(PolicyError, match="replay_buffer.npz") as excinfo:
+        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+    fault.refused("an .npz that is not a replay buffer on --resume", str(excinfo.value))
+
+
+def test_a_format_2_policy_is_refused_and_converts_when_trusted(run_copy, tmp_path, fault):
+    """An SB3 zip with its pickled buffer, as format 2 wrote them: refused until converted with explicit trust."""
+    import gymnasium
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from vision_rl.envs import racing_env
+
+    class _Env(gymnasium.Env):  # the shape of the state policy's input and the racing action, for SB3
+        observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (38,), dtype=np.float32)
+        action_space = racing_env.action_space()
+
+        def reset(self, *, seed=None, options=None):
+            return np.zeros(38, np.float32), {}
+
+        def step(self, action):
+            return np.zeros(38, np.float32), 0.0, False, False, {}
+
+    model = SAC("MlpPolicy", make_vec_env(_Env, 1), buffer_size=50, learning_starts=0,
+                policy_kwargs={"net_arch": [256, 256]}, device="cpu")  # fmt: skip
+    model.learn(20)
+    old = tmp_path / "old"
+    old.mkdir()
+    model.save(old / "policy.zip")
+    model.save_replay_buffer(old / "replay_buffer.pkl")
+    data = json.loads((run_copy / "policy.json").read_text())
+    for key in ("fingerprint", "weights_sha256"):
+        data.pop(key)
+    (old / "policy.json").write_text(json.dumps({**data, "format_version": 2, "model": "policy.zip"}))
+    with pytest.raises(PolicyError, match="convert-policy --run") as excinfo:
+        load_policy(old)
+    fault.refused("a format-2 policy (Stable-Baselines3 zip, pickled)", str(excinfo.value))
+    with pytest.raises(PolicyError, match="--trust-pickle") as excinfo:
+        convert_sb3_run(old)
+    fault.refused("convert-policy without --trust-pickle", str(excinfo.value))
+    written = convert_sb3_run(old, trust_pickle=True)
+    assert {p.name for p in written} == {"policy.pt", "policy.json", "replay_buffer.npz"}
+    loaded = load_policy(old)
+    obs = np.random.default_rng(0).normal(size=(4, 38)).astype(np.float32)
+    np.testing.assert_allclose(loaded.act(obs), model.predict(obs, deterministic=True)[0], atol=1e-6)
+    assert loaded.spec.num_timesteps == 20
+
+
+def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeypatch, fault):
+    before = (run_copy / "policy.pt").read_bytes()
+
+    def disk_full(obj, f, *args, **kwargs):
+        Path(f).write_bytes(b"partial")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(torch, "save", disk_full)
+    with pytest.raises(ArtifactWriteError, match=r"cannot write .*policy\.pt: No space left") as excinfo:
+        train_policy(tiny_train_config("x", run_copy, steps=210, resume=True, eval_every_steps=0))
+    assert (run_copy / "policy.pt").read_bytes() == before and not list(run_copy.glob(".*.tmp"))
+    fault.refused("a full disk while saving policy.pt", str(excinfo.value))
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"cars": 0}, "--cars 0"),
+        ({"cars": 100_000}, "--cars 100000"),
+        ({"steps": 0}, "--steps 0"),
+        ({"steps": 40, "learning_starts": 50}, "no update"),
+        ({"eval_laps": 0}, "--eval-laps 0"),
+        ({"episode_s": -1.0}, "--episode-s -1.0"),
+        ({"checkpoint_every_min": -5.0}, "--checkpoint-every-min"),
+    ],
+)
+def test_out_of_range_options_are_refused_before_anything_is_written(small_track, tmp_path, change, message, fault):
+    out = tmp_path / "run"
+    with pytest.raises(ValueError, match=message) as excinfo:
+        train_policy(tiny_train_config(small_track, out, **change))
+    assert not out.exists()
+    fault.refused(f"train-policy {change}", str(excinfo.value))
+
+
+def _train_policy_process(track: str, out: Path, steps: int) -> subprocess.Popen:
+    argv = [sys.executable, "-m", "vision_rl.commands.main", "train-policy", "--track", track, "--out", str(out),
+            "--cars", "2", "--steps", str(steps), "--learning-starts", "50", "--batch-size", "32",
+            "--buffer-size", "5000", "--eval-every-steps", "0", "--checkpoint-every-steps", "400",
+            "--checkpoint-every-min", "0.002", "--device", "cpu", "--no-progress"]  # fmt: skip
+    if (out / "policy.json").exists():
+        argv.append("--resume")
+    return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_checkpoint(process: subprocess.Popen, spec: Path, at_least_steps: int) -> int:
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and process.poll() is None:
+        try:
+            steps = PolicySpec.read(spec).num_timesteps
+        except (PolicyError, OSError):
+            steps = 0
+        if steps >= at_least_steps:
+            return steps
+        time.sleep(0.05)
+    raise AssertionError(f"no checkpoint of {at_least_steps} steps: {process.communicate()}")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_a_killed_train_policy_resumes_from_what_it_saved(small_track, tmp_path, sig, fault):
+    out = tmp_path / "run"
+    process = _train_policy_process(small_track, out, 100_000)
+    saved = _wait_for_checkpoint(process, out / "policy.json", 120)
+    os.kill(process.pid, sig)
+    process.communicate(timeout=60)
+    assert process.returncode == (-signal.SIGKILL if sig == signal.SIGKILL else 130)
+    spec = PolicySpec.read(out / "policy.json")
+    assert spec.num_timesteps >= saved
+    load_policy(out)  # the pair on disk is whole: weights match the sidecar's checksum
+    target = spec.num_timesteps + 40
+    resumed = _train_policy_process(small_track, out, target)
+    stdout, stderr = resumed.communicate(timeout=120)
+    assert resumed.returncode == 0, stderr
+    assert PolicySpec.read(out / "policy.json").num_timesteps == target
+    name = "SIGKILL" if sig == signal.SIGKILL else "SIGTERM"
+    how = ("the light checkpoint (weights, optimisers, counters) of the last interval survives and --resume "
+           "continues" if sig == signal.SIGKILL else "saves weights and buffer, exits 130, --resume continues")
+    fault.recovered(f"{name} to train-policy mid-run", how)
