@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from vision_rl.phase1_repr import EncoderCheckpointError, load_encoder, read_checkpoint, save_checkpoint
-from vision_rl.phase1_repr.checkpoint import checkpoint_sha256
+from vision_rl.phase1_repr.checkpoint import checkpoint_checksums, checkpoint_sha256
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
 
 CFG = EncoderConfig(input_height_px=32, input_width_px=48, stem_channels=8, stage_channels=(16, 32),
@@ -97,14 +97,22 @@ def test_corrupt_truncated_and_inconsistent_checkpoints(tmp_path: Path) -> None:
             load_encoder(bad)
         assert str(bad) in str(info.value)
     ckpt = read_checkpoint(path)
+
+    def save_signed(payload: dict, to: Path) -> None:  # inconsistent content under valid checksums
+        torch.save({**payload, **checkpoint_checksums(payload)}, to)
+
     other = tmp_path / "other_weights.pt"
-    torch.save({**ckpt, "state_dict": trained_net(dataclasses.replace(CFG, stem_channels=16)).state_dict()}, other)
+    save_signed({**ckpt, "state_dict": trained_net(dataclasses.replace(CFG, stem_channels=16)).state_dict()}, other)
     with pytest.raises(EncoderCheckpointError, match="do not fit"):
         load_encoder(other)
     names = tmp_path / "names.pt"
-    torch.save({**ckpt, "target_names": NAMES[:20]}, names)
+    save_signed({**ckpt, "target_names": NAMES[:20]}, names)
     with pytest.raises(EncoderCheckpointError, match="predicts 27 targets"):
         load_encoder(names)
+    edited = tmp_path / "edited.pt"
+    torch.save({**ckpt, "target_names": ["x", *NAMES[1:]]}, edited)  # an edit without new checksums
+    with pytest.raises(EncoderCheckpointError, match="field 'target_names' does not match"):
+        load_encoder(edited)
     foreign = tmp_path / "foreign.pt"
     torch.save({"weights": torch.zeros(3)}, foreign)
     with pytest.raises(EncoderCheckpointError, match="not a vision_rl encoder"):

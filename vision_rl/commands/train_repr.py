@@ -6,6 +6,7 @@ Prints where the run went and the kept epoch's R^2 per target group, or one JSON
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from vision_rl.commands.output import emit, progress_bar, show
@@ -23,11 +24,20 @@ class TrainReprOptions(TrainReprConfig):
 
 
 def format_train_repr(result: dict[str, Any]) -> list[str]:
+    """The paths written (only those that exist), the frames, the kept epoch and its R^2 per target group."""
+    paths = [
+        (label, result.get(key))
+        for label, key in (("metrics", "metrics_json"), ("figure", "figure"), ("TensorBoard", "tensorboard"))
+    ]
+    written = "   ".join(f"{label}: {path}" for label, path in paths if path and Path(path).exists())
+    if result.get("best_epoch") is None:
+        kept = "kept the last weights (no validation epoch finished)"
+    else:
+        kept = f"kept epoch {result['best_epoch']} (val loss {result['val_loss']:.4g})"
     lines = [
         f"ckpt.pt: {result['ckpt']}",
-        f"metrics: {result['metrics_json']}   figure: {result['figure']}   TensorBoard: {result['tensorboard']}",
-        f"frames: {result['n_train_frames']} training, {result['n_val_frames']} validation; "
-        f"kept epoch {result['best_epoch']} (val loss {result['val_loss']})",
+        *([written] if written else []),
+        f"frames: {result['n_train_frames']} training, {result['n_val_frames']} validation; {kept}",
     ]
     for group, value in (result.get("val_r2") or {}).items():
         lines.append(f"  R^2 {group:<20s} {value:.4f}")

@@ -37,6 +37,42 @@ def expand_paths(spec: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
     return out
 
 
+#: The largest plausible magnitude of a target, by its unit; a larger (or a non-finite) value means the file is
+#: damaged or was made wrong, and is refused before any training:
+#:
+#: - ``m``: 10 km. Every distance target (edge distances along rays, distances to the edges, offset from the centre
+#:   line) lies within a track's width or its ray range, metres to hundreds of metres; 10 km is no distance on a
+#:   track.
+#: - ``rad``: 2 pi. The heading angle to the centre line is wrapped to [-pi, pi].
+#: - ``1/m``: 10 per metre, a radius of 10 cm; a racing track's tightest hairpin has a radius of metres.
+#:
+#: Targets of other units are only checked to be finite.
+TARGET_MAGNITUDE_BOUNDS: dict[str, float] = {"m": 10_000.0, "rad": 2.0 * math.pi, "1/m": 10.0}
+
+
+class TargetValueError(CaptureFormatError):
+    """A target value that is non-finite or beyond :data:`TARGET_MAGNITUDE_BOUNDS`; the message names the file,
+    the frame (row) and the target (column)."""
+
+
+def check_targets(targets: np.ndarray, names: Sequence[str], units: Sequence[str], source: str | Path) -> None:
+    """Refuse non-finite or absurd targets (see :data:`TARGET_MAGNITUDE_BOUNDS`), naming the first bad frame (the
+    row in ``source``) and target (the column) with its value."""
+    targets = np.asarray(targets)
+    bounds = np.array([TARGET_MAGNITUDE_BOUNDS.get(u, np.inf) for u in units], dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(targets) | (np.abs(targets.astype(np.float64)) > bounds)
+    if not bad.any():
+        return
+    row, col = (int(v) for v in np.argwhere(bad)[0])
+    value, unit = float(targets[row, col]), units[col]
+    why = "not a finite number" if not math.isfinite(value) else f"beyond the plausible {bounds[col]:g} {unit}"
+    raise TargetValueError(
+        f"{source}: frame {row}, target {names[col]!r} is {value:g} {unit}: {why} ({int(bad.sum())} bad values in "
+        "all); the file is damaged or was made wrong: capture it again"
+    )
+
+
 @dataclass(frozen=True, eq=False)
 class TargetStandardiser:
     """Per-target affine map to zero mean and unit variance over the training frames.
@@ -90,11 +126,16 @@ class FrameCatalogue:
     """(N,) int32 lap index of the car."""
     car_id: np.ndarray
     """(N,) int32."""
+    sources: tuple[dict[str, Any], ...] = ()
+    """Per file: ``file`` (its name), ``n_frames``, ``fingerprint_sha256``, ``content_sha256`` and the fingerprint's
+    track geometry hash and car: what a model trained on the catalogue records of its data."""
 
     @classmethod
     def open(cls, paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]) -> FrameCatalogue:
-        """Read the catalogue of the given files (see :func:`expand_paths`); all must share frame size and targets."""
+        """Read the catalogue of the given files (see :func:`expand_paths`); all must share frame size and targets.
+        Non-finite or absurd targets are refused (:func:`check_targets`)."""
         files = expand_paths(paths)
+        sources: list[dict[str, Any]] = []
         cols: dict[str, list[np.ndarray]] = {k: [] for k in ("targets", "lap", "car_id", "file", "frame")}
         meta: tuple[tuple[int, int], list[str], list[str]] | None = None
         for i, path in enumerate(files):
@@ -107,9 +148,22 @@ class FrameCatalogue:
                         f"{path}: frames {this[0]} / {len(this[1])} targets do not match {files[0]}: "
                         f"{meta[0]} / {len(meta[1])} targets (or the target names differ)"
                     )
+                fingerprint = cap.fingerprint
+                sources.append(
+                    {
+                        "file": path.name,
+                        "n_frames": cap.n_frames,
+                        "fingerprint_sha256": cap.attrs["fingerprint_sha256"],
+                        "content_sha256": cap.content_sha256(),
+                        "track_geometry_hash": fingerprint.get("track_geometry_hash"),
+                        "car_preset": fingerprint.get("car_preset"),
+                    }
+                )
                 if cap.n_frames == 0:
                     continue
-                cols["targets"].append(cap.targets.astype(np.float32))
+                targets = cap.targets
+                check_targets(targets, cap.target_names, cap.target_units, path)
+                cols["targets"].append(targets.astype(np.float32))
                 cols["lap"].append(cap.lap.astype(np.int32))
                 cols["car_id"].append(cap.car_id.astype(np.int32))
                 cols["file"].append(np.full(cap.n_frames, i, dtype=np.int32))
@@ -127,6 +181,7 @@ class FrameCatalogue:
             targets=np.concatenate(cols["targets"]),
             lap=np.concatenate(cols["lap"]),
             car_id=np.concatenate(cols["car_id"]),
+            sources=tuple(sources),
         )
 
     def __len__(self) -> int:

@@ -2,19 +2,30 @@
 
 ``ckpt.pt`` is a plain dict that ``torch.load(path, weights_only=True)`` reads:
 
-- ``format`` ("vision_rl.encoder") and ``format_version`` (1);
+- ``format`` ("vision_rl.encoder") and ``format_version`` (2);
 - ``encoder_config``: :class:`EncoderConfig` as a dict; it holds the input size (``input_height_px``,
   ``input_width_px``) and the pixel normalisation (``pixel_mean``, ``pixel_std`` of pixels scaled to [0, 1]);
 - ``state_dict``: the trained (unfused) :class:`ReprNet` weights;
 - ``target_names``, ``target_units`` and ``target_mean`` / ``target_std`` (float32 tensors, physical units), the
   standardisation phi_reg was trained against: physical = standardised * std + mean;
-- ``package_version`` and ``metrics`` (the validation figures of the kept weights; may be empty).
+- ``package_version`` and ``metrics`` (the validation figures of the kept weights; may be empty);
+- ``dataset``: what the weights were trained on, per split (``train``, ``val``) a list of the capture files' names,
+  frame counts, ``fingerprint_sha256``, ``content_sha256``, track geometry hash and car (empty when unknown);
+- checksums: ``tensor_sha256`` (each tensor: ``state_dict.<name>``, ``target_mean``, ``target_std``),
+  ``field_sha256`` (every other field's canonical JSON) and ``content_sha256`` over both. :func:`read_checkpoint`
+  verifies them all and refuses a mismatch naming the field or tensor; :func:`load_encoder` can also require the
+  dataset to be a given one.
+
+Checkpoints of format version 1 carry no checksums and are refused with the advice to train again: their weights
+cannot be told from damaged or edited ones.
 """
 
 from __future__ import annotations
 
+import errno
 import functools
 import hashlib
+import json
 import os
 import warnings
 from collections.abc import Mapping, Sequence
@@ -29,13 +40,42 @@ from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
 from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, export_embedding, resolve_runtime
 
 CKPT_FORMAT = "vision_rl.encoder"
-CKPT_FORMAT_VERSION = 1
-_REQUIRED_KEYS = ("format", "format_version", "encoder_config", "state_dict", "target_names", "target_units",
-                  "target_mean", "target_std")  # fmt: skip
+CKPT_FORMAT_VERSION = 2
+_REQUIRED_KEYS = (
+    "format", "format_version", "encoder_config", "state_dict", "target_names", "target_units", "target_mean",
+    "target_std", "dataset", "tensor_sha256", "field_sha256", "content_sha256",
+)  # fmt: skip
+#: Entries covered by ``tensor_sha256`` (besides the state dict's tensors) and those that are checksums themselves.
+_TENSOR_KEYS = ("target_mean", "target_std")
+_CHECKSUM_KEYS = ("tensor_sha256", "field_sha256", "content_sha256")
 
 
 class EncoderCheckpointError(ValueError):
     """A checkpoint that cannot serve as requested: the message names the file and the problem."""
+
+
+def tensor_sha256(tensor: torch.Tensor) -> str:
+    """Hex SHA-256 of a tensor's dtype, shape and bytes."""
+    t = tensor.detach().cpu().contiguous()
+    digest = hashlib.sha256(f"{t.dtype}{tuple(t.shape)}".encode())
+    digest.update(t.reshape(-1).view(torch.uint8).numpy().tobytes())
+    return digest.hexdigest()
+
+
+def _json_sha256(value: Any) -> str:
+    return hashlib.sha256(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def checkpoint_checksums(payload: Mapping[str, Any]) -> dict[str, Any]:
+    """``tensor_sha256``, ``field_sha256`` and ``content_sha256`` of a checkpoint dict (see the module doc)."""
+    tensors = {f"state_dict.{k}": tensor_sha256(v) for k, v in payload["state_dict"].items()}
+    tensors.update({k: tensor_sha256(payload[k]) for k in _TENSOR_KEYS})
+    fields = {k: _json_sha256(v) for k, v in payload.items() if k not in ("state_dict", *_TENSOR_KEYS, *_CHECKSUM_KEYS)}
+    return {
+        "tensor_sha256": tensors,
+        "field_sha256": fields,
+        "content_sha256": _json_sha256({"tensors": tensors, "fields": fields}),
+    }
 
 
 def save_checkpoint(
@@ -47,8 +87,11 @@ def save_checkpoint(
     target_mean: np.ndarray | torch.Tensor,
     target_std: np.ndarray | torch.Tensor,
     metrics: Mapping[str, Any] | None = None,
+    dataset: Mapping[str, Any] | None = None,
 ) -> Path:
-    """Write ``ckpt.pt`` for ``net`` (trained form, not fused); returns the path."""
+    """Write ``ckpt.pt`` for ``net`` (trained form, not fused) with its checksums; returns the path. ``dataset``
+    describes the training data (see the module doc); plain JSON types only. A failed write (a full disk) raises
+    an ``OSError`` naming the file and leaves neither a partial checkpoint nor a temporary file."""
     from vision_rl.capture.h5format import package_version
 
     if net.fused:
@@ -69,13 +112,44 @@ def save_checkpoint(
         "target_std": std,
         "package_version": package_version(),
         "metrics": dict(metrics or {}),
+        "dataset": json.loads(json.dumps(dict(dataset or {}))),
     }
+    payload.update(checkpoint_checksums(payload))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)  # a crash mid-write never leaves a half checkpoint under the real name
+    try:
+        torch.save(payload, tmp)
+        os.replace(tmp, path)  # a crash mid-write never leaves a half checkpoint under the real name
+    except (OSError, RuntimeError) as exc:  # torch reports a failed write as RuntimeError too
+        tmp.unlink(missing_ok=True)
+        code = getattr(exc, "errno", None) or (errno.ENOSPC if "No space left" in str(exc) else errno.EIO)
+        raise OSError(code, f"{path}: cannot write the checkpoint ({exc}); no partial file was left") from exc
     return path
+
+
+def _verifycheckpoint_checksums(path: Path, ckpt: Mapping[str, Any]) -> None:
+    """Refuse a checkpoint whose content differs from its recorded checksums, naming the field or tensor."""
+    recorded_tensors, recorded_fields = ckpt["tensor_sha256"], ckpt["field_sha256"]
+    if not isinstance(recorded_tensors, dict) or not isinstance(recorded_fields, dict):
+        raise EncoderCheckpointError(f"{path}: malformed checksums (tensor_sha256 / field_sha256 must be dicts)")
+    if _json_sha256({"tensors": recorded_tensors, "fields": recorded_fields}) != ckpt["content_sha256"]:
+        raise EncoderCheckpointError(f"{path}: content_sha256 does not match the recorded checksums (edited file)")
+    actual = checkpoint_checksums(ckpt)
+    for kind, recorded, now in (
+        ("tensor", recorded_tensors, actual["tensor_sha256"]),
+        ("field", recorded_fields, actual["field_sha256"]),
+    ):
+        for name in sorted(set(recorded) | set(now)):
+            if name not in now:
+                raise EncoderCheckpointError(f"{path}: {kind} {name!r} is recorded in the checksums but missing")
+            if name not in recorded:
+                raise EncoderCheckpointError(f"{path}: {kind} {name!r} is not covered by the recorded checksums")
+            if recorded[name] != now[name]:
+                raise EncoderCheckpointError(
+                    f"{path}: {kind} {name!r} does not match its recorded SHA-256 (damaged or edited checkpoint): "
+                    "restore it or train again"
+                )
 
 
 def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -91,9 +165,18 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
         ) from exc
     if not isinstance(ckpt, dict) or ckpt.get("format") != CKPT_FORMAT:
         raise EncoderCheckpointError(f"{path}: not a vision_rl encoder checkpoint (no format {CKPT_FORMAT!r})")
+    version = int(ckpt.get("format_version", 0))
+    if version < CKPT_FORMAT_VERSION and "content_sha256" not in ckpt:
+        raise EncoderCheckpointError(
+            f"{path}: checkpoint format {version} carries no checksums, so damaged or edited weights would go "
+            "unnoticed: train it again with train-repr"
+        )
     missing = [k for k in _REQUIRED_KEYS if k not in ckpt]
     if missing:
         raise EncoderCheckpointError(f"{path}: checkpoint lacks {missing}")
+    if not isinstance(ckpt["state_dict"], dict) or not all(isinstance(ckpt[k], torch.Tensor) for k in _TENSOR_KEYS):
+        raise EncoderCheckpointError(f"{path}: state_dict must be a dict and target_mean/target_std tensors")
+    _verifycheckpoint_checksums(path, ckpt)
     if int(ckpt["format_version"]) > CKPT_FORMAT_VERSION:
         raise EncoderCheckpointError(f"{path}: checkpoint format {ckpt['format_version']} is newer than this code's")
     try:
@@ -196,6 +279,7 @@ def load_encoder(
     *,
     expected_input_hw_px: tuple[int, int] | None = None,
     expected_target_names: Sequence[str] | None = None,
+    expected_dataset: Mapping[str, Any] | None = None,
     fuse: bool = True,
     runtime: str = "torch",
 ) -> FrozenEncoder:
@@ -206,6 +290,8 @@ def load_encoder(
         device: where the module runs (``"cpu"``, ``"cuda"``...); numpy frames are moved there.
         expected_input_hw_px: refuse a checkpoint built for another frame size (height, width) in pixels.
         expected_target_names: refuse a checkpoint trained on other targets (count or names).
+        expected_dataset: refuse a checkpoint trained on other data than this ``dataset`` record (see the module
+            doc), naming the first differing field.
         fuse: fold BatchNorm, normalisation and space2depth into the convolutions (same outputs, faster).
         runtime: ``"torch"``, ``"onnxruntime"`` (CPU; phi_rep by ONNX Runtime with torch's current thread count, the
             same outputs to float rounding, 2-6x faster on the project's CPUs) or ``"auto"`` (ONNX Runtime on the CPU
@@ -231,6 +317,15 @@ def load_encoder(
                 first = next(a for a, b in zip(have_names, want_names, strict=True) if a != b)
                 detail = f"other targets than expected (first difference: {first!r})"
             raise EncoderCheckpointError(f"{path}: checkpoint predicts {detail}")
+    if expected_dataset is not None:
+        from vision_rl.capture.h5format import first_difference
+
+        diff = first_difference(ckpt["dataset"], dict(expected_dataset), "dataset")
+        if diff is not None:
+            field, have, want = diff
+            raise EncoderCheckpointError(
+                f"{path}: checkpoint was trained on other data: {field} is {have!r}, expected {want!r}"
+            )
     net = build_network(ckpt, path)
     if fuse or runtime == "onnxruntime":
         net.fuse_for_inference()

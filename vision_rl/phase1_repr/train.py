@@ -3,15 +3,24 @@
 The loss is the MSE on standardised targets; per-target RMSE in physical units and R^2 per target group go to
 TensorBoard and ``metrics.json`` every epoch; the weights with the lowest validation loss are kept (the paper keeps
 the best of 50 epochs on undisturbed-driving frames) and written as ``ckpt.pt`` with a predicted-vs-true figure.
+
+Nothing here loads a file that can run code: the kept weights are a state dict held by :class:`BestWeights` (in
+memory, and in the callback state of Lightning's ``last.ckpt``), and ``--resume`` loads ``last.ckpt`` with
+``weights_only=True`` after checking that it holds only tensors and plain values. ``data.json`` in the run folder
+records the fingerprints and content digests of the capture files; a resumed run refuses other data, naming the
+field, and ``ckpt.pt`` records the same under ``dataset``. Non-finite or absurd targets are refused before training
+(:data:`vision_rl.datasets.capture_dataset.TARGET_MAGNITUDE_BOUNDS`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import json
 import logging
 import math
+import os
 import shutil
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -204,8 +213,7 @@ class MetricsHistory(L.Callback):
 
     def write(self, extra: dict[str, Any] | None = None) -> None:
         payload = {"units": self.units, "epochs": self.epochs, "best": self.best(), **(extra or {})}
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.path.write_text(json.dumps(payload, indent=2, allow_nan=True))
+        write_text_atomic(self.path, json.dumps(payload, indent=2, allow_nan=True))
 
     def state_dict(self) -> dict[str, Any]:
         return {"epochs": self.epochs}
@@ -213,6 +221,52 @@ class MetricsHistory(L.Callback):
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         self.epochs = list(state_dict.get("epochs", []))
 
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file renamed over it: a failed write (a full disk) raises an
+    ``OSError`` naming the file and leaves the old file, if any, and no temporary file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise OSError(exc.errno or errno.EIO, f"{path}: cannot write it ({exc.strerror or exc})") from exc
+
+
+class BestWeights(L.Callback):
+    """Keeps a CPU copy of the network's weights at the epoch with the lowest validation loss.
+
+    The copy is a state dict (tensors only), in memory and in the callback state that Lightning's ``last.ckpt``
+    carries, so a resumed run keeps the best weights of its earlier epochs; ``ckpt.pt`` is written from it without
+    loading any Lightning checkpoint."""
+
+    def __init__(self) -> None:
+        self.epoch: int | None = None
+        self.val_loss: float | None = None
+        self.weights: dict[str, torch.Tensor] = {}
+
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.sanity_checking or "val_loss" not in trainer.callback_metrics:
+            return
+        loss = float(trainer.callback_metrics["val_loss"])
+        if math.isfinite(loss) and (self.val_loss is None or loss < self.val_loss):
+            assert isinstance(pl_module, ReprModule)
+            self.epoch, self.val_loss = int(trainer.current_epoch), loss
+            self.weights = {k: v.detach().cpu().clone() for k, v in pl_module.net.state_dict().items()}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"epoch": self.epoch, "val_loss": self.val_loss, "weights": self.weights}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.epoch, self.val_loss = state_dict.get("epoch"), state_dict.get("val_loss")
+        self.weights = dict(state_dict.get("weights", {}))
+
+
+def _positive(value: float, option: str, minimum: float = 1) -> tuple[bool, str]:
+    return (math.isfinite(value) and value >= minimum), f"{option} must be >= {minimum:g}, got {value}"
 
 
 @dataclass(frozen=True)
@@ -265,6 +319,26 @@ class TrainReprConfig:
     """Continue the run in ``out`` from its last checkpoint."""
     force: bool = False
     """Start over in an ``out`` that holds a run."""
+
+    def __post_init__(self) -> None:
+        # Bounds of every size, checked when the configuration is made (the command line reports them as one line).
+        checks = (
+            _positive(self.epochs, "--epochs"),
+            _positive(self.batch_size, "--batch-size"),
+            _positive(self.num_workers, "--num-workers", 0),
+            _positive(self.space2depth_block_px, "--space2depth-block-px"),
+            _positive(self.shift_px, "--shift-px", 0),
+            _positive(self.weight_decay, "--weight-decay", 0),
+            (self.max_steps == -1 or self.max_steps >= 1, f"--max-steps must be >= 1 or -1 (no limit), got "
+             f"{self.max_steps}"),
+            (math.isfinite(self.lr) and self.lr > 0, f"--lr must be > 0, got {self.lr}"),
+            (math.isfinite(self.width_mult) and self.width_mult > 0, f"--width-mult must be > 0, got "
+             f"{self.width_mult}"),
+            (0 < self.val_fraction < 1, f"--val-fraction must be within (0, 1), got {self.val_fraction}"),
+        )  # fmt: skip
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(message)
 
 
 #: ``progress(steps_done, steps_total, figures)``: called by :func:`train_repr` after every optimiser step and every
@@ -325,16 +399,17 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
     from vision_rl.datasets.datamodule import CaptureDataModule
 
     if not cfg.data:
-        raise ValueError("training needs data: one or more capture files")
+        raise ValueError("training needs data: one or more capture files (--data)")
     out = Path(cfg.out)
     last_ckpt = _lightning_dir(out) / "last.ckpt"
     if cfg.resume and not last_ckpt.is_file():
         raise FileNotFoundError(f"{out}: nothing to resume (no {last_ckpt.name})")
+    if cfg.resume:
+        _check_plain_checkpoint(last_ckpt)
     if not cfg.resume and (last_ckpt.exists() or (out / "ckpt.pt").exists()):
         if not cfg.force:
             raise FileExistsError(f"{out} holds a run: resume it (--resume) or start over (--force)")
         shutil.rmtree(out)
-    out.mkdir(parents=True, exist_ok=True)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
 
     dm = CaptureDataModule(
@@ -346,9 +421,18 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
         num_workers=cfg.num_workers,
     )
     dm.prepare_data()
-    dm.setup("fit")
+    dm.setup("fit")  # reads the targets and refuses non-finite or absurd ones, before anything is trained
     catalogue = dm.catalogue
-    assert dm.standardiser is not None
+    assert dm.standardiser is not None and dm.val_set is not None
+    dataset = {
+        "train": [dict(s) for s in catalogue.sources],
+        "val": [dict(s) for s in dm.val_set.catalogue.sources] if cfg.val else "laps held out of train",
+    }
+    data_json = out / "data.json"
+    if cfg.resume:
+        _check_same_data(data_json, dataset)
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(data_json, json.dumps(dataset, indent=2))
     h, w = catalogue.image_hw_px
     enc_cfg = EncoderConfig(
         backbone=cfg.backbone,
@@ -373,10 +457,9 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
         balance_groups=cfg.balance_groups,
     )
     history = MetricsHistory(out / "metrics.json", catalogue.target_units, catalogue.target_names)
-    best_keeper = ModelCheckpoint(
-        dirpath=_lightning_dir(out), filename="best", monitor="val_loss", mode="min", save_last=True,
-        save_top_k=1, enable_version_counter=False,
-    )  # fmt: skip
+    best_weights = BestWeights()
+    # Only last.ckpt, for --resume: the best weights travel in BestWeights' state inside it.
+    last_keeper = ModelCheckpoint(dirpath=_lightning_dir(out), save_last=True, save_top_k=0)
     with _quiet_lightning():
         trainer = L.Trainer(
             accelerator=cfg.device if cfg.device != "auto" else "auto",
@@ -385,37 +468,42 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
             max_epochs=cfg.epochs,
             max_steps=cfg.max_steps,
             logger=TensorBoardLogger(save_dir=str(out), name="tensorboard", version=""),
-            callbacks=[best_keeper, history, *([_ReportProgress(progress)] if progress else [])],
+            callbacks=[best_weights, history, last_keeper, *([_ReportProgress(progress)] if progress else [])],
             enable_progress_bar=False,
             enable_model_summary=False,
             num_sanity_val_steps=0,
             log_every_n_steps=max(1, min(50, len(dm.train_set) // max(1, cfg.batch_size))),
             deterministic=False,
         )
-        trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if cfg.resume else None)
+        trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if cfg.resume else None, weights_only=True)
 
-    best_path = best_keeper.best_model_path or str(last_ckpt)
-    best_module = ReprModule.load_from_checkpoint(best_path, map_location="cpu", weights_only=False)
-    best = history.best() or {}
+    # The kept weights: the best validation epoch's, or the last ones when no validation finished (max_steps
+    # stopped the run inside its first epoch).
+    net = ReprNet(EncoderConfig.from_dict(enc_cfg.to_dict()))
+    net.load_state_dict(best_weights.weights or {k: v.detach().cpu() for k, v in module.net.state_dict().items()})
+    net.eval()
+    best = next((e for e in history.epochs if e["epoch"] == best_weights.epoch), None) or {}
     ckpt_path = save_checkpoint(
         out / "ckpt.pt",
-        best_module.net.cpu().eval(),
+        net,
         target_names=catalogue.target_names,
         target_units=catalogue.target_units,
         target_mean=dm.standardiser.mean,
         target_std=dm.standardiser.std,
         metrics={k: best[k] for k in ("epoch", "val_loss", "val_r2", "val_rmse") if k in best},
+        dataset=dataset,
     )
-    pred, true = predict_dataset(best_module.net, dm.val_dataloader(), dm.standardiser, trainer.strategy.root_device)
+    pred, true = predict_dataset(net, dm.val_dataloader(), dm.standardiser, trainer.strategy.root_device)
     figure = plot_predictions(pred, true, catalogue.target_names, catalogue.target_units, out / "pred_vs_true.png")
     history.write({"ckpt": str(ckpt_path), "figure": str(figure)})
     dm.train_set.close()
     dm.val_set.close()
+    tensorboard = out / "tensorboard"
     return {
         "ckpt": str(ckpt_path),
         "metrics_json": str(out / "metrics.json"),
         "figure": str(figure),
-        "tensorboard": str(out / "tensorboard"),
+        "tensorboard": str(tensorboard) if tensorboard.is_dir() else None,
         "best_epoch": best.get("epoch"),
         "val_loss": best.get("val_loss"),
         "val_r2": best.get("val_r2"),
@@ -423,6 +511,38 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
         "n_train_frames": len(dm.train_set),
         "n_val_frames": len(dm.val_set),
     }
+
+
+def _check_plain_checkpoint(path: Path) -> None:
+    """Refuse a Lightning checkpoint that holds anything but tensors and plain values: loading it would run code."""
+    try:
+        torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises UnpicklingError, RuntimeError, EOFError... for a bad or unsafe file
+        # torch's own message suggests loading the file unrestricted: not advice to pass on for an untrusted file.
+        reason = type(exc).__name__
+        raise ValueError(
+            f"{path}: not a checkpoint of plain tensors and values ({reason}: damaged, or it holds objects whose "
+            "loading could run code); refusing to load it: start the run over with --force"
+        ) from None
+
+
+def _check_same_data(data_json: Path, dataset: dict[str, Any]) -> None:
+    """A resumed run must train on the data it started with: refuse the first differing field."""
+    from vision_rl.capture.h5format import first_difference
+
+    try:
+        before = json.loads(data_json.read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(
+            f"{data_json}: cannot read the data the run started with ({exc}): start over with --force"
+        ) from exc
+    diff = first_difference(before, dataset, "data")
+    if diff is not None:
+        field, was, now = diff
+        raise ValueError(
+            f"{data_json.parent}: cannot resume on other data: {field} was {was!r}, now {now!r}; resume with the "
+            "run's data or start over with --force"
+        )
 
 
 @torch.no_grad()
@@ -469,4 +589,3 @@ def plot_predictions(
     fig.savefig(path, dpi=80)
     plt.close(fig)
     return path
-
