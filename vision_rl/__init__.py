@@ -1,7 +1,7 @@
 """vision_rl: learning to race from pixels on an open simulator.
 
-``import vision_rl`` registers the gymnasium ids ``vision_rl/TimeTrial-v0`` and ``vision_rl/Overtaking-v0`` by
-string entry point, so ``gymnasium.make("vision_rl/TimeTrial-v0")`` works and the environments (with numba, and
+``import vision_rl`` registers the gymnasium ids ``vision_rl/TimeTrial-v1`` and ``vision_rl/Overtaking-v1`` by
+string entry point, so ``gymnasium.make("vision_rl/TimeTrial-v1")`` works and the environments (with numba, and
 moderngl for pixels) load only when one is made. This module imports nothing else: ``import vision_rl.sim`` stays
 light.
 """
@@ -9,5 +9,5 @@ light.
 from gymnasium.envs.registration import register, registry
 
 for _name in ("TimeTrial", "Overtaking"):
-    if f"vision_rl/{_name}-v0" not in registry:
-        register(id=f"vision_rl/{_name}-v0", entry_point=f"vision_rl.envs.racing_env:{_name}", max_episode_steps=None)
+    if f"vision_rl/{_name}-v1" not in registry:
+        register(id=f"vision_rl/{_name}-v1", entry_point=f"vision_rl.envs.racing_env:{_name}", max_episode_steps=None)

@@ -156,7 +156,7 @@ def test_observation_normalisation_is_cached_and_reused(tmp_path, monkeypatch):
     np.testing.assert_allclose(third.offset, first.offset)
 
 
-@pytest.mark.parametrize("env_id", ["vision_rl/TimeTrial-v0", "vision_rl/Overtaking-v0"])
+@pytest.mark.parametrize("env_id", ["vision_rl/TimeTrial-v1", "vision_rl/Overtaking-v1"])
 def test_same_seed_same_episode_in_every_env_builder(env_id):
     from vision_rl.envs import make_sb3_vec_env
 
@@ -193,7 +193,7 @@ def test_same_seed_same_episode_in_every_env_builder(env_id):
     assert not np.array_equal(other, reference[0])
 
 
-@pytest.mark.parametrize("env_id", ["vision_rl/TimeTrial-v0", "vision_rl/Overtaking-v0"])
+@pytest.mark.parametrize("env_id", ["vision_rl/TimeTrial-v1", "vision_rl/Overtaking-v1"])
 def test_registered_envs_pass_the_checkers(env_id):
     from gymnasium.utils.env_checker import check_env
     from stable_baselines3.common.env_checker import check_env as sb3_check_env

@@ -1,4 +1,4 @@
-"""Gymnasium environments over the simulator: ``vision_rl/TimeTrial-v0`` and ``vision_rl/Overtaking-v0`` (registered
+"""Gymnasium environments over the simulator: ``vision_rl/TimeTrial-v1`` and ``vision_rl/Overtaking-v1`` (registered
 by ``import vision_rl``), and the batched vector environments (gymnasium ``VectorEnv`` and Stable-Baselines3
 ``VecEnv``) with M groups per world."""
 

@@ -1,4 +1,4 @@
-"""Single-agent gymnasium environments: ``vision_rl/TimeTrial-v0`` and ``vision_rl/Overtaking-v0``."""
+"""Single-agent gymnasium environments: ``vision_rl/TimeTrial-v1`` and ``vision_rl/Overtaking-v1``."""
 
 from __future__ import annotations
 
@@ -110,6 +110,10 @@ class TimeTrial(_RacingEnv):
     ``normalize``, ``image_hw_px``. For 20 cars in one world use :func:`vision_rl.envs.make_vector_env`.
 
     ## Version History
+    - v1: the world steps at the built-in AI's 0.02 s (an action is held over the five substeps, the same physics
+      as one 0.1 s step), per-group seeding (``reset(seed=k)`` equals group 0 of a vector env seeded with k),
+      normalisation statistics always from a 20-group disrupted-AI drive, frame size ``image_hw_px`` (height,
+      width), stuck termination by the one rule of ``vision_rl.sim.fleet``. v0 is no longer registered.
     - v0: first version.
     """
 
@@ -149,6 +153,7 @@ class Overtaking(_RacingEnv):
     ``detection_range_c_d_m`` and ``opponent_skill``. The paper raced the Audi TT Cup: ``car="tt_cup"``.
 
     ## Version History
+    - v1: as TimeTrial v1; opponents are driven by the one AI-fleet runner (``vision_rl.sim.fleet.AIFleet``).
     - v0: first version.
     """
 
