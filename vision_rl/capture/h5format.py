@@ -174,6 +174,9 @@ class CaptureFormatError(ValueError):
 class CaptureDiskFullError(OSError):
     """The disk filled while writing; the file holds the frames of the last flush and is marked incomplete."""
 
+    def __str__(self) -> str:  # the message alone, without OSError's "[Errno 28]" prefix
+        return str(self.strerror)
+
 
 def package_version() -> str:
     """The installed vision_rl version, or the source tree's when it is run without installing."""
