@@ -89,7 +89,10 @@ class BuiltinAI:
 
     control_dt_s = AI_CONTROL_DT_S
 
-    def __init__(self, skill: float = DEFAULT_SKILL, disruption: DisruptionParams | None = None, seed: int = 0):
+    def __init__(self, skill: float | None = None, disruption: DisruptionParams | None = None, seed: int = 0):
+        """``skill`` None: :data:`DEFAULT_SKILL`, or the disruption's slower skill when disrupted."""
+        if skill is None:
+            skill = disruption.skill if disruption is not None else DEFAULT_SKILL
         if not 0.0 < skill <= 1.0:
             raise ValueError(f"skill must be in (0, 1], got {skill}")
         self.skill = float(skill)
