@@ -165,3 +165,16 @@ def test_datamodule_lap_split_and_separate_validation(shards, tmp_path: Path) ->
     images, targets = next(iter(dm2.val_dataloader()))
     np.testing.assert_array_equal(images.numpy(), val_written["images"])
     np.testing.assert_allclose(dm2.standardiser.inverse(targets.numpy()), val_written["targets"], rtol=1e-5, atol=1e-5)
+
+
+def test_targets_are_checked_by_their_units():
+    from vision_rl.datasets import TargetValueError, check_targets
+
+    names, units = ["d", "a", "k", "x"], ["m", "rad", "1/m", "kg"]
+    good = np.array([[9_999.0, -6.0, 9.0, 1e30], [0.0, 0.0, 0.0, 0.0]], dtype=np.float32)
+    check_targets(good, names, units, "f.h5")  # within every bound; an unknown unit is only checked for finiteness
+    for col, value in ((0, 1e4 + 1), (1, 7.0), (2, -11.0), (3, np.nan)):
+        bad = good.copy()
+        bad[1, col] = value
+        with pytest.raises(TargetValueError, match=rf"f\.h5: frame 1, target '{names[col]}'"):
+            check_targets(bad, names, units, "f.h5")
