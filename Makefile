@@ -6,7 +6,7 @@ TORCH_SPEC ?= torch==2.13.0
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup quick test faults lint bench clean
+.PHONY: setup quick experiment test faults lint bench clean
 
 $(BIN)/vision-rl: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -19,6 +19,10 @@ setup: $(BIN)/vision-rl
 
 quick: setup
 	$(BIN)/vision-rl pipeline --quick
+
+# State SAC over 3 training seeds (1M steps each, the cpu preset): mean, spread and best of the protocol's lap.
+experiment: setup
+	$(BIN)/vision-rl experiment --seeds 0,1,2 --steps 1000000
 
 test: setup
 	$(BIN)/python -m pytest -q

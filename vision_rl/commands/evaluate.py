@@ -105,6 +105,10 @@ def format_leaderboard(result: dict[str, Any]) -> list[str]:
             f"{r['name']:<{width}}  {_lap(r['lap_time_s']):>9}  {pct(r['gap_to_limit_pct']):>10}  "
             f"{pct(r['gap_to_ai_pct']):>8}  {_lap(r['median_lap_time_s']):>9}  {r['finished']:>8}  {clean}"
         )
+        if r.get("lap_time_mean_s") is not None:  # an experiment: the best seed above, the seeds' spread here
+            std = r["lap_time_std_s"]
+            lines.append(f"{'':<{width}}  mean over seeds {_lap(r['lap_time_mean_s'])}"
+                         + ("" if std is None else f" +- {std:.2f} s"))  # fmt: skip
     lines += [f"refused: {why}" for why in result.get("refused", [])]
     return lines
 

@@ -49,6 +49,10 @@ COMMANDS: dict[str, Command] = {
         "Phase 2: SAC on the state or the frozen embedding", f"{_C}.train_policy", "TrainPolicyOptions",
         "run_train_policy",
     ),
+    "experiment": Command(
+        "Phase 2 over several training seeds: mean, spread, best", f"{_C}.experiment", "ExperimentOptions",
+        "run_experiment_command",
+    ),
     "evaluate": Command("a policy through the lap-time protocol", f"{_C}.evaluate", "EvaluateOptions", "run_evaluate"),
     "leaderboard": Command(
         "lap-time table: AI, limit, policies (Table 1)", f"{_C}.evaluate", "LeaderboardOptions", "run_leaderboard"

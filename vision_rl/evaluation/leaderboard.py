@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import statistics
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +53,60 @@ def row(record: dict[str, Any], kind: str) -> dict[str, Any]:
     }
 
 
+EXPERIMENT_FORMAT = "vision_rl.experiment"
+
+
+def _sample_std(values: list[float]) -> float | None:
+    return float(statistics.stdev(values)) if len(values) >= 2 else None
+
+
+def aggregate_seeds(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Training seeds summarised from their evaluation records (one policy per training seed, each timed from
+    the same start seeds): the mean and sample standard deviation of the seeds' best scored laps (over the seeds
+    that finished a lap), the best of them (the vision paper's score, Sec. 4: "the fastest time was used"), the
+    share of starts that finished, and the wall contact of the scored laps."""
+    if not records:
+        raise ValueError("no training seeds to summarise")
+    versions = {r["protocol"]["version"] for r in records}
+    if len(versions) != 1:
+        raise ValueError(f"the seeds were timed under different protocol versions {sorted(versions)}")
+    for key in ("track_geometry_hash", "car"):
+        if len({r[key] for r in records}) != 1:
+            raise ValueError(f"the seeds' evaluations mix {key}s: {sorted({str(r[key]) for r in records})}")
+    laps = [r["best_lap_time_s"] for r in records if r["best_lap_time_s"] is not None]
+    walls = [r["best_lap"]["wall_contact_s"] for r in records if r["best_lap"] is not None]
+    starts = sum(r["n_seeds"] for r in records)
+    return {
+        "n_training_seeds": len(records),
+        "n_training_seeds_finished": len(laps),
+        "lap_time_mean_s": float(statistics.fmean(laps)) if laps else None,
+        "lap_time_std_s": _sample_std(laps),
+        "best_lap_time_s": min(laps) if laps else None,
+        "finish_rate": sum(r["n_finished"] for r in records) / starts,
+        "finished": f"{sum(r['n_finished'] for r in records)}/{starts}",
+        "wall_contact_mean_s": float(statistics.fmean(walls)) if walls else None,
+        "wall_contact_std_s": _sample_std(walls),
+        "clean": all(r["clean"] for r in records),
+        "protocol_version": versions.pop(),
+        "track_geometry_hash": records[0]["track_geometry_hash"],
+        "car": records[0]["car"],
+    }
+
+
+def find_experiments(runs: str | os.PathLike[str]) -> list[dict[str, Any]]:
+    """Every finished ``experiment.json`` under ``runs`` (see :mod:`vision_rl.phase2_rl.experiment`)."""
+    found = []
+    root = Path(runs)
+    for path in sorted(root.rglob("experiment.json")) if root.is_dir() else []:
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(data, dict) and data.get("format") == EXPERIMENT_FORMAT and data.get("summary"):
+            found.append({**data, "experiment_json": str(path)})
+    return found
+
+
 def find_evaluations(runs: str | os.PathLike[str]) -> tuple[list[dict[str, Any]], list[str]]:
     """(records of this protocol version, refusals) from every ``*evaluation.json`` under ``runs``. A refusal
     names the file and how to re-measure it; unreadable or foreign JSON files are not evaluations and are skipped."""
@@ -86,10 +141,32 @@ def leaderboard(track: str = "expressway", car: str = "hatchback", runs: str = "
     limit_s, ai_s = ai.limit_lap_time_s, ai_record["best_lap_time_s"]
     rows = [row(ai_record, "ai")]
     records, refused = find_evaluations(runs)
+    experiments = [e for e in find_experiments(runs) if e["summary"]["protocol_version"] == PROTOCOL_VERSION]
+    inside = [Path(e["experiment_json"]).parent for e in experiments]
     for record in records:
+        if Path(record["evaluation_json"]).parent.parent in inside:
+            continue  # one training seed of an experiment: the experiment's row stands for it
         if record["track_geometry_hash"] == ai.track.geometry_hash and record["car"] == ai.car.name:
             rows.append({**row(record, f"policy ({record['driver'].get('observation', '?')})"),
                          "evaluation_json": record["evaluation_json"]})  # fmt: skip
+    for e in experiments:
+        summary = e["summary"]
+        if summary["track_geometry_hash"] == ai.track.geometry_hash and summary["car"] == ai.car.name:
+            rows.append({
+                "name": f"{e['name']} ({summary['n_training_seeds']} seeds)",
+                "kind": f"experiment ({e['observation']})",
+                "lap_time_s": summary["best_lap_time_s"],
+                "median_lap_time_s": None,
+                "lap_time_mean_s": summary["lap_time_mean_s"],
+                "lap_time_std_s": summary["lap_time_std_s"],
+                "finished": summary["finished"],
+                "clean": summary["clean"],
+                "wall_contact_s": summary["wall_contact_mean_s"],
+                "protocol_version": summary["protocol_version"],
+                "track_geometry_hash": summary["track_geometry_hash"],
+                "car": summary["car"],
+                "experiment_json": e["experiment_json"],
+            })  # fmt: skip
     for r in rows:
         r.update(gap_to_limit_pct=gap_pct(r["lap_time_s"], limit_s), gap_to_ai_pct=gap_pct(r["lap_time_s"], ai_s))
     rows.sort(key=lambda r: (r["lap_time_s"] is None, r["lap_time_s"] or 0.0))

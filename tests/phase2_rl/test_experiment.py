@@ -1,0 +1,86 @@
+"""Experiments over training seeds: the summary on hand-made results, seeds that reproduce, resume, refusals, the
+leaderboard row."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tests.phase2_rl.conftest import tiny_train_config
+from vision_rl.evaluation.leaderboard import aggregate_seeds, leaderboard
+from vision_rl.evaluation.protocol import PROTOCOL_VERSION
+from vision_rl.phase2_rl import experiment as experiment_module
+from vision_rl.phase2_rl.experiment import parse_seeds, run_experiment
+from vision_rl.phase2_rl.train import train_policy
+
+
+def _record(lap_s, finished=3, wall_s=0.2, car="hatchback", version=PROTOCOL_VERSION):
+    best = None if lap_s is None else {"wall_contact_s": wall_s}
+    return {"best_lap_time_s": lap_s, "median_lap_time_s": lap_s, "n_finished": finished, "n_seeds": 3,
+            "best_lap": best, "clean": wall_s <= 0.5, "protocol": {"version": version}, "track_geometry_hash": "abc",
+            "car": car}  # fmt: skip
+
+
+def test_the_summary_of_hand_made_seeds():
+    s = aggregate_seeds([_record(130.0, wall_s=0.1), _record(132.0, wall_s=0.3), _record(None, finished=0)])
+    assert s["n_training_seeds"] == 3 and s["n_training_seeds_finished"] == 2
+    assert s["lap_time_mean_s"] == pytest.approx(131.0) and s["lap_time_std_s"] == pytest.approx(np.sqrt(2.0))
+    assert s["best_lap_time_s"] == 130.0 and s["finished"] == "6/9" and s["finish_rate"] == pytest.approx(2 / 3)
+    assert s["wall_contact_mean_s"] == pytest.approx(0.2) and s["clean"]
+    one = aggregate_seeds([_record(130.0)])
+    assert one["lap_time_std_s"] is None and one["lap_time_mean_s"] == 130.0  # no spread from one seed
+    with pytest.raises(ValueError, match="mix cars"):
+        aggregate_seeds([_record(130.0), _record(131.0, car="gt3")])
+    with pytest.raises(ValueError, match="protocol versions"):
+        aggregate_seeds([_record(130.0), _record(131.0, version=PROTOCOL_VERSION + 1)])
+
+
+@pytest.mark.parametrize("text", ["0,1,1", "-1,2", "a,b", " , "])
+def test_bad_seed_lists_are_refused(text):
+    with pytest.raises(ValueError, match="--seeds"):
+        parse_seeds(text)
+    assert parse_seeds("2, 0,1") == (2, 0, 1)
+
+
+def test_the_same_training_seed_gives_the_same_transitions(small_track, tmp_path):
+    runs = {}
+    for name, seed in (("a", 0), ("b", 0), ("c", 1)):
+        out = tmp_path / name
+        train_policy(tiny_train_config(small_track, out, steps=120, eval_every_steps=0, checkpoint_every_steps=0,
+                                       seed=seed))  # fmt: skip
+        with np.load(out / "replay_buffer.npz") as data:
+            runs[name] = {k: data[k] for k in ("observations", "actions", "rewards")}
+    for key in runs["a"]:
+        np.testing.assert_array_equal(runs["a"][key], runs["b"][key])
+    assert not np.array_equal(runs["a"]["observations"], runs["c"]["observations"])
+    assert not np.array_equal(runs["a"]["actions"], runs["c"]["actions"])
+
+
+def test_an_experiment_resumes_only_unfinished_seeds_and_refuses_another_recipe(small_track, tmp_path, monkeypatch):
+    cfg = tiny_train_config(small_track, tmp_path / "unused", steps=120, eval_every_steps=0, checkpoint_every_steps=0)
+    out = tmp_path / "exp"
+    result = run_experiment(cfg, (0, 1), out, eval_seeds=2, name="tiny")
+    s = result["summary"]
+    assert s["n_training_seeds"] == 2 and [r["seed"] for r in result["per_seed"]] == [0, 1]
+    stored = json.loads((out / "experiment.json").read_text())
+    assert stored["summary"] == s and stored["observation"] == "state" and stored["steps"] == 120
+    for seed in (0, 1):
+        assert json.loads((out / f"seed-{seed}" / "evaluation.json").read_text())["name"] == f"tiny/seed-{seed}"
+
+    trained = []
+    real_train = experiment_module.train_policy
+    monkeypatch.setattr(experiment_module, "train_policy", lambda c, p=None: trained.append(c.seed) or real_train(c, p))
+    again = run_experiment(cfg, (0, 1, 2), out, eval_seeds=2, name="tiny")
+    assert trained == [2] and again["summary"]["n_training_seeds"] == 3  # seeds 0 and 1 were kept
+    with pytest.raises(ValueError, match="another track"):
+        run_experiment(cfg.__class__(**{**cfg.__dict__, "track": "technical"}), (0,), out)
+    with pytest.raises(ValueError, match="recipe field batch_size"):
+        run_experiment(cfg.__class__(**{**cfg.__dict__, "batch_size": 64}), (0,), out)
+
+    table = leaderboard(small_track, "hatchback", str(tmp_path))
+    names = [r["name"] for r in table["rows"]]
+    assert "tiny (3 seeds)" in names and not any("seed-" in n for n in names)
+    (row,) = [r for r in table["rows"] if r["name"] == "tiny (3 seeds)"]
+    assert row["lap_time_mean_s"] == again["summary"]["lap_time_mean_s"]

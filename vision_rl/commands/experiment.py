@@ -1,0 +1,75 @@
+"""`vision-rl experiment`: a train-policy recipe over several training seeds, with mean, spread and best."""
+
+from __future__ import annotations
+
+import signal
+from dataclasses import dataclass, fields
+from typing import Any
+
+from vision_rl.commands.output import emit, progress_bar, show
+from vision_rl.phase2_rl.train import TrainPolicyConfig
+
+
+@dataclass(frozen=True)
+class ExperimentOptions(TrainPolicyConfig):
+    """Train one SAC recipe once per training seed (each a train-policy run), time each with the lap-time protocol
+    and report the mean and standard deviation over seeds and the best of them. Resumes unfinished seeds."""
+
+    seeds: str = "0,1,2"
+    """Training seeds, comma-separated (each trains its own policy)."""
+    eval_seeds: int = 3
+    """Start seeds of each policy's evaluation."""
+    name: str = ""
+    """Name of the leaderboard row (default: the folder's name)."""
+    progress: bool = True
+    """Show a progress bar on stderr."""
+    json: bool = False
+    """Print the result as JSON."""
+
+
+def format_experiment(result: dict[str, Any]) -> list[str]:
+    from vision_rl.evaluation.outputs import format_lap_time
+
+    s = result["summary"]
+    spread = "" if s["lap_time_std_s"] is None else f" +- {s['lap_time_std_s']:.2f} s"
+    lines = [
+        f"{result['name']}: {s['n_training_seeds']} training seeds of {result['observation']} SAC, "
+        f"{result['steps']} steps each, on {result['track']} / {result['car']}",
+        f"  lap 2 mean {format_lap_time(s['lap_time_mean_s'])}{spread} over {s['n_training_seeds_finished']} "
+        f"seeds that finished; best {format_lap_time(s['best_lap_time_s'])}; starts finished {s['finished']}",
+    ]
+    lines += [f"  seed {r['seed']}: {format_lap_time(r['lap_time_s'])} ({r['finished']} finished, wall contact "
+              f"{r['wall_contact_s'] if r['wall_contact_s'] is not None else '-'} s)" for r in result["per_seed"]]
+    lines.append(f"  record: {result['experiment_json']}")
+    return lines
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def run_experiment_command(opts: ExperimentOptions) -> int:
+    from vision_rl.phase2_rl.experiment import parse_seeds, run_experiment
+
+    seeds = parse_seeds(opts.seeds)
+    train = TrainPolicyConfig(**{f.name: getattr(opts, f.name) for f in fields(TrainPolicyConfig)})
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        with progress_bar(opts.steps * len(seeds), "step", "experiment", enabled=opts.progress) as bar:
+            done = {"seeds": 0}
+
+            def seed_started(index: int, n: int, seed: int) -> None:
+                done["seeds"] = index
+
+            def step(steps: int, total: int, last_eval: dict[str, Any] | None) -> None:
+                show(bar, done["seeds"] * opts.steps + steps, opts.steps * len(seeds))
+
+            result = run_experiment(train, seeds, opts.out, opts.eval_seeds, opts.name, seed_started, step)
+    except KeyboardInterrupt:
+        emit({"interrupted": True, "resume": "run the same command again"}, opts.json,
+             lambda r: ["interrupted: the finished seeds and the current run are saved; run the same command again"])
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    emit(result, opts.json, format_experiment)
+    return 0
