@@ -105,7 +105,7 @@ _CAPTURE_PROCESS = textwrap.dedent(
 )
 
 
-def _start_capture(argv: list[str]) -> tuple[subprocess.Popen, list[tuple[float, int]]]:
+def _start_capture(argv: list[str]) -> tuple[subprocess.Popen, list[tuple[float, int]], threading.Thread]:
     code = _CAPTURE_PROCESS.format(repo=str(REPO), argv=["capture", *argv])
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     reports: list[tuple[float, int]] = []
@@ -115,8 +115,9 @@ def _start_capture(argv: list[str]) -> tuple[subprocess.Popen, list[tuple[float,
             if line.strip().isdigit():
                 reports.append((time.monotonic(), int(line)))
 
-    threading.Thread(target=read, daemon=True).start()
-    return proc, reports
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    return proc, reports, reader
 
 
 @pytest.mark.parametrize(
@@ -130,16 +131,17 @@ def test_a_killed_capture_loses_at_most_the_flush_interval_and_resumes(
     out = tmp_path / "run.h5"
     argv = ["--out", str(out), "--track", str(track), "--laps", "2", "--cars", "2", "--fps", "10", "--image-hw-px",
             "32", "48", "--seed", "5", "--flush-interval-s", str(flush_interval_s), "--json"]  # fmt: skip
-    proc, reports = _start_capture(argv)
+    proc, reports, reader = _start_capture(argv)
     deadline = time.monotonic() + 120
     while not reports and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.02)
-    assert reports, f"the capture never wrote a batch: {proc.communicate()[1][-2000:]}"
+    assert reports, f"the capture never wrote a batch: {proc.stderr.read()[-2000:] if proc.poll() is not None else ''}"
     time.sleep(random.Random(seed).uniform(0.0, 0.8))  # a random point of the run
     killed_at = time.monotonic()
     proc.send_signal(sig)
-    _, stderr = proc.communicate(timeout=60)
-    time.sleep(0.1)  # the reader thread takes the last lines
+    proc.wait(timeout=60)
+    reader.join(timeout=30)  # the reader thread alone reads stdout, to its end
+    stderr = proc.stderr.read()
     reported = max(frames for _, frames in reports)
     with open_capture(out) as f:
         assert not f.complete
