@@ -153,9 +153,9 @@ def test_steering_never_asks_the_front_tyres_past_their_peak_slip_near_the_limit
     world = World(track, car, n_cars=1, config=CONFIG)
     ai = AIDriver(car, line, limit, 1, skill=1.0)
     s = np.array([200.0])
-    # Far off the line and pointing away from it at the reference speed: the path feedback alone would ask for
-    # more lock than the front tyres can use.
-    world.reset(s, line.lateral_at(s) + 3.0, ai.reference.speed_at(line.line_s_at(s)), 0.3)
+    # Off the line by 1.5 m (near the wall: the world refuses a car placed beyond it) and pointing away from the line
+    # at the reference speed: the path feedback alone would ask for more lock than the front tyres can use.
+    world.reset(s, line.lateral_at(s) + 1.5, ai.reference.speed_at(line.line_s_at(s)), 0.3)
     veh = world.state.vehicle
     front_path = np.arctan2(veh.vy_mps + car.cg_to_front_axle_m * veh.yaw_rate_radps, veh.vx_mps)
     peak = car.tyre_front.peak_slip_angle_rad
@@ -164,7 +164,7 @@ def test_steering_never_asks_the_front_tyres_past_their_peak_slip_near_the_limit
     assert np.abs(uncapped - front_path)[0] > peak  # the state needs the cap
     np.testing.assert_allclose(np.abs(capped - front_path), peak, rtol=1e-9)
     # Well below the reference speed (a slower or a disrupted car, which must steer against its offsets) it is off.
-    world.reset(s, line.lateral_at(s) + 3.0, 0.8 * ai.reference.speed_at(line.line_s_at(s)), 0.3)
+    world.reset(s, line.lateral_at(s) + 1.5, 0.8 * ai.reference.speed_at(line.line_s_at(s)), 0.3)
     slow, _ = ai.act(world.state)
     slow_uncapped, _ = AIDriver(car, line, limit, 1, skill=1.0, params=AIParams(front_slip_share=0.0)).act(world.state)
     assert slow[0] == slow_uncapped[0]

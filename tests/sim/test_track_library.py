@@ -13,11 +13,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from vision_rl.sim import track_library as tl
-from vision_rl.sim.track import Track, TrackError
+from vision_rl.sim.sensors import WallRayCaster
+from vision_rl.sim.track import WALL_TRIM_SHARE, Track, TrackError
 from vision_rl.sim.track_library import (
     BUILTIN_TRACKS,
+    DATABASE_DIR,
+    DATABASE_TRACKS,
     DEFAULT_TRACK,
     Layout,
     build_layout,
@@ -25,21 +29,30 @@ from vision_rl.sim.track_library import (
     find_crossings,
     left,
     load_track,
+    reference_racing_line,
     right,
     straight,
     track_summary,
     validate_track,
 )
 
-REAL_TRACKS_DIR = Path(__file__).parents[2].parent / "shared/tracks/racetrack-database/tracks"
 HEADER = "# x_m,y_m,w_tr_right_m,w_tr_left_m\n"
 
 
 def real_track_path(name: str) -> Path:
-    path = REAL_TRACKS_DIR / f"{name}.csv"
-    if not path.is_file():
-        pytest.skip(f"racetrack-database not found at {REAL_TRACKS_DIR}")
-    return path
+    """A circuit's CSV in the racetrack-database shipped as package data."""
+    return DATABASE_DIR / "tracks" / f"{name}.csv"
+
+
+def hairpin_layout(radius_m: float = 8.0, half_width_m: float = 10.0) -> Layout:
+    """A 160 deg left hairpin of ``radius_m`` between two 600 m straights, ``half_width_m`` to each wall: the
+    inside wall's offset exceeds the radius, and round the bend the two legs' inside walls would cross."""
+    return Layout(
+        segments=(straight(600), left(radius_m, 160), straight(600), left(80, 100), straight(66), left(80, 100)),
+        width_left_m=half_width_m,
+        width_right_m=half_width_m,
+        transition_m=4.0,
+    )
 
 
 def wall_fold_ratio(track: Track) -> float:
@@ -217,7 +230,8 @@ def test_track_summary():
     rows = [track_summary(load_track(name)) for name in BUILTIN_TRACKS]
     assert json.loads(json.dumps(rows)) == rows
     for row, name in zip(rows, BUILTIN_TRACKS, strict=True):
-        assert set(row) == {"name", "length_m", "min_width_m", "corners"}
+        assert set(row) == {"name", "length_m", "min_width_m", "corners", "wall_trim_m"}
+        assert row["wall_trim_m"] == 0.0
         assert row["name"] == name
         assert row["length_m"] == pytest.approx(load_track(name).length_m, abs=0.05)
         assert row["min_width_m"] == pytest.approx(load_track(name).min_width_m, abs=0.005)
@@ -338,8 +352,8 @@ def test_unreadable_csv(tmp_path):
         load_track(path)
 
 
-def test_csv_wall_fold_is_reported(tmp_path):
-    # A rounded square with 6 m corners and 12 m to the left wall: the left (inside) wall folds at each corner.
+def test_csv_wall_fold_is_trimmed(tmp_path):
+    # A rounded square with 6 m corners and 12 m to the left wall: the left (inside) wall would fold at each corner.
     pts = []
     for k in range(4):
         c, s = math.cos(k * math.pi / 2), math.sin(k * math.pi / 2)
@@ -347,8 +361,18 @@ def test_csv_wall_fold_is_reported(tmp_path):
         local += [(44.0 + 6 * math.cos(a), -44.0 + 6 * math.sin(a)) for a in np.linspace(-np.pi / 2, 0, 4, False)]
         pts += [(c * x - s * y, s * x + c * y) for x, y in local]
     path = write_csv(tmp_path, [f"{x:.6f},{y:.6f},3.0,12.0" for x, y in pts], "fold.csv")
-    with pytest.raises(TrackError, match=r"fold\.csv: line \d+ \(point \d+, 0-based; s = .*left wall folds"):
-        load_track(path)
+    track = load_track(path)
+    assert track.wall_trim_m > 1.0  # the corners, smoothed to about 12 m, are still tighter than 12 m + margin
+    assert wall_fold_ratio(track) <= WALL_TRIM_SHARE + 1e-9
+    assert crossing_count(track) == 0
+    # The outside wall and the inside wall along the middle of each side keep their widths.
+    np.testing.assert_array_equal(track.width_right_m, 3.0)
+    assert np.isclose(track.width_left_m, 12.0).mean() > 0.5
+    # A hand-built track is checked as it is: the fold is still reported there.
+    n = track.n_points
+    raw = Track("fold", track.centre_xy_m, track.heading_rad, track.curvature_1pm, np.full(n, 12.0), np.full(n, 3.0))
+    with pytest.raises(TrackError, match=r"s = .*left wall folds: it is 12.00 m from the centre line"):
+        validate_track(raw)
 
 
 def test_csv_overlapping_parts_are_reported(tmp_path):
@@ -395,6 +419,75 @@ def test_real_track_loads(name):
     assert len(find_crossings(track)) == (1 if name == "Suzuka" else 0)
     summary = track_summary(track)
     assert 10 <= summary["corners"] <= 20
+
+
+def test_every_database_circuit_loads_by_name():
+    assert len(DATABASE_TRACKS) == 25 and "Catalunya" in DATABASE_TRACKS
+    assert (DATABASE_DIR / "LICENSE").read_text().startswith("                   GNU LESSER GENERAL PUBLIC LICENSE")
+    assert "e59595d1f3573b30d1ded6a08984935b957688e0" in (DATABASE_DIR / "ORIGIN.md").read_text()
+    start = time.perf_counter()
+    trimmed = {}
+    for name in DATABASE_TRACKS:
+        track = load_track(name.upper())
+        assert track is load_track(name.lower())  # cached, one shared read-only instance
+        assert track.name == name and not track.centre_xy_m.flags.writeable
+        assert 2000.0 < track.length_m < 7100.0
+        assert wall_fold_ratio(track) <= WALL_TRIM_SHARE + 1e-9
+        if track.wall_trim_m > 0:
+            trimmed[name] = track.wall_trim_m
+    assert time.perf_counter() - start < 10.0
+    # Two street hairpins are tighter than their inside widths and are trimmed by metres; Austin's tightest corner
+    # comes within 10 % of folding and loses under half a metre; no other circuit is touched.
+    assert set(trimmed) == {"Austin", "Norisring", "Shanghai"}
+    assert trimmed["Austin"] < 0.5 and 1.0 < trimmed["Norisring"] < 3.0 and 1.0 < trimmed["Shanghai"] < 3.0
+    # The path form still works and gives the same geometry.
+    assert load_track(real_track_path("Monza")).geometry_hash == load_track("Monza").geometry_hash
+
+
+@pytest.mark.parametrize("name", ["Catalunya", "Norisring"])
+def test_reference_racing_line_lies_on_the_track(name):
+    line = reference_racing_line(name.lower())
+    assert line.shape[1] == 2 and len(line) > 100
+    track = load_track(name)
+    proj = track.project(line)
+    inside = np.where(proj.lateral_m >= 0, track.width_left_at(proj.s_m), track.width_right_at(proj.s_m))
+    # The database's line keeps to its own (unsmoothed) borders: within ours but for a few tenths of a metre.
+    assert (np.abs(proj.lateral_m) <= inside + 0.5).mean() > 0.99
+    with pytest.raises(TrackError, match="not a circuit of the racetrack-database; its circuits are: Austin"):
+        reference_racing_line("Nowhere")
+
+
+def test_hairpin_inner_wall_is_trimmed_and_consistent():
+    track = build_layout("hairpin8", hairpin_layout())
+    assert 1 / track.curvature_1pm.max() == pytest.approx(8.0, rel=0.02)
+    assert 2.0 < track.wall_trim_m < 4.0
+    np.testing.assert_array_equal(track.width_right_m, 10.0)  # the outside wall is as given
+    assert crossing_count(track) == 0
+    apex = int(np.argmax(track.curvature_1pm))
+    assert track.width_left_m[apex] == pytest.approx(WALL_TRIM_SHARE * 8.0, rel=0.02)
+    # Far from the hairpin (on the other sides of the lap) the inside width is untouched.
+    far = np.abs(track.progress_delta(track.s_m[apex], track.s_m)) > 150.0
+    np.testing.assert_array_equal(track.width_left_m[far], 10.0)
+    trimmed = np.flatnonzero(track.width_left_m < 10.0)
+    assert np.ptp(track.s_m[trimmed]) < 120.0
+    # The road is the true one (every point within 10 m of the centre line) but for a thin wedge of wall along the
+    # medial line between the legs, where the lateral offset the sim works in cannot reach: on a 0.5 m grid round
+    # the hairpin, under 30 m^2 of the true road is lost and nothing outside it is added.
+    grid = np.mgrid[-60:60:0.5, -60:60:0.5].reshape(2, -1).T + track.centre_xy_m[apex]
+    true_road = cKDTree(track.position_at(np.arange(0.0, track.length_m, 0.1))).query(grid)[0] <= 10.0
+    proj = track.project(grid)
+    ours = np.abs(proj.lateral_m) <= np.where(
+        proj.lateral_m >= 0, track.width_left_at(proj.s_m), track.width_right_at(proj.s_m)
+    )
+    assert 0.25 * (true_road & ~ours).sum() < 30.0
+    assert 0.25 * (ours & ~true_road).sum() <= 1.0
+    # Sensors, contact and walls agree: a ray from each centre point along its left normal meets the first wall at
+    # the (trimmed) width, the lateral offset the contact model stops a car at; no other wall is nearer.
+    caster = WallRayCaster(track)
+    idx = np.arange(apex - 80, apex + 81) % track.n_points
+    angle = (track.heading_rad[idx] + np.pi / 2)[:, None]
+    hit = caster.cast(track.centre_xy_m[idx], angle, 30.0)[:, 0]
+    np.testing.assert_allclose(hit, track.width_left_m[idx], atol=0.05)
 
 
 def test_self_intersection_check_is_fast():

@@ -137,18 +137,17 @@ def test_same_inputs_same_trajectory_bit_for_bit(stadium):
 
 
 def test_one_million_car_steps_of_random_actions_stay_finite(stadium):
-    """1,000 cars x 1,000 steps of uniform random (and out-of-range, and NaN) actions, a new action every 10 ms."""
+    """1,000 cars x 1,000 steps of uniform random (and out-of-range) actions, a new action every 10 ms (NaN actions
+    are refused: tests/faults/test_world.py)."""
     n = 1000
     world = World(stadium, car="tt_cup", n_cars=n, groups=np.arange(n) // 5, config=WorldConfig(control_dt_s=0.01))
     rng = np.random.default_rng(0)
     world.reset(
         s_m=rng.uniform(0, stadium.length_m, n), lateral_m=rng.uniform(-4, 4, n), speed_mps=rng.uniform(0, 60, n)
     )
-    for k in range(1000):
+    for _ in range(1000):
         steer = rng.uniform(-1.0, 1.0, n)
         omega = rng.uniform(-1.5, 1.5, n)
-        if k % 100 == 0:
-            steer[:3] = np.nan
         world.step(steer, omega)
     st = world.state
     for name, value in zip(st.vehicle._fields, st.vehicle, strict=True):

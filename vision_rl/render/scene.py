@@ -19,7 +19,7 @@ from enum import IntEnum
 import numpy as np
 
 from vision_rl.render.textures import Layer
-from vision_rl.sim.track import Track
+from vision_rl.sim.track import SHOULDER_MAX_WIDTH_M, SHOULDER_SHARE, Track
 
 
 class Label(IntEnum):
@@ -85,7 +85,9 @@ class SceneStyle:
     wall_thickness_m: float = 0.35
     wall_panel_m: float = 3.0
     """Length of one wall panel (the texture holds two): a pattern every few metres makes speed visible."""
-    kerb_width_m: float = 1.0
+    kerb_width_m: float = SHOULDER_MAX_WIDTH_M
+    """Widest kerb or shoulder band, m; narrower where SHOULDER_SHARE of the half width is less (the band the sim
+    counts as off track, :meth:`vision_rl.sim.track.Track.beyond_edge_line`)."""
     kerb_period_m: float = 3.0
     """One red and one white kerb block."""
     kerb_min_curvature_1pm: float = 1.0 / 130.0
@@ -367,8 +369,8 @@ def _track_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndar
     normal = track.normal_left
     wl, wr = track.width_left_m, track.width_right_m
     # Lateral offsets (+ left) of the six cross-section lines, from the left wall to the right wall.
-    kerb_w_l = np.minimum(style.kerb_width_m, 0.15 * wl)
-    kerb_w_r = np.minimum(style.kerb_width_m, 0.15 * wr)
+    kerb_w_l = np.minimum(style.kerb_width_m, SHOULDER_SHARE * wl)
+    kerb_w_r = np.minimum(style.kerb_width_m, SHOULDER_SHARE * wr)
     line_w = np.minimum(style.line_width_m, 0.03 * np.minimum(wl, wr))
     offsets = np.stack(
         [wl, wl - kerb_w_l, wl - kerb_w_l - line_w, -(wr - kerb_w_r - line_w), -(wr - kerb_w_r), -wr], axis=1

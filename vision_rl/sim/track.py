@@ -29,6 +29,15 @@ _SEARCH_WINDOW_SAMPLES = 3
 SHOULDER_SHARE = 0.15
 SHOULDER_MAX_WIDTH_M = 1.0
 
+#: Where a wall would fold (its offset larger than the local radius, or reaching past the line midway to another
+#: part of the same bend), its width is cut to this share of the distance to that midway line (the medial axis).
+#: Below 1 so that the two sides of a trimmed bend never touch and the lateral offset stays clear of the centre
+#: of curvature, where the (s, d) frame of the contact model and the racing line is singular.
+WALL_TRIM_SHARE = 0.9
+#: Parts of the track at most this far apart along it are the two sides of one bend, whose walls are trimmed where
+#: they would overlap; parts farther apart that overlap are an error of the track file (or a bridge).
+WALL_TRIM_MAX_ARC_M = 200.0
+
 
 class TrackError(ValueError):
     """A track that cannot be built: the message names the source and, where it applies, the point."""
@@ -81,6 +90,8 @@ class Track:
         self.normal_left = np.stack([-self.tangent[:, 1], self.tangent[:, 0]], axis=1)
         self.left_wall_xy_m = self.centre_xy_m + self.normal_left * self.width_left_m[:, None]
         self.right_wall_xy_m = self.centre_xy_m - self.normal_left * self.width_right_m[:, None]
+        #: Largest cut (m) that :meth:`with_trimmed_walls` made to a width; 0 for a track built as given.
+        self.wall_trim_m = 0.0
         # Heading unwrapped along s so that linear interpolation between samples never jumps by 2 pi.
         self._heading_unwrapped = np.unwrap(np.append(self.heading_rad, self.heading_rad[0]))
 
@@ -126,6 +137,32 @@ class Track:
         wl = np.interp(u_uniform, u, np.append(w_left, w_left[0]))
         wr = np.interp(u_uniform, u, np.append(w_right, w_right[0]))
         return cls(name, np.stack([x, y], axis=1), np.arctan2(dy, dx), curvature, wl, wr)
+
+    def with_trimmed_walls(self, share: float = WALL_TRIM_SHARE, max_arc_m: float = WALL_TRIM_MAX_ARC_M) -> Track:
+        """This track with each wall cut back where it would fold; ``self`` when nothing needs cutting.
+
+        A wall on the inside of a bend tighter than its offset (a street hairpin) folds into a loop (the offset
+        curve's swallow tail) and, round the bend, crosses the wall of the other leg. The road there is the set of
+        points within the width of the centre line, whose inner edge is the offset curve without that loop. Each
+        width is cut to ``share`` of its distance along the normal to the medial axis (the points as far from this
+        centre point as from another one within ``max_arc_m`` along the track), counting another point only where
+        the two walls facing each other would overlap (their widths add up to more than twice that distance).
+        The walls then follow the true inner edge up to where the two legs' walls meet and, beyond it, a thin
+        wedge of wall along the medial axis towards the bend's centre: the part of the road past the centre of
+        curvature cannot be described by a lateral offset, which the contact model, the racing line and the
+        renderer all use. Every consumer reads the cut widths, so walls, wall distances, contact and the drawn
+        track agree.
+        """
+        left, right = trimmed_widths(
+            self.centre_xy_m, self.normal_left, self.curvature_1pm, self.s_m, self.length_m, self.width_left_m,
+            self.width_right_m, share, max_arc_m,
+        )  # fmt: skip
+        cut = max(float((self.width_left_m - left).max()), float((self.width_right_m - right).max()))
+        if cut <= 0.0:
+            return self
+        track = Track(self.name, self.centre_xy_m, self.heading_rad, self.curvature_1pm, left, right)
+        track.wall_trim_m = cut
+        return track
 
     # ------------------------------------------------------------------ derived properties
     @cached_property
@@ -243,6 +280,55 @@ class Track:
 
     def __repr__(self) -> str:
         return f"Track({self.name!r}, length_m={self.length_m:.1f}, n_points={self.n_points})"
+
+
+def trimmed_widths(
+    centre_xy_m: np.ndarray,
+    normal_left: np.ndarray,
+    curvature_1pm: np.ndarray,
+    s_m: np.ndarray,
+    length_m: float,
+    width_left_m: np.ndarray,
+    width_right_m: np.ndarray,
+    share: float = WALL_TRIM_SHARE,
+    max_arc_m: float = WALL_TRIM_MAX_ARC_M,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Widths (left, right) cut where the walls would fold; see :meth:`Track.with_trimmed_walls`.
+
+    Point i's wall on side n (the unit normal towards it) reaches the medial axis between centre points i and j at
+    ``t = |d|^2 / (2 d.n)``, d = c_j - c_i (d.n > 0); where the two facing widths add up to more than
+    ``2 share t``, the width is cut to ``share t``. For j a neighbour round a bend t is about the radius of curvature,
+    and the sampled curvature itself bounds the width on the inside to ``share / |kappa|``, so a cut width never
+    folds (``|kappa| w <= share``) and a width already within both bounds is kept exactly. Only pairs closer than
+    twice the widest width can cut (``share t < w`` needs ``|d| < 2 w / share``); a k-d tree finds them, so the cost
+    is O(n log n) and vectorised.
+    """
+    kappa = np.asarray(curvature_1pm, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        left = np.minimum(width_left_m, np.where(kappa > 0.0, share / kappa, np.inf))
+        right = np.minimum(width_right_m, np.where(kappa < 0.0, -share / kappa, np.inf))
+    reach = 2.0 * float(max(left.max(), right.max())) / share
+    pairs = cKDTree(centre_xy_m).query_pairs(reach, output_type="ndarray")
+    if len(pairs) == 0:
+        return left, right
+    # Both orders of every pair: i is the point whose width is cut, j the one it is measured against.
+    i = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    j = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    gap = np.abs(np.mod(s_m[j] - s_m[i] + 0.5 * length_m, length_m) - 0.5 * length_m)
+    near = gap <= max_arc_m
+    i, j = i[near], j[near]
+    d = centre_xy_m[j] - centre_xy_m[i]
+    d2 = np.einsum("nk,nk->n", d, d)
+    dn = np.einsum("nk,nk->n", d, normal_left[i])
+    for width, sign in ((left, 1.0), (right, -1.0)):
+        facing = sign * dn > 0.0
+        with np.errstate(divide="ignore"):
+            t = np.where(facing, d2 / (2.0 * np.abs(dn)), np.inf)
+        overlap = facing & (width[i] + width[j] > 2.0 * share * t)
+        limit = np.full(len(width), np.inf)
+        np.minimum.at(limit, i[overlap], share * t[overlap])
+        np.minimum(width, limit, out=width)
+    return left, right
 
 
 # ---------------------------------------------------------------------------------------------- numba kernels

@@ -1,10 +1,13 @@
-"""Where tracks come from: built-in circuits, procedural ``random:SEED`` tracks and racetrack-database CSV files.
+"""Where tracks come from: built-in circuits, the 25 real circuits of the racetrack-database, procedural
+``random:SEED`` tracks and CSV files.
 
 :func:`load_track` is the one entry point every command and constructor uses; it accepts a built-in name
-(:data:`BUILTIN_TRACKS`), ``random:SEED`` or a path to a CSV file in the TUMFTM racetrack-database format
-(``# x_m,y_m,w_tr_right_m,w_tr_left_m``). Every track it returns has been checked: no wall fold (the wall on the
-inside of a bend never sits beyond the bend's centre), and neither the centre line nor the walls cross themselves or
-each other, except at a grade-separated crossing of a real circuit (Suzuka's bridge), see :func:`find_crossings`.
+(:data:`BUILTIN_TRACKS`), the name of a circuit of the TUMFTM racetrack-database shipped with the package
+(:data:`DATABASE_TRACKS`, any case: ``Catalunya``), ``random:SEED`` or a path to a CSV file in that database's format
+(``# x_m,y_m,w_tr_right_m,w_tr_left_m``). Every track it returns has been checked: no wall fold (a wall on the inside
+of a bend tighter than its offset is trimmed to the true inner edge, see :meth:`Track.with_trimmed_walls`), and
+neither the centre line nor the walls cross themselves or each other, except at a grade-separated crossing of a real
+circuit (Suzuka's bridge), see :func:`find_crossings`.
 
 Built-in circuits are written as a list of straights and constant-radius arcs (:class:`Layout`), joined by linear
 curvature ramps (clothoids, as road builders use) and closed exactly by a least-norm change of the straights' lengths.
@@ -27,6 +30,8 @@ from vision_rl.sim.track import DEFAULT_SPACING_M, Track, TrackError
 __all__ = [
     "BUILTIN_TRACKS",
     "CSV_SMOOTHING_LENGTH_M",
+    "DATABASE_DIR",
+    "DATABASE_TRACKS",
     "DEFAULT_TRACK",
     "LAYOUTS",
     "Layout",
@@ -38,6 +43,7 @@ __all__ = [
     "load_csv_track",
     "load_track",
     "random_track",
+    "reference_racing_line",
     "right",
     "straight",
     "track_summary",
@@ -45,6 +51,13 @@ __all__ = [
 ]
 
 DEFAULT_TRACK = "expressway"
+
+#: The TUMFTM racetrack-database (LGPL-3.0) shipped as package data: ``tracks/NAME.csv`` (centre line and widths),
+#: ``racelines/NAME.csv`` (the database's minimum-curvature race line), its LICENSE and ORIGIN.md (commit, format).
+DATABASE_DIR = Path(__file__).resolve().parent.parent / "data" / "racetrack_database"
+#: The database's circuits, by their file names (``load_track`` takes them in any case).
+DATABASE_TRACKS: tuple[str, ...] = tuple(sorted(p.stem for p in (DATABASE_DIR / "tracks").glob("*.csv")))
+_DATABASE_BY_KEY = {name.lower(): name for name in DATABASE_TRACKS}
 
 #: Fewest points a CSV centre line may have: a periodic cubic spline through fewer is a blob, not a circuit.
 MIN_CSV_POINTS = 10
@@ -314,7 +327,7 @@ def load_csv_track(
     rows, lines = _read_csv_points(path)
     _check_csv_points(path, rows, lines)
     xy = _smooth_closed(rows[:, :2], smoothing_length_m)
-    track = Track.from_centre_line(path.stem, xy, rows[:, 3], rows[:, 2], spacing_m=spacing_m)
+    track = Track.from_centre_line(path.stem, xy, rows[:, 3], rows[:, 2], spacing_m=spacing_m).with_trimmed_walls()
     # Messages about the resampled track name the file line whose point lies nearest along the track.
     raw_s = track.project(rows[:, :2]).s_m
 
@@ -474,6 +487,7 @@ def build_layout(name: str, layout: Layout, spacing_m: float = DEFAULT_SPACING_M
     stride = max(1, round(2.0 / ds))
     pts = xy[:-1][::stride]
     track = Track.from_centre_line(name, pts, width_left[::stride], width_right[::stride], spacing_m=spacing_m)
+    track = track.with_trimmed_walls()
     validate_track(track, name)
     return track
 
@@ -656,6 +670,33 @@ def random_track(seed: int, spacing_m: float = DEFAULT_SPACING_M) -> Track:
     return _random_track_cached(int(seed), float(spacing_m))
 
 
+# ---------------------------------------------------------------------------------------------- the database
+
+
+def _database_name(name: str) -> str:
+    canonical = _DATABASE_BY_KEY.get(name.strip().lower())
+    if canonical is None:
+        raise TrackError(
+            f"{name!r} is not a circuit of the racetrack-database; its circuits are: {', '.join(DATABASE_TRACKS)}"
+        )
+    return canonical
+
+
+@functools.lru_cache(maxsize=32)
+def _database_track(name: str, spacing_m: float) -> Track:
+    return _freeze(load_csv_track(DATABASE_DIR / "tracks" / f"{name}.csv", spacing_m))
+
+
+def reference_racing_line(name: str) -> np.ndarray:
+    """The racetrack-database's own minimum-curvature race line of circuit ``name`` (any case): (k, 2) x, y in m,
+    closed (the last point does not repeat the first), in the frame of the circuit's centre line."""
+    path = DATABASE_DIR / "racelines" / f"{_database_name(name)}.csv"
+    rows = np.loadtxt(path, delimiter=",", comments="#", dtype=np.float64, ndmin=2)
+    if rows.shape[1] != 2 or not np.isfinite(rows).all():
+        raise TrackError(f"{path}: expected rows of 2 finite numbers x_m,y_m")
+    return rows
+
+
 # ---------------------------------------------------------------------------------------------- entry point
 
 
@@ -668,10 +709,11 @@ def _freeze(track: Track) -> Track:
 
 
 def load_track(spec: str | os.PathLike, spacing_m: float = DEFAULT_SPACING_M) -> Track:
-    """A track from a built-in name (:data:`BUILTIN_TRACKS`), ``random:SEED`` or a racetrack-database CSV path.
+    """A track from a built-in name (:data:`BUILTIN_TRACKS`), a racetrack-database circuit (:data:`DATABASE_TRACKS`,
+    any case), ``random:SEED`` or a racetrack-database CSV path.
 
-    Built-in and random tracks are cached (the same object is returned for the same spec and spacing; its arrays
-    are read-only). CSV files are read every time.
+    Built-in, database and random tracks are cached (the same object is returned for the same spec and spacing; its
+    arrays are read-only). CSV paths are read every time.
     """
     if isinstance(spec, os.PathLike):
         return load_csv_track(spec, spacing_m)
@@ -685,11 +727,13 @@ def load_track(spec: str | os.PathLike, spacing_m: float = DEFAULT_SPACING_M) ->
         if not text.isdigit():
             raise TrackError(f"{spec!r}: SEED in 'random:SEED' must be a non-negative integer")
         return random_track(int(text), spacing_m)
+    if key.lower() in _DATABASE_BY_KEY:
+        return _database_track(_DATABASE_BY_KEY[key.lower()], float(spacing_m))
     if key.lower().endswith(".csv") or os.sep in key or Path(key).is_file():
         return load_csv_track(key, spacing_m)
     raise TrackError(
-        f"unknown track {spec!r}: use a built-in track ({', '.join(BUILTIN_TRACKS)}), 'random:SEED' or the path "
-        "of a racetrack-database CSV file"
+        f"unknown track {spec!r}: use a built-in track ({', '.join(BUILTIN_TRACKS)}), a racetrack-database circuit "
+        f"({', '.join(DATABASE_TRACKS)}), 'random:SEED' or the path of a racetrack-database CSV file"
     )
 
 
@@ -733,10 +777,12 @@ def count_corners(
 
 
 def track_summary(track: Track) -> dict:
-    """Figures for ``vision-rl tracks --json``: name, length_m, min_width_m (wall to wall) and corners."""
+    """Figures for ``vision-rl tracks --json``: name, length_m, min_width_m (wall to wall), corners and
+    wall_trim_m (the largest cut of a wall that would have folded, 0 for none)."""
     return {
         "name": track.name,
         "length_m": round(float(track.length_m), 1),
         "min_width_m": round(float(track.min_width_m), 2),
         "corners": count_corners(track),
+        "wall_trim_m": round(float(track.wall_trim_m), 2),
     }

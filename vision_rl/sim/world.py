@@ -38,6 +38,48 @@ _KERNEL_FIELDS = (
 )  # fmt: skip
 
 
+#: Largest forward speed (either sign) a car may be placed at: beyond every car preset's top speed, so a larger one is
+#: a unit slip (km/h for m/s) or garbage, not a start.
+MAX_PLACE_SPEED_MPS = 150.0
+
+
+class WorldInputError(ValueError):
+    """A pose, speed, command or car id given to the world that it cannot use: the message names the argument,
+    the car and the value."""
+
+
+def _per_car(name: str, value, k: int) -> np.ndarray:
+    """``value`` as a finite (k,) float64 array (a scalar or a length-1 array broadcasts), or a WorldInputError."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise WorldInputError(f"{name} must be a number or an array of numbers, got {value!r:.80}") from None
+    if a.ndim > 1 or (a.ndim == 1 and a.shape[0] not in (1, k)):
+        raise WorldInputError(f"{name} must be a number or an array of shape ({k},), one per car, got shape {a.shape}")
+    bad = np.flatnonzero(~np.isfinite(a.reshape(-1)))
+    if len(bad):
+        i = int(bad[0])
+        where = f"{name}[{i}]" if a.ndim else name
+        raise WorldInputError(f"{where} = {a.reshape(-1)[i]} is not a finite number; pass a finite value for every car")
+    return np.broadcast_to(a, (k,))
+
+
+def _car_ids(car_ids, n: int) -> np.ndarray:
+    """``car_ids`` as distinct int64 indices in [0, n), or a WorldInputError."""
+    ids = np.asarray(car_ids)
+    if ids.ndim == 0:
+        ids = ids.reshape(1)
+    if ids.ndim != 1 or (ids.size and (ids.dtype.kind not in "iu")):
+        raise WorldInputError(f"car_ids must be a 1-D array of integer car indices, got {car_ids!r:.80}")
+    ids = ids.astype(np.int64)
+    bad = np.flatnonzero((ids < 0) | (ids >= n))
+    if len(bad):
+        raise WorldInputError(f"car_ids[{bad[0]}] = {ids[bad[0]]} is not a car of this world (0..{n - 1})")
+    if len(np.unique(ids)) != len(ids):
+        raise WorldInputError(f"car_ids lists a car twice: {ids.tolist()[:20]}")
+    return ids
+
+
 @dataclass(frozen=True)
 class WorldConfig:
     """Time steps and contact constants of a world."""
@@ -158,14 +200,34 @@ def place_cars(
 
     Each car is placed at rest in every respect but its forward speed, with its clocks and counters cleared. A car
     placed exactly on the start/finish line (s = 0) starts a timed lap; elsewhere the first crossing starts one.
+    Raises :class:`WorldInputError` for a car id out of range or listed twice, a value that is not finite or of the
+    wrong shape, a car centre outside the walls or a speed beyond :data:`MAX_PLACE_SPEED_MPS`.
     """
     track = model.track
     n = model.n_cars
+    car_ids = _car_ids(car_ids, n)
     k = len(car_ids)
-    s = track.wrap_s(np.broadcast_to(np.asarray(s_m, dtype=np.float64), (k,)))
-    lateral = np.broadcast_to(np.asarray(lateral_m, dtype=np.float64), (k,))
+    s = track.wrap_s(_per_car("s_m", s_m, k))
+    lateral = _per_car("lateral_m", lateral_m, k)
+    speed_mps = _per_car("speed_mps", speed_mps, k)
+    heading_offset_rad = _per_car("heading_offset_rad", heading_offset_rad, k)
+    wall = np.where(lateral >= 0.0, track.width_left_at(s), track.width_right_at(s))
+    outside = np.flatnonzero(np.abs(lateral) > wall)
+    if len(outside):
+        i = int(outside[0])
+        side = "left" if lateral[i] >= 0 else "right"
+        raise WorldInputError(
+            f"lateral_m[{i}] = {lateral[i]:.2f} m puts car {car_ids[i]} outside the {side} wall, {wall[i]:.2f} m from "
+            f"the centre line at s = {s[i]:.1f} m"
+        )
+    fast = np.flatnonzero(np.abs(speed_mps) > MAX_PLACE_SPEED_MPS)
+    if len(fast):
+        i = int(fast[0])
+        raise WorldInputError(
+            f"speed_mps[{i}] = {speed_mps[i]:g} is beyond +-{MAX_PLACE_SPEED_MPS:g} m/s (speeds are in m/s)"
+        )
     xy = track.position_at(s, lateral)
-    yaw = track.heading_at(s) + np.broadcast_to(np.asarray(heading_offset_rad, dtype=np.float64), (k,))
+    yaw = track.heading_at(s) + heading_offset_rad
     fresh_vehicle = vehicle_model.initial_state(k, xy[:, 0], xy[:, 1], yaw, speed_mps)
     if state is None:
         template = vehicle_model.initial_state(n)
@@ -400,11 +462,10 @@ def _world_substeps(
                 car_time[i] += dt
 
 
-def _clean_command(cmd: np.ndarray | float, limit: float, n: int) -> np.ndarray:
-    """A fresh (n,) float64 array clipped to +-limit, with NaN and inf read as 0 (a diverged policy stops steering)."""
-    a = np.asarray(cmd, dtype=np.float64)
-    a = np.clip(np.where(np.isfinite(a), a, 0.0), -limit, limit)
-    return np.ascontiguousarray(np.broadcast_to(a, (n,)))
+def _clean_command(name: str, cmd: np.ndarray | float, limit: float, n: int) -> np.ndarray:
+    """A fresh (n,) float64 array clipped to +-limit; a NaN or inf command (a diverged policy) is refused, naming
+    the car, rather than driven as something it did not say."""
+    return np.ascontiguousarray(np.clip(_per_car(name, cmd, n), -limit, limit))
 
 
 def world_step(
@@ -419,11 +480,14 @@ def world_step(
     then cover all k steps.
 
     ``steer_cmd_rad`` (n,) is the road-wheel angle command, clipped to +-pi/6 and the car's lock; ``omega_cmd`` (n,)
-    is throttle (> 0) / brake (< 0) in [-1, 1]. Non-finite commands are treated as 0.
+    is throttle (> 0) / brake (< 0) in [-1, 1]; larger commands are clipped. A command that is not finite, an array
+    of another shape or ``control_steps`` < 1 raises :class:`WorldInputError`.
     """
     n, cfg, track, car = model.n_cars, model.config, model.track, model.car
-    steer = _clean_command(steer_cmd_rad, vehicle_model.ACTION_STEER_LIMIT_RAD, n)
-    omega = _clean_command(omega_cmd, 1.0, n)
+    if isinstance(control_steps, bool) or not isinstance(control_steps, (int, np.integer)) or control_steps < 1:
+        raise WorldInputError(f"control_steps must be an integer >= 1, got {control_steps!r}")
+    steer = _clean_command("steer_cmd_rad", steer_cmd_rad, vehicle_model.ACTION_STEER_LIMIT_RAD, n)
+    omega = _clean_command("omega_cmd", omega_cmd, 1.0, n)
     veh = np.array(state.vehicle, dtype=np.float64)
     out = {f: np.array(getattr(state, f)) for f in _KERNEL_FIELDS}
     wall_any, car_any = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
@@ -501,7 +565,7 @@ class World:
     ) -> None:
         """Place cars (all, or ``car_ids``) at arc length ``s_m`` and lateral offset ``lateral_m``, heading along the
         centre line plus ``heading_offset_rad``, rolling straight ahead at ``speed_mps``; clears their lap times."""
-        ids = np.arange(self.n_cars) if car_ids is None else np.atleast_1d(np.asarray(car_ids, dtype=np.int64))
+        ids = np.arange(self.n_cars) if car_ids is None else _car_ids(car_ids, self.n_cars)
         self.state = place_cars(self.model, self.state, ids, s_m, lateral_m, speed_mps, heading_offset_rad)
         for i in ids:
             self.lap_times_s[i] = []
