@@ -9,11 +9,35 @@ from vision_rl.commands import main as commands_main
 from vision_rl.commands.main import COMMANDS, main
 
 
-def test_tracks_json_lists_the_builtin_tracks(capsys):
+def test_tracks_json_lists_the_builtin_and_database_tracks(capsys):
     assert main(["tracks", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)
-    assert [r["name"] for r in rows] == ["expressway", "flowing", "technical"]
-    assert all({"name", "length_m", "min_width_m", "corners"} <= set(r) for r in rows)
+    assert [r["name"] for r in rows[:3]] == ["expressway", "flowing", "technical"]
+    assert len(rows) == 3 + 25 and {r["source"] for r in rows[3:]} == {"racetrack-database"}
+    assert all({"name", "length_m", "min_width_m", "corners", "wall_trim_m"} <= set(r) for r in rows)
+    by_name = {r["name"]: r for r in rows}
+    assert by_name["Catalunya"]["length_m"] == pytest.approx(4641.2, abs=1.0)
+    assert by_name["Norisring"]["wall_trim_m"] > 1.0
+    assert main(["tracks"]) == 0
+    assert "Catalunya     racetrack-database" in capsys.readouterr().out
+
+
+def test_tracks_check_drives_the_tightest_hairpins(capsys):
+    # Norisring and Shanghai: the two circuits whose hairpins are tighter than their inside widths (trimmed walls).
+    assert main(["tracks", "--check", "--only", "norisring,SHANGHAI", "--no-progress", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["name"] for r in rows] == ["Norisring", "Shanghai"]
+    for row in rows:
+        assert row["finished"] and row["dnf_reason"] is None, row
+        assert row["limit_lap_time_s"] < row["lap_time_s"] < 1.3 * row["limit_lap_time_s"]
+        assert row["render_error"] is None or "EGL" in row["render_error"]
+
+
+def test_tracks_refuses_an_unknown_name_and_bad_laps(capsys):
+    assert main(["tracks", "--only", "Catalunia"]) != 0
+    assert "--only: unknown track 'Catalunia'" in capsys.readouterr().err
+    assert main(["tracks", "--check", "--laps", "0"]) != 0
+    assert "--laps must be >= 1, got 0" in capsys.readouterr().err
 
 
 def test_limit_prints_the_lap_time(capsys):

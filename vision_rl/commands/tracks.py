@@ -21,6 +21,8 @@ class TracksOptions:
     """Car preset of --check."""
     laps: int = 1
     """Laps per track of --check (>= 1); the last one is reported."""
+    render: bool = True
+    """With --check, also draw the driver's view at each track's tightest corner (the road must fill part of it)."""
     only: str = ""
     """Comma-separated track names to list (default: all built-in and database tracks)."""
     json: bool = False
@@ -37,15 +39,18 @@ def format_tracks(rows: list[dict]) -> list[str]:
     check = any("lap_time_s" in r for r in rows)
     head = f"{'name':<14}{'source':<20}{'length_m':>10}{'min_width_m':>13}{'corners':>9}{'wall_trim_m':>13}"
     if check:
-        head += f"{'limit_lap_s':>13}{'ai_lap_s':>10}{'wall_s':>8}  result"
+        head += f"{'limit_lap_s':>13}{'ai_lap_s':>10}{'wall_s':>8}{'road_px':>9}  result"
     out = [head]
     for r in rows:
         line = (f"{r['name']:<14}{r['source']:<20}{r['length_m']:>10.1f}{r['min_width_m']:>13.2f}{r['corners']:>9d}"
                 f"{r['wall_trim_m']:>13.2f}")  # fmt: skip
         if check:
             result = "finished" if r["finished"] else f"DNF ({r['dnf_reason']})"
+            if r.get("render_error"):
+                result += f"; render failed: {r['render_error']}"
+            road = "-" if r.get("road_share") is None else f"{100 * r['road_share']:.0f}%"
             line += f"{_lap(r['limit_lap_time_s']):>13}{_lap(r['lap_time_s']):>10}{_lap(r['wall_contact_s']):>8}"
-            line += f"  {result}"
+            line += f"{road:>9}  {result}"
         out.append(line)
     if check:
         done = sum(r["finished"] for r in rows)
@@ -70,6 +75,28 @@ def check_track(name: str, car: str, laps: int) -> dict[str, Any]:
     }
 
 
+def render_check(name: str) -> dict[str, Any]:
+    """The driver's view 20 m before the track's tightest corner, on the centre line: the share of road pixels
+    (road, lines and kerbs) in the lower half of the frame, or the renderer's error."""
+    import numpy as np
+
+    from vision_rl.render import Renderer
+    from vision_rl.render.scene import Label
+    from vision_rl.sim.track_library import load_track
+
+    track = load_track(name)
+    s = np.array([track.s_m[int(np.argmax(np.abs(track.curvature_1pm)))] - 20.0])
+    xy = track.position_at(s, 0.0)
+    try:
+        with Renderer(track) as renderer:
+            labels = renderer.render_labels(xy[:, 0], xy[:, 1], track.heading_at(s))[0]
+    except Exception as exc:  # reported per track: one track that cannot be drawn must not hide the others
+        return {"road_share": None, "render_error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
+    lower = labels[labels.shape[0] // 2 :]
+    road = np.isin(lower, [Label.ROAD, Label.LINE, Label.KERB]).mean()
+    return {"road_share": round(float(road), 3), "render_error": None}
+
+
 def run_tracks(opts: TracksOptions) -> int:
     from vision_rl.sim.track_library import BUILTIN_TRACKS, DATABASE_TRACKS, load_track, track_summary
 
@@ -88,6 +115,9 @@ def run_tracks(opts: TracksOptions) -> int:
         with progress_bar(len(rows), "track", "driving", enabled=opts.progress) as bar:
             for k, row in enumerate(rows):
                 row.update(check_track(row["name"], opts.car, opts.laps))
+                if opts.render:
+                    row.update(render_check(row["name"]))
                 show(bar, k + 1, name=row["name"])
     emit(rows, opts.json, format_tracks)
-    return 0 if all(r.get("finished", True) for r in rows) else 1
+    ok = all(r.get("finished", True) and not r.get("render_error") for r in rows)
+    return 0 if ok else 1
