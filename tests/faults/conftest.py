@@ -6,7 +6,11 @@ the outcomes that passed, so the table in docs/ is produced by the suite, never 
 from __future__ import annotations
 
 import dataclasses
+import re
+
 import pytest
+
+from tests.phase2_rl.conftest import small_track, state_run  # noqa: F401  (fixtures of the policy faults)
 
 OUTCOMES = ("refused with message", "recovered")
 
@@ -58,7 +62,9 @@ def fault(request) -> FaultLog:
         _PASSED.extend(log.outcomes)
 
 
-def _escape(text: str, limit: int = 160) -> str:
+def _escape(text: str, limit: int = 200) -> str:
+    # A test's temporary folders say nothing to a reader: keep the file's name.
+    text = re.sub(r"/(?:[^\s/:'\"]+/)+([^\s/:'\"]+)", r"\1", text)
     text = text.replace("|", "\\|").replace("\n", " ")
     return text if len(text) <= limit else text[: limit - 3] + "..."
 

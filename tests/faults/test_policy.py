@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.phase2_rl.conftest import small_track, state_run, tiny_train_config  # noqa: F401  (fixtures)
+from tests.phase2_rl.conftest import tiny_train_config
 from vision_rl.phase2_rl.artifact import PolicyError, PolicySpec, convert_sb3_run, load_policy
 from vision_rl.phase2_rl.persist import ArtifactWriteError, file_sha256
 from vision_rl.phase2_rl.train import train_policy
@@ -98,15 +98,15 @@ def test_a_damaged_or_foreign_buffer_stops_resume_with_a_message(run_copy, fault
     damaged = bytearray(original)
     damaged[len(damaged) // 2] ^= 0xFF
     buffer.write_bytes(bytes(damaged))
-    with pytest.raises(PolicyError, match="replay_buffer.npz") as excinfo:
+    with pytest.raises(PolicyError, match=r"replay_buffer\.npz") as excinfo:
         train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
     fault.refused("one flipped byte in replay_buffer.npz on --resume", str(excinfo.value))
     buffer.write_bytes(original[: len(original) // 3])
-    with pytest.raises(PolicyError, match="replay_buffer.npz") as excinfo:
+    with pytest.raises(PolicyError, match=r"replay_buffer\.npz") as excinfo:
         train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
     fault.refused("replay_buffer.npz cut short on --resume", str(excinfo.value))
     np.savez(buffer, observations=np.zeros(3))
-    with pytest.raises(PolicyError, match="replay_buffer.npz") as excinfo:
+    with pytest.raises(PolicyError, match=r"replay_buffer\.npz") as excinfo:
         train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
     fault.refused("an .npz that is not a replay buffer on --resume", str(excinfo.value))
 
@@ -224,7 +224,7 @@ def test_a_killed_train_policy_resumes_from_what_it_saved(small_track, tmp_path,
     load_policy(out)  # the pair on disk is whole: weights match the sidecar's checksum
     target = spec.num_timesteps + 40
     resumed = _train_policy_process(small_track, out, target)
-    stdout, stderr = resumed.communicate(timeout=120)
+    _, stderr = resumed.communicate(timeout=120)
     assert resumed.returncode == 0, stderr
     assert PolicySpec.read(out / "policy.json").num_timesteps == target
     name = "SIGKILL" if sig == signal.SIGKILL else "SIGTERM"
