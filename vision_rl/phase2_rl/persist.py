@@ -13,7 +13,6 @@ failed write (a full disk) raises :class:`ArtifactWriteError` naming the file an
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import pickle
@@ -26,6 +25,8 @@ import numpy as np
 import torch
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+from vision_rl.phase1_repr.checkpoint import checkpoint_sha256 as file_sha256
 
 AGENT_FORMAT = "vision_rl.agent"
 BUFFER_FORMAT = "vision_rl.replay_buffer"
@@ -40,14 +41,6 @@ class ArtifactError(ValueError):
 
 class ArtifactWriteError(OSError):
     """A file that could not be written (a full disk, no permission); nothing was replaced."""
-
-
-def file_sha256(path: str | os.PathLike[str]) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None]) -> str:
