@@ -32,7 +32,7 @@ class Command:
 _C = "vision_rl.commands"
 
 COMMANDS: dict[str, Command] = {
-    "tracks": Command("list the built-in tracks", f"{_C}.tracks", "TracksOptions", "run_tracks"),
+    "tracks": Command("list the tracks (built-in and racetrack-database); --check drives them", f"{_C}.tracks", "TracksOptions", "run_tracks"),
     "limit": Command("physical-limit (QSS) lap time of a car", f"{_C}.limit", "LimitOptions", "run_limit"),
     "drive": Command("the built-in AI through the lap-time protocol", f"{_C}.drive", "DriveOptions", "run_drive"),
     "bench sim": Command("simulator throughput", f"{_C}.bench", "BenchSimOptions", "run_bench_sim"),
@@ -61,7 +61,17 @@ COMMANDS: dict[str, Command] = {
         "a policy of format 2 (SB3 zip) to format 3 (no pickle)", f"{_C}.convert_policy", "ConvertPolicyOptions",
         "run_convert_policy",
     ),
+    "train-overtaking": Command(
+        "curriculum SAC (Agents 1-3) or standard SAC for overtaking", f"{_C}.train_overtaking",
+        "TrainOvertakingOptions", "run_train_overtaking",
+    ),
     "pipeline": Command("the whole job (--quick: small)", f"{_C}.pipeline", "PipelineOptions", "run_pipeline"),
+    "train-ddpg": Command(
+        "DDPG, asymmetric actor-critic from pixels", f"{_C}.train_ddpg", "TrainDDPGOptions", "run_train_ddpg"
+    ),
+    "evaluate-ddpg": Command(
+        "a DDPG agent through the lap-time protocol", f"{_C}.evaluate_ddpg", "EvaluateDDPGOptions", "run_evaluate_ddpg"
+    ),
 }  # fmt: skip
 
 
