@@ -1,0 +1,116 @@
+"""DDPG agents and runs: another variant's checkpoint, frames of another size, a track without a racing line, a
+pickle that would run code, a changed replay chunk."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from tests.phase2_rl.conftest import STADIUM, stadium_csv
+from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingError, goal_line
+from vision_rl.phase2_rl.ddpg import (
+    DDPGAgent,
+    DDPGError,
+    DDPGHyper,
+    FrameReplay,
+    FrameSizeError,
+    PixelActor,
+    ddpg_fingerprint,
+    load_agent,
+    load_replay,
+    save_agent_file,
+    save_replay,
+)
+from vision_rl.phase2_rl.persist import ArtifactError
+from vision_rl.sim.track_library import load_track
+from vision_rl.sim.vehicle import get_preset
+
+HW = (32, 48)
+
+
+class _WritesAMarker:
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
+@pytest.fixture(scope="module")
+def track(tmp_path_factory) -> str:
+    return str(stadium_csv(tmp_path_factory.mktemp("track") / "stadium.csv", *STADIUM))
+
+
+def _saved(track: str, folder: Path, variant: str) -> Path:
+    env = PixelRacingConfig(track=track, image_hw_px=HW, frames=variant != "state-actor")
+    agent = DDPGAgent(DDPGHyper(variant=variant), env)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "ddpg.pt"
+    save_agent_file(agent, path, ddpg_fingerprint(agent.hyper, env), {"num_steps": 0})
+    return path
+
+
+def test_a_symmetric_checkpoint_loaded_as_asymmetric_is_refused(track, tmp_path, fault):
+    path = _saved(track, tmp_path / "sym", "symmetric")
+    with pytest.raises(DDPGError, match="variant 'symmetric', not 'asymmetric'") as excinfo:
+        load_agent(path, variant="asymmetric")
+    fault.refused("a symmetric agent's ddpg.pt loaded as --variant asymmetric", str(excinfo.value))
+
+
+def test_resuming_a_symmetric_run_as_asymmetric_is_refused(track, tmp_path, fault):
+    import json
+
+    from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig, train_ddpg
+
+    out = tmp_path / "run"
+    _saved(track, out, "symmetric")
+    (out / "ddpg.json").write_text(json.dumps({"format": "vision_rl.ddpg_run", "hyper": {"variant": "symmetric"}}))
+    with pytest.raises(DDPGError, match="variant 'symmetric', not 'asymmetric'") as excinfo:
+        train_ddpg(TrainDDPGConfig(track=track, out=str(out), resume=True, variant="asymmetric"))
+    fault.refused("train-ddpg --resume --variant asymmetric of a symmetric run", str(excinfo.value))
+
+
+def test_frames_of_another_size_are_refused(fault):
+    actor = PixelActor(HW).eval()
+    with pytest.raises(FrameSizeError, match="built for 32x48x3") as excinfo:
+        actor({"image": torch.zeros((2, 89, 120, 3), dtype=torch.uint8)})
+    fault.refused("89x120 frames fed to an actor built for 32x48", str(excinfo.value))
+    with pytest.raises(FrameSizeError, match="too small") as excinfo:
+        PixelActor((16, 16))
+    fault.refused("an actor asked for 16x16 frames (too small for four conv + pool stages)", str(excinfo.value))
+
+
+def test_a_track_without_a_reference_racing_line_is_refused(track, fault):
+    with pytest.raises(PixelRacingError, match="no reference racing line") as excinfo:
+        goal_line(load_track(track), get_preset("gt3"), "reference", track)
+    fault.refused("racing_line='reference' on a track that has none", str(excinfo.value))
+
+
+def test_a_crafted_pickle_in_ddpg_pt_is_refused_and_never_runs(tmp_path, fault):
+    marker = tmp_path / "marker"
+    path = tmp_path / "ddpg.pt"
+    torch.save({"format": "vision_rl.ddpg_agent", "payload": _WritesAMarker(marker)}, path)
+    with pytest.raises(ArtifactError, match="not a DDPG agent file") as excinfo:
+        load_agent(path)
+    assert not marker.exists()
+    fault.refused("ddpg.pt holding a pickled object that runs code", str(excinfo.value))
+
+
+def test_a_changed_replay_chunk_is_refused(tmp_path, fault):
+    buf = FrameReplay(20, 1, HW)
+    buf.start({"image": np.ones((1, *HW, 3), np.uint8), "motion": np.zeros((1, 15), np.float32),
+               "goal": np.zeros((1, 3), np.float32)})  # fmt: skip
+    save_replay(buf, tmp_path / "replay", {"variant": "asymmetric"})
+    chunk = next((tmp_path / "replay").glob("chunk_*.npz"))
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    chunk.write_bytes(bytes(data))
+    with pytest.raises(ArtifactError, match="changed after it was written") as excinfo:
+        load_replay(FrameReplay(20, 1, HW), tmp_path / "replay", {"variant": "asymmetric"})
+    fault.refused("one flipped byte in a replay chunk", str(excinfo.value))
+    with pytest.raises(ArtifactError, match="variant") as excinfo:
+        load_replay(FrameReplay(20, 1, HW), tmp_path / "replay", {"variant": "symmetric"})
+    fault.refused("a replay buffer of another variant", str(excinfo.value))

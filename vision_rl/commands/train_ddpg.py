@@ -1,0 +1,66 @@
+"""`train-ddpg`: DDPG with an asymmetric actor-critic (pixel actor; critic on motion and the racing line) on
+vision_rl/PixelRacing-v0, and its ablations (--variant symmetric, state-actor)."""
+
+from __future__ import annotations
+
+import signal
+from dataclasses import dataclass
+from typing import Any
+
+from vision_rl.commands.output import emit, progress_bar, show
+from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig
+
+
+@dataclass(frozen=True)
+class TrainDDPGOptions(TrainDDPGConfig):
+    """Train DDPG with an asymmetric actor-critic on PixelRacing-v0 (Catalunya, GT3 by default); evaluates through the
+    lap-time protocol, saves without pickle, resumes, and saves on Ctrl-C or SIGTERM."""
+
+    progress: bool = True
+    """Show a progress bar on stderr."""
+    json: bool = False
+    """Print the result as JSON."""
+
+
+def _lap(seconds: float | None) -> str:
+    from vision_rl.evaluation.outputs import format_lap_time
+
+    return format_lap_time(seconds)
+
+
+def format_train_ddpg(result: dict[str, Any]) -> list[str]:
+    lines = [
+        f"agent: {result['agent']} ({result['variant']}, {result['track']}, {result['car']}), {result['num_steps']} "
+        f"steps, {result['n_updates']} updates, {result['episodes']} episodes, {result['train_time_s']:.0f} s of "
+        "training" + (" (interrupted: saved, continue with --resume)" if result["interrupted"] else ""),
+        f"metrics: {result['metrics_jsonl']}   episodes: {result['episodes_jsonl']}",
+    ]
+    last = result.get("last_eval")
+    if last:
+        lines.append(f"last evaluation at {last['num_steps']} steps: lap {_lap(last['lap_time_s'])}, "
+                     f"{last['distance_m']:.0f} m driven")  # fmt: skip
+    return lines
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def run_train_ddpg(opts: TrainDDPGOptions) -> int:
+    """SIGTERM saves and exits like Ctrl-C (a background job of a non-interactive shell ignores SIGINT). Exit code
+    130 after an interruption."""
+    from vision_rl.phase2_rl.ddpg_train import train_ddpg
+
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        with progress_bar(opts.steps, "step", "train-ddpg", enabled=opts.progress) as bar:
+
+            def progress(steps: int, total: int, last_eval: dict[str, Any] | None) -> None:
+                lap = {} if last_eval is None else {"lap": _lap(last_eval["lap_time_s"])}
+                show(bar, steps, total, **lap)
+
+            result = train_ddpg(opts, progress)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    emit(result, opts.json, format_train_ddpg)
+    return 130 if result["interrupted"] else 0
