@@ -49,7 +49,9 @@ def run_drive(opts: DriveOptions) -> int:
     driver = BuiltinAI(opts.skill or None, disruption, seed=opts.seed)
     timing = time_laps(driver, opts.track, opts.car, range(opts.seed, opts.seed + opts.seeds), opts.laps,
                        record=bool(opts.plot))  # fmt: skip
-    result: dict[str, Any] = evaluation_record(timing, driver.identity, f"built-in AI (skill {driver.skill:g})")
+    result: dict[str, Any] = evaluation_record(
+        timing, driver.identity, "built-in AI" + (" (disrupted)" if opts.disrupt else "")
+    )
     if opts.plot:
         best = timing.best_index()
         title = (f"{timing.track.name}, {timing.car.name}, AI skill {driver.skill:g}: lap {opts.laps} "
