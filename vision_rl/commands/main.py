@@ -65,6 +65,10 @@ COMMANDS: dict[str, Command] = {
         "curriculum SAC (Agents 1-3) or standard SAC for overtaking", f"{_C}.train_overtaking",
         "TrainOvertakingOptions", "run_train_overtaking",
     ),
+    "evaluate-overtaking": Command(
+        "settings A/B of the overtaking paper (or --curves: Fig. 3)", f"{_C}.evaluate_overtaking",
+        "EvaluateOvertakingOptions", "run_evaluate_overtaking",
+    ),
     "pipeline": Command("the whole job (--quick: small)", f"{_C}.pipeline", "PipelineOptions", "run_pipeline"),
     "train-ddpg": Command(
         "DDPG, asymmetric actor-critic from pixels", f"{_C}.train_ddpg", "TrainDDPGOptions", "run_train_ddpg"

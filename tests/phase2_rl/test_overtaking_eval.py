@@ -1,0 +1,113 @@
+"""Settings A/B and the learning curves: the start geometry, the metrics of a scripted driver, the summary, the
+curves over seeds with the stage switch, and the files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vision_rl.evaluation.protocol import BuiltinAI
+from vision_rl.phase2_rl.overtaking_eval import (
+    SETTINGS,
+    SettingError,
+    learning_curves,
+    run_setting,
+    summarise_runs,
+    write_learning_curves,
+    write_setting_outputs,
+)
+from vision_rl.sim.track_library import load_track
+
+
+class Scripted:
+    """A driver with fixed commands that records where every car of the world started."""
+
+    control_dt_s = 0.1
+
+    def __init__(self, steer_rad: float, omega: float) -> None:
+        self.command = (steer_rad, omega)
+
+    def reset(self, world, car_ids) -> None:
+        self.ids = np.asarray(car_ids)
+        self.start_s_m = world.state.s_m.copy()
+        self.groups = world.model.groups.copy()
+
+    def act(self, state) -> np.ndarray:
+        return np.tile(self.command, (len(self.ids), 1))
+
+
+@pytest.mark.parametrize("setting", ["A", "B"])
+def test_opponents_start_ahead_along_the_centre_line(small_track, setting):
+    driver = Scripted(0.0, 0.0)
+    run_setting(driver, small_track, "tt_cup", setting, runs=2, time_limit_s=0.02)
+    length_m = load_track(small_track).length_m
+    s = driver.start_s_m.reshape(2, 6)
+    gaps = np.mod(s[:, 1:] - s[:, :1], length_m)
+    expected = np.mod(np.arange(1, 6) * SETTINGS[setting], length_m)
+    np.testing.assert_allclose(gaps, np.tile(expected, (2, 1)), atol=1e-6)
+    assert driver.ids.tolist() == [0, 6] and driver.groups.tolist() == [0] * 6 + [1] * 6  # a group per run
+
+
+def test_a_braking_driver_is_stuck_with_no_contact_and_nobody_passed(small_track):
+    runs = run_setting(Scripted(0.0, -1.0), small_track, "tt_cup", "A", runs=2, time_limit_s=30.0)
+    for run in runs:
+        assert run["end"].startswith("stuck") and run["overtaken"] == 0 and not run["all_overtaken"]
+        assert 5.0 <= run["travel_time_s"] < 15.0  # stopped within seconds, then the 5 s stuck window
+        assert run["car_contact_s"] == 0.0 and run["wall_contact_s"] == 0.0
+        assert 20.0 < run["travel_distance_m"] < 200.0  # braking from ~30 m/s on the straight
+    assert runs[0]["opponent_skills"] != runs[1]["opponent_skills"]  # drawn per run seed
+    again = run_setting(Scripted(0.0, -1.0), small_track, "tt_cup", "A", runs=2, time_limit_s=30.0)
+    assert again == runs  # the same seeds, the same runs
+
+
+def test_the_built_in_ai_follows_and_the_outputs_are_written(small_track, tmp_path):
+    runs = run_setting(BuiltinAI(), small_track, "tt_cup", "A", runs=1, time_limit_s=15.0)
+    assert runs[0]["end"] == "time limit" and runs[0]["travel_time_s"] == pytest.approx(15.0)
+    assert runs[0]["wall_contact_s"] == 0.0 and runs[0]["travel_distance_m"] > 300.0
+    result = {"setting": "A", "separation_m": 50.0, "track_name": "stadium", "car": "tt_cup",
+              "drivers": [{"name": "built-in AI", "reference": True, "runs": runs, "summary": summarise_runs(runs)}]}
+    files = write_setting_outputs(result, tmp_path)
+    assert Path(files["png"]).stat().st_size > 1000 and json.loads(Path(files["json"]).read_text()) == result
+
+
+def test_summary_mean_spread_best():
+    runs = [{"travel_time_s": t, "travel_distance_m": 100.0 * t, "car_contact_s": c, "wall_contact_s": 0.0,
+             "overtaken": o, "all_overtaken": o == 5} for t, c, o in ((10.0, 1.0, 5), (20.0, 0.0, 3))]  # fmt: skip
+    s = summarise_runs(runs)
+    assert s["travel_time_s"] == {"mean": 15.0, "std": 5.0, "best": 10.0}
+    assert s["car_contact_s"]["best"] == 0.0 and s["all_overtaken_runs"] == 1
+    assert s["overtaken"] == {"mean": 4.0, "min": 3, "max": 5}
+    with pytest.raises(SettingError, match="--setting must be one of A, B"):
+        run_setting(BuiltinAI(), "expressway", "tt_cup", "C")
+
+
+def _fake_run(root: Path, seed: int, switch: int) -> Path:
+    """A run folder with stage-1/2 and standard metrics: returns rise by 1 per 100 steps (curriculum from 10)."""
+    for name, start, end, base in (("stage1", 0, switch, 10.0), ("stage2", switch, 600, 10.0),
+                                   ("standard", 0, 600, 0.0)):  # fmt: skip
+        folder = root / f"s{seed}" / name
+        folder.mkdir(parents=True)
+        (folder / "stage.json").write_text(json.dumps({"start_steps": start, "end_steps": end}))
+        lines = [json.dumps({"stage": name, "num_timesteps": n, "train_time_s": n / 10,
+                             "overtaking_return": base + n / 100 + seed}) for n in range(start + 100, end + 1, 100)]
+        (folder / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    return root / f"s{seed}"
+
+
+def test_learning_curves_over_seeds_with_the_stage_switch(tmp_path):
+    runs = [_fake_run(tmp_path, 0, 200), _fake_run(tmp_path, 2, 300)]
+    result = learning_curves(runs, "1")
+    cur, std = result["curriculum"], result["standard"]
+    assert cur["x"] == [100, 200, 300, 400, 500, 600] and cur["seeds_with_data"] == 2
+    assert cur["mean"][0] == pytest.approx(12.0) and cur["std"][0] == pytest.approx(1.0)
+    assert [s[0]["num_timesteps"] for s in cur["stage_switches"]] == [200, 300]
+    assert result["standard_final_return"] == pytest.approx(7.0)
+    assert result["curriculum_steps_to_standard_final"] == 100 and result["share_of_standard_steps"] == pytest.approx(1 / 6)
+    files = write_learning_curves(result, tmp_path / "fig")
+    assert Path(files["png"]).stat().st_size > 1000
+    assert json.loads(Path(files["json"]).read_text())["curriculum"]["x"] == cur["x"]
+    by_time = learning_curves(runs, "1", axis="train_time_s")
+    assert by_time["curriculum"]["x"][-1] == 60.0

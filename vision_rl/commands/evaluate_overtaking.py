@@ -1,0 +1,107 @@
+"""`evaluate-overtaking`: settings A/B (the overtaking paper's Figs. 4-5) or, with --curves, its learning curves
+(Fig. 3)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from vision_rl.commands.output import emit
+
+
+@dataclass(frozen=True)
+class EvaluateOvertakingOptions:
+    """Overtaking policies and the built-in AI through setting A or B (five AI opponents 50 / 200 m apart): the
+    paper's four metrics per run, mean, spread and best, bar charts; or, with --curves, the learning curves."""
+
+    setting: str = "A"
+    """A (opponents 50 m apart) or B (200 m)."""
+    runs: int = 10
+    """Runs per driver (run k: opponents' skills and start jitter from seed + k)."""
+    policy: str = ""
+    """Comma-separated policies: stage folders of train-overtaking (RUN/stage2 is Agent 1, RUN/agent2-stage3, ...)."""
+    names: str = ""
+    """Comma-separated names of those policies in the table and charts (default: run/stage)."""
+    reference: bool = True
+    """Add the built-in AI driving the agent's car (the reference row)."""
+    track: str = ""
+    """Track (default: the policies'; expressway with no policy); a policy of another track is refused."""
+    car: str = ""
+    """Car (default: the policies'; tt_cup with no policy)."""
+    seed: int = 0
+    """First run's seed."""
+    time_limit_s: float = 0.0
+    """Time limit per run, s (0: 300 for A, 600 for B)."""
+    lead_margin_m: float = 10.0
+    """A run ends once the agent leads all five opponents by this much progress, m."""
+    out: str = "runs/overtaking/eval"
+    """Folder of the JSON and PNG files."""
+    curves: str = ""
+    """Comma-separated run folders (one per training seed): draw curriculum vs standard SAC learning curves instead."""
+    curves_agent: str = "1"
+    """Curriculum agent of the learning curves (1: stages 1-2, as the paper's Fig. 3)."""
+    quick: bool = False
+    """2 runs of at most 20 s each (for a check in seconds)."""
+    json: bool = False
+    """Print the result as JSON."""
+
+
+def _split(text: str) -> list[str]:
+    return [part.strip() for part in text.split(",") if part.strip()]
+
+
+def format_setting(result: dict[str, Any]) -> list[str]:
+    lines = [f"setting {result['setting']}: 5 opponents {result['separation_m']:g} m apart, {result['track_name']}, "
+             f"{result['car']}, {result['runs']} runs, limit {result['time_limit_s']:g} s"]  # fmt: skip
+    lines.append(f"  {'driver':<28} {'all 5':>6} {'passed':>7} {'time s':>16} {'distance m':>18} {'car s':>12} "
+                 f"{'wall s':>12}")  # fmt: skip
+    for row in result["drivers"]:
+        s = row["summary"]
+
+        def cell(metric: str, digits: int = 1) -> str:
+            m = s[metric]
+            return f"{m['mean']:.{digits}f}+-{m['std']:.{digits}f} ({m['best']:.{digits}f})"
+
+        lines.append(f"  {row['name']:<28} {s['all_overtaken_runs']:>3}/{s['runs']:<2} {s['overtaken']['mean']:>7.1f} "
+                     f"{cell('travel_time_s'):>16} {cell('travel_distance_m', 0):>18} {cell('car_contact_s'):>12} "
+                     f"{cell('wall_contact_s'):>12}")  # fmt: skip
+    lines.append("  (mean+-std (best) over the runs)")
+    lines.append(f"files: {result['files']['json']}, {result['files']['png']}")
+    return lines
+
+
+def format_curves(result: dict[str, Any]) -> list[str]:
+    lines = []
+    for label in ("curriculum", "standard"):
+        data = result[label]
+        final = next((v for v in reversed(data["mean"]) if v is not None), None)
+        lines.append(f"{label}: {data['seeds_with_data']} seeds, {len(data['x'])} points, final mean return "
+                     + ("-" if final is None else f"{final:.1f}"))  # fmt: skip
+    if result.get("share_of_standard_steps") is not None:
+        lines.append(f"curriculum reaches standard SAC's final return at {result['curriculum_steps_to_standard_final']:.0f}"
+                     f" steps, {100 * result['share_of_standard_steps']:.0f} % of standard SAC's steps")  # fmt: skip
+    lines.append(f"files: {result['files']['json']}, {result['files']['png']}")
+    return lines
+
+
+def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
+    from vision_rl.phase2_rl.overtaking_eval import (
+        check_setting,
+        evaluate_overtaking,
+        learning_curves,
+        write_learning_curves,
+        write_setting_outputs,
+    )
+
+    if opts.curves:
+        result = learning_curves(_split(opts.curves), opts.curves_agent)
+        result["files"] = write_learning_curves(result, opts.out)
+        emit(result, opts.json, format_curves)
+        return 0
+    check_setting(opts.setting)
+    runs, limit = (2, opts.time_limit_s or 20.0) if opts.quick else (opts.runs, opts.time_limit_s)
+    result = evaluate_overtaking(_split(opts.policy), opts.setting, runs, opts.seed, limit, opts.lead_margin_m,
+                                 opts.reference, _split(opts.names), opts.track, opts.car)  # fmt: skip
+    result["files"] = write_setting_outputs(result, opts.out)
+    emit(result, opts.json, format_setting)
+    return 0

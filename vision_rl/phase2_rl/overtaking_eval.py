@@ -1,0 +1,395 @@
+"""The overtaking paper's evaluation (section IV-C, Figs. 3-5): settings A and B, and the learning curves.
+
+**Settings A and B.** Five built-in AI opponents ahead of the agent's car, 50 m (A) or 200 m (B) apart along the
+centre line: the agent starts on the start/finish line (s = 0) on the racing line at the built-in AI's
+default-skill speed, opponent k at s = k x separation on the racing line at its own skill's speed. Run k draws,
+from ``numpy.random.default_rng(seed + k)``, the opponents' skills (uniform in the environments'
+``OPPONENT_SKILL_RANGE``, so the same for every agent evaluated with the same seed) and the agent's start jitter
+(as the lap-time protocol's: +-0.25 m lateral, +-2 % speed). The runs go at once, each in its own collision group
+of one world stepped at the built-in AI's 0.02 s; the agent's driver acts at its own rate (a policy every 0.1 s)
+and the opponents are driven by :class:`vision_rl.sim.fleet.AIFleet`.
+
+A run ends when the agent leads all five by ``lead_margin_m`` of centre-line progress ("all 5 overtaken"), when
+it is stuck (:data:`vision_rl.sim.fleet.STUCK_RULE`) or at the time limit. Per run, the paper's four metrics:
+total travel time (s, until the run ended), total travel distance (the path length of the agent's centre, m),
+total car-collision time and total wall-collision time (s), plus the number of opponents the agent is ahead of
+at the end and whether all five were overtaken. Over the runs: mean, standard deviation and best (the lowest) of
+each metric, and how many runs overtook all five. The built-in AI driving the agent's car
+(:class:`~vision_rl.evaluation.protocol.BuiltinAI` at its default skill) is the reference row, drawn as the dashed
+lines of the bar charts where the paper draws its human's best.
+
+**Learning curves** (Fig. 3): the overtaking return of the periodic evaluations of curriculum and standard SAC
+runs (:func:`vision_rl.phase2_rl.overtaking.learning_curve`) over training seeds, mean and spread, with the
+stage switches marked.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vision_rl.evaluation.protocol import START_JITTER_LATERAL_M, START_JITTER_SPEED, BuiltinAI, Driver
+from vision_rl.phase2_rl.artifact import PolicyError
+from vision_rl.phase2_rl.overtaking import learning_curve, load_overtaking_policy
+from vision_rl.phase2_rl.persist import atomic_write
+from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE
+from vision_rl.sim.driving import line_and_profile
+from vision_rl.sim.fleet import AI_CONTROL_DT_S, STUCK_RULE, AIFleet, StuckDetector
+from vision_rl.sim.track import Track
+from vision_rl.sim.track_library import load_track
+from vision_rl.sim.vehicle import VehicleParams, get_preset
+from vision_rl.sim.world import World, WorldConfig
+
+#: Setting name -> separation between consecutive cars along the centre line, m (section IV-C).
+SETTINGS: dict[str, float] = {"A": 50.0, "B": 200.0}
+OPPONENTS = 5
+#: Default time limits, s: the last opponent starts 250 m (A) / 1,000 m (B) ahead, and an agent 5 % faster than
+#: an opponent at 50 m/s gains 2.5 m/s, so 1,000 m take about 400 s.
+DEFAULT_TIME_LIMIT_S: dict[str, float] = {"A": 300.0, "B": 600.0}
+#: The agent leads an opponent by this much centre-line progress to count it as overtaken for ending the run, m.
+LEAD_MARGIN_M = 10.0
+METRICS = ("travel_time_s", "travel_distance_m", "car_contact_s", "wall_contact_s")
+METRIC_LABELS = {
+    "travel_time_s": "total travel time (s)",
+    "travel_distance_m": "total travel distance (m)",
+    "car_contact_s": "car-collision time (s)",
+    "wall_contact_s": "wall-collision time (s)",
+}
+
+
+class SettingError(ValueError):
+    """A setting or policy that cannot be evaluated as asked; the message says why."""
+
+
+def check_setting(setting: str) -> float:
+    """The separation of ``setting`` (A or B), refusing another name."""
+    if setting not in SETTINGS:
+        raise SettingError(f"--setting must be one of {', '.join(SETTINGS)}, got {setting!r}")
+    return SETTINGS[setting]
+
+
+def run_setting(
+    driver: Driver,
+    track: Track | str,
+    car: VehicleParams | str,
+    setting: str,
+    runs: int = 10,
+    seed: int = 0,
+    time_limit_s: float = 0.0,
+    lead_margin_m: float = LEAD_MARGIN_M,
+) -> list[dict[str, Any]]:
+    """``runs`` runs of ``setting`` with ``driver`` on the agent's car (see the module's rules); one dict per run."""
+    separation_m = check_setting(setting)
+    if runs < 1:
+        raise SettingError(f"--runs must be >= 1, got {runs}")
+    track = track if isinstance(track, Track) else load_track(track)
+    car = car if isinstance(car, VehicleParams) else get_preset(car)
+    limit_s = time_limit_s if time_limit_s > 0 else DEFAULT_TIME_LIMIT_S[setting]
+    every = round(driver.control_dt_s / AI_CONTROL_DT_S)
+    if every < 1 or abs(every * AI_CONTROL_DT_S - driver.control_dt_s) > 1e-9:
+        raise SettingError(f"a driver must act every {AI_CONTROL_DT_S} s or a whole multiple of it")
+    k = OPPONENTS + 1
+    n = runs * k
+    groups = np.repeat(np.arange(runs), k)
+    world = World(track, car, n, groups, WorldConfig(control_dt_s=AI_CONTROL_DT_S))
+    line, profile = line_and_profile(track, car)
+    ego = np.arange(runs) * k
+    skill = np.full((runs, k), DEFAULT_SKILL)
+    jitter = np.empty((runs, 2))
+    for r in range(runs):  # one draw per run (set-up, not a step)
+        rng = np.random.default_rng(seed + r)
+        skill[r, 1:] = rng.uniform(OPPONENT_SKILL_RANGE[0], OPPONENT_SKILL_RANGE[1], OPPONENTS)
+        jitter[r] = rng.uniform(-1.0, 1.0, 2)
+    fleet = AIFleet(world, line, profile, skill=skill.ravel())
+    start_gap_m = np.arange(1, k) * separation_m
+    s0 = np.tile(np.concatenate([[0.0], start_gap_m]), runs)
+    fleet.place(np.arange(n), np.mod(s0, track.length_m))
+    ego_s = np.zeros(runs)
+    ego_speed = DEFAULT_SKILL * profile.speed_at(line.line_s_at(ego_s)) * (1.0 + jitter[:, 1] * START_JITTER_SPEED)
+    world.reset(s_m=ego_s, lateral_m=line.lateral_at(ego_s) + jitter[:, 0] * START_JITTER_LATERAL_M,
+                speed_mps=ego_speed, car_ids=ego)  # fmt: skip
+    at_reset = world.state.unwrapped_s_m.copy()
+    driver.reset(world, ego)
+    stuck = StuckDetector(world.state.unwrapped_s_m[ego], AI_CONTROL_DT_S, STUCK_RULE)
+
+    active = np.ones(runs, dtype=bool)
+    distance_m = np.zeros(runs)
+    end = {name: np.zeros(runs) for name in (*METRICS, "overtaken")}
+    reason = np.array(["time limit"] * runs, dtype=object)
+    action = np.zeros((runs, 2))
+    gap = np.tile(start_gap_m, (runs, 1))
+    steps = math.ceil(limit_s / AI_CONTROL_DT_S - 1e-9)
+    for step in range(steps):
+        if step % every == 0:
+            action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(runs, 2)
+        fleet.advance(1, ego, action[:, 0], action[:, 1])
+        st = world.state
+        speed = np.hypot(st.vehicle.vx_mps[ego], st.vehicle.vy_mps[ego])
+        distance_m += AI_CONTROL_DT_S * speed * active
+        travelled = (st.unwrapped_s_m - at_reset).reshape(runs, k)
+        gap = start_gap_m[None, :] + travelled[:, 1:] - travelled[:, :1]
+        led = active & np.all(gap < -lead_margin_m, axis=1)
+        stuck_now = np.zeros(runs, dtype=bool)
+        stuck_now[stuck.update(st.unwrapped_s_m[ego])] = True
+        stuck_now &= active & ~led
+        last = step == steps - 1
+        ended = led | stuck_now | (active & last)
+        if ended.any():
+            idx = np.flatnonzero(ended)
+            end["travel_time_s"][idx] = st.time_s[ego[idx]]
+            end["travel_distance_m"][idx] = distance_m[idx]
+            end["car_contact_s"][idx] = st.car_contact_time_s[ego[idx]]
+            end["wall_contact_s"][idx] = st.wall_contact_time_s[ego[idx]]
+            end["overtaken"][idx] = np.sum(gap[idx] < 0.0, axis=1)
+            reason[np.flatnonzero(led)] = "all overtaken"
+            reason[np.flatnonzero(stuck_now)] = f"stuck: {STUCK_RULE.describe()}"
+            active &= ~ended
+        if not active.any():
+            break
+    return [
+        {
+            "run": r, "seed": seed + r, "opponent_skills": [round(float(x), 4) for x in skill[r, 1:]],
+            **{name: round(float(end[name][r]), 3) for name in METRICS},
+            "overtaken": int(end["overtaken"][r]), "all_overtaken": reason[r] == "all overtaken",
+            "end": reason[r],
+        }
+        for r in range(runs)
+    ]  # fmt: skip
+
+
+def summarise_runs(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Mean, standard deviation and best (lowest) of each metric; all-five count; overtaken mean and range."""
+    out: dict[str, Any] = {}
+    for name in METRICS:
+        values = np.array([r[name] for r in runs], dtype=np.float64)
+        out[name] = {"mean": float(values.mean()), "std": float(values.std()), "best": float(values.min())}
+    overtaken = np.array([r["overtaken"] for r in runs])
+    out["all_overtaken_runs"] = int(sum(r["all_overtaken"] for r in runs))
+    out["runs"] = len(runs)
+    out["overtaken"] = {"mean": float(overtaken.mean()), "min": int(overtaken.min()), "max": int(overtaken.max())}
+    return out
+
+
+def evaluate_overtaking(
+    policies: Sequence[str],
+    setting: str,
+    runs: int = 10,
+    seed: int = 0,
+    time_limit_s: float = 0.0,
+    lead_margin_m: float = LEAD_MARGIN_M,
+    reference: bool = True,
+    names: Sequence[str] = (),
+    track: str = "",
+    car: str = "",
+    device: str = "cpu",
+) -> dict[str, Any]:
+    """Each policy (a stage folder of train-overtaking) and, with ``reference``, the built-in AI through
+    ``setting``; all on the policies' track and car (``track``/``car`` refuse a policy made for others, and say
+    where to evaluate when no policy is given)."""
+    separation_m = check_setting(setting)
+    if not policies and not reference:
+        raise SettingError("nothing to evaluate: give --policy or keep --reference")
+    if names and len(names) != len(policies):
+        raise SettingError(f"--names gives {len(names)} names for {len(policies)} policies")
+    loaded = [load_overtaking_policy(p, device) for p in policies]
+    track_obj = load_track(track) if track else None
+    for path, policy in zip(policies, loaded, strict=True):
+        config = policy.config
+        policy_track = load_track(config.track)
+        if track_obj is None:
+            track_obj, car = policy_track, car or config.car
+        if policy_track.geometry_hash != track_obj.geometry_hash:
+            raise PolicyError(f"policy {path} was trained on track {config.track!r} (geometry "
+                              f"{policy_track.geometry_hash[:12]}...), not {track_obj.name!r} "
+                              f"({track_obj.geometry_hash[:12]}...): evaluate it on its own track")  # fmt: skip
+        if car and config.car != car:
+            raise PolicyError(f"policy {path} drives the car {config.car!r}, not {car!r}")
+    if track_obj is None:
+        track_obj = load_track("expressway")
+    car = car or "tt_cup"
+    drivers: list[tuple[str, Any, dict[str, Any]]] = []
+    for i, (path, policy) in enumerate(zip(policies, loaded, strict=True)):
+        driver = policy.driver()
+        drivers.append((names[i] if names else _policy_name(Path(path)), driver, driver.identity))
+    if reference:
+        ai = BuiltinAI()
+        drivers.append(("built-in AI", ai, ai.identity))
+    rows = []
+    for name, driver, identity in drivers:
+        try:
+            per_run = run_setting(driver, track_obj, car, setting, runs, seed, time_limit_s, lead_margin_m)
+        finally:
+            if hasattr(driver, "close"):
+                driver.close()
+        rows.append({"name": name, "driver": identity, "reference": identity.get("driver") == "built-in AI",
+                     "runs": per_run, "summary": summarise_runs(per_run)})  # fmt: skip
+    return {
+        "setting": setting, "separation_m": separation_m, "opponents": OPPONENTS, "runs": runs, "seed": seed,
+        "time_limit_s": time_limit_s if time_limit_s > 0 else DEFAULT_TIME_LIMIT_S[setting],
+        "lead_margin_m": lead_margin_m, "track_name": track_obj.name, "track_geometry_hash": track_obj.geometry_hash,
+        "car": car, "opponent_skill_range": list(OPPONENT_SKILL_RANGE), "drivers": rows,
+    }  # fmt: skip
+
+
+def _policy_name(path: Path) -> str:
+    folder = path if path.is_dir() else path.parent
+    return f"{folder.parent.name}/{folder.name}"
+
+
+def write_setting_outputs(result: dict[str, Any], out: str | os.PathLike[str]) -> dict[str, str]:
+    """``overtaking_setting_<X>.json`` and the bar chart ``overtaking_setting_<X>.png`` (the paper's Figs. 4-5:
+    mean with the standard deviation as error bars, the best run as a dot, the reference's best dashed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = f"overtaking_setting_{result['setting']}"
+    json_path, png_path = out / f"{stem}.json", out / f"{stem}.png"
+    atomic_write(json_path, lambda tmp: tmp.write_text(json.dumps(result, indent=2)))
+    rows = result["drivers"]
+    fig, axes = plt.subplots(1, len(METRICS), figsize=(4.0 * len(METRICS), 4.0))
+    x = np.arange(len(rows))
+    for ax, metric in zip(axes, METRICS, strict=True):
+        means = [r["summary"][metric]["mean"] for r in rows]
+        stds = [r["summary"][metric]["std"] for r in rows]
+        bests = [r["summary"][metric]["best"] for r in rows]
+        ax.bar(x, means, yerr=stds, capsize=4, color=["0.6" if r["reference"] else "C0" for r in rows])
+        ax.plot(x, bests, "k.", label="best run")
+        for r in rows:
+            if r["reference"]:
+                ax.axhline(r["summary"][metric]["best"], color="k", linestyle="--", linewidth=1, label="reference best")
+        ax.set_xticks(x, [r["name"] for r in rows], rotation=30, ha="right", fontsize=8)
+        ax.set_title(METRIC_LABELS[metric], fontsize=9)
+    axes[0].legend(fontsize=7)
+    counts = ", ".join(f"{r['name']}: {r['summary']['all_overtaken_runs']}/{r['summary']['runs']}" for r in rows)
+    fig.suptitle(f"setting {result['setting']} ({result['separation_m']:g} m apart, {result['track_name']}, "
+                 f"{result['car']}); all 5 overtaken in {counts}", fontsize=9)  # fmt: skip
+    fig.tight_layout()
+    tmp = png_path.with_name(f".{png_path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, png_path)
+    return {"json": str(json_path), "png": str(png_path)}
+
+
+# ------------------------------------------------------------------------------------------------- Fig. 3
+
+
+def _on_grid(curves: list[dict[str, Any]], axis: str, key: str = "overtaking_return") -> tuple[np.ndarray, np.ndarray]:
+    """(grid, values (n_curves, len(grid))) with each curve interpolated on the union of their x values (NaN
+    outside a curve's own range)."""
+    xs = [np.array([r[axis] for r in c["records"] if r.get(key) is not None], dtype=np.float64) for c in curves]
+    ys = [np.array([r[key] for r in c["records"] if r.get(key) is not None], dtype=np.float64) for c in curves]
+    grid = np.unique(np.concatenate(xs)) if any(len(x) for x in xs) else np.zeros(0)
+    values = np.full((len(curves), len(grid)), np.nan)
+    for i, (x, y) in enumerate(zip(xs, ys, strict=True)):
+        if len(x):
+            inside = (grid >= x[0]) & (grid <= x[-1])
+            values[i, inside] = np.interp(grid[inside], x, y)
+    return grid, values
+
+
+def learning_curves(
+    runs: Sequence[str | os.PathLike[str]], curriculum_agent: str = "1", axis: str = "num_timesteps"
+) -> dict[str, Any]:
+    """Curriculum (``curriculum_agent``'s stages) and standard SAC over the run folders (one per training seed):
+    mean and standard deviation of the overtaking return on a common axis (``num_timesteps`` or
+    ``train_time_s``), each seed's stage switches, and the share of standard SAC's steps at which the
+    curriculum's mean first reaches standard SAC's final mean return (the issue's target: at most one half)."""
+    if axis not in ("num_timesteps", "train_time_s"):
+        raise SettingError(f"axis must be num_timesteps or train_time_s, got {axis!r}")
+    if not runs:
+        raise SettingError("give at least one run folder of train-overtaking")
+    result: dict[str, Any] = {"axis": axis, "runs": [str(r) for r in runs], "curriculum_agent": curriculum_agent}
+    for label, agent in (("curriculum", curriculum_agent), ("standard", "standard")):
+        curves = [learning_curve(r, agent) for r in runs]
+        grid, values = _on_grid(curves, axis)
+        with np.errstate(all="ignore"):
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                mean, std = np.nanmean(values, axis=0), np.nanstd(values, axis=0)
+        result[label] = {
+            "x": grid.tolist(), "mean": _nan_to_none(mean), "std": _nan_to_none(std),
+            "seeds_with_data": int(sum(bool(c["records"]) for c in curves)),
+            "stage_switches": [c["stage_switches"] for c in curves],
+        }  # fmt: skip
+    std_mean = [v for v in result["standard"]["mean"] if v is not None]
+    result["standard_final_return"] = std_mean[-1] if std_mean else None
+    reach = None
+    if std_mean and axis == "num_timesteps":
+        final = std_mean[-1]
+        for x, v in zip(result["curriculum"]["x"], result["curriculum"]["mean"], strict=True):
+            if v is not None and v >= final:
+                reach = x
+                break
+        total = result["standard"]["x"][-1] if result["standard"]["x"] else None
+        result["curriculum_steps_to_standard_final"] = reach
+        result["share_of_standard_steps"] = None if reach is None or not total else reach / total
+    return result
+
+
+def _nan_to_none(values: np.ndarray) -> list[float | None]:
+    return [None if not np.isfinite(v) else float(v) for v in values]
+
+
+def write_learning_curves(result: dict[str, Any], out: str | os.PathLike[str]) -> dict[str, str]:
+    """``learning_curves_<axis>.json`` and ``.png``: mean lines with a +-1 std band, stage switches dashed red."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = f"learning_curves_{result['axis']}"
+    json_path, png_path = out / f"{stem}.json", out / f"{stem}.png"
+    atomic_write(json_path, lambda tmp: tmp.write_text(json.dumps(result, indent=2)))
+    fig, ax = plt.subplots(figsize=(7.0, 4.0))
+    for label, color in (("curriculum", "C0"), ("standard", "C1")):
+        data = result[label]
+        if not data["x"]:
+            continue
+        x = np.array(data["x"])
+        mean = np.array([np.nan if v is None else v for v in data["mean"]])
+        std = np.array([np.nan if v is None else v for v in data["std"]])
+        name = f"curriculum SAC (agent {result['curriculum_agent']})" if label == "curriculum" else "standard SAC"
+        ax.plot(x, mean, color=color, label=f"{name}, {data['seeds_with_data']} seeds")
+        ax.fill_between(x, mean - std, mean + std, color=color, alpha=0.25)
+    if result["axis"] == "num_timesteps":
+        switches = [s["num_timesteps"] for seed in result["curriculum"]["stage_switches"] for s in seed
+                    if s["stage"] == "stage2" and s["num_timesteps"] is not None]  # fmt: skip
+        for i, step in enumerate(switches):
+            ax.axvline(step, color="r", linestyle="--", linewidth=1, label="stage 1 -> 2" if i == 0 else None)
+    ax.set_xlabel("environment steps" if result["axis"] == "num_timesteps" else "training time (s)")
+    ax.set_ylabel("overtaking return (Eq. 2, stage-2 setting)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    tmp = png_path.with_name(f".{png_path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, png_path)
+    return {"json": str(json_path), "png": str(png_path)}
+
+
+__all__ = [
+    "METRICS",
+    "SETTINGS",
+    "SettingError",
+    "evaluate_overtaking",
+    "learning_curves",
+    "run_setting",
+    "summarise_runs",
+    "write_learning_curves",
+    "write_setting_outputs",
+]
