@@ -6,6 +6,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import pickle
 import shutil
 import signal
 import subprocess
@@ -111,8 +112,8 @@ def test_a_damaged_or_foreign_buffer_stops_resume_with_a_message(run_copy, fault
     fault.refused("an .npz that is not a replay buffer on --resume", str(excinfo.value))
 
 
-def test_a_format_2_policy_is_refused_and_converts_when_trusted(run_copy, tmp_path, fault):
-    """An SB3 zip with its pickled buffer, as format 2 wrote them: refused until converted with explicit trust."""
+def test_a_format_2_policy_is_refused_and_converts_without_unpickling(run_copy, tmp_path, fault):
+    """An SB3 zip, as format 2 wrote it: refused until converted, which reads only its tensors and counters."""
     import gymnasium
     from stable_baselines3 import SAC
     from stable_baselines3.common.env_util import make_vec_env
@@ -135,7 +136,6 @@ def test_a_format_2_policy_is_refused_and_converts_when_trusted(run_copy, tmp_pa
     old = tmp_path / "old"
     old.mkdir()
     model.save(old / "policy.zip")
-    model.save_replay_buffer(old / "replay_buffer.pkl")
     data = json.loads((run_copy / "policy.json").read_text())
     for key in ("fingerprint", "weights_sha256"):
         data.pop(key)
@@ -143,11 +143,16 @@ def test_a_format_2_policy_is_refused_and_converts_when_trusted(run_copy, tmp_pa
     with pytest.raises(PolicyError, match="convert-policy --run") as excinfo:
         load_policy(old)
     fault.refused("a format-2 policy (Stable-Baselines3 zip, pickled)", str(excinfo.value))
-    with pytest.raises(PolicyError, match="--trust-pickle") as excinfo:
+    (old / "checkpoints").mkdir()
+    (old / "checkpoints" / "policy_10.zip").write_bytes(b"not a zip")
+    with pytest.raises(PolicyError, match="not a Stable-Baselines3 SAC zip") as excinfo:
         convert_sb3_run(old)
-    fault.refused("convert-policy without --trust-pickle", str(excinfo.value))
-    written = convert_sb3_run(old, trust_pickle=True)
-    assert {p.name for p in written} == {"policy.pt", "policy.json", "replay_buffer.npz"}
+    fault.refused("convert-policy of a damaged zip", str(excinfo.value))
+    (old / "checkpoints" / "policy_10.zip").unlink()
+    (old / "replay_buffer.pkl").write_bytes(pickle.dumps(_WritesAMarker(tmp_path / "marker")))
+    written = convert_sb3_run(old)
+    assert {p.name for p in written} == {"policy.pt", "policy.json"}
+    assert not (tmp_path / "marker").exists()  # neither the zip's pickled parts nor the buffer were unpickled
     loaded = load_policy(old)
     obs = np.random.default_rng(0).normal(size=(4, 38)).astype(np.float32)
     np.testing.assert_allclose(loaded.act(obs), model.predict(obs, deterministic=True)[0], atol=1e-6)

@@ -9,14 +9,12 @@ from vision_rl.commands.output import emit
 
 @dataclass(frozen=True)
 class ConvertPolicyOptions:
-    """Convert a train-policy run folder of format 2 (policy.zip, replay_buffer.pkl) to format 3 (policy.pt,
-    replay_buffer.npz), in place. Reading the old files unpickles them, which can run any code they hold: convert
-    only files you made yourself."""
+    """Convert a train-policy run folder of format 2 (policy.zip) to format 3 (policy.pt), in place. Only the zip's
+    tensors and plain counters are read, so nothing in it can run; the pickled replay buffer is not read (a resumed
+    run collects a new one)."""
 
     run: str = ""
     """The run folder (holding policy.json and policy.zip)."""
-    trust_pickle: bool = False
-    """Say that the files are your own and may be unpickled."""
     json: bool = False
     """Print the files written as JSON."""
 
@@ -26,6 +24,6 @@ def run_convert_policy(opts: ConvertPolicyOptions) -> int:
 
     if not opts.run:
         raise ValueError("convert-policy needs --run: a train-policy run folder of format 2")
-    written = convert_sb3_run(opts.run, opts.trust_pickle)
+    written = convert_sb3_run(opts.run)
     emit({"written": [str(p) for p in written]}, opts.json)
     return 0

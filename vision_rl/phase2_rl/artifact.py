@@ -17,8 +17,8 @@ loaded policy becomes.
 
 Loading refuses a changed agent file (its SHA-256), a sidecar whose track, car or observation no longer matches the
 weights' fingerprint or the track's geometry, and an encoder whose checkpoint hash differs from the recorded one.
-Format 2 (a Stable-Baselines3 zip, whose pickled objects can run code when loaded) is refused with the command
-that converts a file the user trusts.
+Format 2 (a Stable-Baselines3 zip, whose pickled parts can run code when loaded) is refused with the command
+that converts it by reading only its tensors and counters.
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ from vision_rl.phase2_rl.persist import (
     atomic_write,
     check_fingerprint,
     read_agent,
-    save_agent,
-    save_buffer,
+    read_sb3_zip,
+    write_agent_state,
 )
 from vision_rl.sim.sensors import DEDICATED_NAMES
 from vision_rl.sim.track_library import load_track
@@ -163,9 +163,9 @@ class PolicySpec:
             raise PolicyError(f"{source}: policy format {version} is newer than this code's")
         if version == 2:
             raise PolicyError(
-                f"{source}: policy format 2 keeps its weights in a Stable-Baselines3 zip, whose pickled objects can "
-                f"run code when loaded, so it is not read; if you trust the file, convert it with "
-                f"`vision-rl convert-policy --run {Path(source).parent} --trust-pickle`"
+                f"{source}: policy format 2 keeps its weights in a Stable-Baselines3 zip, whose pickled parts can "
+                f"run code when loaded, so it is not loaded; convert its tensors (nothing pickled is read) with "
+                f"`vision-rl convert-policy --run {Path(source).parent}`"
             )
         if version < POLICY_FORMAT_VERSION:
             raise PolicyError(
@@ -388,16 +388,12 @@ def load_policy(
     return LoadedPolicy(policy, spec, weights_path, spec_path, module, encoder_path)
 
 
-def convert_sb3_run(run: str | os.PathLike[str], trust_pickle: bool = False) -> list[Path]:
-    """Convert a format-2 run folder (``policy.zip``, ``checkpoints/policy_<steps>.zip``, ``replay_buffer.pkl``)
-    to format 3 in place; returns the files written. Loading the zip and the buffer unpickles them, which runs any
-    code they hold: ``trust_pickle`` must say that the files are the user's own."""
-    from stable_baselines3 import SAC
-
+def convert_sb3_run(run: str | os.PathLike[str]) -> list[Path]:
+    """Convert a format-2 run folder (``policy.zip`` and ``checkpoints/policy_<steps>.zip``) to format 3 in place;
+    returns the files written. Only the zips' tensors and plain JSON counters are read
+    (:func:`~vision_rl.phase2_rl.persist.read_sb3_zip`), so nothing in them can run. The pickled replay buffer is
+    not read: a resumed run collects a new one."""
     run = Path(run)
-    if not trust_pickle:
-        raise PolicyError("converting unpickles the old files, which can run code: pass --trust-pickle for files "
-                          "you made yourself")  # fmt: skip
     spec_path = run / SIDECAR_NAME
     try:
         data = json.loads(spec_path.read_text())
@@ -405,29 +401,25 @@ def convert_sb3_run(run: str | os.PathLike[str], trust_pickle: bool = False) -> 
         raise PolicyError(f"{spec_path}: cannot read the sidecar: {exc}") from None
     if data.get("format") != POLICY_FORMAT or int(data.get("format_version", 0)) != 2:
         raise PolicyError(f"{spec_path}: not a format-2 policy sidecar (nothing to convert)")
-    data = {**data, "format_version": POLICY_FORMAT_VERSION}
     config = racing_config_from_dict(data["racing_config"])
-    written = []
-    zips = [run / data.get("model", SB3_ZIP_NAME), *sorted((run / "checkpoints").glob("policy_*.zip"))]
-    for zip_path in zips:
+    encoder_sha = data["encoder"]["sha256"] if data.get("encoder") else None
+    states = {}  # every zip is read before anything is written: a damaged one leaves the run as it was
+    for zip_path in [run / data.get("model", SB3_ZIP_NAME), *sorted((run / "checkpoints").glob("policy_*.zip"))]:
         try:
-            model = SAC.load(zip_path, device="cpu")
-        except Exception as exc:  # SB3 raises several types for a corrupt or foreign zip
-            raise PolicyError(f"{zip_path}: not a loadable SB3 SAC policy: {exc}") from None
-        dim = int(model.observation_space.shape[0])
-        encoder_sha = data["encoder"]["sha256"] if data.get("encoder") else None
-        fingerprint = policy_fingerprint(config, data["observation"], dim, encoder_sha)
+            states[zip_path] = state = read_sb3_zip(zip_path)
+            state["input_dim"] = int(state["policy"]["actor.latent_pi.0.weight"].shape[1])  # the actor's inputs
+        except ArtifactError as exc:
+            raise PolicyError(str(exc)) from None
+        except KeyError:
+            raise PolicyError(f"{zip_path}: not the zip of an SB3 SAC MLP policy (no actor.latent_pi.0)") from None
+    written = []
+    for zip_path, state in states.items():
+        fingerprint = policy_fingerprint(config, data["observation"], state.pop("input_dim"), encoder_sha)
         weights = zip_path.with_suffix(".pt")
-        sha = save_agent(model, weights, fingerprint)
-        entry = {**data, "model": weights.name, "weights_sha256": sha, "fingerprint": fingerprint,
-                 "num_timesteps": int(model.num_timesteps)}  # fmt: skip
+        sha = write_agent_state(state, weights, fingerprint)
+        entry = {**data, "format_version": POLICY_FORMAT_VERSION, "model": weights.name, "weights_sha256": sha,
+                 "fingerprint": fingerprint, "num_timesteps": state["counters"]["num_timesteps"]}  # fmt: skip
         sidecar = spec_path if zip_path.parent == run else snapshot_sidecar(weights)
-        if sidecar == spec_path:
-            buffer_pkl = run / "replay_buffer.pkl"
-            if buffer_pkl.is_file():
-                model.load_replay_buffer(buffer_pkl)
-                save_buffer(model.replay_buffer, run / BUFFER_NAME, fingerprint)
-                written.append(run / BUFFER_NAME)
         PolicySpec.from_dict(entry, str(sidecar)).write(sidecar)
         written += [weights, sidecar]
     return written

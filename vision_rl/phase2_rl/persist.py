@@ -13,6 +13,7 @@ failed write (a full disk) raises :class:`ArtifactWriteError` naming the file an
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import pickle
@@ -96,9 +97,46 @@ def agent_state(model: OffPolicyAlgorithm) -> dict[str, Any]:
 
 def save_agent(model: OffPolicyAlgorithm, path: str | os.PathLike[str], fingerprint: Mapping[str, Any]) -> str:
     """Write ``model``'s :func:`agent_state` with ``fingerprint``; returns the file's SHA-256."""
-    payload = {"format": AGENT_FORMAT, "format_version": FORMAT_VERSION, "fingerprint": dict(fingerprint),
-               **agent_state(model)}  # fmt: skip
+    return write_agent_state(agent_state(model), path, fingerprint)
+
+
+def write_agent_state(state: Mapping[str, Any], path: str | os.PathLike[str], fingerprint: Mapping[str, Any]) -> str:
+    """Write an :func:`agent_state` dict with ``fingerprint``; returns the file's SHA-256."""
+    payload = {"format": AGENT_FORMAT, "format_version": FORMAT_VERSION, "fingerprint": dict(fingerprint), **state}
     return atomic_write(path, lambda tmp: torch.save(payload, tmp))
+
+
+def read_sb3_zip(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The :func:`agent_state` of a Stable-Baselines3 SAC zip, read without unpickling anything: its tensors with
+    ``torch.load(weights_only=True)`` and its counters from the plain JSON fields of its ``data`` member (the
+    pickled members, such as the spaces and schedules, are never read)."""
+    path = Path(path)
+
+    def tensors(archive: zipfile.ZipFile, name: str) -> Any:
+        with archive.open(name) as member:
+            return torch.load(io.BytesIO(member.read()), map_location="cpu", weights_only=True)
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+            state: dict[str, Any] = {
+                "policy": tensors(archive, "policy.pth"),
+                "optimizers": {"actor": tensors(archive, "actor.optimizer.pth"),
+                               "critic": tensors(archive, "critic.optimizer.pth")},
+            }  # fmt: skip
+            if "ent_coef_optimizer.pth" in names:
+                state["optimizers"]["ent_coef"] = tensors(archive, "ent_coef_optimizer.pth")
+                state["log_ent_coef"] = tensors(archive, "pytorch_variables.pth")["log_ent_coef"]
+            data = json.loads(archive.read("data"))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile, pickle.UnpicklingError, RuntimeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ArtifactError(f"{path}: not a Stable-Baselines3 SAC zip whose tensors load safely: {first}") from None
+    state["counters"] = {
+        "num_timesteps": int(data.get("num_timesteps", 0)),
+        "n_updates": int(data.get("_n_updates", 0)),
+        "episode_num": int(data.get("_episode_num", 0)),
+    }
+    return state
 
 
 def read_agent(
