@@ -114,7 +114,7 @@ def test_a_killed_stage_resumes_from_its_checkpoint(small_track, tmp_path, fault
     assert json.loads((out / "stage1" / "stage.json").read_text())["status"] == "running"
     assert (out / "stage1" / "replay_buffer.npz").is_file()  # saved when the stage began
     resumed = _train_process(small_track, out)
-    stdout, stderr = resumed.communicate(timeout=120)
+    _, stderr = resumed.communicate(timeout=120)
     assert resumed.returncode == 0, stderr
     record = json.loads((out / "stage1" / "stage.json").read_text())
     assert record["status"] == "done" and record["end_steps"] == 600 and record["start_steps"] == 0

@@ -109,7 +109,8 @@ def test_reinit_exploration_resets_the_entropy_coefficient_and_log_std(small_tra
     before = model.actor.log_std.weight.detach().clone()
     assert any(p in model.actor.optimizer.state for p in model.actor.log_std.parameters())
     reinit_exploration(model)
-    assert model.log_ent_coef.item() == 0.0 and model.ent_coef_optimizer.param_groups[0]["params"][0] is model.log_ent_coef
+    assert model.log_ent_coef.item() == 0.0
+    assert model.ent_coef_optimizer.param_groups[0]["params"][0] is model.log_ent_coef
     assert not torch.equal(before, model.actor.log_std.weight)
     assert not any(p in model.actor.optimizer.state for p in model.actor.log_std.parameters())
     env.close()
@@ -161,3 +162,12 @@ def test_the_policy_drives_the_protocol_and_the_curve_spans_the_stages(curriculu
     assert [r["stage"] for r in curve["records"]] == ["stage1", "stage1", "stage2", "agent3-stage3"]
     assert curve["stage_switches"] == [{"stage": "stage2", "num_timesteps": 200},
                                        {"stage": "agent3-stage3", "num_timesteps": 300}]  # fmt: skip
+
+
+def test_evaluate_times_an_overtaking_policy_like_any_other(curriculum):
+    from vision_rl.phase2_rl.evaluate import evaluate_policy
+
+    out, _ = curriculum
+    record = evaluate_policy(out / "agent3-stage3", laps=1, seeds=1, time_limit_s=5.0)
+    assert record["driver"]["observation"] == "overtaking" and record["protocol"]["version"] >= 1
+    assert (out / "agent3-stage3" / "evaluation.json").is_file()

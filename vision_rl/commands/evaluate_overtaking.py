@@ -55,16 +55,16 @@ def format_setting(result: dict[str, Any]) -> list[str]:
              f"{result['car']}, {result['runs']} runs, limit {result['time_limit_s']:g} s"]  # fmt: skip
     lines.append(f"  {'driver':<28} {'all 5':>6} {'passed':>7} {'time s':>16} {'distance m':>18} {'car s':>12} "
                  f"{'wall s':>12}")  # fmt: skip
+    def cell(s: dict[str, Any], metric: str, digits: int = 1) -> str:
+        m = s[metric]
+        return f"{m['mean']:.{digits}f}+-{m['std']:.{digits}f} ({m['best']:.{digits}f})"
+
     for row in result["drivers"]:
         s = row["summary"]
 
-        def cell(metric: str, digits: int = 1) -> str:
-            m = s[metric]
-            return f"{m['mean']:.{digits}f}+-{m['std']:.{digits}f} ({m['best']:.{digits}f})"
-
         lines.append(f"  {row['name']:<28} {s['all_overtaken_runs']:>3}/{s['runs']:<2} {s['overtaken']['mean']:>7.1f} "
-                     f"{cell('travel_time_s'):>16} {cell('travel_distance_m', 0):>18} {cell('car_contact_s'):>12} "
-                     f"{cell('wall_contact_s'):>12}")  # fmt: skip
+                     f"{cell(s, 'travel_time_s'):>16} {cell(s, 'travel_distance_m', 0):>18} "
+                     f"{cell(s, 'car_contact_s'):>12} {cell(s, 'wall_contact_s'):>12}")  # fmt: skip
     lines.append("  (mean+-std (best) over the runs)")
     lines.append(f"files: {result['files']['json']}, {result['files']['png']}")
     return lines
@@ -78,8 +78,9 @@ def format_curves(result: dict[str, Any]) -> list[str]:
         lines.append(f"{label}: {data['seeds_with_data']} seeds, {len(data['x'])} points, final mean return "
                      + ("-" if final is None else f"{final:.1f}"))  # fmt: skip
     if result.get("share_of_standard_steps") is not None:
-        lines.append(f"curriculum reaches standard SAC's final return at {result['curriculum_steps_to_standard_final']:.0f}"
-                     f" steps, {100 * result['share_of_standard_steps']:.0f} % of standard SAC's steps")  # fmt: skip
+        steps = result["curriculum_steps_to_standard_final"]
+        lines.append(f"curriculum reaches standard SAC's final return at {steps:.0f} steps, "
+                     f"{100 * result['share_of_standard_steps']:.0f} % of standard SAC's steps")  # fmt: skip
     lines.append(f"files: {result['files']['json']}, {result['files']['png']}")
     return lines
 

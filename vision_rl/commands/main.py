@@ -32,7 +32,10 @@ class Command:
 _C = "vision_rl.commands"
 
 COMMANDS: dict[str, Command] = {
-    "tracks": Command("list the tracks (built-in and racetrack-database); --check drives them", f"{_C}.tracks", "TracksOptions", "run_tracks"),
+    "tracks": Command(
+        "the tracks (built-in and racetrack-database); --check drives them", f"{_C}.tracks", "TracksOptions",
+        "run_tracks",
+    ),
     "limit": Command("physical-limit (QSS) lap time of a car", f"{_C}.limit", "LimitOptions", "run_limit"),
     "drive": Command("the built-in AI through the lap-time protocol", f"{_C}.drive", "DriveOptions", "run_drive"),
     "bench sim": Command("simulator throughput", f"{_C}.bench", "BenchSimOptions", "run_bench_sim"),

@@ -35,8 +35,8 @@ def format_train_overtaking(result: dict[str, Any]) -> list[str]:
                 else f"from step {b['start_steps']}" if b["start_steps"] is not None else "")
         crit = ""
         if b.get("criterion"):
-            crit = ", criterion " + ("met at %s steps" % b["criterion"]["met_at_steps"] if b["criterion"]["met"]
-                                     else "not met (step cap)")
+            met = b["criterion"]["met"]
+            crit = ", criterion " + (f"met at {b['criterion']['met_at_steps']} steps" if met else "not met (step cap)")
         lines.append(f"  {b['stage']:<14} {b['status']:<12} {span}, c_w = c_c = {b['penalty_c']}, "
                      f"buffer {b['buffer_size']}{crit}")
     if result.get("ai_lap_time_s") is not None:

@@ -4,7 +4,8 @@ loaded policy becomes.
 ``policy.json`` holds what evaluation needs to rebuild the policy's inputs exactly as in training:
 
 - ``format`` ("vision_rl.policy"), ``format_version`` (3), ``package_version``;
-- ``observation``: ``"state"`` (the 38-D privileged vector) or ``"vision"`` (64-D embedding + 11 dedicated features);
+- ``observation``: ``"state"`` (the 38-D privileged vector), ``"vision"`` (64-D embedding + 11 dedicated features)
+  or ``"overtaking"`` (the overtaking paper's 96-D vector, from train-overtaking);
 - ``racing_config``: the :class:`~vision_rl.envs.RacingConfig` trained on, as a dict;
 - ``obs_normalizer``: ``{"offset", "scale"}`` of the policy's input (state: the environment's cached statistics;
   vision: z-score statistics of the 75-D vector, computed once from a short disrupted-AI rollout);
@@ -58,7 +59,7 @@ MODEL_NAME = "policy.pt"
 BUFFER_NAME = "replay_buffer.npz"
 #: What format 2 stored the weights in.
 SB3_ZIP_NAME = "policy.zip"
-POLICY_KINDS = ("state", "vision")
+POLICY_KINDS = ("state", "vision", "overtaking")
 
 
 class PolicyError(ValueError):
@@ -81,9 +82,9 @@ def racing_config_from_dict(data: Mapping[str, Any]) -> RacingConfig:
 
 
 def obs_dim(kind: str, rep_dim: int = 64) -> int:
-    """Length of a policy's input vector: 38 (state) or rep_dim + 11 (vision)."""
-    if kind == "state":
-        return len(OBS_NAMES["state"])
+    """Length of a policy's input vector: 38 (state), 96 (overtaking) or rep_dim + 11 (vision)."""
+    if kind in OBS_NAMES:
+        return len(OBS_NAMES[kind])
     if kind == "vision":
         return rep_dim + len(DEDICATED_NAMES)
     raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {kind!r}")
