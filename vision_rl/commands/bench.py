@@ -91,3 +91,47 @@ def run_bench_render(opts: BenchRenderOptions) -> int:
     result["targets"] = RENDER_TARGETS
     emit(result, opts.json)
     return 0
+
+
+@dataclass(frozen=True)
+class BenchDDPGOptions:
+    """Measure the DDPG agent's update rate at the paper's batch 32 on random 89x120 frames, for each variant, in
+    eager (NCHW) and channels-last memory layout, side by side in one run."""
+
+    variants: str = "asymmetric,symmetric,state-actor"
+    """Variants to time, comma-separated."""
+    updates: int = 5
+    """Timed updates per case (after 2 untimed)."""
+    torch_threads: int = 1
+    """torch intra-op threads."""
+    json: bool = False
+    """Print the figures as JSON."""
+
+
+def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
+    import torch
+
+    from vision_rl.envs.pixel_racing import PixelRacingConfig
+    from vision_rl.phase2_rl.ddpg import DDPGHyper, bench_updates
+
+    if opts.updates < 1 or opts.torch_threads < 1:
+        raise ValueError("--updates and --torch-threads must be >= 1")
+    torch.set_num_threads(opts.torch_threads)
+    rows = []
+    for variant in [v.strip() for v in opts.variants.split(",") if v.strip()]:
+        env = PixelRacingConfig(frames=variant != "state-actor")
+        for channels_last in (False, True):
+            figures = bench_updates(DDPGHyper(variant=variant, channels_last=channels_last), env, opts.updates)
+            rounded = {k: round(v, 3) for k, v in figures.items()}
+            rows.append({"variant": variant, "channels_last": channels_last, "batch_size": 32,
+                         "image_hw_px": list(env.image_hw_px), **rounded})  # fmt: skip
+
+    def text(result):
+        return [
+            f"{r['variant']:<12} {'channels-last' if r['channels_last'] else 'eager (NCHW)':<14} "
+            f"{r['updates_per_s']:8.2f} updates/s  ({r['ms_per_update']:.0f} ms each)"
+            for r in result["rows"]
+        ]
+
+    emit({"torch_threads": opts.torch_threads, "rows": rows}, opts.json, text)
+    return 0

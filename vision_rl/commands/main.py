@@ -40,6 +40,7 @@ COMMANDS: dict[str, Command] = {
     "drive": Command("the built-in AI through the lap-time protocol", f"{_C}.drive", "DriveOptions", "run_drive"),
     "bench sim": Command("simulator throughput", f"{_C}.bench", "BenchSimOptions", "run_bench_sim"),
     "bench env": Command("environment throughput", f"{_C}.bench", "BenchEnvOptions", "run_bench_env"),
+    "bench ddpg": Command("DDPG updates/s per variant and layout", f"{_C}.bench", "BenchDDPGOptions", "run_bench_ddpg"),
     "bench render": Command("renderer and capture throughput", f"{_C}.bench", "BenchRenderOptions", "run_bench_render"),
     "capture": Command("record frames and targets to HDF5", f"{_C}.capture", "CaptureOptions", "run_capture"),
     "train-repr": Command(
