@@ -67,17 +67,18 @@ from vision_rl.phase2_rl.artifact import (
     BUFFER_NAME,
     MODEL_NAME,
     SIDECAR_NAME,
+    LoadedPolicy,
     PolicyDriver,
     PolicyError,
     PolicySpec,
+    load_policy,
     policy_fingerprint,
     racing_config_to_dict,
-    sac_policy,
+    resolve_policy_paths,
 )
 from vision_rl.phase2_rl.persist import (
     ArtifactError,
     atomic_write,
-    check_fingerprint,
     load_buffer,
     read_agent,
     restore_agent,
@@ -228,68 +229,12 @@ def read_overtaking_spec(path: str | os.PathLike[str]) -> OvertakingPolicySpec:
     return OvertakingPolicySpec.from_dict(data, str(path))
 
 
-@dataclass
-class OvertakingPolicy:
-    """A trained overtaking policy ready to drive."""
-
-    policy: Any
-    spec: OvertakingPolicySpec
-    weights_path: Path
-
-    @property
-    def config(self) -> RacingConfig:
-        return self.spec.config
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        action, _ = self.policy.predict(obs, deterministic=True)
-        return np.asarray(action, dtype=np.float64).reshape(len(obs), 2)
-
-    def driver(self) -> PolicyDriver:
-        """The policy as a protocol driver (its observer sees the cars of its collision group)."""
-        identity = {"driver": "policy", "observation": OBSERVATION, "policy": str(self.weights_path),
-                    "policy_sha256": self.spec.weights_sha256, "num_timesteps": self.spec.num_timesteps,
-                    "train_time_s": self.spec.train_time_s, "seed": self.spec.seed}  # fmt: skip
-        cfg = self.config
-        return PolicyDriver(self.act, OBSERVATION, self.spec.normalizer, None, cfg.image_hw_px, cfg.control_dt_s,
-                            identity)  # fmt: skip
-
-
-def resolve_overtaking_paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
-    """(weights, sidecar) of a stage folder, its ``policy.pt`` or its ``policy.json``."""
-    path = Path(path)
-    if path.is_dir():
-        sidecar = path / SIDECAR_NAME
-    elif path.suffix == ".json":
-        sidecar = path
-    else:
-        sidecar = path.with_suffix(".json") if path.name != MODEL_NAME else path.parent / SIDECAR_NAME
-    if not sidecar.is_file():
-        if not path.exists():
-            raise PolicyError(f"{path}: no such policy (give a stage folder of train-overtaking, e.g. RUN/stage2)")
-        raise PolicyError(f"{path}: no policy sidecar ({sidecar.name}) here")
-    weights = sidecar.parent / read_overtaking_spec(sidecar).model
-    if not weights.is_file():
-        raise PolicyError(f"{path}: no policy weights here (missing {weights})")
-    return weights, sidecar
-
-
-def load_overtaking_policy(path: str | os.PathLike[str], device: str = "cpu") -> OvertakingPolicy:
-    """Load an overtaking policy, checking its weights' SHA-256 and fingerprint against the sidecar and the track."""
-    weights, sidecar = resolve_overtaking_paths(path)
-    spec = read_overtaking_spec(sidecar)
-    expected = policy_fingerprint(spec.config, OBSERVATION, OBS_DIM, None)
-    try:
-        check_fingerprint(spec.fingerprint, expected, str(sidecar))
-        state = read_agent(weights, expected, spec.weights_sha256)
-        policy = sac_policy(OBS_DIM, spec.hidden_units, device)
-        policy.load_state_dict(state["policy"])
-    except ArtifactError as exc:
-        raise PolicyError(str(exc)) from None
-    except RuntimeError as exc:
-        raise PolicyError(f"{weights}: the weights do not fit a {spec.hidden_units} network of {OBS_DIM} inputs: "
-                          f"{str(exc).splitlines()[0]}") from None  # fmt: skip
-    policy.set_training_mode(False)
-    return OvertakingPolicy(policy, spec, weights)
+def load_overtaking_policy(path: str | os.PathLike[str], device: str = "cpu") -> LoadedPolicy:
+    """Load a policy of train-overtaking (a stage folder, its ``policy.pt`` or ``policy.json``) with
+    :func:`~vision_rl.phase2_rl.artifact.load_policy`'s checks, refusing one of another observation."""
+    _, sidecar = resolve_policy_paths(path)
+    read_overtaking_spec(sidecar)
+    return load_policy(path, device=device)
 
 
 # ------------------------------------------------------------------------------------------------- stages
@@ -860,7 +805,6 @@ def learning_curve(out: str | os.PathLike[str], agent: str) -> dict[str, Any]:
 __all__ = [
     "AGENTS",
     "BUDGETS",
-    "OvertakingPolicy",
     "OvertakingPolicySpec",
     "OvertakingRunError",
     "TrainOvertakingConfig",
