@@ -185,3 +185,7 @@ def test_train_ddpg_tiny_run_evaluates_saves_and_resumes(gl_available, track, tm
 
     timing = evaluate_ddpg(out, seeds=1, laps=1, time_limit_s=2.0)
     assert timing["n_seeds"] == 1 and timing["driver"]["variant"] == "asymmetric"
+    from vision_rl.evaluation.leaderboard import find_evaluations
+
+    (found,), refused = find_evaluations(out)  # the leaderboard reads it like a policy's
+    assert found["name"] == "ddpg asymmetric" and not refused

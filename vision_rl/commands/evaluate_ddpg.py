@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
-from pathlib import Path
 
 from vision_rl.commands.output import emit
 
@@ -32,19 +30,12 @@ class EvaluateDDPGOptions:
 
 def run_evaluate_ddpg(opts: EvaluateDDPGOptions) -> int:
     from vision_rl.commands.evaluate import format_timing
-    from vision_rl.phase2_rl.ddpg import resolve_agent_path
     from vision_rl.phase2_rl.ddpg_train import evaluate_ddpg
 
     if not opts.agent:
         raise ValueError("--agent is required: a train-ddpg run folder or its ddpg.pt")
     if opts.seeds < 1 or opts.laps < 1 or opts.time_limit_s < 0:
         raise ValueError("--seeds and --laps must be >= 1 and --time-limit-s >= 0")
-    result = evaluate_ddpg(opts.agent, opts.seeds, opts.laps, opts.variant or None, opts.time_limit_s)
-    result["name"] = f"ddpg {result['driver']['variant']}"
-    result["driver"]["observation"] = f"ddpg {result['driver']['variant']}"
-    if opts.save:
-        path = resolve_agent_path(opts.agent).with_name("evaluation.json")
-        path.write_text(json.dumps(result, indent=2))
-        result["evaluation_json"] = str(Path(path))
+    result = evaluate_ddpg(opts.agent, opts.seeds, opts.laps, opts.variant or None, opts.time_limit_s, opts.save)
     emit(result, opts.json, format_timing)
     return 0

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
+from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.protocol import time_laps
 from vision_rl.phase2_rl.ddpg import (
     AGENT_NAME,
@@ -391,9 +392,10 @@ def train_ddpg(cfg: TrainDDPGConfig, progress: Progress | None = None) -> dict[s
 
 
 def evaluate_ddpg(path: str | os.PathLike[str], seeds: int = 3, laps: int = 2, variant: str | None = None,
-                  time_limit_s: float = 0.0) -> dict[str, Any]:  # fmt: skip
-    """Time a saved agent (a run folder or its ddpg.pt) with the lap-time protocol on its own track and car."""
-    from vision_rl.phase2_rl.ddpg import load_agent
+                  time_limit_s: float = 0.0, write: bool = True) -> dict[str, Any]:  # fmt: skip
+    """Time a saved agent (a run folder or its ddpg.pt) with the lap-time protocol on its own track and car; with
+    ``write``, the record goes to ``evaluation.json`` beside it, where the leaderboard finds it."""
+    from vision_rl.phase2_rl.ddpg import load_agent, resolve_agent_path
 
     agent = load_agent(path, variant=variant)
     driver = DDPGDriver(agent)
@@ -401,7 +403,12 @@ def evaluate_ddpg(path: str | os.PathLike[str], seeds: int = 3, laps: int = 2, v
         timing = time_laps(driver, agent.env.track, agent.env.car, range(seeds), laps, time_limit_s=time_limit_s)
     finally:
         driver.close()
-    summary = timing.summary()
-    summary["driver"] = {"driver": "ddpg", "variant": agent.hyper.variant, "agent": str(path),
-                         "counters": getattr(agent, "counters", {})}  # fmt: skip
-    return summary
+    variant = agent.hyper.variant
+    identity = {"driver": "ddpg", "variant": variant, "observation": f"ddpg {variant}", "agent": str(path),
+                "counters": getattr(agent, "counters", {})}  # fmt: skip
+    record = evaluation_record(timing, identity, f"ddpg {variant}")
+    if write:
+        out = resolve_agent_path(path).with_name("evaluation.json")
+        atomic_write(out, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
+        record["evaluation_json"] = str(out)
+    return record
