@@ -123,8 +123,10 @@ def save_checkpoint(
         os.replace(tmp, path)  # a crash mid-write never leaves a half checkpoint under the real name
     except (OSError, RuntimeError) as exc:  # torch reports a failed write as RuntimeError too
         tmp.unlink(missing_ok=True)
-        code = getattr(exc, "errno", None) or (errno.ENOSPC if "No space left" in str(exc) else errno.EIO)
-        raise OSError(code, f"{path}: cannot write the checkpoint ({exc}); no partial file was left") from exc
+        error = OSError(f"{path}: cannot write the checkpoint ({getattr(exc, 'strerror', None) or exc}); no partial "
+                        "file was left")  # fmt: skip
+        error.errno = getattr(exc, "errno", None) or (errno.ENOSPC if "No space left" in str(exc) else errno.EIO)
+        raise error from exc
     return path
 
 

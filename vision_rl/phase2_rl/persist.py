@@ -13,6 +13,7 @@ failed write (a full disk) raises :class:`ArtifactWriteError` naming the file an
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import os
@@ -52,10 +53,12 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None]) ->
         write(tmp)
         sha256 = file_sha256(tmp)
         os.replace(tmp, path)
-    except OSError as exc:
+    except (OSError, RuntimeError) as exc:  # torch reports a failed write (a full disk) as RuntimeError
         tmp.unlink(missing_ok=True)
-        message = f"cannot write {path}: {exc.strerror or exc}; the previous file is kept"
-        raise ArtifactWriteError(exc.errno, message) from None
+        reason = getattr(exc, "strerror", None) or str(exc).strip().splitlines()[0]
+        error = ArtifactWriteError(f"cannot write {path}: {reason}; the previous file is kept")
+        error.errno = getattr(exc, "errno", None) or (errno.ENOSPC if "space" in str(exc) else errno.EIO)
+        raise error from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
