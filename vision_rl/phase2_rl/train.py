@@ -89,10 +89,10 @@ PRESETS: dict[str, SACPreset] = {
     # after each "epoch" of 20 trials on the console).
     "paper": SACPreset((256, 256), 4096, 1_000_000, 40_000, 1e-3, 0.99, 0.005, 1, 1, 0),
     # Chosen by measurement on the shared 2-core CPU: SB3 SAC 2 x 256 on one thread did 63 updates/s at batch 256,
-    # 42 at 512 and 24 at 1,024 (ARCHITECTURE: about 6 at 4,096), and a vector step of 20 state cars costs about
+    # 42 at 512 and 24 at 1,024 (about 6 at 4,096), and a vector step of 20 state cars costs about
     # 1.2 ms, so one update per vector step spends ~90 % of the time on updates and still collects ~1,100
     # transitions/s. With lr 1e-3 (the paper's) the agent drove two whole laps of the expressway after 200k steps
-    # (3 min); with 3e-4 after 300k; both then stayed at 2:16-2:21 over 20-40 min (Phase-2 report). One torch
+    # (3 min); with 3e-4 after 300k; both then stayed at 2:16-2:21 over 20-40 min of training. One torch
     # thread leaves the other core to the simulator and to neighbours.
     "cpu": SACPreset((256, 256), 256, 1_000_000, 10_000, 1e-3, 0.99, 0.005, 1, 1, 1),
 }
