@@ -17,6 +17,14 @@ class ExperimentOptions(TrainPolicyConfig):
 
     seeds: str = "0,1,2"
     """Training seeds, comma-separated (each trains its own policy)."""
+    out: str = ""
+    """Experiment folder (default runs/experiment/<kind>-<track>-<car>); one train-policy run per seed inside."""
+    seed: int = 0
+    """Unused here: --seeds gives the training seeds."""
+    resume: bool = False
+    """Unused here: an experiment always resumes its unfinished seeds."""
+    force: bool = False
+    """Unused here: an experiment folder is never overwritten (use another --out)."""
     eval_seeds: int = 3
     """Start seeds of each policy's evaluation."""
     name: str = ""
