@@ -59,7 +59,7 @@ def test_the_same_training_seed_gives_the_same_transitions(small_track, tmp_path
 
 
 def test_an_experiment_resumes_only_unfinished_seeds_and_refuses_another_recipe(small_track, tmp_path, monkeypatch):
-    cfg = tiny_train_config(small_track, tmp_path / "unused", steps=120, eval_every_steps=0, checkpoint_every_steps=0)
+    cfg = tiny_train_config(small_track, tmp_path / "unused", steps=120, eval_every_steps=100, checkpoint_every_steps=0)
     out = tmp_path / "exp"
     result = run_experiment(cfg, (0, 1), out, eval_seeds=2, name="tiny")
     s = result["summary"]
@@ -68,6 +68,9 @@ def test_an_experiment_resumes_only_unfinished_seeds_and_refuses_another_recipe(
     assert stored["summary"] == s and stored["observation"] == "state" and stored["steps"] == 120
     for seed in (0, 1):
         assert json.loads((out / f"seed-{seed}" / "evaluation.json").read_text())["name"] == f"tiny/seed-{seed}"
+    curves = json.loads((out / "learning_curves.json").read_text())
+    assert sorted(curves["per_seed"]) == ["0", "1"] and curves["num_timesteps"] == [100]
+    assert (out / "learning_curves.png").stat().st_size > 1000
 
     trained = []
     real_train = experiment_module.train_policy

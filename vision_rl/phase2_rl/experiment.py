@@ -17,12 +17,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from vision_rl.evaluation.leaderboard import EXPERIMENT_FORMAT, aggregate_seeds
 from vision_rl.phase1_repr.checkpoint import checkpoint_sha256
 from vision_rl.phase2_rl.artifact import SIDECAR_NAME, PolicySpec
 from vision_rl.phase2_rl.evaluate import evaluate_policy
 from vision_rl.phase2_rl.persist import atomic_write
-from vision_rl.phase2_rl.train import Progress, TrainPolicyConfig, train_policy
+from vision_rl.phase2_rl.train import METRICS_NAME, Progress, TrainPolicyConfig, read_metrics, train_policy
 
 EXPERIMENT_NAME = "experiment.json"
 #: Options that may differ between sessions of one experiment (they change where and how, not what is trained).
@@ -120,5 +122,55 @@ def run_experiment(
          "wall_contact_s": None if e["best_lap"] is None else e["best_lap"]["wall_contact_s"]}
         for seed, e in zip(seeds, evaluations, strict=True)
     ]  # fmt: skip
+    record["learning_curves"] = write_learning_curves(root, seeds, evaluations[0]["limit_lap_time_s"])
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
     return {**record, "experiment_json": str(path)}
+
+
+def learning_curves(root: str | os.PathLike[str], seeds: tuple[int, ...]) -> dict[str, Any]:
+    """The periodic evaluations of every seed's run (``metrics.jsonl``: the protocol's lap against environment
+    steps and training seconds) and their mean over the seeds that finished the lap at each step."""
+    per_seed = {}
+    for seed in seeds:
+        records = read_metrics(Path(root) / f"seed-{seed}" / METRICS_NAME)
+        per_seed[seed] = {
+            "num_timesteps": [r["num_timesteps"] for r in records],
+            "train_time_s": [r["train_time_s"] for r in records],
+            "lap_time_s": [r["lap_time_s"] for r in records],
+        }
+    steps = sorted({n for c in per_seed.values() for n in c["num_timesteps"]})
+    mean, finished = [], []
+    for n in steps:
+        laps = [c["lap_time_s"][c["num_timesteps"].index(n)] for c in per_seed.values() if n in c["num_timesteps"]]
+        done = [t for t in laps if t is not None]
+        mean.append(float(np.mean(done)) if done else None)
+        finished.append(f"{len(done)}/{len(laps)}")
+    return {"per_seed": per_seed, "num_timesteps": steps, "mean_lap_time_s": mean, "seeds_finished": finished}
+
+
+def write_learning_curves(root: str | os.PathLike[str], seeds: tuple[int, ...], limit_lap_time_s: float) -> dict:
+    """:func:`learning_curves` as ``learning_curves.json`` and ``learning_curves.png`` in the experiment folder."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    root = Path(root)
+    curves = learning_curves(root, seeds)
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for seed, c in curves["per_seed"].items():
+        y = [np.nan if t is None else t for t in c["lap_time_s"]]
+        ax.plot(c["num_timesteps"], y, "o-", lw=0.8, ms=3, alpha=0.6, label=f"seed {seed}")
+    y = [np.nan if t is None else t for t in curves["mean_lap_time_s"]]
+    ax.plot(curves["num_timesteps"], y, "k-", lw=2, label="mean of the seeds that finished")
+    ax.axhline(limit_lap_time_s, color="grey", ls="--", lw=1, label="physical limit (QSS)")
+    ax.set_xlabel("environment steps (transitions over all cars)")
+    ax.set_ylabel("protocol lap 2, s (missing: no lap)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    png = root / "learning_curves.png"
+    atomic_write(png, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    plt.close(fig)
+    data = root / "learning_curves.json"
+    atomic_write(data, lambda tmp: tmp.write_text(json.dumps(curves, indent=2)))
+    return {"png": str(png), "json": str(data)}
