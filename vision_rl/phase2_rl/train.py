@@ -276,6 +276,7 @@ class _Run:
             )  # fmt: skip
             self.start_steps = 0
             self.train_time_before_s = 0.0
+        self.seed = self.previous.seed if self.previous is not None else cfg.seed  # a resumed run keeps its own
         if self.preset.torch_threads > 0:
             torch.set_num_threads(self.preset.torch_threads)
         self.session_start = time.perf_counter()
@@ -286,7 +287,7 @@ class _Run:
         from vision_rl.phase1_repr.checkpoint import checkpoint_sha256, load_encoder
 
         # A resumed session draws new start points: reusing the first session's would replay its episodes.
-        venv = make_sb3_vec_env(self.racing, seed=self.cfg.seed + self.start_steps)
+        venv = make_sb3_vec_env(self.racing, seed=self.seed + self.start_steps)
         self.venv = venv
         core = venv.core
         if self.kind == "vision":
@@ -318,7 +319,7 @@ class _Run:
             "MlpPolicy", env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
             learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
             train_freq=(p.train_freq_steps, "step"), gradient_steps=p.gradient_steps,
-            policy_kwargs={"net_arch": list(p.hidden_units)}, seed=self.cfg.seed + self.start_steps,
+            policy_kwargs={"net_arch": list(p.hidden_units)}, seed=self.seed + self.start_steps,
             device=self.device, verbose=0,
         )  # fmt: skip
         encoder_sha = self.encoder_sha256 if self.kind == "vision" else None
@@ -412,7 +413,7 @@ class _Run:
             model=weights_name,
             preset=self.previous.preset if self.previous is not None else self.cfg.preset,
             sac=json.loads(json.dumps(sac)),
-            seed=self.previous.seed if self.previous is not None else self.cfg.seed,
+            seed=self.seed,
             num_timesteps=int(model.num_timesteps),
             train_time_s=round(self.train_time_s, 2),
             # A resumed run keeps the options it was started with (its track, car and cars win over the new ones).
