@@ -46,8 +46,10 @@ def format_experiment(result: dict[str, Any]) -> list[str]:
         f"  lap 2 mean {format_lap_time(s['lap_time_mean_s'])}{spread} over {s['n_training_seeds_finished']} "
         f"seeds that finished; best {format_lap_time(s['best_lap_time_s'])}; starts finished {s['finished']}",
     ]
-    lines += [f"  seed {r['seed']}: {format_lap_time(r['lap_time_s'])} ({r['finished']} finished, wall contact "
-              f"{r['wall_contact_s'] if r['wall_contact_s'] is not None else '-'} s)" for r in result["per_seed"]]
+    for r in result["per_seed"]:
+        wall = "-" if r["wall_contact_s"] is None else f"{r['wall_contact_s']:.2f} s"
+        lines.append(f"  seed {r['seed']}: {format_lap_time(r['lap_time_s'])} ({r['finished']} finished, wall contact "
+                     f"{wall})")  # fmt: skip
     lines.append(f"  record: {result['experiment_json']}")
     return lines
 
