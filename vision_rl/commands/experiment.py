@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import signal
 from dataclasses import dataclass, fields
 from typing import Any
 
-from vision_rl.commands.output import emit, progress_bar, show
+from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.phase2_rl.train import TrainPolicyConfig
 
 
@@ -54,16 +53,12 @@ def format_experiment(result: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
 def run_experiment_command(opts: ExperimentOptions) -> int:
     from vision_rl.phase2_rl.experiment import parse_seeds, run_experiment
 
     seeds = parse_seeds(opts.seeds)
     train = TrainPolicyConfig(**{f.name: getattr(opts, f.name) for f in fields(TrainPolicyConfig)})
-    previous = signal.signal(signal.SIGTERM, _interrupt)
+    previous = interrupt_on_sigterm()
     try:
         with progress_bar(opts.steps * len(seeds), "step", "experiment", enabled=opts.progress) as bar:
             done = {"seeds": 0}
@@ -80,6 +75,6 @@ def run_experiment_command(opts: ExperimentOptions) -> int:
              lambda r: ["interrupted: the finished seeds and the current run are saved; run the same command again"])
         return 130
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        restore_sigterm(previous)
     emit(result, opts.json, format_experiment)
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -37,3 +38,18 @@ def show(bar: Any, done: int, total: int | None = None, **postfix: Any) -> None:
     if postfix:
         bar.set_postfix(postfix, refresh=False)
     bar.update(0)
+
+
+
+def _raise_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def interrupt_on_sigterm() -> Any:
+    """Make SIGTERM (a scheduler's stop, ``kill``) interrupt like Ctrl-C, so a trainer saves and exits cleanly (a
+    job started in the background of a non-interactive shell ignores SIGINT); returns the handler to restore."""
+    return signal.signal(signal.SIGTERM, _raise_interrupt)
+
+
+def restore_sigterm(previous: Any) -> None:
+    signal.signal(signal.SIGTERM, previous)

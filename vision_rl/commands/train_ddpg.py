@@ -3,11 +3,10 @@ vision_rl/PixelRacing-v0, and its ablations (--variant symmetric, state-actor)."
 
 from __future__ import annotations
 
-import signal
 from dataclasses import dataclass
 from typing import Any
 
-from vision_rl.commands.output import emit, progress_bar, show
+from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig
 
 
@@ -42,16 +41,12 @@ def format_train_ddpg(result: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
 def run_train_ddpg(opts: TrainDDPGOptions) -> int:
     """SIGTERM saves and exits like Ctrl-C (a background job of a non-interactive shell ignores SIGINT). Exit code
     130 after an interruption."""
     from vision_rl.phase2_rl.ddpg_train import train_ddpg
 
-    previous = signal.signal(signal.SIGTERM, _interrupt)
+    previous = interrupt_on_sigterm()
     try:
         with progress_bar(opts.steps, "step", "train-ddpg", enabled=opts.progress) as bar:
 
@@ -61,6 +56,6 @@ def run_train_ddpg(opts: TrainDDPGOptions) -> int:
 
             result = train_ddpg(opts, progress)
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        restore_sigterm(previous)
     emit(result, opts.json, format_train_ddpg)
     return 130 if result["interrupted"] else 0

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import signal
 from dataclasses import dataclass
 from typing import Any
 
-from vision_rl.commands.output import emit, progress_bar, show
+from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.phase2_rl.overtaking import TrainOvertakingConfig
 
 #: ``--quick``: the whole chain at tiny sizes (2 cars, a few hundred steps per stage, short evaluations).
@@ -44,10 +43,6 @@ def format_train_overtaking(result: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
 def run_train_overtaking(opts: TrainOvertakingOptions) -> int:
     """SIGTERM saves and exits like Ctrl-C (exit 130); the same command continues the run."""
     import dataclasses
@@ -62,7 +57,7 @@ def run_train_overtaking(opts: TrainOvertakingOptions) -> int:
     cfg = TrainOvertakingConfig(**values)
     check_config(cfg)
     total = sum(s.steps for s in stages_of(cfg))
-    previous = signal.signal(signal.SIGTERM, _interrupt)
+    previous = interrupt_on_sigterm()
     try:
         with progress_bar(total, "step", f"train-overtaking {cfg.agent}", enabled=opts.progress) as bar:
 
@@ -74,6 +69,6 @@ def run_train_overtaking(opts: TrainOvertakingOptions) -> int:
 
             result = train_overtaking(cfg, progress)
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        restore_sigterm(previous)
     emit(result, opts.json, format_train_overtaking)
     return 130 if result["interrupted"] else 0

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import signal
 from dataclasses import dataclass
 from typing import Any
 
-from vision_rl.commands.output import emit, progress_bar, show
+from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.phase2_rl.train import TrainPolicyConfig
 
 
@@ -36,17 +35,13 @@ def format_train_policy(result: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
 def run_train_policy(opts: TrainPolicyOptions) -> int:
     """SIGTERM (a scheduler's stop, ``kill``) saves and exits like Ctrl-C: a job started in the background of a
     non-interactive shell ignores SIGINT. Exit code 130 after an interruption."""
     from vision_rl.evaluation.outputs import format_lap_time
     from vision_rl.phase2_rl.train import train_policy
 
-    previous = signal.signal(signal.SIGTERM, _interrupt)
+    previous = interrupt_on_sigterm()
     try:
         with progress_bar(opts.steps, "step", "train-policy", enabled=opts.progress) as bar:
 
@@ -56,6 +51,6 @@ def run_train_policy(opts: TrainPolicyOptions) -> int:
 
             result = train_policy(opts, progress)
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        restore_sigterm(previous)
     emit(result, opts.json, format_train_policy)
     return 130 if result["interrupted"] else 0

@@ -85,7 +85,7 @@ from vision_rl.phase2_rl.persist import (
     save_agent,
     save_buffer,
 )
-from vision_rl.phase2_rl.train import PRESETS, SACPreset
+from vision_rl.phase2_rl.train import PRESETS, resolve_preset
 
 OBSERVATION = "overtaking"
 OBS_DIM = len(OBS_NAMES[OBSERVATION])
@@ -267,19 +267,6 @@ class Stage:
         return dataclasses.asdict(self)
 
 
-def resolve_sac(cfg: TrainOvertakingConfig) -> SACPreset:
-    if cfg.preset not in PRESETS:
-        raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
-    overrides = {
-        "learning_rate": cfg.learning_rate if cfg.learning_rate > 0 else None,
-        "batch_size": cfg.batch_size if cfg.batch_size > 0 else None,
-        "buffer_size": cfg.buffer_size if cfg.buffer_size > 0 else None,
-        "learning_starts": cfg.learning_starts if cfg.learning_starts >= 0 else None,
-        "gradient_steps": cfg.gradient_steps if cfg.gradient_steps > 0 else None,
-    }
-    return dataclasses.replace(PRESETS[cfg.preset], **{k: v for k, v in overrides.items() if v is not None})
-
-
 def resolve_budget(cfg: TrainOvertakingConfig) -> CurriculumBudget:
     base = BUDGETS[cfg.preset]
     return CurriculumBudget(
@@ -290,7 +277,7 @@ def resolve_budget(cfg: TrainOvertakingConfig) -> CurriculumBudget:
 
 def stages_of(cfg: TrainOvertakingConfig) -> list[Stage]:
     """The chain of stages that makes ``cfg.agent``."""
-    sac, budget = resolve_sac(cfg), resolve_budget(cfg)
+    sac, budget = resolve_preset(cfg), resolve_budget(cfg)
     if cfg.agent == "standard":
         steps = cfg.standard_steps or budget.stage1_max_steps + budget.stage2_steps + budget.stage3_steps
         return [Stage("standard", "stage2", PENALTY_STAGE2, steps, sac.buffer_size, None)]
@@ -312,7 +299,7 @@ def shared_settings(cfg: TrainOvertakingConfig) -> dict[str, Any]:
     budget = resolve_budget(cfg)
     return {
         "track": cfg.track, "car": cfg.car, "cars": cfg.cars, "seed": cfg.seed, "preset": cfg.preset,
-        "sac": json.loads(json.dumps(dataclasses.asdict(resolve_sac(cfg)))),
+        "sac": json.loads(json.dumps(dataclasses.asdict(resolve_preset(cfg)))),
         "stage1_max_steps": budget.stage1_max_steps, "stage1_margin": cfg.stage1_margin,
         "stage2_steps": budget.stage2_steps, "episode_s": cfg.episode_s,
         "overtake_gain_c_r": cfg.overtake_gain_c_r, "detection_range_c_d_m": cfg.detection_range_c_d_m,
@@ -344,7 +331,7 @@ def check_config(cfg: TrainOvertakingConfig) -> None:
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
         raise ValueError(f"--{bad[0].replace('_', '-')} {getattr(cfg, bad[0])} is out of range")
-    sac = resolve_sac(cfg)
+    sac = resolve_preset(cfg)
     for stage in stages_of(cfg):
         if stage.buffer_size < cfg.cars:
             raise ValueError(f"{stage.name}: a buffer of {stage.buffer_size} transitions holds less than one step "
@@ -684,7 +671,7 @@ class OvertakingRun:
         self.cfg = cfg
         self.out = Path(cfg.out) if cfg.out else default_out(cfg)
         self.device = _device(cfg.device)
-        self.sac = resolve_sac(cfg)
+        self.sac = resolve_preset(cfg)
         self.settings = shared_settings(cfg)
         self.stages = stages_of(cfg)
         run_path = self.out / RUN_NAME

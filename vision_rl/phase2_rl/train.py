@@ -156,9 +156,11 @@ class TrainPolicyConfig:
     """Vision: `auto` (ONNX Runtime on a CPU when installed, 2-6x faster than torch here), torch or onnxruntime."""
 
 
-def resolve_preset(cfg: TrainPolicyConfig) -> SACPreset:
+def resolve_preset(cfg: Any) -> SACPreset:
+    """The preset ``cfg.preset`` with ``cfg``'s overrides (learning_rate, batch_size, buffer_size, learning_starts,
+    gradient_steps; 0 or -1: the preset's); any trainer's config with those fields."""
     if cfg.preset not in PRESETS:
-        raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
+        raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
     preset = PRESETS[cfg.preset]
     overrides = {
         "learning_rate": cfg.learning_rate if cfg.learning_rate > 0 else None,
