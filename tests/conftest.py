@@ -51,3 +51,16 @@ def pytest_addoption(parser):
         default="",
         help="write the fault suite's outcomes (tests/faults) as a Markdown table to this path (make faults)",
     )
+
+
+@pytest.fixture(scope="session")
+def ray_local():
+    """A local Ray cluster of 2 CPUs shared by every test that needs one (starting one costs about 5 s); skipped
+    with the reason only when Ray is not installed (the dev extra installs it)."""
+    ray = pytest.importorskip("ray", reason="Ray is not installed: pip install 'vision_rl[ray]'")
+    os.environ.setdefault("RAY_AUTH_MODE", "disabled")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
