@@ -15,7 +15,7 @@ import numpy as np
 
 from vision_rl.envs import observations as obs_lib
 from vision_rl.envs.observer import OBSERVATION_KINDS, Observer
-from vision_rl.envs.rewards import overtaking_reward, racing_reward, wrapped_gap_m
+from vision_rl.envs.rewards import overtaking_reward, racing_reward, steering_change_penalty, wrapped_gap_m
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE, Disruptor
 from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector
@@ -57,6 +57,9 @@ class RacingConfig:
     """Episode length, s: the papers' 100 s trials (1,000 steps at 10 Hz); the end is a truncation."""
     wall_penalty_c_w: float = 0.005
     """c_w of the racing reward (overtaking paper, section IV-B: 0.005)."""
+    steer_change_penalty_c_s: float = 0.0
+    """c_s of a penalty ``c_s * (change of the steering command / its limit)^2`` per step, against bang-bang
+    steering (not in the papers; 0: their reward)."""
     car_penalty_c_c: float = 0.005
     """c_c of the overtaking reward (section IV-B: 0.005)."""
     overtake_gain_c_r: float = 1.0
@@ -133,6 +136,7 @@ class RacingCore:
         m = cfg.n_groups
         self.steps = np.zeros(m, dtype=np.int64)
         self.progress_m = np.zeros(m)
+        self.steer_command_rad = np.zeros(m)
         self.start_gap_m = np.zeros((m, cfg.opponents))
         self.gap_m = np.zeros((m, cfg.opponents))
         self.stuck = StuckDetector(self.world.state.unwrapped_s_m[self.ego_ids], cfg.control_dt_s)
@@ -175,6 +179,8 @@ class RacingCore:
         self.unwrapped_at_reset[car_ids] = self.world.state.unwrapped_s_m[car_ids]
         self.steps[gids] = 0
         self.progress_m[gids] = 0.0
+        # An episode starts from the wheel angle the car was placed with, so a first command that keeps it is free.
+        self.steer_command_rad[gids] = self.world.state.vehicle.steer_rad[self.ego_ids[gids]]
         self.stuck.reset(gids, self.world.state.unwrapped_s_m[self.ego_ids])
         if k > 1:
             self.gap_m[gids] = self._gaps()[gids]
@@ -229,14 +235,18 @@ class RacingCore:
         actions = np.asarray(actions, dtype=np.float64).reshape(cfg.n_groups, 2)
         st = self.world.state
         s_prev = st.s_m[self.ego_ids].copy()
-        events = self.advance(
-            np.clip(actions[:, 0], -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD), np.clip(actions[:, 1], -1.0, 1.0)
-        )
+        steer_rad = np.clip(actions[:, 0], -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
+        events = self.advance(steer_rad, np.clip(actions[:, 1], -1.0, 1.0))
         st = self.world.state
         ego = self.ego_ids
         progress = self.track.progress_delta(s_prev, st.s_m[ego])
         speed = np.hypot(st.vehicle.vx_mps[ego], st.vehicle.vy_mps[ego])
         reward = racing_reward(progress, st.wall_contact[ego], speed, cfg.wall_penalty_c_w)
+        if cfg.steer_change_penalty_c_s > 0:
+            reward = reward - steering_change_penalty(
+                self.steer_command_rad, steer_rad, ACTION_STEER_LIMIT_RAD, cfg.steer_change_penalty_c_s
+            )
+        self.steer_command_rad = steer_rad
         if self.group_size > 1:
             gap_now = self._gaps()
             reward = overtaking_reward(

@@ -88,7 +88,9 @@ class TimeTrial(_RacingEnv):
     ## Rewards
     ``r = (cp_t - cp_{t-1}) - c_w * wall * |v|^2``: centre-line progress in metres over the step (signed, so
     reversing is negative, and correct across the start/finish line) minus ``c_w`` (default 0.005) times the
-    squared speed while touching a wall (overtaking paper Eq. 1, vision paper Eq. 3).
+    squared speed while touching a wall (overtaking paper Eq. 1, vision paper Eq. 3). Optional, not in the papers
+    (off by default): ``- c_s * (change of the steering command / pi/6)^2`` with ``steer_change_penalty_c_s``, against
+    the bang-bang steering SAC learns on the papers' reward.
 
     ## Starting State
     A uniformly random point of the track, on the built-in AI's racing line, heading along the track at the AI's
@@ -106,8 +108,8 @@ class TimeTrial(_RacingEnv):
 
     ## Arguments
     Any field of :class:`vision_rl.envs.core.RacingConfig`: ``track`` (built-in name, ``random:SEED``, CSV path),
-    ``car``, ``observation``, ``control_dt_s``, ``episode_s``, ``wall_penalty_c_w``, ``terminate_when_stuck``,
-    ``normalize``, ``image_hw_px``. For 20 cars in one world use :func:`vision_rl.envs.make_vector_env`.
+    ``car``, ``observation``, ``control_dt_s``, ``episode_s``, ``wall_penalty_c_w``, ``steer_change_penalty_c_s``,
+    ``terminate_when_stuck``, ``normalize``, ``image_hw_px``. For 20 cars in one world use :func:`vision_rl.envs.make_vector_env`.
 
     ## Version History
     - v1: the world steps at the built-in AI's 0.02 s (an action is held over the five substeps, the same physics

@@ -138,6 +138,8 @@ class TrainPolicyConfig:
     """Training episode length, s (the papers' 100 s trials)."""
     wall_penalty_c_w: float = 0.005
     """c_w of the reward's wall penalty."""
+    steer_change_penalty_c_s: float = 0.0
+    """c_s of the reward's steering-change penalty ``c_s * (change / limit)^2`` (0: the papers' reward)."""
     stats_steps: int = 50
     """Vision: control steps of the feature-statistics rollout."""
     learning_rate: float = 0.0
@@ -275,6 +277,7 @@ class _Run:
             self.racing = RacingConfig(
                 track=cfg.track, car=cfg.car, observation=self.kind, n_groups=cfg.cars, episode_s=cfg.episode_s,
                 wall_penalty_c_w=cfg.wall_penalty_c_w, image_hw_px=image_hw,
+                steer_change_penalty_c_s=cfg.steer_change_penalty_c_s,
             )  # fmt: skip
             self.start_steps = 0
             self.train_time_before_s = 0.0
@@ -451,7 +454,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "eval_seeds": cfg.eval_seeds >= 1 or cfg.eval_every_steps == 0, "eval_laps": cfg.eval_laps >= 1,
         "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
         "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "episode_s": cfg.episode_s > 0,
-        "wall_penalty_c_w": cfg.wall_penalty_c_w >= 0, "stats_steps": cfg.stats_steps >= 1,
+        "wall_penalty_c_w": cfg.wall_penalty_c_w >= 0,
+        "steer_change_penalty_c_s": cfg.steer_change_penalty_c_s >= 0, "stats_steps": cfg.stats_steps >= 1,
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0,
     }  # fmt: skip
