@@ -73,6 +73,16 @@ COMMANDS: dict[str, Command] = {
         "settings A/B of the overtaking paper (or --curves: Fig. 3)", f"{_C}.evaluate_overtaking",
         "EvaluateOvertakingOptions", "run_evaluate_overtaking",
     ),
+    "record-demos": Command(
+        "the built-in AI's demonstrations of the single-car race", f"{_C}.record_demos", "RecordDemosOptions",
+        "run_record_demos",
+    ),
+    "train-baseline": Command(
+        "a Table III baseline (bc, gail, td3, sac) on the single-car race", f"{_C}.train_baseline",
+        "TrainBaselineOptions", "run_train_baseline",
+    ),
+    "table3": Command("Table III: AI and baselines on the protocol, beside the paper", f"{_C}.table3", "Table3Options",
+                      "run_table3"),
     "pipeline": Command("the whole job (--quick: small)", f"{_C}.pipeline", "PipelineOptions", "run_pipeline"),
     "train-ddpg": Command(
         "DDPG, asymmetric actor-critic from pixels", f"{_C}.train_ddpg", "TrainDDPGOptions", "run_train_ddpg"
