@@ -1,0 +1,43 @@
+"""`record-demos`: demonstrations of the single-car race for the imitation baselines (BC, GAIL)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from vision_rl.commands.output import emit, progress_bar, show
+from vision_rl.phase2_rl.demos import RecordDemosConfig
+
+
+@dataclass(frozen=True)
+class RecordDemosOptions(RecordDemosConfig):
+    """The built-in AI's demonstrations (observations, actions, rewards, episode starts) of the single-car race, in
+    the environment's 10 Hz action space, to a file without pickle with a checksum and fingerprint."""
+
+    progress: bool = True
+    """Show a progress bar on stderr."""
+    json: bool = False
+    """Print the result as JSON."""
+
+
+def format_record_demos(result: dict[str, Any]) -> list[str]:
+    return [
+        f"{result['out']}: {result['n_transitions']} transitions in {result['n_episodes']} episodes, "
+        f"{result['laps_driven']:.2f} laps, mean reward {result['mean_reward']:.3f} per step",
+        f"demonstrator: {result['demonstrator']['driver']} (skill {result['demonstrator']['skill']})",
+        f"recorded in {result['record_time_s']:.1f} s ({result['transitions_per_s']:.0f} transitions/s)",
+    ]
+
+
+def run_record_demos(opts: RecordDemosOptions) -> int:
+    import dataclasses
+
+    from vision_rl.phase2_rl.demos import check_record_config, record_demos
+
+    fields = {f.name for f in dataclasses.fields(RecordDemosConfig)}
+    cfg = RecordDemosConfig(**{k: v for k, v in dataclasses.asdict(opts).items() if k in fields})
+    check_record_config(cfg)
+    with progress_bar(None, "lap", "record-demos", enabled=opts.progress) as bar:
+        result = record_demos(cfg, lambda done, total: show(bar, int(done), int(total) or None))
+    emit(result, opts.json, format_record_demos)
+    return 0

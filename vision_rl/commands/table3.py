@@ -1,0 +1,64 @@
+"""`table3`: the overtaking paper's Table III on our simulator, beside the paper's, as ratios to each table's AI."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from vision_rl.commands.output import emit
+from vision_rl.phase2_rl.table3 import Table3Config
+
+
+@dataclass(frozen=True)
+class Table3Options(Table3Config):
+    """Time the built-in AI and every trained Table III baseline through the lap-time protocol (lap time and
+    average speed), beside the paper's row, as ratios to each table's built-in AI."""
+
+    json: bool = False
+    """Print the result as JSON."""
+
+
+def _num(value: float | None, digits: int = 1) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def format_table3(result: dict[str, Any]) -> list[str]:
+    p = result["protocol"]
+    lines = [f"Table III (single-car race) on {result['track_name']} with {result['car']}: protocol v{p['version']}, "
+             f"best of {p['seeds']} seeds, lap {p['laps']} scored",
+             f"  {'':<32} {'lap s':>7} {'km/h':>7} {'lap/AI':>7} {'spd/AI':>7} | {'paper lap':>9} {'km/h':>6} "
+             f"{'lap/AI':>7} {'spd/AI':>7}"]  # fmt: skip
+    for row in result["rows"]:
+        paper = row["paper"] or {}
+        if row["status"] in ("timed", "DNF") and row.get("lap_time_s") is not None:
+            ours = (f"{_num(row['lap_time_s']):>7} {_num(row['avg_speed_kmh']):>7} "
+                    f"{_num(row['lap_ratio_to_ai'], 3):>7} {_num(row['speed_ratio_to_ai'], 3):>7}")  # fmt: skip
+        else:
+            word = "DNF" if row["status"] in ("timed", "DNF") else row["status"]
+            ours = f"{word:>31}"
+        theirs = (f"{_num(paper.get('lap_time_s')):>9} {_num(paper.get('avg_speed_kmh')):>6} "
+                  f"{_num(paper.get('lap_ratio_to_ai'), 3):>7} {_num(paper.get('speed_ratio_to_ai'), 3):>7}"
+                  if paper else f"{'':>32}")  # fmt: skip
+        lines.append(f"  {row['name']:<32} {ours} | {theirs}")
+    for row in result["rows"]:
+        if row["status"] == "DNF" or row.get("dnf_reasons"):
+            lines.append(f"  {row['name']}: {row.get('finished')}/{row.get('seeds')} seeds finished; "
+                         + "; ".join(row.get("dnf_reasons") or []))  # fmt: skip
+        if row.get("reason"):
+            lines.append(f"  {row['name']}: {row['reason']}")
+        if row.get("run"):
+            lines.append(f"  {row['name']}: {row['run']} ({row.get('num_timesteps')} steps)")
+    for skip in result["skipped"]:
+        lines.append(f"  skipped {skip['run']}: {skip['reason']}")
+    return lines
+
+
+def run_table3(opts: Table3Options) -> int:
+    import dataclasses
+
+    from vision_rl.phase2_rl.table3 import table3
+
+    fields = {f.name for f in dataclasses.fields(Table3Config)}
+    cfg = Table3Config(**{k: v for k, v in dataclasses.asdict(opts).items() if k in fields})
+    emit(table3(cfg), opts.json, format_table3)
+    return 0

@@ -1,0 +1,175 @@
+"""`table3`: the overtaking paper's Table III (a baseline comparison for the single-car race) on our simulator.
+
+Every row is timed by the one lap-time protocol (:func:`vision_rl.evaluation.protocol.time_laps`): the built-in AI
+(:class:`~vision_rl.evaluation.protocol.BuiltinAI`, at its 50 Hz), each trained baseline of train-baseline (bc,
+gail, sac, td3; a train-overtaking stage-1 folder counts as sac) and, for the record, the demonstrator of the
+imitation baselines (the AI held at 10 Hz, :class:`~vision_rl.phase2_rl.demos.HeldAIDriver`). A row's figures are
+the best scored lap over the protocol's seeds and that lap's average speed (centre-line length over lap time,
+km/h); with several runs of one algorithm the fastest run is the row and every run is listed. Each row is printed
+beside the paper's, both as ratios to their own table's built-in AI (lap time and speed), since our track and car
+are stand-ins for GT Sport's. An algorithm without a run reads "not trained"; PlaNet reads "not built".
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from vision_rl.evaluation.protocol import BuiltinAI, time_laps
+from vision_rl.phase2_rl.artifact import SIDECAR_NAME, PolicyError
+from vision_rl.phase2_rl.baselines import ALGOS, BaselineError, baseline_algo, check_table_track, load_baseline
+from vision_rl.phase2_rl.demos import HeldAIDriver
+from vision_rl.sim.track_library import load_track
+
+#: The paper's Table III (GT Sport, Audi TT Cup 16 on Tokyo Expressway): lap time s, average speed km/h.
+PAPER_TABLE3: dict[str, tuple[float, float]] = {
+    "ai": (86.9, 184.4),
+    "bc": (108.0, 146.8),
+    "gail": (144.9, 109.4),
+    "sac": (80.1, 198.2),
+    "td3": (80.8, 196.3),
+    "planet": (89.0, 178.2),
+}
+ROW_NAMES = {"ai": "Built-in AI", "bc": "BC", "gail": "GAIL", "sac": "SAC", "td3": "TD3", "planet": "PlaNet",
+             "demonstrator": "AI held at 10 Hz (demonstrator)"}  # fmt: skip
+PLANET_REASON = ("not built: PlaNet (a recurrent latent world model that plans with CEM at every step) was left out "
+                 "of this project's plan, so there is no run to time")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Table3Config:
+    """Table III of the overtaking paper: the built-in AI and the trained baselines through the lap-time protocol."""
+
+    runs: str = ""
+    """Comma-separated run folders of train-baseline (or train-overtaking stage1 folders as SAC); empty: every run
+    under --runs-root."""
+    runs_root: str = "runs/baselines"
+    """Where to look for runs when --runs is empty."""
+    track: str = "expressway"
+    """Track of the table (runs of another track are refused when given, skipped when found)."""
+    car: str = "tt_cup"
+    """Car of the table."""
+    seeds: int = 3
+    """Protocol start seeds per row (the best scored lap is the row's)."""
+    laps: int = 2
+    """Protocol laps (the last is scored)."""
+    time_limit_s: float = 0.0
+    """Protocol time limit, s (0: the protocol's, 3 x the limit lap per lap)."""
+    demonstrator: bool = True
+    """Add the imitation baselines' demonstrator (the AI held at 10 Hz) as an extra row."""
+
+
+def _split(text: str) -> list[str]:
+    return [part.strip() for part in text.split(",") if part.strip()]
+
+
+def find_runs(root: str | os.PathLike[str]) -> list[Path]:
+    """Folders under ``root`` (one level) that hold a policy sidecar, sorted."""
+    root = Path(root)
+    if not root.is_dir():
+        return []
+    return sorted(p for p in root.iterdir() if (p / SIDECAR_NAME).is_file())
+
+
+def _figures(summary: dict[str, Any]) -> dict[str, Any]:
+    best = summary["best_lap"]
+    reasons = sorted({s["dnf_reason"] for s in summary["seeds"] if s["dnf_reason"]})
+    return {
+        "lap_time_s": None if best is None else best["lap_time_s"],
+        "avg_speed_kmh": None if best is None else best["avg_speed_kmh"],
+        "median_lap_time_s": summary["median_lap_time_s"],
+        "finished": summary["n_finished"], "seeds": summary["n_seeds"], "clean": summary["clean"],
+        "wall_contact_s": None if best is None else best["wall_contact_s"], "dnf_reasons": reasons,
+    }  # fmt: skip
+
+
+def _ratios(row: dict[str, Any], ai: dict[str, Any]) -> None:
+    lap, speed = row.get("lap_time_s"), row.get("avg_speed_kmh")
+    row["lap_ratio_to_ai"] = None if lap is None or ai.get("lap_time_s") is None else lap / ai["lap_time_s"]
+    row["speed_ratio_to_ai"] = None if speed is None or ai.get("avg_speed_kmh") is None else speed / ai["avg_speed_kmh"]
+
+
+#: ``progress(row_name)`` before each row is timed.
+Table3Progress = Callable[[str], None]
+
+
+def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[str, Any]:
+    """Time every row (see the module's docstring); returns the rows with the paper's beside them."""
+    for name, ok in (("seeds", cfg.seeds >= 1), ("laps", cfg.laps >= 1), ("time_limit_s", cfg.time_limit_s >= 0)):
+        if not ok:
+            raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
+    track = load_track(cfg.track)
+    seeds = range(cfg.seeds)
+    explicit = _split(cfg.runs)
+    paths = [Path(p) for p in explicit] if explicit else find_runs(cfg.runs_root)
+    loaded, skipped = [], []
+    for path in paths:
+        try:
+            policy = load_baseline(path)
+            check_table_track(policy, cfg.track, cfg.car)
+        except (PolicyError, BaselineError) as exc:
+            if explicit:
+                raise
+            skipped.append({"run": str(path), "reason": str(exc)})
+            continue
+        loaded.append((path, policy))
+
+    def timed(driver) -> dict[str, Any]:
+        return _figures(time_laps(driver, track, cfg.car, seeds, cfg.laps, cfg.time_limit_s).summary())
+
+    if progress is not None:
+        progress("ai")
+    ai = {"key": "ai", "name": ROW_NAMES["ai"], "status": "timed", **timed(BuiltinAI())}
+    rows = [ai]
+    for algo in ("bc", "gail", "sac", "td3"):
+        runs = []
+        for path, policy in loaded:
+            if baseline_algo(policy.spec) != algo:
+                continue
+            if progress is not None:
+                progress(f"{algo} {path}")
+            driver = policy.driver()
+            try:
+                figures = timed(driver)
+            finally:
+                driver.close()
+            runs.append({"run": str(path), "num_timesteps": policy.spec.num_timesteps,
+                         "train_time_s": policy.spec.train_time_s, "seed": policy.spec.seed, **figures})  # fmt: skip
+        if not runs:
+            rows.append({"key": algo, "name": ROW_NAMES[algo], "status": "not trained", "lap_time_s": None,
+                         "avg_speed_kmh": None})  # fmt: skip
+            continue
+        best = min(runs, key=lambda r: math.inf if r["lap_time_s"] is None else r["lap_time_s"])
+        row = {"key": algo, "name": ROW_NAMES[algo], "status": "timed" if best["lap_time_s"] is not None else "DNF",
+               **{k: v for k, v in best.items() if k != "run"}, "run": best["run"], "runs": runs}  # fmt: skip
+        rows.append(row)
+    rows.append({"key": "planet", "name": ROW_NAMES["planet"], "status": "not built", "reason": PLANET_REASON,
+                 "lap_time_s": None, "avg_speed_kmh": None})  # fmt: skip
+    if cfg.demonstrator:
+        if progress is not None:
+            progress("demonstrator")
+        rows.append({"key": "demonstrator", "name": ROW_NAMES["demonstrator"], "status": "timed",
+                     **timed(HeldAIDriver())})  # fmt: skip
+    paper_ai = PAPER_TABLE3["ai"]
+    for row in rows:
+        _ratios(row, ai)
+        paper = PAPER_TABLE3.get(row["key"])
+        row["paper"] = None if paper is None else {
+            "lap_time_s": paper[0], "avg_speed_kmh": paper[1], "lap_ratio_to_ai": paper[0] / paper_ai[0],
+            "speed_ratio_to_ai": paper[1] / paper_ai[1],
+        }  # fmt: skip
+    from vision_rl.evaluation.protocol import rules
+
+    return {
+        "table": "overtaking paper, Table III: a baseline comparison for the single-car race",
+        "track": cfg.track, "track_name": track.name, "track_geometry_hash": track.geometry_hash, "car": cfg.car,
+        "protocol": {**rules(), "seeds": cfg.seeds, "laps": cfg.laps, "time_limit_s": cfg.time_limit_s},
+        "rows": rows, "skipped": skipped,
+    }  # fmt: skip
+
+
+__all__ = ["ALGOS", "PAPER_TABLE3", "PLANET_REASON", "Table3Config", "find_runs", "table3"]
