@@ -7,11 +7,16 @@ log (:func:`vision_rl.capture.video_source.capture_video`).
 A simulator capture stops cleanly on SIGTERM or Ctrl-C: the signal is noted and the run stops after the batch being
 written, so the file keeps every frame made so far (exit 143 or 130; a second signal stops at once, losing at most
 the frames since the last flush). ``--resume`` continues it.
+
+``--workers N [--address auto|HOST:PORT]`` splits the capture into N shards captured at once by Ray tasks
+(:func:`vision_rl.capture.sharded.capture_sharded`); ``--out`` is then the manifest (``PATH.json``) that
+``train-repr --data`` reads like a capture file, and the shards go to ``PATH.shards/``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import signal
 import threading
 from collections.abc import Iterator
@@ -34,6 +39,11 @@ class CaptureOptions(CaptureConfig):
     """Video source: telemetry CSV (time_s, x_m, y_m, yaw_rad, ...)."""
     frame_delay: int = 0
     """Video source: frames the video lags the telemetry (paper: 4)."""
+    workers: int | None = None
+    """Capture N shards at once as Ray tasks of one CPU each, --out being their manifest PATH.json (default: one
+    process, no Ray)."""
+    address: str = ""
+    """With --workers: the Ray cluster, 'auto' (the running one) or HOST:PORT (default: a local Ray)."""
     json: bool = False
     """Print the summary as JSON."""
 
@@ -91,6 +101,10 @@ def run_capture(opts: CaptureOptions) -> int:
         return 0
     if opts.source != "sim":
         raise ValueError(f"--source must be 'sim' or 'video:DEVICE_OR_FILE', got {opts.source!r}")
+    if opts.workers is not None:
+        return _run_sharded(opts)
+    if opts.address:
+        raise ValueError("--address names the Ray cluster of a sharded capture: give --workers N too")
     stop = _StopRequest()
     with progress_bar(opts.laps, "lap", "capture") as bar, stop.installed():
 
@@ -105,3 +119,43 @@ def run_capture(opts: CaptureOptions) -> int:
     if not result["interrupted"]:
         return 0
     return 143 if stop.signal == signal.SIGTERM else 130
+
+
+def _run_sharded(opts: CaptureOptions) -> int:
+    """The shards as Ray tasks; exit 1 when a shard failed (its worker died), 130/143 when interrupted."""
+    from vision_rl.capture.sharded import ShardedCaptureConfig, capture_sharded
+
+    base = {f.name: getattr(opts, f.name) for f in dataclasses.fields(CaptureConfig)}
+    cfg = ShardedCaptureConfig(**base, workers=opts.workers, address=opts.address)
+    stop = _StopRequest()
+    with progress_bar(opts.laps, "lap", "capture") as bar, stop.installed():
+
+        def progress(laps: int, frames: int) -> None:
+            show(bar, laps, frames=frames)
+            stop.check()
+
+        result = capture_sharded(cfg, progress)
+    resume = f"run again with --workers {cfg.workers} --resume to finish it"
+    if result["interrupted"]:
+        result["note"] = f"interrupted: {result['frames_in_file']} frames kept in the shards; {resume}"
+    elif result["failed_shards"]:
+        result["note"] = f"shards {result['failed_shards']} failed (their frames so far are kept); {resume}"
+    emit(result, opts.json, _sharded_lines)
+    if result["interrupted"]:
+        return 143 if stop.signal == signal.SIGTERM else 130
+    return 1 if result["failed_shards"] else 0
+
+
+def _sharded_lines(result: dict) -> list[str]:
+    lines = [
+        f"manifest: {result['out']}   shards: {result['shards_dir']}",
+        f"{result['frames_written']} frames written ({result['frames_in_file']} in the shards) by "
+        f"{result['workers']} workers: {result['capture_fps']:.1f} frames/s, "
+        f"{result['cpu_s_per_frame'] * 1e3:.2f} ms CPU per frame; complete: {result['complete']}",
+    ]
+    for shard in result["shards"]:
+        error = f"  {shard['error']}" if "error" in shard else ""
+        lines.append(f"  {shard['path']}: {shard['status']}, {shard['frames_in_file']} frames{error}")
+    if "note" in result:
+        lines.append(result["note"])
+    return lines

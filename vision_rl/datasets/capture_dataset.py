@@ -20,10 +20,14 @@ import torch
 from torch.utils.data import Dataset, default_collate, get_worker_info
 
 from vision_rl.capture.h5format import CaptureFile, CaptureFormatError, open_capture
+from vision_rl.capture.sharded import open_manifest
 
 
 def expand_paths(spec: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]) -> list[Path]:
-    """Capture files named by a path, a comma-separated list or glob patterns (``runs/cap/shard_*.h5``)."""
+    """Capture files named by a path, a comma-separated list or glob patterns (``runs/cap/shard_*.h5``).
+
+    A ``.json`` path is the manifest of a sharded capture: it stands for its shard files, each verified against
+    the manifest (present, this run's, unchanged) by :func:`vision_rl.capture.sharded.open_manifest`."""
     items = [spec] if isinstance(spec, str | os.PathLike) else list(spec)
     parts = [p.strip() for item in items for p in str(item).split(",") if p.strip()]
     out: list[Path] = []
@@ -31,7 +35,8 @@ def expand_paths(spec: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
         matches = sorted(glob.glob(part)) if any(c in part for c in "*?[") else [part]
         if not matches:
             raise CaptureFormatError(f"{part}: no capture file matches")
-        out.extend(Path(m) for m in matches)
+        for match in map(Path, matches):
+            out.extend(open_manifest(match) if match.suffix == ".json" else [match])
     if not out:
         raise CaptureFormatError("no capture file given")
     return out
