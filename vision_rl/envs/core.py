@@ -57,6 +57,9 @@ class RacingConfig:
     """Episode length, s: the papers' 100 s trials (1,000 steps at 10 Hz); the end is a truncation."""
     wall_penalty_c_w: float = 0.005
     """c_w of the racing reward (overtaking paper, section IV-B: 0.005)."""
+    frame_delay_s: float = 0.0
+    """Vision: frames show the world this long before the state (the paper's 4 frames at 60 Hz: 0.067; 0: none);
+    the dedicated features are not delayed."""
     steer_change_penalty_c_s: float = 0.0
     """c_s of a penalty ``c_s * (change of the steering command / its limit)^2`` per step, against bang-bang
     steering (not in the papers; 0: their reward)."""
@@ -146,6 +149,7 @@ class RacingCore:
                 observer.normalizer = obs_lib.load_or_compute_normalizer(
                     self.track, self.car.name, cfg.observation, lambda: _statistics_sample(cfg)
                 )
+        observer.delay_frames(cfg.frame_delay_s, cfg.control_dt_s)
         self.observer = observer
 
     @property
@@ -177,6 +181,7 @@ class RacingCore:
         self.skill[car_ids] = skill.ravel()
         self.fleet.place(car_ids, (s0[:, None] + offsets[None, :]).ravel())
         self.unwrapped_at_reset[car_ids] = self.world.state.unwrapped_s_m[car_ids]
+        self.observer.restart(self.world.state, car_ids)
         self.steps[gids] = 0
         self.progress_m[gids] = 0.0
         # An episode starts from the wheel angle the car was placed with, so a first command that keeps it is free.
@@ -237,6 +242,7 @@ class RacingCore:
         s_prev = st.s_m[self.ego_ids].copy()
         steer_rad = np.clip(actions[:, 0], -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
         events = self.advance(steer_rad, np.clip(actions[:, 1], -1.0, 1.0))
+        self.observer.remember(self.world.state)
         st = self.world.state
         ego = self.ego_ids
         progress = self.track.progress_delta(s_prev, st.s_m[ego])

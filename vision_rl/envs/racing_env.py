@@ -83,7 +83,9 @@ class TimeTrial(_RacingEnv):
     flag, previous steering). Normalised (z-score with statistics sampled once from the disrupted built-in AI and
     cached) unless ``normalize=False``; names in ``vision_rl.envs.observations.STATE_OBS_NAMES``.
     ``observation="vision"``: ``Dict(image=Box(280, 470, 3) uint8, features=Box(11,) float32)``, the driver's-view
-    frame from the offscreen renderer and the raw dedicated features.
+    frame from the offscreen renderer and the raw dedicated features. ``frame_delay_s`` (default 0; the vision
+    paper's frames lag by 4 frames at 60 Hz, 0.067 s) renders the frame of the poses that long ago, interpolated
+    between control steps; the features stay current.
 
     ## Rewards
     ``r = (cp_t - cp_{t-1}) - c_w * wall * |v|^2``: centre-line progress in metres over the step (signed, so
@@ -109,7 +111,8 @@ class TimeTrial(_RacingEnv):
     ## Arguments
     Any field of :class:`vision_rl.envs.core.RacingConfig`: ``track`` (built-in name, ``random:SEED``, CSV path),
     ``car``, ``observation``, ``control_dt_s``, ``episode_s``, ``wall_penalty_c_w``, ``steer_change_penalty_c_s``,
-    ``terminate_when_stuck``, ``normalize``, ``image_hw_px``. For 20 cars in one world use :func:`vision_rl.envs.make_vector_env`.
+    ``terminate_when_stuck``, ``normalize``, ``image_hw_px``, ``frame_delay_s``. For 20 cars in one world use
+    :func:`vision_rl.envs.make_vector_env`.
 
     ## Version History
     - v1: the world steps at the built-in AI's 0.02 s (an action is held over the five substeps, the same physics

@@ -255,6 +255,7 @@ class PolicyDriver:
         predict: observations (n, obs_dim) -> actions (n, 2) ``[steer rad, omega]``.
         kind, normalizer, encoder, image_hw_px: the observation it reads (as in training).
         control_dt_s: how often it acts, s (its training environment's control step).
+        frame_delay_s: vision: how far its frames lag the state, s (as in training).
         identity: who it is, for the record (policy path, hashes, training steps).
     """
 
@@ -267,11 +268,13 @@ class PolicyDriver:
         image_hw_px: tuple[int, int] = (280, 470),
         control_dt_s: float = 0.1,
         identity: dict[str, Any] | None = None,
+        frame_delay_s: float = 0.0,
     ) -> None:
         self.predict = predict
         self.kind, self.normalizer, self.encoder = kind, normalizer, encoder
         self.image_hw_px = image_hw_px
         self.control_dt_s = control_dt_s
+        self.frame_delay_s = frame_delay_s
         self.identity = identity or {"driver": "policy", "observation": kind}
         self.observer: Observer | None = None
 
@@ -281,10 +284,12 @@ class PolicyDriver:
         self.observer = Observer(
             self.kind, world.track, world.car, world.model.groups, self.normalizer, self.encoder, self.image_hw_px
         )
+        self.observer.delay_frames(self.frame_delay_s, self.control_dt_s)
         self.car_ids = np.asarray(car_ids)
 
     def act(self, state: WorldState) -> np.ndarray:
         assert self.observer is not None, "reset() first"
+        self.observer.remember(state)  # called once per control step, as the environment does after each step
         action = np.asarray(self.predict(self.observer(state, self.car_ids)), dtype=np.float64)
         return action.reshape(len(self.car_ids), 2)
 
@@ -334,7 +339,7 @@ class LoadedPolicy:
         }
         config = self.config
         return PolicyDriver(self.act, spec.observation, spec.normalizer, self.encoder, config.image_hw_px,
-                            config.control_dt_s, identity)  # fmt: skip
+                            config.control_dt_s, identity, config.frame_delay_s)  # fmt: skip
 
 
 def sac_policy(obs_dim: int, hidden_units: list[int], device: str = "cpu"):
