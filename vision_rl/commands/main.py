@@ -83,6 +83,8 @@ COMMANDS: dict[str, Command] = {
     ),
     "table3": Command("Table III: AI and baselines on the protocol, beside the paper", f"{_C}.table3", "Table3Options",
                       "run_table3"),
+    "play": Command("drive the protocol's laps yourself (keyboard or gamepad)", f"{_C}.play", "PlayOptions",
+                    "run_play"),
     "pipeline": Command("the whole job (--quick: small)", f"{_C}.pipeline", "PipelineOptions", "run_pipeline"),
     "train-ddpg": Command(
         "DDPG, asymmetric actor-critic from pixels", f"{_C}.train_ddpg", "TrainDDPGOptions", "run_train_ddpg"
