@@ -1,6 +1,8 @@
 """`train-repr`: Phase 1, the frame encoder trained on capture files (:func:`vision_rl.phase1_repr.train.train_repr`).
 
 Prints where the run went and the kept epoch's R^2 per target group, or one JSON object with ``--json``.
+``--devices N --strategy ddp`` trains in N processes (Lightning's DDP): the ones Lightning starts run this same
+command line again and print nothing; the process you started prints the result.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from vision_rl.commands.output import emit, progress_bar, show
-from vision_rl.phase1_repr.train import TrainReprConfig
+from vision_rl.phase1_repr.train import TrainReprConfig, launch_rank
 
 
 @dataclass(frozen=True)
@@ -39,6 +41,8 @@ def format_train_repr(result: dict[str, Any]) -> list[str]:
         *([written] if written else []),
         f"frames: {result['n_train_frames']} training, {result['n_val_frames']} validation; {kept}",
     ]
+    if "train_frames_per_s" in result:
+        lines.append(f"training: {result['train_frames_per_s']:.1f} frames/s on {result.get('devices', 1)} device(s)")
     for group, value in (result.get("val_r2") or {}).items():
         lines.append(f"  R^2 {group:<20s} {value:.4f}")
     return lines
@@ -47,11 +51,13 @@ def format_train_repr(result: dict[str, Any]) -> list[str]:
 def run_train_repr(opts: TrainReprOptions) -> int:
     from vision_rl.phase1_repr.train import train_repr
 
-    with progress_bar(None, "step", "train-repr", enabled=opts.progress) as bar:
+    first = launch_rank() == 0  # the other DDP processes train quietly
+    with progress_bar(None, "step", "train-repr", enabled=opts.progress and first) as bar:
 
         def progress(done: int, total: int, figures: dict[str, float]) -> None:
             show(bar, done, total, **{k: round(v, 4) if isinstance(v, float) else v for k, v in figures.items()})
 
-        result = train_repr(opts, progress if opts.progress else None)
-    emit(result, opts.json, format_train_repr)
+        result = train_repr(opts, progress if opts.progress and first else None)
+    if "rank" not in result:
+        emit(result, opts.json, format_train_repr)
     return 0

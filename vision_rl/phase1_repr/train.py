@@ -10,6 +10,13 @@ memory, and in the callback state of Lightning's ``last.ckpt``), and ``--resume`
 records the fingerprints and content digests of the capture files; a resumed run refuses other data, naming the
 field, and ``ckpt.pt`` records the same under ``dataset``. Non-finite or absurd targets are refused before training
 (:data:`vision_rl.datasets.capture_dataset.TARGET_MAGNITUDE_BOUNDS`).
+
+Several devices (``devices=N, strategy="ddp"``): Lightning's DDP runs N processes (gloo on CPUs, NCCL on GPUs), each
+on its share of every epoch's batches; validation losses and metrics are gathered over all of them (the distributed
+sampler pads the last batches with a few repeated frames so that every process holds as many). Lightning starts the
+other processes by running the same command line again with ``LOCAL_RANK`` set, so train on several devices from a
+command (``vision-rl train-repr``), not from a notebook; those processes skip every write but Lightning's own, and
+``ckpt.pt``, ``metrics.json`` and the figure are written once, by rank 0, in the format of a one-device run.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ import logging
 import math
 import os
 import shutil
+import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -141,7 +149,8 @@ class ReprModule(L.LightningModule):
         if self.hparams.mirror:
             images, targets = self.mirror_half(images, targets)
         loss = self.loss(self.predict_standardised(images, augment=True), targets)
-        self.log("train_loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=len(images))
+        self.log("train_loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=len(images),
+                 sync_dist=self.trainer.world_size > 1)  # fmt: skip
         self._train_loss_sum += float(loss.detach()) * len(images)
         self._train_loss_count += len(images)
         return loss
@@ -149,25 +158,31 @@ class ReprModule(L.LightningModule):
     def validation_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> None:
         images, targets = batch
         pred = self.predict_standardised(images)
-        self.log("val_loss", self.loss(pred, targets), on_epoch=True, prog_bar=True, batch_size=len(images))
+        # sync_dist: every process keeps the same best epoch (the mean over all of them; a no-op on one device).
+        self.log("val_loss", self.loss(pred, targets), on_epoch=True, prog_bar=True, batch_size=len(images),
+                 sync_dist=True)  # fmt: skip
         self._val_pred.append((pred * self.target_std + self.target_mean).detach().cpu())
         self._val_true.append((targets * self.target_std + self.target_mean).detach().cpu())
 
     def on_validation_epoch_end(self) -> None:
         if not self._val_pred:
             return
-        pred, true = torch.cat(self._val_pred).numpy(), torch.cat(self._val_true).numpy()
+        pred, true = torch.cat(self._val_pred), torch.cat(self._val_true)
         self._val_pred.clear()
         self._val_true.clear()
+        if self.trainer.world_size > 1:  # every process's share of the validation frames
+            pred, true = (self.all_gather(x).reshape(-1, x.shape[-1]).cpu() for x in (pred, true))
+        pred, true = pred.numpy(), true.numpy()
         metrics = regression_metrics(pred, true, self.hparams.target_names)
         self.last_val_metrics = metrics
         if self.trainer.sanity_checking:
             return
+        # The same values in every process (gathered above): sync_dist only tells Lightning they are whole.
         for name, value in metrics["rmse"].items():
-            self.log(f"val_rmse/{name}", value)
+            self.log(f"val_rmse/{name}", value, sync_dist=True)
         for group, value in metrics["r2"].items():
             if np.isfinite(value):
-                self.log(f"val_r2/{group}", value)
+                self.log(f"val_r2/{group}", value, sync_dist=True)
 
     def configure_optimizers(self) -> dict[str, Any]:
         decay = [p for n, p in self.named_parameters() if p.ndim > 1]
@@ -265,6 +280,19 @@ class BestWeights(L.Callback):
         self.weights = dict(state_dict.get("weights", {}))
 
 
+#: Lightning strategies train-repr offers: one device, or distributed data parallel over ``devices`` processes.
+STRATEGIES = ("auto", "ddp")
+
+
+def launch_rank() -> int:
+    """This process's rank among those Lightning's DDP launcher started: 0 in the process the user started (and in
+    a one-device run), > 0 in the copies of the command it started with ``LOCAL_RANK`` / ``NODE_RANK`` set."""
+    try:
+        return int(os.environ.get("LOCAL_RANK", "0") or 0) + int(os.environ.get("NODE_RANK", "0") or 0)
+    except ValueError:
+        return 0
+
+
 def _positive(value: float, option: str, minimum: float = 1) -> tuple[bool, str]:
     return (math.isfinite(value) and value >= minimum), f"{option} must be >= {minimum:g}, got {value}"
 
@@ -313,6 +341,10 @@ class TrainReprConfig:
     """auto, cpu or cuda."""
     precision: str = "32-true"
     """Lightning precision, e.g. 32-true, bf16-mixed."""
+    devices: int = 1
+    """Devices to train on at once: processes on CPUs, GPUs on CUDA (> 1 needs strategy ddp)."""
+    strategy: str = "auto"
+    """Lightning strategy: auto (one device) or ddp (one process per device, batches shared out)."""
     out: str = "runs/repr/default"
     """Output folder."""
     resume: bool = False
@@ -335,6 +367,9 @@ class TrainReprConfig:
             (math.isfinite(self.width_mult) and self.width_mult > 0, f"--width-mult must be > 0, got "
              f"{self.width_mult}"),
             (0 < self.val_fraction < 1, f"--val-fraction must be within (0, 1), got {self.val_fraction}"),
+            _positive(self.devices, "--devices"),
+            (self.strategy in STRATEGIES, f"--strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}"),
+            (self.devices == 1 or self.strategy == "ddp", f"--devices {self.devices} needs --strategy ddp"),
         )  # fmt: skip
         for ok, message in checks:
             if not ok:
@@ -371,6 +406,30 @@ class _ReportProgress(L.Callback):
             self._send(trainer)
 
 
+class _Throughput(L.Callback):
+    """Training frames per second over all processes: the time from each training epoch's start to its last batch
+    (data loading included, validation excluded), the frames of this process times the number of processes (the
+    distributed sampler gives each as many)."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.seconds = 0.0
+        self._last_batch_end = 0.0
+
+    def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._last_batch_end = time.perf_counter()
+
+    def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs, batch, batch_idx) -> None:
+        now = time.perf_counter()
+        self.seconds += now - self._last_batch_end
+        self._last_batch_end = now
+        self.frames += len(batch[0]) * trainer.world_size
+
+    @property
+    def frames_per_s(self) -> float:
+        return self.frames / self.seconds if self.seconds > 0 else 0.0
+
+
 def _lightning_dir(out: Path) -> Path:
     return out / "lightning"
 
@@ -385,6 +444,10 @@ def _quiet_lightning() -> Iterator[None]:
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)")
+            # DDP: the depthwise convolutions' gradients are laid out otherwise than DDP's buckets (DDP copies them),
+            # and Lightning's all_gather goes through a torch function torch deprecates.
+            warnings.filterwarnings("ignore", message=r"Grad strides do not match bucket view strides")
+            warnings.filterwarnings("ignore", message=r".*all_gather is deprecated")
             yield
     finally:
         logger.setLevel(level)
@@ -402,11 +465,13 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
         raise ValueError("training needs data: one or more capture files (--data)")
     out = Path(cfg.out)
     last_ckpt = _lightning_dir(out) / "last.ckpt"
+    # A process the DDP launcher started: rank 0 has checked and prepared the run folder; this one only trains.
+    rank = launch_rank()
     if cfg.resume and not last_ckpt.is_file():
         raise FileNotFoundError(f"{out}: nothing to resume (no {last_ckpt.name})")
     if cfg.resume:
         _check_plain_checkpoint(last_ckpt)
-    if not cfg.resume and (last_ckpt.exists() or (out / "ckpt.pt").exists()):
+    if rank == 0 and not cfg.resume and (last_ckpt.exists() or (out / "ckpt.pt").exists()):
         if not cfg.force:
             raise FileExistsError(f"{out} holds a run: resume it (--resume) or start over (--force)")
         shutil.rmtree(out)
@@ -431,8 +496,13 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
     data_json = out / "data.json"
     if cfg.resume:
         _check_same_data(data_json, dataset)
-    out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(data_json, json.dumps(dataset, indent=2))
+    if rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(data_json, json.dumps(dataset, indent=2))
+    on_cpu = cfg.device == "cpu" or (cfg.device == "auto" and not torch.cuda.is_available())
+    if on_cpu and cfg.devices > 1:
+        # Processes share the machine's cores: torch's threads per process are the cores' share, not all of them.
+        torch.set_num_threads(max(1, len(os.sched_getaffinity(0)) // cfg.devices))
     h, w = catalogue.image_hw_px
     enc_cfg = EncoderConfig(
         backbone=cfg.backbone,
@@ -458,17 +528,25 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
     )
     history = MetricsHistory(out / "metrics.json", catalogue.target_units, catalogue.target_names)
     best_weights = BestWeights()
+    throughput = _Throughput()
     # Only last.ckpt, for --resume: the best weights travel in BestWeights' state inside it.
     last_keeper = ModelCheckpoint(dirpath=_lightning_dir(out), save_last=True, save_top_k=0)
     with _quiet_lightning():
         trainer = L.Trainer(
             accelerator=cfg.device if cfg.device != "auto" else "auto",
-            devices=1,
+            devices=cfg.devices,
+            strategy=cfg.strategy,
             precision=cfg.precision,
             max_epochs=cfg.epochs,
             max_steps=cfg.max_steps,
             logger=TensorBoardLogger(save_dir=str(out), name="tensorboard", version=""),
-            callbacks=[best_weights, history, last_keeper, *([_ReportProgress(progress)] if progress else [])],
+            callbacks=[
+                best_weights,
+                history,
+                last_keeper,
+                throughput,
+                *([_ReportProgress(progress)] if progress else []),
+            ],
             enable_progress_bar=False,
             enable_model_summary=False,
             num_sanity_val_steps=0,
@@ -476,6 +554,10 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
             deterministic=False,
         )
         trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if cfg.resume else None, weights_only=True)
+    if not trainer.is_global_zero:  # rank 0 writes ckpt.pt, the figure and metrics.json
+        dm.train_set.close()
+        dm.val_set.close()
+        return {"rank": int(trainer.global_rank)}
 
     # The kept weights: the best validation epoch's, or the last ones when no validation finished (max_steps
     # stopped the run inside its first epoch).
@@ -510,6 +592,10 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
         "val_rmse": best.get("val_rmse"),
         "n_train_frames": len(dm.train_set),
         "n_val_frames": len(dm.val_set),
+        "devices": int(trainer.world_size),
+        "optimiser_steps": int(trainer.global_step),
+        "train_frames_per_s": throughput.frames_per_s,
+        "train_time_s": throughput.seconds,
     }
 
 
