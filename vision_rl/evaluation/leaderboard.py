@@ -147,7 +147,9 @@ def leaderboard(track: str = "expressway", car: str = "hatchback", runs: str = "
         if Path(record["evaluation_json"]).parent.parent in inside:
             continue  # one training seed of an experiment: the experiment's row stands for it
         if record["track_geometry_hash"] == ai.track.geometry_hash and record["car"] == ai.car.name:
-            rows.append({**row(record, f"policy ({record['driver'].get('observation', '?')})"),
+            driver = record["driver"]
+            kind = "human" if driver.get("driver") == "human" else f"policy ({driver.get('observation', '?')})"
+            rows.append({**row(record, kind),
                          "evaluation_json": record["evaluation_json"]})  # fmt: skip
     for e in experiments:
         summary = e["summary"]
