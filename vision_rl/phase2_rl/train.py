@@ -156,6 +156,15 @@ class TrainPolicyConfig:
     """Torch device: auto, cpu or cuda."""
     encoder_runtime: str = "auto"
     """Vision: `auto` (ONNX Runtime on a CPU when installed, 2-6x faster than torch here), torch or onnxruntime."""
+    workers: int | None = None
+    """Sampler actors (Ray), each a world of --cars cars in its own process, while this process learns; leave it out
+    to sample in this process."""
+    address: str = ""
+    """With --workers: the Ray cluster to join (auto, host:port or ray://host:port); empty: start one here."""
+    max_staleness: int = 1
+    """With --workers: weight versions a sampler's policy may lag the learner's (0: synchronous)."""
+    version_every_updates: int = 20
+    """With --workers: learner updates per weight version sent to the samplers."""
 
 
 def resolve_preset(cfg: Any) -> SACPreset:
@@ -463,6 +472,12 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     if bad:
         name = bad[0]
         raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
+    if cfg.workers is not None or cfg.address:
+        from vision_rl.phase2_rl.distributed import check_workers
+
+        if cfg.workers is None:
+            raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
+        check_workers(cfg.workers, cfg.max_staleness, cfg.version_every_updates)
     # The world holds every car's state and, for vision, renders every car's frame each step; 1,000 cars is far
     # beyond the papers' 20 and what one process can step at a useful rate.
     if cfg.cars > MAX_CARS:
@@ -478,18 +493,31 @@ def _preset_from_spec(spec: PolicySpec) -> SACPreset:
 def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Train (or resume) as configured; returns where things went and the last evaluation. A KeyboardInterrupt
     (Ctrl-C, or SIGTERM where the caller maps it) saves everything and returns with ``interrupted``."""
-    run = _Run(cfg)
-    model = run.build()
-    loop = _TrainingLoop(run, progress)
-    remaining = cfg.steps - run.start_steps
-    interrupted = False
+    cluster = None
+    if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
+        from vision_rl.phase2_rl.distributed import connect
+
+        check_bounds(cfg)
+        cluster = connect(cfg.address, cfg.workers)
     try:
-        if remaining > 0:
-            model.learn(total_timesteps=remaining, callback=loop, reset_num_timesteps=False, log_interval=4)
-    except KeyboardInterrupt:
-        interrupted = True
-    run.save(model, buffer=True, snapshot=not interrupted and remaining > 0)
-    run.close()
+        run = _Run(cfg)
+        model = run.build()
+        loop = _TrainingLoop(run, progress)
+        remaining = cfg.steps - run.start_steps
+        interrupted = False
+        sampling = None
+        try:
+            if remaining > 0 and cluster is not None:
+                sampling = _learn_with_samplers(run, model, loop, cluster)
+            elif remaining > 0:
+                model.learn(total_timesteps=remaining, callback=loop, reset_num_timesteps=False, log_interval=4)
+        except KeyboardInterrupt:
+            interrupted = True
+        run.save(model, buffer=True, snapshot=not interrupted and remaining > 0)
+        run.close()
+    finally:
+        if cluster is not None:
+            cluster.close()
     return {
         "out": str(run.out),
         "policy": str(run.out / MODEL_NAME),
@@ -503,17 +531,59 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
         "last_eval": run.last_eval,
         "metrics_jsonl": str(run.out / METRICS_NAME),
         "tensorboard": str(run.out / "tensorboard"),
+        "sampling": sampling,
     }
 
 
-def read_metrics(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
-    """The records of a run's metrics.jsonl (a torn last line, from a kill mid-write, is skipped)."""
+def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: Any) -> dict[str, Any]:
+    """The session's steps from ``cfg.workers`` sampler actors (:mod:`vision_rl.phase2_rl.distributed`); the same
+    evaluations, checkpoints and progress as the single-process loop, on the same step counts. A lost sampler is a
+    line of metrics.jsonl; when none is left, the run is saved and the error raised."""
+    from vision_rl.phase2_rl.distributed import Pacing, SamplerSetup, SamplersLostError, learn_with_samplers
+
+    cfg, p = run.cfg, run.preset
+    racing = racing_config_to_dict(run.racing)
+    track = Path(run.racing.track)
+    if track.suffix == ".csv" and track.is_file():  # the samplers may run in another folder
+        racing["track"] = str(track.resolve())
+    setup = SamplerSetup(
+        racing_config=racing, observation=run.kind, obs_normalizer=run.normalizer.to_dict(),
+        fingerprint=run.fingerprint, hidden_units=tuple(p.hidden_units), seed=run.seed + run.start_steps,
+        encoder_path=str(run.encoder_path.resolve()) if run.encoder_path is not None else "",
+        encoder_runtime=cfg.encoder_runtime,
+    )  # fmt: skip
+    pacing = Pacing(
+        workers=int(cfg.workers or 0), n_cars=run.racing.n_groups, gradient_steps=p.gradient_steps,
+        train_freq_steps=p.train_freq_steps, batch_size=p.batch_size, learning_starts=int(model.learning_starts),
+        start_timesteps=int(model.num_timesteps), total_timesteps=cfg.steps,
+        version_every_updates=cfg.version_every_updates, max_staleness=cfg.max_staleness,
+    )  # fmt: skip
+    loop.init_callback(model)
+
+    def log_event(record: dict[str, Any]) -> None:
+        record = {**record, "train_time_s": round(run.train_time_s, 2)}
+        with open(run.out / METRICS_NAME, "a") as f:
+            f.write(json.dumps(record) + "\n")
+
+    try:
+        return learn_with_samplers(model, setup, pacing, cluster, on_vector_step=loop.on_step, log_event=log_event)
+    except SamplersLostError as exc:
+        run.save(model, buffer=True)
+        run.close()
+        raise SamplersLostError(f"{exc}; the run in {run.out} was saved: continue it with --resume") from None
+
+
+def read_metrics(path: str | os.PathLike[str], events: bool = False) -> list[dict[str, Any]]:
+    """The evaluation records of a run's metrics.jsonl (a torn last line, from a kill mid-write, is skipped); with
+    ``events`` also the lines that record events (a lost sampler: ``{"event": "sampler_lost", ...}``)."""
     records = []
     for line in Path(path).read_text().splitlines():
         try:
-            records.append(json.loads(line))
+            record = json.loads(line)
         except ValueError:
             continue
+        if events or "event" not in record:
+            records.append(record)
     return records
 
 

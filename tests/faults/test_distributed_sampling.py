@@ -1,0 +1,104 @@
+"""train-policy --workers: sampler actors killed mid-run, bad sampling options, no Ray."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import sys
+
+import pytest
+
+from tests.phase2_rl.conftest import tiny_train_config
+from vision_rl.phase2_rl.artifact import PolicySpec
+from vision_rl.phase2_rl.distributed import ACTOR_PREFIX, RAY_MISSING, DistributedError, SamplersLostError
+from vision_rl.phase2_rl.train import read_metrics, train_policy
+
+
+def _killer(ray, at_steps: int, how_many: int):
+    """A progress callback that SIGKILLs ``how_many`` of the run's sampler processes once ``at_steps`` is reached."""
+    killed: list[int] = []
+
+    def progress(steps: int, total: int, last_eval) -> None:
+        if killed or steps < at_steps:
+            return
+        names = sorted(n for n in ray.util.list_named_actors() if n.startswith(ACTOR_PREFIX))
+        for name in names[:how_many]:
+            pid = ray.get(ray.get_actor(name).pid.remote())
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+
+    return progress, killed
+
+
+def test_a_killed_sampler_leaves_the_learner_going_with_the_other(ray_local, small_track, tmp_path, fault):
+    out = tmp_path / "run"
+    progress, killed = _killer(ray_local, 100, 1)
+    config = tiny_train_config(small_track, out, workers=2, steps=300, eval_every_steps=0)
+    result = train_policy(config, progress)
+    assert len(killed) == 1
+    assert result["num_timesteps"] == 300 and result["n_updates"] == (300 - 50) // 2  # no step was lost
+    sampling = result["sampling"]
+    assert sampling["samplers_alive"] == 1 and len(sampling["samplers_lost"]) == 1
+    events = [r for r in read_metrics(out / "metrics.jsonl", events=True) if r.get("event") == "sampler_lost"]
+    assert len(events) == 1 and events[0]["samplers_alive"] == 1 and events[0]["num_timesteps"] >= 100
+    assert read_metrics(out / "metrics.jsonl") == [r for r in read_metrics(out / "metrics.jsonl", events=True)
+                                                   if "event" not in r]  # fmt: skip
+    fault.recovered(
+        "one of 2 sampler actors SIGKILLed mid-run",
+        f"the learner finished the 300 steps with the other; metrics.jsonl: {events[0]['reason'][:80]}",
+    )
+
+
+def test_all_samplers_killed_saves_the_run_and_stops_with_one_line(ray_local, small_track, tmp_path, fault):
+    out = tmp_path / "run"
+    progress, killed = _killer(ray_local, 100, 2)
+    config = tiny_train_config(small_track, out, workers=2, steps=300, eval_every_steps=0, checkpoint_every_steps=0)
+    with pytest.raises(SamplersLostError, match="all 2 sampler actors died") as excinfo:
+        train_policy(config, progress)
+    assert len(killed) == 2 and "--resume" in str(excinfo.value)
+    saved = PolicySpec.read(out / "policy.json").num_timesteps
+    assert 100 <= saved < 300 and (out / "replay_buffer.npz").is_file()
+    resumed = train_policy(dataclasses.replace(config, resume=True), None)
+    assert resumed["num_timesteps"] == 300 and resumed["buffer_restored"] == saved // 2
+    fault.refused("every sampler actor SIGKILLed mid-run (the run is saved, --resume finishes it)", str(excinfo.value))
+
+
+@pytest.mark.parametrize(
+    "options,what,message",
+    [
+        ({"workers": 0}, "--workers 0", "at least 1 sampler"),
+        ({"workers": -2}, "--workers -2", "at least 1 sampler"),
+        ({"workers": 1, "max_staleness": -1}, "--max-staleness -1", "max-staleness"),
+        ({"workers": 1, "version_every_updates": 0}, "--version-every-updates 0", "version-every-updates"),
+        ({"address": "auto"}, "--address without --workers", "needs --workers"),
+    ],
+)
+def test_bad_sampling_options_are_refused_before_the_run_folder(small_track, tmp_path, fault, options, what,
+                                                                message):  # fmt: skip
+    out = tmp_path / "run"
+    with pytest.raises(ValueError, match=message) as excinfo:
+        train_policy(tiny_train_config(small_track, out, **options))
+    assert not out.exists()
+    fault.refused(what, str(excinfo.value))
+
+
+def test_more_workers_than_the_clusters_cpus_is_refused(ray_local, small_track, tmp_path, fault):
+    out = tmp_path / "run"
+    with pytest.raises(DistributedError, match="more than the 2 CPUs") as excinfo:
+        train_policy(tiny_train_config(small_track, out, workers=3))
+    assert not out.exists() and ray_local.is_initialized()  # the test's cluster is left alone
+    fault.refused("--workers 3 on a Ray cluster of 2 CPUs", str(excinfo.value))
+
+
+def test_no_ray_is_one_line_naming_the_extra(small_track, tmp_path, monkeypatch, fault, capsys):
+    from vision_rl.commands.main import main
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # ``import ray`` fails as if it were not installed
+    with pytest.raises(DistributedError) as excinfo:
+        train_policy(tiny_train_config(small_track, tmp_path / "run", workers=1))
+    assert str(excinfo.value) == RAY_MISSING
+    code = main(["train-policy", "--track", small_track, "--workers", "1", "--out", str(tmp_path / "cli")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.strip() == f"vision-rl train-policy: error: {RAY_MISSING}"
+    fault.refused("train-policy --workers 1 without Ray installed", err.strip())

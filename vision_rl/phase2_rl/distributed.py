@@ -1,0 +1,683 @@
+"""Sampling in other processes: ``train-policy --workers N`` (Ray).
+
+N sampler actors each step a world of the run's cars (with the frozen encoder for vision) and return transitions
+to the learner, this process, which adds them to its Stable-Baselines3 replay buffer and trains. Transitions
+travel as plain numpy arrays (``(steps, cars, ...)`` per chunk of vector steps), the policy as the actor's
+``state_dict`` in numpy arrays; nothing of ours is pickled.
+
+Pacing (:class:`Pacer`), the rules that keep a run what the single-process loop would be:
+
+- **Update-to-data ratio.** As in the single-process loop, every vector step collected after the random start
+  steps earns ``gradient_steps`` updates. The learner makes an update only when the data received has earned it:
+  when the samplers are slower than that, the learner waits for data (``learner_wait_s`` in the result).
+- **Weight versions and staleness.** Every ``version_every_updates`` updates (V) the learner publishes its actor as
+  a new weight version; a sampler acts a whole chunk with the version it was sent when the chunk started. The
+  learner never publishes version L + 1 while a sampler still acts with a version older than L + 1 - K
+  (``max_staleness`` K): it waits for that chunk first. So no sampler acts with weights more than K versions old;
+  K = 0 is synchronous (the learner never updates past the weights a sampler acts with).
+- **Throttling.** A sampler gets a new chunk only while the transitions collected but not yet earned by updates
+  stay within K + 1 versions' worth (``(K + 1) * V`` updates): when the samplers are faster than the learner, they
+  wait, and the ratio holds. During the random start steps the samplers run freely.
+
+Chunks are ``ceil(V / (gradient_steps * N))`` vector steps, so N samplers together collect about one version's data
+at a time.
+
+Determinism: with one worker and ``max_staleness`` 0 the learner and the sampler strictly alternate, and a run is
+repeatable per seed. Otherwise the moment a chunk arrives relative to the learner's updates (and, with several
+workers, which sampler's chunk comes first) depends on timing, so runs of one seed differ; each sampler's own
+world, start points and exploration noise still come from the seed.
+
+Faults: a sampler actor that dies (or raises) is logged through ``log_event`` with its reason and the learner goes
+on with the rest (its unfinished chunk is collected again by another); when none is left,
+:class:`SamplersLostError` is raised (the caller saves the run). Ray is imported inside functions only: without it
+:func:`connect` raises a one-line :class:`DistributedError` naming the extra.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import threading
+import time
+import uuid
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+RAY_MISSING = "train-policy --workers needs Ray: pip install 'vision_rl[ray]'"
+#: Seconds the learner blocks at most on samplers before it looks again (Ctrl-C and SIGTERM are handled between).
+WAIT_SLICE_S = 0.25
+#: Prefix of the sampler actors' names (listed by ``ray.util.list_named_actors()``).
+ACTOR_PREFIX = "vision_rl_sampler"
+#: Arrays of a chunk of transitions, each (steps, cars, ...), as the replay buffer stores them.
+CHUNK_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+
+
+class DistributedError(ValueError):
+    """A run with samplers that cannot start or go on (no Ray, too many workers, no sampler left); one line."""
+
+
+class SamplersLostError(DistributedError):
+    """Every sampler actor died; the message names the last reason."""
+
+
+# ------------------------------------------------------------------------------------------------- the cluster
+
+
+class Cluster:
+    """A connection to a Ray cluster (started here, or joined); :meth:`close` shuts down only what it started."""
+
+    def __init__(self, ray: Any, started: bool, cpus: float, address: str) -> None:
+        self.ray = ray
+        self.started = started
+        self.cpus = cpus
+        self.address = address
+
+    def close(self) -> None:
+        if self.started and self.ray.is_initialized():
+            self.ray.shutdown()
+        self.started = False
+
+
+def import_ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise DistributedError(RAY_MISSING) from None
+    return ray
+
+
+def check_workers(workers: int | None, max_staleness: int, version_every_updates: int) -> None:
+    """One clear line for sampling options out of range (before Ray is started)."""
+    if workers is not None and workers < 1:
+        raise DistributedError(
+            f"--workers {workers}: give at least 1 sampler actor, or leave --workers out to sample in this process"
+        )
+    if max_staleness < 0:
+        raise DistributedError(f"--max-staleness {max_staleness} is out of range: 0 (synchronous) or more versions")
+    if version_every_updates < 1:
+        raise DistributedError(f"--version-every-updates {version_every_updates} is out of range: 1 or more")
+
+
+def connect(address: str, workers: int) -> Cluster:
+    """Join the Ray cluster at ``address`` (``auto``, ``host:port``, ``ray://host:port``), or use the one this
+    process already joined, or start a local one of this machine's CPUs (empty address); refuse more sampler
+    actors than the cluster has CPUs (each takes one)."""
+    check_workers(workers, 0, 1)
+    ray = import_ray()
+    started = False
+    if not ray.is_initialized():
+        # ray.init installs its own SIGTERM handler (exit without saving): keep the caller's (save like Ctrl-C).
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.getsignal(signal.SIGTERM) if main else None
+        os.environ.setdefault("RAY_AUTH_MODE", "disabled")
+        kwargs: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
+        try:
+            if address:
+                ray.init(address=address, **kwargs)
+            else:
+                ray.init(num_cpus=os.cpu_count() or 1, **kwargs)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise DistributedError(f"cannot join the Ray cluster at {address or 'a new local one'}: {first}") from None
+        finally:
+            if main and previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+        started = True
+    cpus = float(ray.cluster_resources().get("CPU", 0.0))
+    where = f"at {address}" if address else "of this process"
+    if workers > cpus:
+        if started:
+            ray.shutdown()
+        raise DistributedError(
+            f"--workers {workers} is more than the {cpus:g} CPUs of the Ray cluster {where}: each sampler actor "
+            f"takes one; use --workers {max(1, int(cpus))} or a larger cluster"
+        )
+    return Cluster(ray, started, cpus, address)
+
+
+# ------------------------------------------------------------------------------------------------- pacing
+
+
+@dataclass(frozen=True)
+class Pacing:
+    """How the learner and the samplers keep step (see the module docstring)."""
+
+    workers: int
+    """Sampler actors."""
+    n_cars: int
+    """Cars of each sampler's world (transitions per vector step)."""
+    gradient_steps: int
+    """Updates earned by every ``train_freq_steps`` vector steps after the random start steps (the run's ratio)."""
+    batch_size: int
+    """Transitions per update."""
+    learning_starts: int
+    """Transitions (the model's step count) before which actions are random and no step earns updates."""
+    start_timesteps: int
+    """The model's step count when this session starts."""
+    total_timesteps: int | None
+    """Stop once the step count reaches this (None: run until ``deadline_s``)."""
+    version_every_updates: int
+    """Updates per weight version (V)."""
+    max_staleness: int
+    """Versions a sampler's weights may lag the learner's (K; 0: synchronous)."""
+    train_freq_steps: int = 1
+    """Vector steps per ``gradient_steps`` updates."""
+
+    @property
+    def chunk_steps(self) -> int:
+        """Vector steps per chunk: the N samplers together collect about one version's data at a time."""
+        updates_per_step = self.gradient_steps / self.train_freq_steps
+        return max(1, math.ceil(self.version_every_updates / (updates_per_step * self.workers)))
+
+
+class Pacer:
+    """The bookkeeping of :class:`Pacing`: when the learner may update, when a sampler may get a chunk. Counts are
+    this session's: vector steps launched, received, updates made, and the version of every chunk in flight."""
+
+    def __init__(self, pacing: Pacing) -> None:
+        p = self.pacing = pacing
+        before = p.learning_starts - p.start_timesteps
+        # Step j (0-based in this session) starts at t = start + j * n: random while t < learning_starts, and
+        # earns updates when it ends past learning_starts (Stable-Baselines3's rules).
+        self.random_steps = max(0, math.ceil(before / p.n_cars))
+        self.first_learning_step = max(0, math.floor(before / p.n_cars))
+        self.total_steps = (
+            None if p.total_timesteps is None else max(0, math.ceil((p.total_timesteps - p.start_timesteps) / p.n_cars))
+        )
+        self.launched = 0
+        self.received = 0
+        self.updates = 0
+        self.inflight: dict[int, int] = {}  # chunk id -> the version it acts with
+        self.max_staleness_seen = 0
+
+    @property
+    def version(self) -> int:
+        return self.updates // self.pacing.version_every_updates
+
+    def earned(self, steps: int) -> int:
+        """Updates earned by the first ``steps`` vector steps of the session."""
+        p = self.pacing
+        return p.gradient_steps * (max(0, steps - self.first_learning_step) // p.train_freq_steps)
+
+    def can_update(self) -> bool:
+        """The data received has earned another update, and it publishes no version past a sampler's bound."""
+        if self.updates >= self.earned(self.received):
+            return False
+        following = self.updates + 1
+        if following % self.pacing.version_every_updates == 0 and self.inflight:
+            if following // self.pacing.version_every_updates - min(self.inflight.values()) > self.pacing.max_staleness:
+                return False
+        return True
+
+    def next_chunk(self) -> tuple[int, int] | None:
+        """(vector steps, of which random) of the next chunk, or None when a sampler should wait."""
+        steps = self.pacing.chunk_steps
+        if self.total_steps is not None:
+            steps = min(steps, self.total_steps - self.launched)
+            if steps <= 0:
+                return None
+        ahead = self.earned(self.launched) - self.updates
+        budget = (self.pacing.max_staleness + 1) * self.pacing.version_every_updates
+        if ahead > 0 and ahead + self.earned(self.launched + steps) - self.earned(self.launched) > budget:
+            return None
+        return steps, int(np.clip(self.random_steps - self.launched, 0, steps))
+
+    def launch(self, chunk_id: int, steps: int) -> None:
+        self.launched += steps
+        self.inflight[chunk_id] = self.version
+
+    def receive(self, chunk_id: int, steps: int) -> None:
+        self.max_staleness_seen = max(self.max_staleness_seen, self.version - self.inflight.pop(chunk_id))
+        self.received += steps
+
+    def lose(self, chunk_id: int, steps: int) -> None:
+        """A chunk that will never come (its sampler died): its steps are collected again."""
+        self.inflight.pop(chunk_id)
+        self.launched -= steps
+
+    def updated(self) -> bool:
+        """Count one update; True when it publishes a new version."""
+        self.updates += 1
+        published = self.updates % self.pacing.version_every_updates == 0
+        if published and self.inflight:
+            self.max_staleness_seen = max(self.max_staleness_seen, self.version - min(self.inflight.values()))
+        return published
+
+    @property
+    def done(self) -> bool:
+        return (
+            self.total_steps is not None
+            and self.received == self.total_steps
+            and self.updates >= self.earned(self.total_steps)
+        )
+
+
+# ------------------------------------------------------------------------------------------------- the sampler
+
+
+@dataclass(frozen=True)
+class SamplerSetup:
+    """What a sampler actor builds its world and policy from: plain values only."""
+
+    racing_config: Mapping[str, Any]
+    """The run's environment (``racing_config_to_dict``), with the run's number of cars."""
+    observation: str
+    """``state`` or ``vision``."""
+    obs_normalizer: Mapping[str, Any]
+    """The run's observation normalisation (``ObsNormalizer.to_dict``)."""
+    fingerprint: Mapping[str, Any]
+    """The run's policy fingerprint; a sampler whose world or encoder differs refuses to start."""
+    hidden_units: tuple[int, ...]
+    """Hidden layers of the SAC actor."""
+    seed: int
+    """Base seed; sampler w uses a child of (seed, w)."""
+    encoder_path: str = ""
+    """Vision: the encoder checkpoint (an absolute path every node can read)."""
+    encoder_runtime: str = "auto"
+    """Vision: the encoder's runtime on the sampler's CPU."""
+
+
+def worker_seed(seed: int, worker: int) -> int:
+    """Sampler ``worker``'s seed: independent streams for every (seed, worker)."""
+    return int(np.random.SeedSequence([seed, worker]).generate_state(1)[0])
+
+
+def actor_weights(model: Any) -> dict[str, np.ndarray]:
+    """The SAC actor's ``state_dict`` as numpy arrays (what the samplers load)."""
+    return {name: t.detach().cpu().numpy() for name, t in model.actor.state_dict().items()}
+
+
+class Sampler:
+    """The body of a sampler actor: one world of the run's cars and a copy of the SAC actor.
+
+    ``sample(weights, version, steps, random_steps)`` steps the world ``steps`` times and returns the transitions as
+    numpy arrays (the observations before and after, with the last observation of an episode in place of the
+    next one where it ended, the actions scaled to [-1, 1] as SAC stores them, rewards, dones, time-limit flags),
+    the episodes that ended, and the version it acted with. The first ``random_steps`` act uniformly at random (the
+    run's start steps); the rest sample the policy's stochastic action. ``weights`` is a one-element list holding a
+    Ray object reference, fetched only when ``version`` changes.
+    """
+
+    def __init__(self, setup: SamplerSetup, worker: int) -> None:
+        import torch
+        from stable_baselines3.sac.policies import SACPolicy
+
+        from vision_rl.envs.observations import ObsNormalizer
+        from vision_rl.envs.observer import Observer
+        from vision_rl.envs.vector import make_sb3_vec_env
+        from vision_rl.phase2_rl.artifact import policy_fingerprint, racing_config_from_dict
+
+        torch.set_num_threads(1)  # the learner and the other samplers share the cores
+        self.torch = torch
+        self.worker = worker
+        self.seed = worker_seed(setup.seed, worker)
+        torch.manual_seed(self.seed)
+        self.rng = np.random.default_rng(self.seed)
+        config = racing_config_from_dict(dict(setup.racing_config))
+        self.env = make_sb3_vec_env(config, seed=self.seed)
+        core = self.env.core
+        normalizer = ObsNormalizer.from_dict(dict(setup.obs_normalizer))
+        encoder_sha = None
+        if setup.observation == "vision":
+            from vision_rl.phase1_repr.checkpoint import checkpoint_sha256, load_encoder
+
+            encoder_sha = checkpoint_sha256(setup.encoder_path)
+            encoder = load_encoder(setup.encoder_path, device="cpu", runtime=setup.encoder_runtime)
+            core.observer.close()
+            core.observer = Observer(
+                "vision", core.track, core.car, core.groups, normalizer, encoder, config.image_hw_px
+            )
+            self.env.observation_space = core.observer.space
+        else:
+            core.observer.normalizer = normalizer
+        mine = policy_fingerprint(config, setup.observation, self.env.observation_space.shape[0], encoder_sha)
+        for key, want in setup.fingerprint.items():
+            if mine.get(key) != want:
+                raise ValueError(f"sampler {worker} was built for {key} = {mine.get(key)!r}, the run has {want!r}")
+        self.policy = SACPolicy(
+            self.env.observation_space, self.env.action_space, lambda _: 0.0, net_arch=list(setup.hidden_units)
+        )
+        self.policy.set_training_mode(False)
+        space = self.env.action_space
+        self.low, self.high = space.low.astype(np.float64), space.high.astype(np.float64)
+        self.version = -1
+        self.obs = self.env.reset()
+        n = self.env.num_envs
+        self.episode_return = np.zeros(n)
+        self.episode_length = np.zeros(n, dtype=np.int64)
+
+    def ready(self) -> int:
+        return self.worker
+
+    def pid(self) -> int:
+        return os.getpid()
+
+    def sample(self, weights: list[Any], version: int, steps: int, random_steps: int) -> dict[str, np.ndarray]:
+        torch = self.torch
+        t0 = time.perf_counter()
+        if steps > random_steps and version != self.version:
+            import ray
+
+            state = ray.get(weights[0])
+            self.policy.actor.load_state_dict({k: torch.tensor(np.array(v)) for k, v in state.items()})
+            self.version = version
+        n, dim = self.env.num_envs, self.env.observation_space.shape[0]
+        out = {
+            "observations": np.empty((steps, n, dim), np.float32),
+            "next_observations": np.empty((steps, n, dim), np.float32),
+            "actions": np.empty((steps, n, 2), np.float32),
+            "rewards": np.empty((steps, n), np.float32),
+            "dones": np.empty((steps, n), np.float32),
+            "timeouts": np.empty((steps, n), np.float32),
+            "episode_return": np.full((steps, n), np.nan),
+            "episode_length": np.zeros((steps, n), np.int64),
+        }
+        for k in range(steps):
+            if k < random_steps:
+                unscaled = self.rng.uniform(self.low, self.high, (n, 2))
+                scaled = 2.0 * (unscaled - self.low) / (self.high - self.low) - 1.0
+            else:
+                with torch.no_grad():
+                    scaled = self.policy.actor(torch.as_tensor(self.obs), deterministic=False).numpy()
+            scaled = np.asarray(scaled, dtype=np.float32)  # the stored action is exactly the one applied
+            action = self.low + 0.5 * (scaled.astype(np.float64) + 1.0) * (self.high - self.low)
+            new_obs, rewards, dones, infos = self.env.step(action)
+            next_obs = np.array(new_obs, dtype=np.float32)
+            ended = np.flatnonzero(dones)
+            for i in ended:  # the cars whose episode ended (a few per chunk)
+                next_obs[i] = infos[i]["terminal_observation"]
+            out["observations"][k] = self.obs
+            out["next_observations"][k] = next_obs
+            out["actions"][k] = scaled
+            out["rewards"][k] = rewards
+            out["dones"][k] = dones
+            out["timeouts"][k] = [info.get("TimeLimit.truncated", False) for info in infos]
+            self.episode_return += rewards
+            self.episode_length += 1
+            out["episode_return"][k, ended] = self.episode_return[ended]
+            out["episode_length"][k, ended] = self.episode_length[ended]
+            self.episode_return[ended] = 0.0
+            self.episode_length[ended] = 0
+            self.obs = new_obs
+        out["version"] = np.int64(version)
+        out["busy_s"] = np.float64(time.perf_counter() - t0)
+        return out
+
+
+def start_samplers(cluster: Cluster, setup: SamplerSetup, workers: int) -> list[Any]:
+    """``workers`` sampler actors (one CPU each), named ``vision_rl_sampler_<run>_<w>``."""
+    ray = cluster.ray
+    remote = ray.remote(num_cpus=1, max_restarts=0)(Sampler)
+    token = uuid.uuid4().hex[:8]
+    return [remote.options(name=f"{ACTOR_PREFIX}_{token}_{w}").remote(setup, w) for w in range(workers)]
+
+
+def add_vector_step(buffer: Any, chunk: Mapping[str, np.ndarray], k: int) -> None:
+    """Vector step ``k`` of a chunk into an SB3 ``ReplayBuffer`` (what ``ReplayBuffer.add`` stores)."""
+    pos = buffer.pos
+    for name in CHUNK_ARRAYS:
+        getattr(buffer, name)[pos] = chunk[name][k]
+    buffer.pos = pos + 1
+    if buffer.pos == buffer.buffer_size:
+        buffer.full, buffer.pos = True, 0
+
+
+# ------------------------------------------------------------------------------------------------- the learner
+
+
+def learn_with_samplers(
+    model: Any,
+    setup: SamplerSetup,
+    pacing: Pacing,
+    cluster: Cluster,
+    on_vector_step: Callable[[], Any] | None = None,
+    log_event: Callable[[dict[str, Any]], None] | None = None,
+    deadline_s: float | None = None,
+    on_start: Callable[[], None] | None = None,
+) -> dict[str, Any]:
+    """Train ``model`` (SB3 SAC, its replay buffer of ``pacing.n_cars`` envs) on transitions from
+    ``pacing.workers`` sampler actors until ``pacing.total_timesteps`` (or ``deadline_s`` seconds after the samplers
+    are ready). ``on_vector_step()`` is called after each vector step is added (the model's step count updated),
+    ``log_event(record)`` when a sampler is lost, ``on_start()`` once every sampler is ready. Returns the session's
+    sampling figures. Raises :class:`SamplersLostError` when no sampler is left (the model keeps what it learned)."""
+    ray = cluster.ray
+    from ray.exceptions import RayError
+
+    if getattr(model.replay_buffer, "optimize_memory_usage", False):
+        raise DistributedError("sampling with --workers needs a replay buffer without optimize_memory_usage")
+    if model.ep_info_buffer is None:  # set by SB3's learn(), which this loop replaces
+        from collections import deque
+
+        model.ep_info_buffer = deque(maxlen=model._stats_window_size)
+        model.ep_success_buffer = deque(maxlen=model._stats_window_size)
+    pacer = Pacer(pacing)
+    handles = start_samplers(cluster, setup, pacing.workers)
+    alive = dict(enumerate(handles))
+    lost: list[dict[str, Any]] = []
+    inflight: dict[Any, tuple[int, int, int]] = {}  # object ref -> (worker, chunk id, steps)
+    busy = {w: False for w in alive}
+    stats = {"chunks": 0, "transitions": 0, "sampler_busy_s": 0.0, "learner_wait_s": 0.0, "updates": 0}
+    weights = [ray.put(actor_weights(model))]
+    t_session = time.perf_counter()
+
+    def lose(worker: int, reason: str) -> None:
+        alive.pop(worker, None)
+        busy.pop(worker, None)
+        ray.kill(handles[worker], no_restart=True)
+        record = {"event": "sampler_lost", "worker": worker, "num_timesteps": int(model.num_timesteps),
+                  "reason": reason, "samplers_alive": len(alive)}  # fmt: skip
+        lost.append(record)
+        if log_event is not None:
+            log_event(record)
+        if not alive:
+            raise SamplersLostError(
+                f"all {pacing.workers} sampler actors died (the last: {reason}); training stopped at "
+                f"{model.num_timesteps} steps"
+            )
+
+    def take(ref: Any) -> None:
+        worker, chunk_id, steps = inflight.pop(ref)
+        try:
+            chunk = ray.get(ref)
+        except RayError as exc:
+            pacer.lose(chunk_id, steps)
+            lose(worker, _first_line(exc))
+            return
+        busy[worker] = False
+        pacer.receive(chunk_id, steps)
+        n = pacing.n_cars
+        elapsed = time.perf_counter() - t_session
+        for k in range(steps):
+            add_vector_step(model.replay_buffer, chunk, k)
+            model.num_timesteps += n
+            ended = np.flatnonzero(chunk["dones"][k])
+            for i in ended:
+                episode = {"r": float(chunk["episode_return"][k, i]), "l": int(chunk["episode_length"][k, i])}
+                model.ep_info_buffer.append({**episode, "t": round(elapsed, 6)})
+            model._episode_num += len(ended)
+            if on_vector_step is not None:
+                on_vector_step()
+        stats["chunks"] += 1
+        stats["transitions"] += steps * n
+        stats["sampler_busy_s"] += float(chunk["busy_s"])
+
+    try:
+        # Every sampler is built (world, encoder, policy) before the clock of a deadline starts.
+        pending = {h.ready.remote(): w for w, h in alive.items()}
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_SLICE_S)
+            for ref in ready:
+                worker = pending.pop(ref)
+                try:
+                    ray.get(ref)
+                except RayError as exc:
+                    lose(worker, _first_line(exc))
+        if on_start is not None:
+            on_start()
+        start = time.perf_counter()
+        updates_at_start = model._n_updates
+        chunk_id = 0
+        while True:
+            for worker in sorted(w for w, b in busy.items() if not b):
+                planned = pacer.next_chunk()
+                if planned is None:
+                    break
+                steps, random_steps = planned
+                ref = alive[worker].sample.remote(weights, pacer.version, steps, random_steps)
+                inflight[ref] = (worker, chunk_id, steps)
+                pacer.launch(chunk_id, steps)
+                busy[worker] = True
+                chunk_id += 1
+            if pacer.done or (deadline_s is not None and time.perf_counter() - start >= deadline_s):
+                break
+            can_update = pacer.can_update()
+            if inflight:
+                refs = list(inflight)
+                t_wait = time.perf_counter()
+                ready, _ = ray.wait(refs, num_returns=len(refs) if can_update else 1,
+                                    timeout=0 if can_update else WAIT_SLICE_S)  # fmt: skip
+                if not can_update:
+                    stats["learner_wait_s"] += time.perf_counter() - t_wait
+                if ready:
+                    for ref in sorted(ready, key=lambda r: inflight[r][1]):  # in the order they were launched
+                        take(ref)
+                    continue
+            elif not can_update:
+                raise RuntimeError(f"sampling stalled: {pacer.__dict__}")  # the pacing rules exclude this
+            if can_update:
+                model.train(gradient_steps=1, batch_size=pacing.batch_size)
+                if pacer.updated():
+                    weights = [ray.put(actor_weights(model))]
+        duration_s = time.perf_counter() - start
+    finally:
+        for handle in handles:
+            ray.kill(handle, no_restart=True)
+    stats["updates"] = int(model._n_updates - updates_at_start)
+    stats.update(
+        workers=pacing.workers, samplers_alive=len(alive), samplers_lost=lost, duration_s=round(duration_s, 3),
+        max_staleness=pacing.max_staleness, max_staleness_seen=pacer.max_staleness_seen,
+        version_every_updates=pacing.version_every_updates, weight_versions=pacer.version,
+        chunk_steps=pacing.chunk_steps, learner_wait_s=round(stats["learner_wait_s"], 3),
+        sampler_busy_s=round(stats["sampler_busy_s"], 3),
+    )  # fmt: skip
+    return stats
+
+
+def _first_line(exc: BaseException) -> str:
+    """The cause of a Ray error in one line (a task's own exception, not Ray's traceback)."""
+    cause = getattr(exc, "cause", None)
+    if isinstance(cause, BaseException) and str(cause).strip():
+        return f"{type(cause).__name__}: {str(cause).strip().splitlines()[0]}"
+    text = str(exc).strip()
+    lines = [line for line in text.splitlines() if line.strip()]
+    return f"{type(exc).__name__}: {lines[0] if lines else ''}".rstrip(": ")
+
+
+# ------------------------------------------------------------------------------------------------- the bench
+
+#: The learner of :func:`bench_sampling`: train-policy's ``cpu`` preset (a test checks that they agree).
+BENCH_SAC: dict[str, Any] = {"hidden_units": (256, 256), "batch_size": 256, "learning_rate": 1e-3, "gamma": 0.99,
+                             "tau": 0.005, "gradient_steps": 1, "torch_threads": 1}  # fmt: skip
+
+
+def bench_sampling(
+    workers: int,
+    seconds: float,
+    seed: int = 0,
+    *,
+    cars: int = 20,
+    track: str = "expressway",
+    address: str = "",
+    max_staleness: int = 1,
+    version_every_updates: int = 20,
+    prefill_transitions: int = 10_000,
+) -> dict[str, Any]:
+    """The learner with ``workers`` sampler actors against the learner alone, state observation, ``cars`` cars,
+    train-policy's cpu preset (:data:`BENCH_SAC`).
+
+    First the learner's standalone rate: SAC updates on a buffer of random transitions, nothing else running in
+    this process, for ``seconds``. Then the same learner trains for ``seconds`` on transitions from the samplers at
+    the preset's ratio (one update per vector step), with the pacing of ``train-policy --workers``. Returns
+    ``standalone_updates_per_s``, ``learner_updates_per_s``, their ratio ``learner_share_of_standalone``,
+    ``sampled_transitions_per_s`` (what reached the learner: the ratio makes it about ``cars`` times the update
+    rate when the samplers keep up), ``sampler_transitions_per_busy_s`` (one sampler's rate while it steps),
+    the learner's waiting time and the machine's load. ``prefill_transitions`` random transitions (the cpu
+    preset's start steps) fill the replay buffer first, untimed."""
+    import torch
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.logger import configure
+
+    from vision_rl.envs.core import RacingConfig
+    from vision_rl.envs.vector import make_sb3_vec_env
+    from vision_rl.phase2_rl.artifact import policy_fingerprint, racing_config_to_dict
+
+    check_workers(workers, max_staleness, version_every_updates)
+    if not seconds > 0:
+        raise DistributedError(f"bench seconds must be > 0, got {seconds}")
+    torch.set_num_threads(BENCH_SAC["torch_threads"])
+    racing = RacingConfig(track=track, n_groups=cars)
+    venv = make_sb3_vec_env(racing, seed=seed)
+    model = SAC(
+        "MlpPolicy", venv, learning_rate=BENCH_SAC["learning_rate"], buffer_size=4 * prefill_transitions
+        + int(2 * seconds * 5_000), learning_starts=0, batch_size=BENCH_SAC["batch_size"], tau=BENCH_SAC["tau"],
+        gamma=BENCH_SAC["gamma"], policy_kwargs={"net_arch": list(BENCH_SAC["hidden_units"])}, seed=seed,
+        device="cpu", verbose=0,
+    )  # fmt: skip
+    model.set_logger(configure(None, [""]))
+    # Random transitions from a local world, untimed, so that the standalone updates sample a real buffer.
+    rng = np.random.default_rng(seed)
+    low, high = venv.action_space.low, venv.action_space.high
+    obs = venv.reset()
+    for _ in range(math.ceil(prefill_transitions / cars)):
+        action = rng.uniform(low, high, (cars, 2)).astype(np.float32)
+        new_obs, rewards, dones, infos = venv.step(action)
+        model.replay_buffer.add(obs, new_obs, model.policy.scale_action(action), rewards, dones, infos)
+        obs = new_obs
+        model.num_timesteps += cars
+    t0, standalone = time.perf_counter(), 0
+    while time.perf_counter() - t0 < seconds:
+        model.train(gradient_steps=1, batch_size=BENCH_SAC["batch_size"])
+        standalone += 1
+    standalone_s = time.perf_counter() - t0
+    normalizer = venv.core.observer.normalizer
+    setup = SamplerSetup(
+        racing_config=racing_config_to_dict(racing), observation="state", obs_normalizer=normalizer.to_dict(),
+        fingerprint=policy_fingerprint(racing, "state", venv.observation_space.shape[0], None),
+        hidden_units=tuple(BENCH_SAC["hidden_units"]), seed=seed,
+    )  # fmt: skip
+    pacing = Pacing(
+        workers=workers, n_cars=cars, gradient_steps=BENCH_SAC["gradient_steps"], batch_size=BENCH_SAC["batch_size"],
+        learning_starts=0, start_timesteps=int(model.num_timesteps), total_timesteps=None,
+        version_every_updates=version_every_updates, max_staleness=max_staleness,
+    )  # fmt: skip
+    venv.close()
+    cluster = connect(address, workers)
+    try:
+        stats = learn_with_samplers(model, setup, pacing, cluster, deadline_s=seconds)
+    finally:
+        cluster.close()
+    duration = max(stats["duration_s"], 1e-9)
+    learner = stats["updates"] / duration
+    standalone_rate = standalone / standalone_s
+    return {
+        "workers": workers,
+        "seconds": seconds,
+        "cars": cars,
+        "observation": "state",
+        "batch_size": BENCH_SAC["batch_size"],
+        "standalone_updates_per_s": round(standalone_rate, 2),
+        "learner_updates_per_s": round(learner, 2),
+        "learner_share_of_standalone": round(learner / standalone_rate, 4),
+        "sampled_transitions_per_s": round(stats["transitions"] / duration, 1),
+        "sampler_transitions_per_busy_s": round(stats["transitions"] / max(stats["sampler_busy_s"], 1e-9), 1),
+        "learner_wait_s": stats["learner_wait_s"],
+        "max_staleness": max_staleness,
+        "max_staleness_seen": stats["max_staleness_seen"],
+        "version_every_updates": version_every_updates,
+        "load_avg_1min": round(os.getloadavg()[0], 2),
+        "cpu_count": os.cpu_count(),
+    }
