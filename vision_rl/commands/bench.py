@@ -1,4 +1,7 @@
-"""`vision-rl bench sim | env | render`: throughput of the simulator, the environments and the renderer."""
+"""`vision-rl bench sim | env | render | ddpg`: throughput of the simulator, the environments, the renderer and DDPG.
+
+`vision-rl bench scaling` (1 and 2 workers side by side) is in :mod:`vision_rl.commands.bench_scaling`.
+"""
 
 from __future__ import annotations
 
