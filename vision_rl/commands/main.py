@@ -43,7 +43,7 @@ COMMANDS: dict[str, Command] = {
     "bench ddpg": Command("DDPG updates/s per variant and layout", f"{_C}.bench", "BenchDDPGOptions", "run_bench_ddpg"),
     "bench render": Command("renderer and capture throughput", f"{_C}.bench", "BenchRenderOptions", "run_bench_render"),
     "bench scaling": Command(
-        "capture, train-repr and sampling with 1 and 2 workers", f"{_C}.bench_scaling", "BenchScalingOptions",
+        "capture, Phase-1 training and sampling, 1 vs 2 workers", f"{_C}.bench_scaling", "BenchScalingOptions",
         "run_bench_scaling",
     ),
     "capture": Command("record frames and targets to HDF5", f"{_C}.capture", "CaptureOptions", "run_capture"),
