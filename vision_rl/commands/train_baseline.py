@@ -29,19 +29,27 @@ class TrainBaselineOptions(TrainBaselineConfig):
 
 def format_train_baseline(result: dict[str, Any]) -> list[str]:
     algo = result["algo"]
-    lines = [f"{algo}: policy {result['out']} ({result['status']})"
-             + (" (interrupted: saved; run the same command to continue)" if result.get("interrupted") else "")]
+    lines = [
+        f"{algo}: policy {result['out']} ({result['status']})"
+        + (" (interrupted: saved; run the same command to continue)" if result.get("interrupted") else "")
+    ]
     if algo == "bc" and result.get("fit"):
         fit = result["fit"]
-        lines.append(f"  {fit['epochs']} epochs, {fit['updates']} updates, best held-out mse {fit['best_held_out_mse']:.5f} "
-                     f"(epoch {fit['best_epoch']}), {fit['stopped']}; {result.get('updates_per_s')} updates/s")
+        lines.append(
+            f"  {fit['epochs']} epochs, {fit['updates']} updates, best held-out mse {fit['best_held_out_mse']:.5f} "
+            f"(epoch {fit['best_epoch']}), {fit['stopped']}; {result.get('updates_per_s')} updates/s"
+        )
     session = result.get("session")
     if session:
-        lines.append(f"  this session: {session['steps']} steps, {session['updates']} updates in {session['wall_s']} s "
-                     f"({session['transitions_per_s']} transitions/s, {session['updates_per_s']} updates/s)")
+        lines.append(
+            f"  this session: {session['steps']} steps, {session['updates']} updates in {session['wall_s']} s "
+            f"({session['transitions_per_s']} transitions/s, {session['updates_per_s']} updates/s)"
+        )
     if result.get("num_timesteps") is not None:
-        lines.append(f"  total {result['num_timesteps']} of {result.get('steps')} steps, "
-                     f"{result.get('train_time_s')} s of training")
+        lines.append(
+            f"  total {result['num_timesteps']} of {result.get('steps')} steps, "
+            f"{result.get('train_time_s')} s of training"
+        )
     return lines
 
 

@@ -187,13 +187,15 @@ def check_config(cfg: TrainBaselineConfig) -> None:
         raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
     checks = {
         "steps": cfg.steps >= 0, "cars": 1 <= cfg.cars <= 1000, "episode_s": cfg.episode_s >= 0.1,
-        "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
-        "eval_every_steps": cfg.eval_every_steps >= 0, "eval_seeds": cfg.eval_seeds >= 1, "eval_laps": cfg.eval_laps >= 1,
+        "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0,
+        "buffer_size": cfg.buffer_size >= 0, "eval_every_steps": cfg.eval_every_steps >= 0,
+        "eval_seeds": cfg.eval_seeds >= 1, "eval_laps": cfg.eval_laps >= 1,
         "eval_time_limit_s": cfg.eval_time_limit_s >= 0, "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
         "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "bc_patience": cfg.bc_patience >= 1,
         "bc_min_improvement": 0 <= cfg.bc_min_improvement < 1, "bc_max_epochs": cfg.bc_max_epochs >= 1,
         "gail_disc_every_steps": cfg.gail_disc_every_steps >= 1, "gail_disc_updates": cfg.gail_disc_updates >= 0,
-        "gail_disc_batch": cfg.gail_disc_batch >= 1, "gail_disc_lr": cfg.gail_disc_lr > 0, "td3_noise": cfg.td3_noise >= 0,
+        "gail_disc_batch": cfg.gail_disc_batch >= 1, "gail_disc_lr": cfg.gail_disc_lr > 0,
+        "td3_noise": cfg.td3_noise >= 0,
     }  # fmt: skip
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
@@ -300,8 +302,17 @@ class _RunFolder:
         _write_json(self.out / RUN_NAME, self.record)
 
 
-def _spec(cfg: TrainBaselineConfig, racing: RacingConfig, normalizer, fingerprint: dict[str, Any], sha256: str,
-          recipe: dict[str, Any], num_timesteps: int, train_time_s: float, settings: dict[str, Any]) -> PolicySpec:
+def _spec(
+    cfg: TrainBaselineConfig,
+    racing: RacingConfig,
+    normalizer,
+    fingerprint: dict[str, Any],
+    sha256: str,
+    recipe: dict[str, Any],
+    num_timesteps: int,
+    train_time_s: float,
+    settings: dict[str, Any],
+) -> PolicySpec:
     return PolicySpec(
         observation=OBSERVATION, racing_config=racing_config_to_dict(racing), obs_normalizer=normalizer.to_dict(),
         fingerprint=fingerprint, weights_sha256=sha256, model=MODEL_NAME, preset=cfg.preset,
@@ -446,8 +457,9 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
     rmse = np.sqrt(fit["best_held_out_mse"])
     run.update(status="done", steps=total_steps(cfg), fit=fit, train_time_s=round(train_time_s, 2),
                demos={"path": str(demos.path), "sha256": demos.sha256, "n_transitions": demos.n_transitions,
-                      "n_train": int(len(train_idx)), "n_held_out": int(len(val_idx))},
-               held_out_rmse_scaled=float(rmse), updates_per_s=round(fit["updates"] / max(train_time_s, 1e-9), 1))  # fmt: skip
+                      "n_train": len(train_idx), "n_held_out": len(val_idx)},
+               held_out_rmse_scaled=float(rmse),
+               updates_per_s=round(fit["updates"] / max(train_time_s, 1e-9), 1))  # fmt: skip
     return {**run.record, "out": str(run.out), "policy": str(run.out), "trained_now": True, "interrupted": False}
 
 
@@ -482,8 +494,14 @@ class Discriminator(nn.Module):
             return self(obs, action).clamp(-REWARD_CLIP, REWARD_CLIP)
 
 
-def discriminator_step(disc: Discriminator, optimizer: torch.optim.Optimizer, expert_obs: torch.Tensor,
-                       expert_act: torch.Tensor, learner_obs: torch.Tensor, learner_act: torch.Tensor) -> dict:  # fmt: skip
+def discriminator_step(
+    disc: Discriminator,
+    optimizer: torch.optim.Optimizer,
+    expert_obs: torch.Tensor,
+    expert_act: torch.Tensor,
+    learner_obs: torch.Tensor,
+    learner_act: torch.Tensor,
+) -> dict[str, float]:
     """One logistic-regression step: expert pairs labelled 1, learner pairs 0; returns loss and accuracies."""
     logits_e, logits_l = disc(expert_obs, expert_act), disc(learner_obs, learner_act)
     loss = nn.functional.binary_cross_entropy_with_logits(logits_e, torch.ones_like(logits_e)) + (
@@ -510,28 +528,35 @@ class GAILReplayBuffer(ReplayBuffer):
         return samples._replace(rewards=reward.to(samples.rewards.dtype))
 
 
-class _GAILUpdater:
-    """The discriminator, its optimiser and its updates against the learner's replay buffer."""
+class GAILUpdater:
+    """The discriminator, its optimiser and its updates: expert pairs against pairs drawn from the learner's
+    replay buffer (both with actions in the policy's [-1, 1] units, as SB3 stores them).
 
-    def __init__(self, demos: Demos, action_scale: Callable[[np.ndarray], np.ndarray], cfg: TrainBaselineConfig,
-                 device: str) -> None:  # fmt: skip
-        self.cfg = cfg
-        self.device = device
-        torch.manual_seed(cfg.seed)
-        self.disc = Discriminator().to(device)
-        self.optimizer = torch.optim.Adam(self.disc.parameters(), lr=cfg.gail_disc_lr)
-        self.expert_obs = torch.as_tensor(demos.observations, device=device)
-        self.expert_act = torch.as_tensor(action_scale(demos.actions.astype(np.float64)), dtype=torch.float32,
-                                          device=device)  # fmt: skip
-        self.rng = np.random.default_rng(cfg.seed + 7)
+    Args:
+        expert_obs, expert_actions_scaled: (N, obs_dim) and (N, action_dim) demonstration pairs.
+        batch, updates, learning_rate: pairs of each kind per step, steps per :meth:`update`, Adam step size.
+        seed: of the discriminator's weights and of the pairs drawn.
+        hidden_units: the discriminator's MLP.
+    """
+
+    def __init__(self, expert_obs: np.ndarray, expert_actions_scaled: np.ndarray, *, batch: int, updates: int,
+                 learning_rate: float, seed: int, device: str = "cpu",
+                 hidden_units: tuple[int, ...] = HIDDEN_UNITS) -> None:  # fmt: skip
+        self.batch, self.updates, self.device = batch, updates, device
+        torch.manual_seed(seed)
+        self.disc = Discriminator(expert_obs.shape[1], expert_actions_scaled.shape[1], hidden_units).to(device)
+        self.optimizer = torch.optim.Adam(self.disc.parameters(), lr=learning_rate)
+        self.expert_obs = torch.as_tensor(expert_obs, dtype=torch.float32, device=device)
+        self.expert_act = torch.as_tensor(expert_actions_scaled, dtype=torch.float32, device=device)
+        self.rng = np.random.default_rng(seed + 7)
         self.last: dict[str, float] = {}
 
     def update(self, buffer: ReplayBuffer) -> dict[str, float]:
         rows = buffer.buffer_size if buffer.full else buffer.pos
         if rows == 0:
             return {}
-        batch = self.cfg.gail_disc_batch
-        for _ in range(self.cfg.gail_disc_updates):
+        batch = self.batch
+        for _ in range(self.updates):
             e = torch.as_tensor(self.rng.integers(0, len(self.expert_obs), batch), device=self.device)
             r, k = self.rng.integers(0, rows, batch), self.rng.integers(0, buffer.n_envs, batch)
             lo = torch.as_tensor(buffer.observations[r, k], dtype=torch.float32, device=self.device)
@@ -547,7 +572,9 @@ class _GAILUpdater:
             self.disc.load_state_dict(state["discriminator"])
             self.optimizer.load_state_dict(state["discriminator_optimizer"])
         except (KeyError, RuntimeError, ValueError) as exc:
-            raise BaselineError(f"{source}: no discriminator that fits this gail run: {str(exc).splitlines()[0]}") from None
+            raise BaselineError(
+                f"{source}: no discriminator that fits this gail run: {str(exc).splitlines()[0]}"
+            ) from None
 
 
 # ------------------------------------------------------------------------------------------------- online
@@ -604,7 +631,7 @@ class _OnlineSession:
         self.end_steps = total_steps(cfg)
         self.last_eval: dict[str, Any] | None = None
         self.eval_driver: PolicyDriver | None = None
-        self.gail: _GAILUpdater | None = None
+        self.gail: GAILUpdater | None = None
         self.frozen_train_time_s: float | None = None
 
     def build(self):
@@ -636,7 +663,10 @@ class _OnlineSession:
             model = SAC("MlpPolicy", self.env, **common)
         if cfg.algo == "gail":
             assert self.demos is not None
-            self.gail = _GAILUpdater(self.demos, model.policy.scale_action, cfg, self.device)
+            scaled = model.policy.scale_action(self.demos.actions.astype(np.float64))
+            self.gail = GAILUpdater(self.demos.observations, scaled, batch=cfg.gail_disc_batch,
+                                    updates=cfg.gail_disc_updates, learning_rate=cfg.gail_disc_lr, seed=cfg.seed,
+                                    device=self.device)  # fmt: skip
             model.replay_buffer.discriminator = self.gail.disc
         self.train_time_before_s = spec.train_time_s if spec is not None else 0.0
         self.buffer_restored = 0
@@ -815,6 +845,7 @@ __all__ = [
     "BaselineError",
     "Discriminator",
     "GAILReplayBuffer",
+    "GAILUpdater",
     "TrainBaselineConfig",
     "baseline_algo",
     "check_table_track",

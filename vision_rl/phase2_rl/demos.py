@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import itertools
 import json
 import os
 import time
@@ -83,8 +84,8 @@ class HeldAIDriver:
 
     @property
     def identity(self) -> dict[str, Any]:
-        return {"driver": "built-in AI held at 10 Hz", "skill": self.skill,
-                "rule": "mean of its five 0.02 s commands over the 0.1 s step, found on a copy of the world"}  # fmt: skip
+        rule = "mean of its five 0.02 s commands over the 0.1 s step, found on a copy of the world"
+        return {"driver": "built-in AI held at 10 Hz", "skill": self.skill, "rule": rule}
 
     def reset(self, world: World, car_ids: np.ndarray) -> None:
         line, profile = line_and_profile(world.track, world.car)
@@ -184,8 +185,8 @@ class Demos:
 
     def episode_slices(self) -> list[slice]:
         """One slice per episode, in file order."""
-        starts = list(np.flatnonzero(self.episode_starts)) + [self.n_transitions]
-        return [slice(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:], strict=True)]
+        starts = [*np.flatnonzero(self.episode_starts).tolist(), self.n_transitions]
+        return [slice(a, b) for a, b in itertools.pairwise(starts)]
 
 
 def write_demos(path: str | os.PathLike[str], arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> str:
@@ -327,7 +328,7 @@ def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -
             episode_ids.append(episode.copy())
             done = terminated | truncated
             current_m = 0.0
-            for g, info in enumerate(infos):
+            for info in infos:
                 if "final_info" in info:
                     done_progress_m += info["final_info"]["progress_m"]
                     wall_s += info["final_info"]["wall_contact_s"]
@@ -360,7 +361,7 @@ def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -
         "demonstrator": expert.identity,
         "settings": dataclasses.asdict(cfg),
         "normalizer": normalizer.to_dict(),
-        "n_transitions": int(len(arrays["actions"])), "n_episodes": int(arrays["episode_starts"].sum()),
+        "n_transitions": len(arrays["actions"]), "n_episodes": int(arrays["episode_starts"].sum()),
         "laps_driven": round(laps_driven, 3), "wall_contact_s_in_finished_episodes": round(wall_s, 2),
         "mean_reward": float(arrays["rewards"].mean()),
         "record_time_s": round(record_s, 2), "package_version": package_version(),

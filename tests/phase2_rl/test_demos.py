@@ -1,0 +1,71 @@
+"""record-demos: the AI held at the environment's 10 Hz drives like the 50 Hz AI, its recorded actions replay to the
+recorded observations, and the file's episodes, checksum and fingerprint are what they say."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import vision_rl  # noqa: F401  (registers the environments)
+from vision_rl.evaluation.protocol import BuiltinAI, time_laps
+from vision_rl.phase2_rl.demos import (
+    HeldAIDriver,
+    RecordDemosConfig,
+    demo_fingerprint,
+    load_demos,
+    record_demos,
+)
+from vision_rl.sim.track_library import load_track
+
+CAR = "tt_cup"
+
+
+@pytest.fixture(scope="session")
+def small_demos(tmp_path_factory, small_track):
+    """Two laps of demonstrations on the small track: 2 cars, 20 s episodes (so several episodes per car)."""
+    out = tmp_path_factory.mktemp("demos") / "ai.npz"
+    result = record_demos(RecordDemosConfig(track=small_track, car=CAR, laps=2.0, cars=2, episode_s=20.0, seed=3,
+                                            out=str(out)))  # fmt: skip
+    return out, result
+
+
+def test_the_held_ai_laps_like_the_ai_it_holds(small_track):
+    held = time_laps(HeldAIDriver(), small_track, CAR, seeds=[0], laps=2).summary()
+    ai = time_laps(BuiltinAI(), small_track, CAR, seeds=[0], laps=2).summary()
+    assert held["n_finished"] == 1 and held["best_lap"]["wall_contact_s"] == 0.0
+    assert held["best_lap_time_s"] == pytest.approx(ai["best_lap_time_s"], rel=0.01)
+
+
+def test_replaying_the_recorded_actions_reproduces_the_recorded_observations(small_demos, small_track):
+    out, _ = small_demos
+    demos = load_demos(out, demo_fingerprint(small_track, CAR))
+    first = demos.episode_slices()[0]
+    env = gym.make("vision_rl/Overtaking-v1", track=small_track, car=CAR, scenario="stage1", episode_s=20.0)
+    try:
+        obs, _ = env.reset(seed=3)  # the file's first episode is group 0's first: reset(seed)'s
+        np.testing.assert_array_equal(obs, demos.observations[first.start])
+        for k in range(first.start, first.start + 60):
+            obs, reward, *_ = env.step(demos.actions[k])
+            np.testing.assert_array_equal(obs, demos.observations[k + 1])
+            assert reward == demos.rewards[k]
+    finally:
+        env.close()
+    # The actions are the AI's, in the environment's bounds, and they drive: mostly throttle, some steering.
+    assert np.all(np.abs(demos.actions[:, 0]) <= np.pi / 6) and np.all(np.abs(demos.actions[:, 1]) <= 1.0)
+    assert demos.actions[:, 1].mean() > 0.2 and demos.actions[:, 0].std() > 1e-3
+
+
+def test_the_file_holds_whole_episodes_and_its_figures(small_demos, small_track):
+    out, result = small_demos
+    demos = load_demos(out)
+    slices = demos.episode_slices()
+    assert result["laps_driven"] >= 2.0 and result["n_episodes"] == len(slices) >= 3
+    assert all(s.stop - s.start <= 200 for s in slices)  # 20 s episodes at 10 Hz
+    assert sum(s.stop - s.start for s in slices) == demos.n_transitions == result["n_transitions"]
+    # Eq. 1 summed over the file is the progress driven (the AI touches no wall): the laps it says it drove.
+    length_m = load_track(small_track).length_m
+    assert demos.rewards.sum() == pytest.approx(result["laps_driven"] * length_m, rel=1e-3)
+    assert demos.fingerprint == demo_fingerprint(small_track, CAR)
+    assert demos.meta["demonstrator"]["driver"] == "built-in AI held at 10 Hz"
+    assert demos.observations.dtype == np.float32 and demos.observations.shape[1] == 96
