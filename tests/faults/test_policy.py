@@ -185,6 +185,9 @@ def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeyp
         ({"eval_laps": 0}, "--eval-laps 0"),
         ({"episode_s": -1.0}, "--episode-s -1.0"),
         ({"checkpoint_every_min": -5.0}, "--checkpoint-every-min"),
+        ({"steer_change_penalty_c_s": -0.5}, "--steer-change-penalty-c-s -0.5"),
+        ({"frame_delay_s": 0.067}, "give --encoder"),
+        ({"frame_delay_s": 2.0}, "--frame-delay-s 2.0"),
     ],
 )
 def test_out_of_range_options_are_refused_before_anything_is_written(small_track, tmp_path, change, message, fault):

@@ -140,6 +140,8 @@ class TrainPolicyConfig:
     """c_w of the reward's wall penalty."""
     steer_change_penalty_c_s: float = 0.0
     """c_s of the reward's steering-change penalty ``c_s * (change / limit)^2`` (0: the papers' reward)."""
+    frame_delay_s: float = 0.0
+    """Vision: frames lag the state by this long (the paper's 4 frames at 60 Hz: 0.067; 0: none)."""
     stats_steps: int = 50
     """Vision: control steps of the feature-statistics rollout."""
     learning_rate: float = 0.0
@@ -286,7 +288,7 @@ class _Run:
             self.racing = RacingConfig(
                 track=cfg.track, car=cfg.car, observation=self.kind, n_groups=cfg.cars, episode_s=cfg.episode_s,
                 wall_penalty_c_w=cfg.wall_penalty_c_w, image_hw_px=image_hw,
-                steer_change_penalty_c_s=cfg.steer_change_penalty_c_s,
+                steer_change_penalty_c_s=cfg.steer_change_penalty_c_s, frame_delay_s=cfg.frame_delay_s,
             )  # fmt: skip
             self.start_steps = 0
             self.train_time_before_s = 0.0
@@ -465,6 +467,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "episode_s": cfg.episode_s > 0,
         "wall_penalty_c_w": cfg.wall_penalty_c_w >= 0,
         "steer_change_penalty_c_s": cfg.steer_change_penalty_c_s >= 0, "stats_steps": cfg.stats_steps >= 1,
+        "frame_delay_s": 0 <= cfg.frame_delay_s <= 1,
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0,
     }  # fmt: skip
@@ -472,6 +475,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     if bad:
         name = bad[0]
         raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
+    if cfg.frame_delay_s > 0 and not cfg.encoder:
+        raise ValueError("--frame-delay-s delays the vision frames: give --encoder (the state observation has none)")
     if cfg.workers is not None or cfg.address:
         from vision_rl.phase2_rl.distributed import check_workers
 
