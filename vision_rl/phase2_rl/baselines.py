@@ -73,7 +73,7 @@ from vision_rl.phase2_rl.artifact import (
     resolve_policy_paths,
     sac_policy,
 )
-from vision_rl.phase2_rl.demos import OBS_DIM, OBSERVATION, Demos, demo_fingerprint, load_demos, race_config
+from vision_rl.phase2_rl.demos import OBS_DIM, OBSERVATION, Demos, load_demos_for, race_config
 from vision_rl.phase2_rl.overtaking import BUDGETS
 from vision_rl.phase2_rl.persist import (
     ArtifactError,
@@ -412,7 +412,7 @@ def fit_bc(policy, observations: np.ndarray, actions_scaled: np.ndarray, train_i
 def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Behaviour cloning on the demonstrations (see the module's docstring); writes the run folder."""
     racing = race_config(cfg.track, cfg.car)
-    demos = load_demos(cfg.demos, demo_fingerprint(cfg.track, cfg.car))
+    demos = load_demos_for(cfg.demos, cfg.track, cfg.car)
     run = _RunFolder(cfg, demos)
     if run.record.get("status") == "done" and run.record.get("steps") == total_steps(cfg):
         return {**run.record, "out": str(run.out), "trained_now": False}
@@ -622,7 +622,7 @@ class _OnlineSession:
 
     def __init__(self, cfg: TrainBaselineConfig) -> None:
         self.cfg = cfg
-        self.demos = load_demos(cfg.demos, demo_fingerprint(cfg.track, cfg.car)) if cfg.algo == "gail" else None
+        self.demos = load_demos_for(cfg.demos, cfg.track, cfg.car) if cfg.algo == "gail" else None
         self.run = _RunFolder(cfg, self.demos)
         self.recipe = resolve_recipe(cfg)
         self.device = _device(cfg.device)

@@ -135,6 +135,10 @@ def race_config(track: str, car: str, n_groups: int = 1, episode_s: float = 100.
 def demo_fingerprint(track: str, car: str, normalizer: ObsNormalizer | None = None) -> dict[str, Any]:
     """What a demonstrations file belongs to; ``normalizer`` None: the environment's today."""
     normalizer = normalizer if normalizer is not None else environment_normalizer(track, car)
+    return {**_setting_fingerprint(track, car), "normalizer_sha256": normalizer_sha256(normalizer)}
+
+
+def _setting_fingerprint(track: str, car: str) -> dict[str, Any]:
     return {
         "track_geometry_hash": load_track(track).geometry_hash,
         "car": car,
@@ -143,7 +147,6 @@ def demo_fingerprint(track: str, car: str, normalizer: ObsNormalizer | None = No
         "obs_version": OBS_VERSION,
         "control_dt_s": 0.1,
         "scenario": SCENARIO,
-        "normalizer_sha256": normalizer_sha256(normalizer),
     }
 
 
@@ -247,12 +250,27 @@ def load_demos(path: str | os.PathLike[str], fingerprint: Mapping[str, Any] | No
     if not all(np.isfinite(arrays[name]).all() for name in ("observations", "actions", "rewards")):
         raise DemoError(f"{path}: holds values that are not finite")
     if fingerprint is not None:
-        check_fingerprint(meta.get("fingerprint", {}), fingerprint, f"{path} (demonstrations)")
+        _check(meta.get("fingerprint", {}), fingerprint, path)
     return Demos(
         observations=arrays["observations"].astype(np.float32, copy=False),
         actions=arrays["actions"].astype(np.float32, copy=False), rewards=arrays["rewards"].astype(np.float32),
         episode_starts=arrays["episode_starts"].astype(bool), meta=meta, path=path, sha256=checkpoint_sha256(path),
     )  # fmt: skip
+
+
+def load_demos_for(path: str | os.PathLike[str], track: str, car: str) -> Demos:
+    """:func:`load_demos` checked against ``track`` and ``car``: first the track, car and observation (cheap), then
+    the normaliser the environment applies today (which may have to be sampled once)."""
+    demos = load_demos(path, _setting_fingerprint(track, car))
+    _check(demos.meta["fingerprint"], demo_fingerprint(track, car), demos.path)
+    return demos
+
+
+def _check(recorded: Mapping[str, Any], expected: Mapping[str, Any], path: Path) -> None:
+    try:
+        check_fingerprint(recorded, expected, f"{path} (demonstrations)")
+    except ArtifactError as exc:
+        raise DemoError(f"{exc}: record demonstrations on this track and car with `vision-rl record-demos`") from None
 
 
 # ------------------------------------------------------------------------------------------------- recording
@@ -379,6 +397,7 @@ __all__ = [
     "RecordDemosConfig",
     "demo_fingerprint",
     "load_demos",
+    "load_demos_for",
     "race_config",
     "record_demos",
     "write_demos",

@@ -93,6 +93,11 @@ def _ratios(row: dict[str, Any], ai: dict[str, Any]) -> None:
     row["speed_ratio_to_ai"] = None if speed is None or ai.get("avg_speed_kmh") is None else speed / ai["avg_speed_kmh"]
 
 
+def _timed_row(key: str, figures: dict[str, Any]) -> dict[str, Any]:
+    status = "timed" if figures["lap_time_s"] is not None else "DNF"
+    return {"key": key, "name": ROW_NAMES[key], "status": status, **figures}
+
+
 #: ``progress(row_name)`` before each row is timed.
 Table3Progress = Callable[[str], None]
 
@@ -123,7 +128,7 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
 
     if progress is not None:
         progress("ai")
-    ai = {"key": "ai", "name": ROW_NAMES["ai"], "status": "timed", **timed(BuiltinAI())}
+    ai = _timed_row("ai", timed(BuiltinAI()))
     rows = [ai]
     for algo in ("bc", "gail", "sac", "td3"):
         runs = []
@@ -152,8 +157,7 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
     if cfg.demonstrator:
         if progress is not None:
             progress("demonstrator")
-        rows.append({"key": "demonstrator", "name": ROW_NAMES["demonstrator"], "status": "timed",
-                     **timed(HeldAIDriver())})  # fmt: skip
+        rows.append(_timed_row("demonstrator", timed(HeldAIDriver())))
     paper_ai = PAPER_TABLE3["ai"]
     for row in rows:
         _ratios(row, ai)
