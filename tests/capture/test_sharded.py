@@ -104,6 +104,3 @@ def test_sharded_capture_equals_single_process_captures_and_reads_as_one_dataset
     assert open_manifest(tmp_path / "cap.json") == paths
 
 
-def test_more_workers_than_the_cluster_has_cpus_is_refused(ray_local, tmp_path):
-    with pytest.raises(ValueError, match=r"--workers 3 but the Ray cluster has 2 CPUs"):
-        capture_sharded(_config(tmp_path, laps=3, workers=3))

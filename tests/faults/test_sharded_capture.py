@@ -22,6 +22,7 @@ from vision_rl.capture.sharded import (
     capture_sharded,
     open_manifest,
     plan_shards,
+    shards_dir,
     write_manifest,
 )
 from vision_rl.commands.main import main
@@ -140,9 +141,11 @@ def test_without_ray_capture_workers_says_which_extra(tmp_path, capsys, monkeypa
 
 
 def test_more_workers_than_cpus_is_refused(ray_local, tmp_path, fault):
+    cfg = _config(tmp_path, laps=3, workers=3)
     with pytest.raises(ValueError) as info:
-        capture_sharded(_config(tmp_path, laps=3, workers=3))
+        capture_sharded(cfg)
     assert "--workers 3 but the Ray cluster has 2 CPUs" in str(info.value)
+    assert not Path(cfg.out).exists() and not shards_dir(cfg.out).exists()  # refused before touching the disk
     fault.refused("capture --workers 3 on a Ray cluster of 2 CPUs", str(info.value))
 
 

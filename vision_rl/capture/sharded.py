@@ -119,9 +119,10 @@ def plan_shards(cfg: ShardedCaptureConfig) -> list[CaptureConfig]:
 
 
 def _settings(cfg: ShardedCaptureConfig, track_geometry_hash: str) -> dict[str, Any]:
-    """What every shard of the run shares (a resume must keep all of it)."""
+    """What every shard of the run shares (a resume must keep all of it); the track by its geometry, so that the
+    same track file named by another path resumes."""
     return {
-        "track": cfg.track, "track_geometry_hash": track_geometry_hash, "car": cfg.car, "laps": cfg.laps,
+        "track_geometry_hash": track_geometry_hash, "car": cfg.car, "laps": cfg.laps,
         "cars": cfg.cars, "fps": float(cfg.fps), "disrupt_ai": bool(cfg.disrupt_ai),
         "image_hw_px": list(cfg.image_hw_px), "seed": int(cfg.seed), "workers": int(cfg.workers),
     }  # fmt: skip
@@ -283,7 +284,8 @@ def connect_ray(address: str, what: str) -> tuple[Any, bool]:
     ray = import_ray(what)
     if ray.is_initialized():
         return ray, False
-    os.environ.setdefault("RAY_AUTH_MODE", "disabled")
+    if not address:  # a private Ray of this process: no cluster token to manage
+        os.environ.setdefault("RAY_AUTH_MODE", "disabled")
     kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
     try:
         if address:
@@ -360,13 +362,31 @@ def capture_sharded(
             option = "--" + field.split(".", 1)[1].split("[")[0].replace("_", "-")
             raise ManifestError(f"{manifest}: cannot resume: {field} was {was!r}, now {now!r} ({option}); resume "
                                 "with the run's settings or start over with --force")  # fmt: skip
-    elif not cfg.resume and (manifest.exists() or folder.exists()):
-        if not cfg.force:
-            raise FileExistsError(f"{manifest} exists: pass --force to overwrite it or --resume to continue it")
+    elif not cfg.resume and (manifest.exists() or folder.exists()) and not cfg.force:
+        raise FileExistsError(f"{manifest} exists: pass --force to overwrite it or --resume to continue it")
+    # Ray and its CPUs are checked before anything on disk is touched: a refused run changes nothing.
+    ray, started = connect_ray(cfg.address, "capture --workers")
+    try:
+        check_workers(ray, cfg.workers)
+        todo, restarted = _prepare(cfg, shards, settings)
+    except BaseException:
+        if started:
+            ray.shutdown()
+        raise
+    return _run(cfg, ray, started, shards, settings, todo, restarted, progress, on_shards)
+
+
+def _prepare(
+    cfg: ShardedCaptureConfig, shards: list[CaptureConfig], settings: dict[str, Any]
+) -> tuple[list[int], list[int]]:
+    """Clear (``force``) or create the shard folder; the shards still to capture, and those whose unreadable file
+    was removed; writes the manifest as things stand."""
+    manifest = Path(cfg.out)
+    folder = shards_dir(manifest)
+    if not cfg.resume and cfg.force:
         manifest.unlink(missing_ok=True)
         shutil.rmtree(folder, ignore_errors=True)
     folder.mkdir(parents=True, exist_ok=True)
-
     # Which shards are done: a resumed run keeps every complete shard and restarts only the others.
     todo: list[int] = []
     restarted: list[int] = []
@@ -386,14 +406,26 @@ def capture_sharded(
         if not complete:
             todo.append(i)
     write_manifest(cfg, shards, settings)
+    return todo, restarted
 
-    ray, started = connect_ray(cfg.address, "capture --workers")
+
+def _run(
+    cfg: ShardedCaptureConfig,
+    ray: Any,
+    started: bool,
+    shards: list[CaptureConfig],
+    settings: dict[str, Any],
+    todo: list[int],
+    restarted: list[int],
+    progress: Callable[[int, int], None] | None,
+    on_shards: ShardReports | None,
+) -> dict[str, Any]:
+    """The shards ``todo`` as Ray tasks; the manifest rewritten from the files whatever happens."""
     results: dict[int, dict[str, Any]] = {}
     failures: dict[int, str] = {}
     interrupted = False
     t0 = time.perf_counter()
     try:
-        check_workers(ray, cfg.workers)
         board = ray.remote(num_cpus=0)(_ProgressBoard).remote()
         task = ray.remote(_capture_shard).options(num_cpus=1, max_retries=cfg.task_retries)
         pending = {task.remote(shards[i], i, board): i for i in todo}

@@ -40,10 +40,10 @@ class CaptureOptions(CaptureConfig):
     frame_delay: int = 0
     """Video source: frames the video lags the telemetry (paper: 4)."""
     workers: int | None = None
-    """Capture N shards at once as Ray tasks of one CPU each, --out being their manifest PATH.json (default: one
+    """Capture N shards at once as Ray tasks of one CPU each, --out being their manifest PATH.json (none: one
     process, no Ray)."""
     address: str = ""
-    """With --workers: the Ray cluster, 'auto' (the running one) or HOST:PORT (default: a local Ray)."""
+    """With --workers: the Ray cluster, 'auto' (the running one) or HOST:PORT (empty: a local Ray)."""
     json: bool = False
     """Print the summary as JSON."""
 
@@ -87,6 +87,8 @@ def run_capture(opts: CaptureOptions) -> int:
 
     if not opts.out:
         raise ValueError("--out PATH.h5 is required")
+    if opts.workers is not None and opts.source != "sim":
+        raise ValueError("--workers shards a simulator capture; a --source video:... capture runs in one process")
     if opts.source.startswith("video:"):
         from vision_rl.capture.video_source import capture_video
 

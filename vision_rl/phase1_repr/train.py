@@ -342,7 +342,7 @@ class TrainReprConfig:
     precision: str = "32-true"
     """Lightning precision, e.g. 32-true, bf16-mixed."""
     devices: int = 1
-    """Devices to train on at once: processes on CPUs, GPUs on CUDA (> 1 needs strategy ddp)."""
+    """Devices to train on at once: processes on CPUs, GPUs on CUDA (> 1 needs ``strategy`` ddp)."""
     strategy: str = "auto"
     """Lightning strategy: auto (one device) or ddp (one process per device, batches shared out)."""
     out: str = "runs/repr/default"
