@@ -74,3 +74,13 @@ def test_env_frames_lag_by_the_delay_and_features_do_not(gl_available):
         np.testing.assert_array_equal(delayed[k]["features"], plain[k]["features"])
         np.testing.assert_array_equal(delayed[k]["image"], plain[max(k - 2, 0)]["image"])
     assert not np.array_equal(plain[5]["image"], plain[3]["image"])  # the car moved: the lag is visible
+
+
+def test_an_observer_put_into_the_environment_takes_its_delay():
+    from vision_rl.envs.core import RacingConfig, RacingCore
+    from vision_rl.envs.observer import Observer
+
+    core = RacingCore(RacingConfig(track=TRACK, observation="vision", frame_delay_s=0.25))
+    assert core.observer.pose_history.steps_back == pytest.approx(2.5)
+    core.observer = Observer("vision", core.track, core.car, core.groups)  # as a trainer does with its encoder
+    assert core.observer.pose_history.steps_back == pytest.approx(2.5)

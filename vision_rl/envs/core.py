@@ -149,8 +149,17 @@ class RacingCore:
                 observer.normalizer = obs_lib.load_or_compute_normalizer(
                     self.track, self.car.name, cfg.observation, lambda: _statistics_sample(cfg)
                 )
-        observer.delay_frames(cfg.frame_delay_s, cfg.control_dt_s)
         self.observer = observer
+
+    @property
+    def observer(self) -> Observer:
+        return self._observer
+
+    @observer.setter
+    def observer(self, observer: Observer) -> None:
+        # Whatever observer a trainer puts in (one with its encoder) renders with this environment's frame delay.
+        observer.delay_frames(self.config.frame_delay_s, self.config.control_dt_s)
+        self._observer = observer
 
     @property
     def skill(self) -> np.ndarray:
@@ -211,13 +220,16 @@ class RacingCore:
         ``steps`` control steps (at least 6,000 samples): what normalisation statistics are computed from. Uses
         its own generators, so the environment's seeds neither change them nor are changed by them."""
         saved = self.group_rngs
+        observer.delay_frames(self.config.frame_delay_s, self.config.control_dt_s)
         self.seed(STATS_SEED)
         self.fleet.disruptor = Disruptor(self.world.n_cars, seed=STATS_SEED)
         samples = []
         try:
             self.reset_groups(np.arange(self.config.n_groups))
+            observer.restart(self.world.state)
             for _ in range(max(steps, 20 * steps // self.config.n_groups)):
                 self.fleet.advance(self.world_steps)
+                observer.remember(self.world.state)
                 samples.append(observer.raw(self.world.state, self.ego_ids))
         finally:
             self.fleet.disruptor = None
