@@ -94,7 +94,7 @@ def test_demonstrations_of_the_wrong_shape_are_refused(small_demos, tmp_path, fa
     demos, _ = small_demos
     good = load_demos(demos)
     arrays = {"observations": good.observations[:, :38], "actions": good.actions, "rewards": good.rewards,
-              "episode_starts": good.episode_starts}  # fmt: skip
+              "expert_actions": good.expert_actions, "episode_starts": good.episode_starts}  # fmt: skip
     write_demos(tmp_path / "state.npz", arrays, {"fingerprint": good.fingerprint})
     with pytest.raises(DemoError) as excinfo:
         load_demos(tmp_path / "state.npz")

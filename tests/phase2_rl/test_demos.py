@@ -54,6 +54,28 @@ def test_replaying_the_recorded_actions_reproduces_the_recorded_observations(sma
     # The actions are the AI's, in the environment's bounds, and they drive: mostly throttle, some steering.
     assert np.all(np.abs(demos.actions[:, 0]) <= np.pi / 6) and np.all(np.abs(demos.actions[:, 1]) <= 1.0)
     assert demos.actions[:, 1].mean() > 0.2 and demos.actions[:, 0].std() > 1e-3
+    np.testing.assert_array_equal(demos.expert_actions, demos.actions)  # no noise injected: applied = label
+
+
+def test_noise_goes_on_the_applied_action_and_the_label_stays_the_ais(small_track, tmp_path):
+    out = tmp_path / "noisy.npz"
+    record_demos(RecordDemosConfig(track=small_track, car=CAR, laps=0.3, cars=1, episode_s=20.0, seed=5, noise=0.1,
+                                   out=str(out)))  # fmt: skip
+    demos = load_demos(out, demo_fingerprint(small_track, CAR))
+    jitter = (demos.actions - demos.expert_actions) / np.array([np.pi / 6, 1.0])
+    assert 0.07 < jitter[:, 0].std() < 0.13 and 0.07 < jitter[:, 1].std() < 0.13  # clipping trims omega's a little
+    env = gym.make("vision_rl/Overtaking-v1", track=small_track, car=CAR, scenario="stage1", episode_s=20.0)
+    try:
+        obs, _ = env.reset(seed=5)
+        for k in range(30):  # the applied actions replay the recorded observations
+            obs, *_ = env.step(demos.actions[k])
+            np.testing.assert_array_equal(obs, demos.observations[k + 1])
+        # The label is the held AI's action in the state the noisy drive reached.
+        held = HeldAIDriver()
+        held.reset(env.unwrapped.core.world, env.unwrapped.core.ego_ids)
+        np.testing.assert_allclose(held.act(env.unwrapped.core.world.state)[0], demos.expert_actions[30], atol=1e-6)
+    finally:
+        env.close()
 
 
 def test_the_file_holds_whole_episodes_and_its_figures(small_demos, small_track):

@@ -2,8 +2,9 @@
 alone, Eq. 1 with ``c_w`` 0.005, the 96-D ``overtaking`` observation), all with the paper's network, an MLP of
 2 x 256 ReLU units.
 
-- **bc** (behaviour cloning): supervised regression of the demonstrator's actions (:mod:`.demos`) by the actor of
-  a Stable-Baselines3 SAC policy used deterministically: ``tanh`` of a linear layer on the 2 x 256 MLP, scaled to
+- **bc** (behaviour cloning): supervised regression of the demonstrator's actions (:mod:`.demos`: its
+  ``expert_actions``, which differ from the applied actions only in a noise-injected recording) by the actor of a
+  Stable-Baselines3 SAC policy used deterministically: ``tanh`` of a linear layer on the 2 x 256 MLP, scaled to
   the action bounds. Mean squared error in the policy's [-1, 1] action units, Adam, mini-batches; one episode in
   five is held out, and training stops at convergence: when the held-out error has not improved by
   ``bc_min_improvement`` (relative) for ``bc_patience`` epochs, or at ``steps`` gradient updates. The weights of
@@ -421,7 +422,7 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
     device = _device(cfg.device)
     policy = sac_policy(OBS_DIM, list(HIDDEN_UNITS), device)
     train_idx, val_idx = split_episodes(demos, cfg.seed)
-    scaled = policy.scale_action(demos.actions.astype(np.float64)).astype(np.float32)
+    scaled = policy.scale_action(demos.expert_actions.astype(np.float64)).astype(np.float32)
     max_epochs = cfg.bc_max_epochs
     t0 = time.perf_counter()
 
@@ -663,7 +664,7 @@ class _OnlineSession:
             model = SAC("MlpPolicy", self.env, **common)
         if cfg.algo == "gail":
             assert self.demos is not None
-            scaled = model.policy.scale_action(self.demos.actions.astype(np.float64))
+            scaled = model.policy.scale_action(self.demos.expert_actions.astype(np.float64))
             self.gail = GAILUpdater(self.demos.observations, scaled, batch=cfg.gail_disc_batch,
                                     updates=cfg.gail_disc_updates, learning_rate=cfg.gail_disc_lr, seed=cfg.seed,
                                     device=self.device)  # fmt: skip

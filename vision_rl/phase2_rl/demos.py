@@ -15,6 +15,9 @@ recorded observations.
 
 - ``observations`` float32 (N, 96): the ``overtaking`` observation as the environment returns it (normalised);
 - ``actions`` float32 (N, 2): ``[steer rad, omega]`` applied at that step;
+- ``expert_actions`` float32 (N, 2): the demonstrator's action there, the label BC and GAIL learn; the same as
+  ``actions`` unless the recording injects noise (``noise``: Gaussian noise on the applied action only, so the
+  demonstrations show the AI bringing the car back from where its own driving would never go);
 - ``rewards`` float32 (N,): the single-car race's reward (Eq. 1, ``c_w`` 0.005);
 - ``episode_starts`` bool (N,): True at the first step of an episode; episodes are contiguous, and the first
   one is group 0's first episode, the one ``reset(seed=seed)`` of the environment starts;
@@ -46,6 +49,7 @@ import numpy as np
 
 from vision_rl.envs.core import RacingConfig, RacingCore
 from vision_rl.envs.observations import OBS_NAMES, OBS_VERSION, ObsNormalizer
+from vision_rl.envs.racing_env import action_space
 from vision_rl.phase2_rl.persist import ArtifactError, atomic_write, check_fingerprint
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver
 from vision_rl.sim.driving import line_and_profile
@@ -54,12 +58,13 @@ from vision_rl.sim.track_library import load_track
 from vision_rl.sim.world import World, WorldModel, WorldState, world_step
 
 DEMO_FORMAT = "vision_rl.demos"
-DEMO_FORMAT_VERSION = 1
+#: 2: ``expert_actions`` (the demonstrator's label) beside ``actions`` (what was applied).
+DEMO_FORMAT_VERSION = 2
 OBSERVATION = "overtaking"
 OBS_DIM = len(OBS_NAMES[OBSERVATION])
 #: The single-car race of Table III: the curriculum's stage 1 (alone, Eq. 1).
 SCENARIO = "stage1"
-ARRAYS = ("observations", "actions", "rewards", "episode_starts")
+ARRAYS = ("observations", "actions", "expert_actions", "rewards", "episode_starts")
 DRIVERS = ("ai",)
 
 
@@ -167,7 +172,9 @@ class Demos:
     observations: np.ndarray
     """(N, 96) float32, normalised as the environment returns them."""
     actions: np.ndarray
-    """(N, 2) float32 ``[steer rad, omega]``."""
+    """(N, 2) float32 ``[steer rad, omega]`` applied at that step (the demonstrator's, plus ``noise``)."""
+    expert_actions: np.ndarray
+    """(N, 2) float32: the demonstrator's own action at that step, the label the imitation baselines learn."""
     rewards: np.ndarray
     """(N,) float32, Eq. 1."""
     episode_starts: np.ndarray
@@ -237,7 +244,8 @@ def load_demos(path: str | os.PathLike[str], fingerprint: Mapping[str, Any] | No
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise DemoError(f"{path}: damaged demonstrations file ({first}); record them again") from None
     n = len(arrays["actions"])
-    shapes = {"observations": (n, OBS_DIM), "actions": (n, 2), "rewards": (n,), "episode_starts": (n,)}
+    shapes = {"observations": (n, OBS_DIM), "actions": (n, 2), "expert_actions": (n, 2), "rewards": (n,),
+              "episode_starts": (n,)}  # fmt: skip
     for name, shape in shapes.items():
         if arrays[name].shape != shape:
             raise DemoError(f"{path}: {name} has shape {arrays[name].shape}, not {shape}: not demonstrations of the "
@@ -247,13 +255,15 @@ def load_demos(path: str | os.PathLike[str], fingerprint: Mapping[str, Any] | No
     if arrays_sha256(arrays) != meta.get("arrays_sha256"):
         raise DemoError(f"{path}: its arrays do not match their recorded SHA-256: the file was edited or damaged "
                         "after it was recorded; record them again")  # fmt: skip
-    if not all(np.isfinite(arrays[name]).all() for name in ("observations", "actions", "rewards")):
+    if not all(np.isfinite(arrays[name]).all() for name in ("observations", "actions", "expert_actions", "rewards")):
         raise DemoError(f"{path}: holds values that are not finite")
     if fingerprint is not None:
         _check(meta.get("fingerprint", {}), fingerprint, path)
     return Demos(
         observations=arrays["observations"].astype(np.float32, copy=False),
-        actions=arrays["actions"].astype(np.float32, copy=False), rewards=arrays["rewards"].astype(np.float32),
+        actions=arrays["actions"].astype(np.float32, copy=False),
+        expert_actions=arrays["expert_actions"].astype(np.float32, copy=False),
+        rewards=arrays["rewards"].astype(np.float32),
         episode_starts=arrays["episode_starts"].astype(bool), meta=meta, path=path, sha256=checkpoint_sha256(path),
     )  # fmt: skip
 
@@ -298,6 +308,9 @@ class RecordDemosConfig:
     """Episode length, s (the training environments' 100 s: each episode starts at a new random point)."""
     skill: float = DEFAULT_SKILL
     """The demonstrator's share of the reference speed (the built-in AI's default)."""
+    noise: float = 0.0
+    """Std of Gaussian noise added to the applied action, as a share of each action's half range (steering pi/6,
+    omega 1); the label stays the demonstrator's (noise injection: it shows how the AI recovers)."""
 
 
 #: ``progress(laps_driven, laps_wanted)``.
@@ -310,7 +323,7 @@ def check_record_config(cfg: RecordDemosConfig) -> None:
         raise ValueError(f"--driver must be one of {', '.join(DRIVERS)} (human demonstrations need a human driver, "
                          f"which does not exist yet), got {cfg.driver!r}")  # fmt: skip
     for name, ok in (("laps", cfg.laps > 0), ("cars", 1 <= cfg.cars <= 1000), ("episode_s", cfg.episode_s >= 0.1),
-                     ("skill", 0 < cfg.skill <= 1)):  # fmt: skip
+                     ("skill", 0 < cfg.skill <= 1), ("noise", 0 <= cfg.noise <= 1)):  # fmt: skip
         if not ok:
             raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
     if not cfg.out:
@@ -326,6 +339,8 @@ def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -
     core = RacingCore(race_config(cfg.track, cfg.car, cfg.cars, cfg.episode_s), seed=cfg.seed)
     try:
         expert = HeldAIDriver(cfg.skill)
+        rng = np.random.default_rng([cfg.seed, 1])
+        half_range = action_space().high.astype(np.float32)
         expert.reset(core.world, core.ego_ids)
         core.reset_groups(np.arange(cfg.cars))
         lap_m = core.track.length_m
@@ -336,11 +351,16 @@ def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -
         done_progress_m, laps_driven, wall_s = 0.0, 0.0, 0.0
         while laps_driven < cfg.laps:
             obs = core.observation()
-            # The action is stored as float32: the environment is driven by exactly what is recorded.
-            action = expert.act(core.world.state).astype(np.float32)
+            # Actions are stored as float32: the environment is driven by exactly what is recorded.
+            label = expert.act(core.world.state).astype(np.float32)
+            action = label
+            if cfg.noise > 0:
+                jitter = rng.normal(0.0, cfg.noise, size=label.shape) * half_range
+                action = np.clip(label + jitter, -half_range, half_range).astype(np.float32)
             _, reward, terminated, truncated, infos = core.step(action, autoreset=True)
             steps["observations"].append(obs)
             steps["actions"].append(action)
+            steps["expert_actions"].append(label)
             steps["rewards"].append(reward)
             steps["episode_starts"].append(starts.copy())
             episode_ids.append(episode.copy())
