@@ -171,3 +171,20 @@ def test_td3_is_sb3_td3_with_the_paper_network(tiny_runs):
     sidecar = json.loads((root / "td3" / "policy.json").read_text())
     assert sidecar["sac"]["hidden_units"] == [256, 256] and sidecar["sac"]["action_noise_std_share"] == 0.1
     assert TD3.__module__.startswith("stable_baselines3")
+
+
+def test_the_commands_record_train_quick_and_refuse_in_one_line(small_track, tmp_path, capsys):
+    from vision_rl.commands.main import main
+
+    demos = tmp_path / "ai.npz"
+    assert main(["record-demos", "--track", small_track, "--laps", "0.2", "--cars", "1", "--out", str(demos),
+                 "--no-progress", "--json"]) == 0  # fmt: skip
+    assert json.loads(capsys.readouterr().out)["n_transitions"] > 0
+    out = tmp_path / "td3"
+    assert main(["train-baseline", "--algo", "td3", "--quick", "--track", small_track, "--demos", str(demos),
+                 "--out", str(out), "--device", "cpu", "--no-progress", "--json"]) == 0  # fmt: skip
+    result = json.loads(capsys.readouterr().out)
+    assert result["status"] == "done" and result["num_timesteps"] == 300 and result["settings"]["cars"] == 2
+    assert main(["train-baseline", "--algo", "planet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["vision-rl train-baseline: error: --algo must be one of bc, gail, td3, sac, got 'planet'"]
