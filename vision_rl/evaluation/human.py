@@ -108,6 +108,8 @@ class Recording:
         return {
             "observations": np.asarray(self.observations[:n], dtype=np.float32).reshape(n, -1),
             "actions": np.asarray(self.actions[:n], dtype=np.float32).reshape(n, 2),
+            # What a person applied is also their intended action: there is no separate label.
+            "expert_actions": np.asarray(self.actions[:n], dtype=np.float32).reshape(n, 2),
             "rewards": np.asarray(self.rewards, dtype=np.float32),
             "episode_starts": starts,
         }
