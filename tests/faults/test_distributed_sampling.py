@@ -102,3 +102,21 @@ def test_no_ray_is_one_line_naming_the_extra(small_track, tmp_path, monkeypatch,
     err = capsys.readouterr().err
     assert code == 2 and err.strip() == f"vision-rl train-policy: error: {RAY_MISSING}"
     fault.refused("train-policy --workers 1 without Ray installed", err.strip())
+
+
+def test_a_sampler_with_another_track_refuses_to_start(ray_local, small_track, tmp_path, monkeypatch, fault):
+    """A node whose copy of the track differs from the learner's (simulated by the fingerprint the learner sends):
+    the sampler refuses to build, and with no sampler left the run stops with the reason."""
+    from vision_rl.phase2_rl import distributed
+
+    original = distributed.start_samplers
+
+    def other_track(cluster, setup, workers):
+        fingerprint = {**setup.fingerprint, "track_geometry_hash": "0" * 16}
+        return original(cluster, dataclasses.replace(setup, fingerprint=fingerprint), workers)
+
+    monkeypatch.setattr(distributed, "start_samplers", other_track)
+    with pytest.raises(SamplersLostError, match="track_geometry_hash") as excinfo:
+        train_policy(tiny_train_config(small_track, tmp_path / "run", workers=1))
+    assert "ValueError: sampler 0 was built for track_geometry_hash" in str(excinfo.value)
+    fault.refused("a sampler whose track differs from the learner's", str(excinfo.value))

@@ -429,68 +429,87 @@ def add_vector_step(buffer: Any, chunk: Mapping[str, np.ndarray], k: int) -> Non
 # ------------------------------------------------------------------------------------------------- the learner
 
 
-def learn_with_samplers(
-    model: Any,
-    setup: SamplerSetup,
-    pacing: Pacing,
-    cluster: Cluster,
-    on_vector_step: Callable[[], Any] | None = None,
-    log_event: Callable[[dict[str, Any]], None] | None = None,
-    deadline_s: float | None = None,
-    on_start: Callable[[], None] | None = None,
-) -> dict[str, Any]:
-    """Train ``model`` (SB3 SAC, its replay buffer of ``pacing.n_cars`` envs) on transitions from
-    ``pacing.workers`` sampler actors until ``pacing.total_timesteps`` (or ``deadline_s`` seconds after the samplers
-    are ready). ``on_vector_step()`` is called after each vector step is added (the model's step count updated),
-    ``log_event(record)`` when a sampler is lost, ``on_start()`` once every sampler is ready. Returns the session's
-    sampling figures. Raises :class:`SamplersLostError` when no sampler is left (the model keeps what it learned)."""
-    ray = cluster.ray
-    from ray.exceptions import RayError
+class SamplingLearner:
+    """The learner's side of a session with sampler actors: :meth:`run` trains ``model`` (SB3 SAC, its replay
+    buffer of ``pacing.n_cars`` envs) on their transitions until ``pacing.total_timesteps`` or a deadline;
+    :meth:`close` stops the actors. ``on_vector_step()`` is called after each vector step is added (the model's
+    step count updated), ``log_event(record)`` when a sampler is lost. Raises :class:`SamplersLostError` when no
+    sampler is left (the model keeps what it learned). The constructor returns once every sampler is built."""
 
-    if getattr(model.replay_buffer, "optimize_memory_usage", False):
-        raise DistributedError("sampling with --workers needs a replay buffer without optimize_memory_usage")
-    if model.ep_info_buffer is None:  # set by SB3's learn(), which this loop replaces
-        from collections import deque
+    def __init__(
+        self,
+        model: Any,
+        setup: SamplerSetup,
+        pacing: Pacing,
+        cluster: Cluster,
+        on_vector_step: Callable[[], Any] | None = None,
+        log_event: Callable[[dict[str, Any]], None] | None = None,
+    ) -> None:
+        from ray.exceptions import RayError
 
-        model.ep_info_buffer = deque(maxlen=model._stats_window_size)
-        model.ep_success_buffer = deque(maxlen=model._stats_window_size)
-    pacer = Pacer(pacing)
-    handles = start_samplers(cluster, setup, pacing.workers)
-    alive = dict(enumerate(handles))
-    lost: list[dict[str, Any]] = []
-    inflight: dict[Any, tuple[int, int, int]] = {}  # object ref -> (worker, chunk id, steps)
-    busy = {w: False for w in alive}
-    stats = {"chunks": 0, "transitions": 0, "sampler_busy_s": 0.0, "learner_wait_s": 0.0, "updates": 0}
-    weights = [ray.put(actor_weights(model))]
-    t_session = time.perf_counter()
+        if getattr(model.replay_buffer, "optimize_memory_usage", False):
+            raise DistributedError("sampling with --workers needs a replay buffer without optimize_memory_usage")
+        if model.ep_info_buffer is None:  # set by SB3's learn(), which this loop replaces
+            from collections import deque
 
-    def lose(worker: int, reason: str) -> None:
-        alive.pop(worker, None)
-        busy.pop(worker, None)
-        ray.kill(handles[worker], no_restart=True)
-        record = {"event": "sampler_lost", "worker": worker, "num_timesteps": int(model.num_timesteps),
-                  "reason": reason, "samplers_alive": len(alive)}  # fmt: skip
-        lost.append(record)
-        if log_event is not None:
-            log_event(record)
-        if not alive:
+            model.ep_info_buffer = deque(maxlen=model._stats_window_size)
+            model.ep_success_buffer = deque(maxlen=model._stats_window_size)
+        self.ray, self.ray_error = cluster.ray, RayError
+        self.model, self.pacing = model, pacing
+        self.on_vector_step, self.log_event = on_vector_step, log_event
+        self.pacer = Pacer(pacing)
+        self.handles = start_samplers(cluster, setup, pacing.workers)
+        self.alive = dict(enumerate(self.handles))
+        self.busy = {w: False for w in self.alive}
+        self.lost: list[dict[str, Any]] = []
+        self.inflight: dict[Any, tuple[int, int, int]] = {}  # object ref -> (worker, chunk id, steps)
+        self.next_chunk_id = 0
+        self.counts = {"chunks": 0, "transitions": 0, "sampler_busy_s": 0.0, "learner_wait_s": 0.0,
+                       "duration_s": 0.0}  # fmt: skip
+        self.t_session = time.perf_counter()
+        self.weights = [self.ray.put(actor_weights(model))]
+        try:
+            # Every sampler is built (world, encoder, policy) before anything is timed.
+            pending = {h.ready.remote(): w for w, h in self.alive.items()}
+            while pending:
+                ready, _ = self.ray.wait(list(pending), num_returns=1, timeout=WAIT_SLICE_S)
+                for ref in ready:
+                    worker = pending.pop(ref)
+                    try:
+                        self.ray.get(ref)
+                    except RayError as exc:
+                        self._lose(worker, _first_line(exc))
+        except BaseException:
+            self.close()
+            raise
+
+    def _lose(self, worker: int, reason: str) -> None:
+        self.alive.pop(worker, None)
+        self.busy.pop(worker, None)
+        self.ray.kill(self.handles[worker], no_restart=True)
+        record = {"event": "sampler_lost", "worker": worker, "num_timesteps": int(self.model.num_timesteps),
+                  "reason": reason, "samplers_alive": len(self.alive)}  # fmt: skip
+        self.lost.append(record)
+        if self.log_event is not None:
+            self.log_event(record)
+        if not self.alive:
             raise SamplersLostError(
-                f"all {pacing.workers} sampler actors died (the last: {reason}); training stopped at "
-                f"{model.num_timesteps} steps"
+                f"all {self.pacing.workers} sampler actors died (the last: {reason}); training stopped at "
+                f"{self.model.num_timesteps} steps"
             )
 
-    def take(ref: Any) -> None:
-        worker, chunk_id, steps = inflight.pop(ref)
+    def _take(self, ref: Any) -> None:
+        model, n = self.model, self.pacing.n_cars
+        worker, chunk_id, steps = self.inflight.pop(ref)
         try:
-            chunk = ray.get(ref)
-        except RayError as exc:
-            pacer.lose(chunk_id, steps)
-            lose(worker, _first_line(exc))
+            chunk = self.ray.get(ref)
+        except self.ray_error as exc:
+            self.pacer.lose(chunk_id, steps)
+            self._lose(worker, _first_line(exc))
             return
-        busy[worker] = False
-        pacer.receive(chunk_id, steps)
-        n = pacing.n_cars
-        elapsed = time.perf_counter() - t_session
+        self.busy[worker] = False
+        self.pacer.receive(chunk_id, steps)
+        elapsed = time.perf_counter() - self.t_session
         for k in range(steps):
             add_vector_step(model.replay_buffer, chunk, k)
             model.num_timesteps += n
@@ -499,72 +518,87 @@ def learn_with_samplers(
                 episode = {"r": float(chunk["episode_return"][k, i]), "l": int(chunk["episode_length"][k, i])}
                 model.ep_info_buffer.append({**episode, "t": round(elapsed, 6)})
             model._episode_num += len(ended)
-            if on_vector_step is not None:
-                on_vector_step()
-        stats["chunks"] += 1
-        stats["transitions"] += steps * n
-        stats["sampler_busy_s"] += float(chunk["busy_s"])
+            if self.on_vector_step is not None:
+                self.on_vector_step()
+        self.counts["chunks"] += 1
+        self.counts["transitions"] += steps * n
+        self.counts["sampler_busy_s"] += float(chunk["busy_s"])
 
-    try:
-        # Every sampler is built (world, encoder, policy) before the clock of a deadline starts.
-        pending = {h.ready.remote(): w for w, h in alive.items()}
-        while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_SLICE_S)
-            for ref in ready:
-                worker = pending.pop(ref)
-                try:
-                    ray.get(ref)
-                except RayError as exc:
-                    lose(worker, _first_line(exc))
-        if on_start is not None:
-            on_start()
+    def _launch(self) -> None:
+        for worker in sorted(w for w, b in self.busy.items() if not b):
+            planned = self.pacer.next_chunk()
+            if planned is None:
+                return
+            steps, random_steps = planned
+            ref = self.alive[worker].sample.remote(self.weights, self.pacer.version, steps, random_steps)
+            self.inflight[ref] = (worker, self.next_chunk_id, steps)
+            self.pacer.launch(self.next_chunk_id, steps)
+            self.busy[worker] = True
+            self.next_chunk_id += 1
+
+    def run(self, deadline_s: float | None = None) -> None:
+        """Train until the session's steps are done, or for ``deadline_s`` seconds (chunks in flight stay so)."""
+        ray, pacer, counts = self.ray, self.pacer, self.counts
         start = time.perf_counter()
-        updates_at_start = model._n_updates
-        chunk_id = 0
-        while True:
-            for worker in sorted(w for w, b in busy.items() if not b):
-                planned = pacer.next_chunk()
-                if planned is None:
-                    break
-                steps, random_steps = planned
-                ref = alive[worker].sample.remote(weights, pacer.version, steps, random_steps)
-                inflight[ref] = (worker, chunk_id, steps)
-                pacer.launch(chunk_id, steps)
-                busy[worker] = True
-                chunk_id += 1
-            if pacer.done or (deadline_s is not None and time.perf_counter() - start >= deadline_s):
-                break
-            can_update = pacer.can_update()
-            if inflight:
-                refs = list(inflight)
-                t_wait = time.perf_counter()
-                ready, _ = ray.wait(refs, num_returns=len(refs) if can_update else 1,
-                                    timeout=0 if can_update else WAIT_SLICE_S)  # fmt: skip
-                if not can_update:
-                    stats["learner_wait_s"] += time.perf_counter() - t_wait
-                if ready:
-                    for ref in sorted(ready, key=lambda r: inflight[r][1]):  # in the order they were launched
-                        take(ref)
-                    continue
-            elif not can_update:
-                raise RuntimeError(f"sampling stalled: {pacer.__dict__}")  # the pacing rules exclude this
-            if can_update:
-                model.train(gradient_steps=1, batch_size=pacing.batch_size)
-                if pacer.updated():
-                    weights = [ray.put(actor_weights(model))]
-        duration_s = time.perf_counter() - start
+        try:
+            while True:
+                self._launch()
+                if pacer.done or (deadline_s is not None and time.perf_counter() - start >= deadline_s):
+                    return
+                can_update = pacer.can_update()
+                if self.inflight:
+                    refs = list(self.inflight)
+                    t_wait = time.perf_counter()
+                    ready, _ = ray.wait(refs, num_returns=len(refs) if can_update else 1,
+                                        timeout=0 if can_update else WAIT_SLICE_S)  # fmt: skip
+                    if not can_update:
+                        counts["learner_wait_s"] += time.perf_counter() - t_wait
+                    if ready:
+                        for ref in sorted(ready, key=lambda r: self.inflight[r][1]):  # in the order launched
+                            self._take(ref)
+                        continue
+                elif not can_update:
+                    raise RuntimeError(f"sampling stalled: {pacer.__dict__}")  # the pacing rules exclude this
+                if can_update:
+                    self.model.train(gradient_steps=1, batch_size=self.pacing.batch_size)
+                    if pacer.updated():
+                        self.weights = [ray.put(actor_weights(self.model))]
+        finally:
+            counts["duration_s"] += time.perf_counter() - start
+
+    def stats(self) -> dict[str, Any]:
+        """The session's sampling figures so far."""
+        c, p = self.counts, self.pacing
+        return {
+            "workers": p.workers, "samplers_alive": len(self.alive), "samplers_lost": list(self.lost),
+            "chunks": c["chunks"], "chunk_steps": p.chunk_steps, "transitions": c["transitions"],
+            "updates": self.pacer.updates, "duration_s": round(c["duration_s"], 3),
+            "learner_wait_s": round(c["learner_wait_s"], 3), "sampler_busy_s": round(c["sampler_busy_s"], 3),
+            "max_staleness": p.max_staleness, "max_staleness_seen": self.pacer.max_staleness_seen,
+            "version_every_updates": p.version_every_updates, "weight_versions": self.pacer.version,
+        }  # fmt: skip
+
+    def close(self) -> None:
+        for handle in self.handles:
+            self.ray.kill(handle, no_restart=True)
+
+
+def learn_with_samplers(
+    model: Any,
+    setup: SamplerSetup,
+    pacing: Pacing,
+    cluster: Cluster,
+    on_vector_step: Callable[[], Any] | None = None,
+    log_event: Callable[[dict[str, Any]], None] | None = None,
+    deadline_s: float | None = None,
+) -> dict[str, Any]:
+    """A :class:`SamplingLearner` session from start to end (or ``deadline_s`` seconds); its :meth:`stats`."""
+    learner = SamplingLearner(model, setup, pacing, cluster, on_vector_step, log_event)
+    try:
+        learner.run(deadline_s)
     finally:
-        for handle in handles:
-            ray.kill(handle, no_restart=True)
-    stats["updates"] = int(model._n_updates - updates_at_start)
-    stats.update(
-        workers=pacing.workers, samplers_alive=len(alive), samplers_lost=lost, duration_s=round(duration_s, 3),
-        max_staleness=pacing.max_staleness, max_staleness_seen=pacer.max_staleness_seen,
-        version_every_updates=pacing.version_every_updates, weight_versions=pacer.version,
-        chunk_steps=pacing.chunk_steps, learner_wait_s=round(stats["learner_wait_s"], 3),
-        sampler_busy_s=round(stats["sampler_busy_s"], 3),
-    )  # fmt: skip
-    return stats
+        learner.close()
+    return learner.stats()
 
 
 def _first_line(exc: BaseException) -> str:
@@ -572,13 +606,18 @@ def _first_line(exc: BaseException) -> str:
     cause = getattr(exc, "cause", None)
     if isinstance(cause, BaseException) and str(cause).strip():
         return f"{type(cause).__name__}: {str(cause).strip().splitlines()[0]}"
-    text = str(exc).strip()
-    lines = [line for line in text.splitlines() if line.strip()]
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    # An actor whose constructor raised: Ray's text ends with that exception's own last line.
+    raised = [line for line in lines if line.split(":")[0].endswith(("Error", "Exception")) and ": " in line]
+    if raised and "creation task" in str(exc):
+        return raised[-1]
     return f"{type(exc).__name__}: {lines[0] if lines else ''}".rstrip(": ")
 
 
 # ------------------------------------------------------------------------------------------------- the bench
 
+#: Seconds of one slice of :func:`bench_sampling` (standalone and with samplers alternate).
+BENCH_SLICE_S = 5.0
 #: The learner of :func:`bench_sampling`: train-policy's ``cpu`` preset (a test checks that they agree).
 BENCH_SAC: dict[str, Any] = {"hidden_units": (256, 256), "batch_size": 256, "learning_rate": 1e-3, "gamma": 0.99,
                              "tau": 0.005, "gradient_steps": 1, "torch_threads": 1}  # fmt: skip
@@ -599,9 +638,10 @@ def bench_sampling(
     """The learner with ``workers`` sampler actors against the learner alone, state observation, ``cars`` cars,
     train-policy's cpu preset (:data:`BENCH_SAC`).
 
-    First the learner's standalone rate: SAC updates on a buffer of random transitions, nothing else running in
-    this process, for ``seconds``. Then the same learner trains for ``seconds`` on transitions from the samplers at
-    the preset's ratio (one update per vector step), with the pacing of ``train-policy --workers``. Returns
+    The learner's standalone rate (SAC updates on a buffer of random transitions, no sampling) and its rate when
+    it trains on transitions from the samplers at the preset's ratio (one update per vector step), with the pacing
+    of ``train-policy --workers``, are timed for ``seconds`` each, in alternating slices of about
+    :data:`BENCH_SLICE_S`. Returns
     ``standalone_updates_per_s``, ``learner_updates_per_s``, their ratio ``learner_share_of_standalone``,
     ``sampled_transitions_per_s`` (what reached the learner: the ratio makes it about ``cars`` times the update
     rate when the samplers keep up), ``sampler_transitions_per_busy_s`` (one sampler's rate while it steps),
@@ -638,11 +678,6 @@ def bench_sampling(
         model.replay_buffer.add(obs, new_obs, model.policy.scale_action(action), rewards, dones, infos)
         obs = new_obs
         model.num_timesteps += cars
-    t0, standalone = time.perf_counter(), 0
-    while time.perf_counter() - t0 < seconds:
-        model.train(gradient_steps=1, batch_size=BENCH_SAC["batch_size"])
-        standalone += 1
-    standalone_s = time.perf_counter() - t0
     normalizer = venv.core.observer.normalizer
     setup = SamplerSetup(
         racing_config=racing_config_to_dict(racing), observation="state", obs_normalizer=normalizer.to_dict(),
@@ -655,13 +690,28 @@ def bench_sampling(
         version_every_updates=version_every_updates, max_staleness=max_staleness,
     )  # fmt: skip
     venv.close()
+    # The two are timed in alternating slices, so that a change of the machine's load (other processes) falls on
+    # both alike; during a standalone slice the samplers finish their chunk and then idle.
+    slices = max(1, round(seconds / BENCH_SLICE_S))
+    standalone, standalone_s = 0, 0.0
     cluster = connect(address, workers)
     try:
-        stats = learn_with_samplers(model, setup, pacing, cluster, deadline_s=seconds)
+        learner = SamplingLearner(model, setup, pacing, cluster)
+        try:
+            for _ in range(slices):
+                t0 = time.perf_counter()
+                while time.perf_counter() - t0 < seconds / slices:
+                    model.train(gradient_steps=1, batch_size=BENCH_SAC["batch_size"])
+                    standalone += 1
+                standalone_s += time.perf_counter() - t0
+                learner.run(deadline_s=seconds / slices)
+        finally:
+            learner.close()
     finally:
         cluster.close()
+    stats = learner.stats()
     duration = max(stats["duration_s"], 1e-9)
-    learner = stats["updates"] / duration
+    rate = stats["updates"] / duration
     standalone_rate = standalone / standalone_s
     return {
         "workers": workers,
@@ -670,8 +720,8 @@ def bench_sampling(
         "observation": "state",
         "batch_size": BENCH_SAC["batch_size"],
         "standalone_updates_per_s": round(standalone_rate, 2),
-        "learner_updates_per_s": round(learner, 2),
-        "learner_share_of_standalone": round(learner / standalone_rate, 4),
+        "learner_updates_per_s": round(rate, 2),
+        "learner_share_of_standalone": round(rate / standalone_rate, 4),
         "sampled_transitions_per_s": round(stats["transitions"] / duration, 1),
         "sampler_transitions_per_busy_s": round(stats["transitions"] / max(stats["sampler_busy_s"], 1e-9), 1),
         "learner_wait_s": stats["learner_wait_s"],

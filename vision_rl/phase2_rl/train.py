@@ -54,6 +54,8 @@ from vision_rl.phase2_rl.artifact import (
 from vision_rl.phase2_rl.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
 
 METRICS_NAME = "metrics.jsonl"
+#: With --workers: seconds between TensorBoard's rollout figures (the episodes' return and length, steps/s).
+LOG_EVERY_S = 30.0
 MAX_CARS = 1000
 
 
@@ -564,6 +566,18 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
         version_every_updates=cfg.version_every_updates, max_staleness=cfg.max_staleness,
     )  # fmt: skip
     loop.init_callback(model)
+    last_dump_s = [time.perf_counter(), 0]
+
+    def on_vector_step() -> None:
+        loop.on_step()
+        # TensorBoard's rollout figures, which SB3's own loop writes every few episodes.
+        if time.perf_counter() - last_dump_s[0] >= LOG_EVERY_S and model.ep_info_buffer:
+            steps = model.num_timesteps - last_dump_s[1]
+            model.logger.record("rollout/ep_rew_mean", float(np.mean([e["r"] for e in model.ep_info_buffer])))
+            model.logger.record("rollout/ep_len_mean", float(np.mean([e["l"] for e in model.ep_info_buffer])))
+            model.logger.record("time/fps", int(steps / (time.perf_counter() - last_dump_s[0])))
+            model.logger.dump(step=model.num_timesteps)
+            last_dump_s[:] = [time.perf_counter(), model.num_timesteps]
 
     def log_event(record: dict[str, Any]) -> None:
         record = {**record, "train_time_s": round(run.train_time_s, 2)}
@@ -571,7 +585,7 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
             f.write(json.dumps(record) + "\n")
 
     try:
-        return learn_with_samplers(model, setup, pacing, cluster, on_vector_step=loop.on_step, log_event=log_event)
+        return learn_with_samplers(model, setup, pacing, cluster, on_vector_step=on_vector_step, log_event=log_event)
     except SamplersLostError as exc:
         run.save(model, buffer=True)
         run.close()
