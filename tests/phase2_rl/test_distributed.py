@@ -169,3 +169,26 @@ def test_bench_sampling_reports_the_learner_against_its_standalone_rate(ray_loca
 def test_the_bench_learner_is_the_cpu_preset():
     cpu = PRESETS["cpu"]
     assert {k: getattr(cpu, k) for k in BENCH_SAC} == BENCH_SAC
+
+
+def test_vision_samplers_embed_frames_with_the_runs_encoder(ray_local, gl_available, tiny_encoders, small_track,
+                                                            tmp_path):  # fmt: skip
+    """A vision run with a sampler actor: the sampler renders and embeds with the run's encoder and normalisation,
+    so its observations match what the learner's own world gives at the same state (the first one after reset)."""
+    from vision_rl.phase2_rl.train import _Run
+
+    out = tmp_path / "run"
+    config = tiny_train_config(small_track, out, encoder=str(tiny_encoders[0]), workers=1, steps=100,
+                               eval_every_steps=0, checkpoint_every_steps=0, stats_steps=5)  # fmt: skip
+    result = train_policy(config)
+    assert result["observation"] == "vision" and result["num_timesteps"] == 100 and result["n_updates"] == 25
+    with np.load(out / "replay_buffer.npz", allow_pickle=False) as data:
+        observations = data["observations"]
+    assert observations.shape == (50, 2, 64 + 11)
+    run = _Run(dataclasses.replace(config, resume=True))
+    run.build()
+    core = run.venv.core
+    core.seed(worker_seed(0, 0))  # the sampler's world: same seed, so the same start points
+    core.reset_groups(np.arange(2))
+    np.testing.assert_allclose(core.observation(), observations[0], rtol=1e-4, atol=1e-4)
+    run.close()
