@@ -12,6 +12,10 @@ of wall-clock time (a light checkpoint) and at every ``checkpoint_every_steps`` 
 snapshot; Ctrl-C (and SIGTERM, which the command maps to it) saves all of it and exits cleanly. ``--resume``
 continues the step count with the stored weights, optimiser states and the last saved buffer; a run with no saved
 buffer collects ``learning_starts`` fresh random transitions before it updates again.
+
+``--workers N`` samples in N Ray actors (:mod:`vision_rl.phase2_rl.distributed`: the pacing, the staleness bound,
+what is deterministic) while this process only learns; the run folder, evaluations, checkpoints, Ctrl-C and
+``--resume`` are the same, and a run may switch between the two on resume.
 """
 
 from __future__ import annotations
