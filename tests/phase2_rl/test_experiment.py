@@ -72,6 +72,9 @@ def test_an_experiment_resumes_only_unfinished_seeds_and_refuses_another_recipe(
     assert sorted(curves["per_seed"]) == ["0", "1"] and curves["num_timesteps"] == [100]
     assert (out / "learning_curves.png").stat().st_size > 1000
 
+    # An experiment started before a recipe field existed resumes while that field stays at its default.
+    stored["recipe"].pop("frame_delay_s")
+    (out / "experiment.json").write_text(json.dumps(stored))
     trained = []
     real_train = experiment_module.train_policy
     monkeypatch.setattr(experiment_module, "train_policy", lambda c, p=None: trained.append(c.seed) or real_train(c, p))
@@ -81,6 +84,8 @@ def test_an_experiment_resumes_only_unfinished_seeds_and_refuses_another_recipe(
         run_experiment(cfg.__class__(**{**cfg.__dict__, "track": "technical"}), (0,), out)
     with pytest.raises(ValueError, match="recipe field batch_size"):
         run_experiment(cfg.__class__(**{**cfg.__dict__, "batch_size": 64}), (0,), out)
+    with pytest.raises(ValueError, match="recipe field steer_change_penalty_c_s"):
+        run_experiment(cfg.__class__(**{**cfg.__dict__, "steer_change_penalty_c_s": 0.5}), (0,), out)
 
     table = leaderboard(small_track, "hatchback", str(tmp_path))
     names = [r["name"] for r in table["rows"]]

@@ -28,7 +28,8 @@ from vision_rl.phase2_rl.train import METRICS_NAME, Progress, TrainPolicyConfig,
 
 EXPERIMENT_NAME = "experiment.json"
 #: Options that may differ between sessions of one experiment (they change where and how, not what is trained).
-SESSION_FIELDS = ("out", "seed", "resume", "force", "device", "encoder_runtime")
+#: How and where a seed runs, not what it learns: free to change when an experiment resumes.
+SESSION_FIELDS = ("out", "seed", "resume", "force", "device", "encoder_runtime", "workers", "address")
 
 
 def parse_seeds(text: str) -> tuple[int, ...]:
@@ -92,6 +93,9 @@ def run_experiment(
             previous = json.loads(path.read_text())
         except ValueError as exc:
             raise ValueError(f"{path}: not valid JSON ({exc}); remove it to start over") from None
+        # A recipe field added after the experiment was started holds its default there.
+        defaults = {f.name: f.default for f in dataclasses.fields(TrainPolicyConfig) if f.name not in SESSION_FIELDS}
+        previous["recipe"] = {**defaults, **previous.get("recipe", {})}
         for key, value in plan.items():
             if previous.get(key) != value:
                 if key == "recipe":
