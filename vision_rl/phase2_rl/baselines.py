@@ -79,14 +79,14 @@ from vision_rl.phase2_rl.overtaking import BUDGETS
 from vision_rl.phase2_rl.persist import (
     ArtifactError,
     agent_state,
-    atomic_write,
     load_buffer,
     read_agent,
     restore_agent,
     save_buffer,
     write_agent_state,
+    write_json,
 )
-from vision_rl.phase2_rl.train import PRESETS, SACPreset
+from vision_rl.phase2_rl.train import PRESETS, SACPreset, torch_device
 from vision_rl.sim.track_library import load_track
 
 ALGOS = ("bc", "gail", "td3", "sac")
@@ -241,17 +241,6 @@ def settings_of(cfg: TrainBaselineConfig, demos: Demos | None) -> dict[str, Any]
     return keep
 
 
-def _device(name: str) -> str:
-    if name == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    return name
-
-
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(data, indent=2)))
-
-
 def _read_json(path: Path) -> dict[str, Any]:
     try:
         data = json.loads(path.read_text())
@@ -296,11 +285,11 @@ class _RunFolder:
             if self.out.exists() and any(self.out.iterdir()):
                 raise BaselineError(f"{self.out} is not empty and holds no {RUN_NAME}: give another --out")
             self.record = {"format": RUN_FORMAT, "algo": cfg.algo, "settings": self.settings, "status": "new"}
-            _write_json(path, self.record)
+            write_json(path, self.record)
 
     def update(self, **fields: Any) -> None:
         self.record.update(fields)
-        _write_json(self.out / RUN_NAME, self.record)
+        write_json(self.out / RUN_NAME, self.record)
 
 
 def _spec(
@@ -419,7 +408,7 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
         return {**run.record, "out": str(run.out), "trained_now": False}
     (run.out / METRICS_NAME).unlink(missing_ok=True)  # bc starts over: its epochs are its own
     torch.set_num_threads(1)
-    device = _device(cfg.device)
+    device = torch_device(cfg.device)
     policy = sac_policy(OBS_DIM, list(HIDDEN_UNITS), device)
     train_idx, val_idx = split_episodes(demos, cfg.seed)
     scaled = policy.scale_action(demos.expert_actions.astype(np.float64)).astype(np.float32)
@@ -626,7 +615,7 @@ class _OnlineSession:
         self.demos = load_demos_for(cfg.demos, cfg.track, cfg.car) if cfg.algo == "gail" else None
         self.run = _RunFolder(cfg, self.demos)
         self.recipe = resolve_recipe(cfg)
-        self.device = _device(cfg.device)
+        self.device = torch_device(cfg.device)
         self.racing = race_config(cfg.track, cfg.car, cfg.cars, cfg.episode_s)
         self.fingerprint = baseline_fingerprint(self.racing, cfg.algo)
         self.end_steps = total_steps(cfg)

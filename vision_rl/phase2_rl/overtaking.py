@@ -78,14 +78,14 @@ from vision_rl.phase2_rl.artifact import (
 )
 from vision_rl.phase2_rl.persist import (
     ArtifactError,
-    atomic_write,
     load_buffer,
     read_agent,
     restore_agent,
     save_agent,
     save_buffer,
+    write_json,
 )
-from vision_rl.phase2_rl.train import PRESETS, resolve_preset
+from vision_rl.phase2_rl.train import PRESETS, resolve_preset, torch_device
 
 OBSERVATION = "overtaking"
 OBS_DIM = len(OBS_NAMES[OBSERVATION])
@@ -348,17 +348,6 @@ def default_out(cfg: TrainOvertakingConfig) -> Path:
     return Path("runs") / "overtaking" / f"{track}-{cfg.car}-s{cfg.seed}"
 
 
-def _device(name: str) -> str:
-    if name == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    return name
-
-
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(data, indent=2)))
-
-
 def _read_json(path: Path) -> dict[str, Any]:
     try:
         data = json.loads(path.read_text())
@@ -538,7 +527,7 @@ class _StageSession:
             # The starting point (the kept buffer included) is on disk before any training: a kill at any moment
             # resumes this stage with a buffer, never from the previous stage again.
             self.save(model, buffer=True)
-            _write_json(record_path, self.record)
+            write_json(record_path, self.record)
         return model
 
     # ------------------------------------------------------------------ periodic work
@@ -622,7 +611,7 @@ class _StageSession:
                 "ai_lap_time_s": ai,
                 "last_lap_time_s": self.last_eval["lap_time_s"] if self.last_eval else None,
             }  # fmt: skip
-        _write_json(self.folder / STAGE_NAME, self.record)
+        write_json(self.folder / STAGE_NAME, self.record)
         return self.record
 
     def close(self) -> None:
@@ -670,7 +659,7 @@ class OvertakingRun:
         check_config(cfg)
         self.cfg = cfg
         self.out = Path(cfg.out) if cfg.out else default_out(cfg)
-        self.device = _device(cfg.device)
+        self.device = torch_device(cfg.device)
         self.sac = resolve_preset(cfg)
         self.settings = shared_settings(cfg)
         self.stages = stages_of(cfg)
@@ -686,7 +675,7 @@ class OvertakingRun:
             elif self.out.exists() and any(self.out.iterdir()):
                 raise OvertakingRunError(f"{self.out} is not empty and holds no {RUN_NAME}: give another --out")
             self.record = {"format": RUN_FORMAT, "settings": self.settings, "ai_lap_time_s": None}
-            _write_json(run_path, self.record)
+            write_json(run_path, self.record)
         if self.sac.torch_threads > 0:
             torch.set_num_threads(self.sac.torch_threads)
 
@@ -697,7 +686,7 @@ class OvertakingRun:
             timing = time_laps(BuiltinAI(), cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps,
                                cfg.eval_time_limit_s).summary()  # fmt: skip
             self.record.update(ai_lap_time_s=timing["best_lap_time_s"], ai_timing={"n_finished": timing["n_finished"]})
-            _write_json(self.out / RUN_NAME, self.record)
+            write_json(self.out / RUN_NAME, self.record)
         return self.record["ai_lap_time_s"]
 
     def stage_record(self, stage: Stage) -> dict[str, Any] | None:
@@ -755,7 +744,7 @@ def train_overtaking(cfg: TrainOvertakingConfig, progress: Progress | None = Non
         "done": all(b["status"] == "done" for b in boundaries),
     }  # fmt: skip
     if result["done"]:
-        _write_json(run.out / f"agent{cfg.agent}.json" if cfg.agent != "standard" else run.out / "standard.json",
+        write_json(run.out / f"agent{cfg.agent}.json" if cfg.agent != "standard" else run.out / "standard.json",
                     {"agent": cfg.agent, "policy": str(policy), "stages": boundaries})  # fmt: skip
     return result
 

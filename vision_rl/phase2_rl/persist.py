@@ -65,6 +65,13 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None]) ->
     return sha256
 
 
+def write_json(path: str | os.PathLike[str], data: Mapping[str, Any]) -> str:
+    """``data`` as indented JSON, written atomically (folders made); returns the file's SHA-256."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return atomic_write(path, lambda tmp: tmp.write_text(json.dumps(data, indent=2)))
+
+
 def check_fingerprint(recorded: Mapping[str, Any], expected: Mapping[str, Any], source: str) -> None:
     """Refuse, naming the first field that differs, a file made for something other than ``expected``."""
     for key, want in expected.items():

@@ -199,7 +199,8 @@ def default_out(cfg: TrainPolicyConfig) -> Path:
     return Path("runs") / "policy" / f"{kind}-{track}-{cfg.car}-s{cfg.seed}"
 
 
-def _device(name: str) -> str:
+def torch_device(name: str) -> str:
+    """``auto`` -> ``cuda`` when a GPU is visible, else ``cpu``; other names as given."""
     if name == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
     return name
@@ -249,7 +250,7 @@ class _Run:
     def __init__(self, cfg: TrainPolicyConfig) -> None:
         self.cfg = cfg
         self.out = Path(cfg.out) if cfg.out else default_out(cfg)
-        self.device = _device(cfg.device)
+        self.device = torch_device(cfg.device)
         self.previous: PolicySpec | None = None
         check_bounds(cfg)
         resolve_runtime(cfg.encoder_runtime, self.device)  # a bad value is refused before the run folder is touched
