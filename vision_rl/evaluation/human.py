@@ -87,7 +87,7 @@ def check_display() -> None:
     driver = os.environ.get("SDL_VIDEODRIVER", "")
     if not driver and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise NoDisplayError(
-            "play needs a display: no DISPLAY or WAYLAND_DISPLAY is set (run it in a desktop session, or set "
+            "play needs a display: no DISPLAY or WAYLAND_DISPLAY is set (run it on a desktop, or set "
             "SDL_VIDEODRIVER=dummy for a scripted run without a window)"
         )
 

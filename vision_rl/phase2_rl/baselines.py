@@ -86,7 +86,7 @@ from vision_rl.phase2_rl.persist import (
     write_agent_state,
     write_json,
 )
-from vision_rl.phase2_rl.train import PRESETS, SACPreset, torch_device
+from vision_rl.phase2_rl.train import PRESETS, SACPreset, SaveClock, next_multiple, torch_device
 from vision_rl.sim.track_library import load_track
 
 ALGOS = ("bc", "gail", "td3", "sac")
@@ -577,34 +577,24 @@ class _OnlineLoop(BaseCallback):
         super().__init__()
         self.session, self.progress = session, progress
         cfg, start = session.cfg, session.start_steps
-        self.next_eval = _next_multiple(start, cfg.eval_every_steps)
-        self.next_checkpoint = _next_multiple(start, cfg.checkpoint_every_steps)
-        self.next_disc = _next_multiple(start, cfg.gail_disc_every_steps) if session.gail is not None else None
-        self.last_save_s = time.perf_counter()
+        self.next_eval = next_multiple(start, cfg.eval_every_steps)
+        self.saves = SaveClock(start, cfg.checkpoint_every_steps, cfg.checkpoint_every_min)
+        self.next_disc = next_multiple(start, cfg.gail_disc_every_steps) if session.gail is not None else None
 
     def _on_step(self) -> bool:
         n, session = self.num_timesteps, self.session
         if self.next_disc is not None and n >= self.next_disc:
             session.gail.update(self.model.replay_buffer)
-            self.next_disc = _next_multiple(n, session.cfg.gail_disc_every_steps)
+            self.next_disc = next_multiple(n, session.cfg.gail_disc_every_steps)
         if self.next_eval is not None and n >= self.next_eval:
             session.evaluate(self.model)
-            self.next_eval = _next_multiple(n, session.cfg.eval_every_steps)
+            self.next_eval = next_multiple(n, session.cfg.eval_every_steps)
         if self.progress is not None:
             self.progress("step", n, session.end_steps, session.last_eval)
-        if self.next_checkpoint is not None and n >= self.next_checkpoint:
-            session.save(self.model, buffer=True)
-            self.next_checkpoint = _next_multiple(n, session.cfg.checkpoint_every_steps)
-            self.last_save_s = time.perf_counter()
-        every_s = 60.0 * session.cfg.checkpoint_every_min
-        if every_s > 0 and time.perf_counter() - self.last_save_s >= every_s:
-            session.save(self.model, buffer=False)
-            self.last_save_s = time.perf_counter()
+        kind = self.saves.due(n)
+        if kind is not None:
+            session.save(self.model, buffer=kind == "full")
         return True
-
-
-def _next_multiple(n: int, every: int) -> int | None:
-    return None if every <= 0 else (n // every + 1) * every
 
 
 class _OnlineSession:

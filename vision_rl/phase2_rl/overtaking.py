@@ -85,7 +85,7 @@ from vision_rl.phase2_rl.persist import (
     save_buffer,
     write_json,
 )
-from vision_rl.phase2_rl.train import PRESETS, resolve_preset, torch_device
+from vision_rl.phase2_rl.train import PRESETS, SaveClock, next_multiple, resolve_preset, torch_device
 
 OBSERVATION = "overtaking"
 OBS_DIM = len(OBS_NAMES[OBSERVATION])
@@ -403,9 +403,8 @@ class _StageLoop(BaseCallback):
         self.progress = progress
         cfg = session.cfg
         start = session.start_steps_now
-        self.next_eval = _next_multiple(start, cfg.eval_every_steps)
-        self.next_checkpoint = _next_multiple(start, cfg.checkpoint_every_steps)
-        self.last_save_s = time.perf_counter()
+        self.next_eval = next_multiple(start, cfg.eval_every_steps)
+        self.saves = SaveClock(start, cfg.checkpoint_every_steps, cfg.checkpoint_every_min)
 
     def _on_step(self) -> bool:
         n = self.num_timesteps
@@ -413,25 +412,16 @@ class _StageLoop(BaseCallback):
         go_on = True
         if self.next_eval is not None and n >= self.next_eval:
             record = session.evaluate(self.model)
-            self.next_eval = _next_multiple(n, session.cfg.eval_every_steps)
+            self.next_eval = next_multiple(n, session.cfg.eval_every_steps)
             if session.stage.until_criterion and record["criterion_met"]:
                 session.criterion_met_at = n
                 go_on = False
         if self.progress is not None:
             self.progress(session.stage.name, n, session.end_steps, session.last_eval)
-        if self.next_checkpoint is not None and n >= self.next_checkpoint:
-            session.save(self.model, buffer=True)
-            self.next_checkpoint = _next_multiple(n, session.cfg.checkpoint_every_steps)
-            self.last_save_s = time.perf_counter()
-        every_s = 60.0 * session.cfg.checkpoint_every_min
-        if every_s > 0 and time.perf_counter() - self.last_save_s >= every_s:
-            session.save(self.model, buffer=False)
-            self.last_save_s = time.perf_counter()
+        kind = self.saves.due(n)
+        if kind is not None:
+            session.save(self.model, buffer=kind == "full")
         return go_on
-
-
-def _next_multiple(n: int, every: int) -> int | None:
-    return None if every <= 0 else (n // every + 1) * every
 
 
 class _StageSession:

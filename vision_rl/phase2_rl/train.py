@@ -218,30 +218,47 @@ class _TrainingLoop(BaseCallback):
         self.run = run
         self.progress = progress
         cfg = run.cfg
-        self.next_eval = _next_multiple(run.start_steps, cfg.eval_every_steps)
-        self.next_checkpoint = _next_multiple(run.start_steps, cfg.checkpoint_every_steps)
-        self.last_save_s = time.perf_counter()
+        self.next_eval = next_multiple(run.start_steps, cfg.eval_every_steps)
+        self.saves = SaveClock(run.start_steps, cfg.checkpoint_every_steps, cfg.checkpoint_every_min)
 
     def _on_step(self) -> bool:
         n = self.num_timesteps
         if self.next_eval is not None and n >= self.next_eval:
             self.run.evaluate(self.model)
-            self.next_eval = _next_multiple(n, self.run.cfg.eval_every_steps)
+            self.next_eval = next_multiple(n, self.run.cfg.eval_every_steps)
         if self.progress is not None:
             self.progress(n, self.run.cfg.steps, self.run.last_eval)
-        if self.next_checkpoint is not None and n >= self.next_checkpoint:
-            self.run.save(self.model, buffer=True, snapshot=True)
-            self.next_checkpoint = _next_multiple(n, self.run.cfg.checkpoint_every_steps)
-            self.last_save_s = time.perf_counter()
-        every_s = 60.0 * self.run.cfg.checkpoint_every_min
-        if every_s > 0 and time.perf_counter() - self.last_save_s >= every_s:
-            self.run.save(self.model, buffer=False)
-            self.last_save_s = time.perf_counter()
+        kind = self.saves.due(n)
+        if kind is not None:
+            self.run.save(self.model, buffer=kind == "full", snapshot=kind == "full")
         return True
 
 
-def _next_multiple(n: int, every: int) -> int | None:
+def next_multiple(n: int, every: int) -> int | None:
+    """The first multiple of ``every`` after ``n`` (None when ``every`` is 0: never)."""
     return None if every <= 0 else (n // every + 1) * every
+
+
+class SaveClock:
+    """When a trainer saves: all of it (the replay buffer too) every ``every_steps`` environment steps, weights and
+    counters alone every ``every_min`` minutes of wall-clock time; 0 turns either off."""
+
+    def __init__(self, start_steps: int, every_steps: int, every_min: float) -> None:
+        self.every_steps, self.every_s = every_steps, 60.0 * every_min
+        self.next_full = next_multiple(start_steps, every_steps)
+        self.last_save_s = time.perf_counter()
+
+    def due(self, n: int) -> str | None:
+        """``full``, ``light`` or None at step ``n``; a save restarts the minute count."""
+        kind = None
+        if self.next_full is not None and n >= self.next_full:
+            self.next_full = next_multiple(n, self.every_steps)
+            kind = "full"
+        elif self.every_s > 0 and time.perf_counter() - self.last_save_s >= self.every_s:
+            kind = "light"
+        if kind is not None:
+            self.last_save_s = time.perf_counter()
+        return kind
 
 
 class _Run:
