@@ -143,11 +143,18 @@ def test_a_killed_capture_loses_at_most_the_flush_interval_and_resumes(
     reader.join(timeout=30)  # the reader thread alone reads stdout, to its end
     stderr = proc.stderr.read()
     reported = max(frames for _, frames in reports)
-    with open_capture(out) as f:
-        assert not f.complete
-        kept = f.n_frames
-        kept_targets = f.targets
-        f.read_images(np.arange(kept))  # every kept frame passes its checksum
+    try:
+        with open_capture(out) as f:
+            assert not f.complete
+            kept = f.n_frames
+            kept_targets = f.targets
+            f.read_images(np.arange(kept))  # every kept frame passes its checksum
+    except CaptureFormatError as exc:
+        # HDF5 is not journalled: a SIGKILL inside its rewrite of a chunk can leave that chunk failing its checksum
+        # (seen once in a loaded CI run). The damage is then named, never read as data; the frames are lost.
+        assert sig == signal.SIGKILL and "fail their checksum" in str(exc), str(exc)
+        fault.refused("SIGKILL inside HDF5's write of a chunk of the kept frames", str(exc))
+        return
     if sig == signal.SIGTERM:
         assert proc.returncode == 143, stderr
         assert kept == reported  # stopped between batches: nothing lost
