@@ -273,6 +273,55 @@ def test_killed_writer_leaves_readable_incomplete_file_that_resumes(tmp_path: Pa
         assert_frames(cap, 0, n + 5)
 
 
+def _damage_first_chunk(path: Path, name: str) -> None:
+    """Overwrite the start of ``name``'s first chunk on disk, as a kill inside HDF5's rewrite of it would."""
+    with h5py.File(path, "r") as f:
+        offset = f[name].id.get_chunk_info_by_coord((0,) * f[name].ndim).byte_offset
+    with open(path, "r+b") as fh:
+        fh.seek(offset)
+        fh.write(b"\xff" * 64)
+
+
+def test_committed_rows_of_a_chunk_damaged_in_its_rewrite_are_restored_from_the_journal(tmp_path: Path) -> None:
+    path = tmp_path / "cap.h5"
+    w = writer(path, flush_interval_s=0.0)
+    w.append(**batch(10))
+    w.append(**batch(8, 10))  # rewrites the chunk holding the 10 committed rows
+    w.close()
+    journal = h5format.journal_path(path)
+    assert journal.exists()
+    _damage_first_chunk(path, "targets")
+    with open_capture(path) as cap, pytest.raises(CaptureFormatError, match=r"frames 0\.\.17.*--resume"):
+        cap.targets
+    w = writer(path, resume=True)
+    assert w.n_frames == 18
+    w.append(**batch(3, 18))
+    w.close(complete=True)
+    assert not journal.exists()  # a complete file needs none
+    with open_capture(path) as cap:
+        assert cap.complete and cap.n_frames == 21
+        assert_frames(cap, 0, 21)
+
+
+def test_a_bad_or_foreign_journal_is_named(tmp_path: Path) -> None:
+    path, other = tmp_path / "cap.h5", tmp_path / "other.h5"
+    for p in (path, other):
+        w = writer(p) if p == path else CaptureWriter(
+            p, image_hw_px=HW_PX, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
+            dedicated_units=DED_UNITS, attrs={**ATTRS, "seed": 7})  # fmt: skip
+        w.append(**batch(5))
+        w.close()
+    journal = h5format.journal_path(path)
+    shutil.copy(h5format.journal_path(other), journal)
+    with pytest.raises(CaptureFormatError, match="belongs to another capture"):
+        writer(path, resume=True)
+    journal.write_bytes(b"PK\x03\x04 half a zip")
+    with pytest.raises(CaptureFormatError, match="journal of cap.h5 cannot be read"):
+        writer(path, resume=True)
+    writer(path, force=True).close()  # starting over drops the old file's journal
+    assert not journal.exists()
+
+
 def test_resume_refuses_other_settings_and_creates_missing_file(tmp_path: Path) -> None:
     path = tmp_path / "cap.h5"
     w = writer(path)

@@ -143,6 +143,7 @@ def test_a_killed_capture_loses_at_most_the_flush_interval_and_resumes(
     reader.join(timeout=30)  # the reader thread alone reads stdout, to its end
     stderr = proc.stderr.read()
     reported = max(frames for _, frames in reports)
+    kept_targets = None
     try:
         with open_capture(out) as f:
             assert not f.complete
@@ -150,11 +151,11 @@ def test_a_killed_capture_loses_at_most_the_flush_interval_and_resumes(
             kept_targets = f.targets
             f.read_images(np.arange(kept))  # every kept frame passes its checksum
     except CaptureFormatError as exc:
-        # HDF5 is not journalled: a SIGKILL inside its rewrite of a chunk can leave that chunk failing its checksum
-        # (seen once in a loaded CI run). The damage is then named, never read as data; the frames are lost.
-        assert sig == signal.SIGKILL and "fail their checksum" in str(exc), str(exc)
-        fault.refused("SIGKILL inside HDF5's write of a chunk of the kept frames", str(exc))
-        return
+        # A SIGKILL inside HDF5's rewrite of the last table chunk (seen once in a loaded CI run) damages rows already
+        # committed: they are named, never read, and --resume rewrites them from the journal.
+        assert sig == signal.SIGKILL and "fail their checksum" in str(exc) and "--resume" in str(exc), str(exc)
+        with h5py.File(out, "r") as raw:
+            kept = int(raw.attrs["n_frames"])
     if sig == signal.SIGTERM:
         assert proc.returncode == 143, stderr
         assert kept == reported  # stopped between batches: nothing lost
@@ -167,12 +168,15 @@ def test_a_killed_capture_loses_at_most_the_flush_interval_and_resumes(
         if flush_interval_s == 0:
             assert kept >= reported
         how = f"{kept} of {reported} frames kept (flush every {flush_interval_s:g} s)"
+        if kept_targets is None:
+            how += ", a chunk damaged in its rewrite restored from the journal"
     resumed = subprocess.run([sys.executable, "-m", "vision_rl.commands.main", "capture", *argv, "--resume"],
                              capture_output=True, text=True, timeout=300, cwd=REPO)  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr
     with open_capture(out) as f:
         assert f.complete and f.n_frames > kept
-        np.testing.assert_array_equal(f.targets[:kept], kept_targets)  # the kept frames are untouched
+        if kept_targets is not None:
+            np.testing.assert_array_equal(f.targets[:kept], kept_targets)  # the kept frames are untouched
         f.read_images(np.arange(f.n_frames))
     fault.recovered(f"{signal.Signals(sig).name} at a random point of a capture", f"{how}; --resume completed it")
 
@@ -196,7 +200,8 @@ def test_a_full_disk_names_the_file_and_resume_completes_it(gl_available, tmp_pa
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(out) in err and "disk full" in err
     monkeypatch.setattr(h5py.File, "flush", real_flush)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["circle.csv", "run.h5"]  # no temporary file
+    # No temporary file; the journal of the incomplete file stays for the resume.
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["circle.csv", "run.h5", "run.h5.journal.npz"]
     with open_capture(out) as f:
         assert not f.complete and f.n_frames > 0
     fault.refused("a full disk (ENOSPC) during a capture", err.split("error: ", 1)[1])

@@ -40,7 +40,11 @@ Crash safety: the writer flushes at most every ``flush_interval_s`` seconds, dat
 the count on disk never covers frames whose bytes are not there. Between flushes the rows of the small datasets
 wait in memory and the last batch's image chunks are being compressed in threads; a kill loses them with everything
 else after the last flush. A kill between flushes can leave datasets longer than ``n_frames``; the reader and a
-resumed writer trust ``n_frames`` and ignore the tail. HDF5's default (earliest) file format is used on purpose:
+resumed writer trust ``n_frames`` and ignore the tail. HDF5 is not journalled: appending rows rewrites the last,
+partly filled chunk of every table, committed rows included, so a kill inside that rewrite could damage frames
+already counted. Before each such write the writer therefore replaces ``PATH.journal.npz`` (written whole and renamed)
+with the rows from that chunk's start to the end of the write; a resumed writer rewrites the committed rows of the
+partly filled chunk from it, and a complete file has none. HDF5's default (earliest) file format is used on purpose:
 the newer superblock records "open for writing" and then refuses to reopen a file whose writer was killed without
 the ``h5clear`` tool.
 """
@@ -54,6 +58,7 @@ import json
 import os
 import threading
 import time
+import zipfile
 import zlib
 from collections.abc import Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -134,6 +139,57 @@ _GZIP_LEVEL = 1
 _ZSTD_FILTER_ID = hdf5plugin.ZSTD_ID
 
 _codec_state = threading.local()
+
+
+def journal_path(path: str | os.PathLike[str]) -> Path:
+    """The journal beside an incomplete capture file: the rows of its last, partly filled table chunk."""
+    path = Path(path)
+    return path.with_name(path.name + ".journal.npz")
+
+
+def _chunk_start(row: int) -> int:
+    return row // _ROW_CHUNK * _ROW_CHUNK
+
+
+def _write_journal(path: Path, fingerprint_sha: str, start: int, rows: Mapping[str, np.ndarray]) -> None:
+    # Written whole and renamed, so a kill leaves the previous journal or this one, never half of one (zip members
+    # carry a CRC-32, checked when read). Not fsynced: the guarantee is against a killed process, as for the file.
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, start=np.int64(start), fingerprint_sha256=np.str_(fingerprint_sha), **rows)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _repair_from_journal(path: Path) -> None:
+    """Rewrite the committed rows of the last, partly filled table chunk of ``path`` from its journal (a kill inside
+    HDF5's rewrite of that chunk may have damaged them); no journal, or one that does not cover them: nothing."""
+    journal = journal_path(path)
+    if not journal.exists():
+        return
+    try:
+        with np.load(journal, allow_pickle=False) as z:
+            start, owner = int(z["start"]), str(z["fingerprint_sha256"])
+            rows = {name: z[name] for name in _TABLE_DATASETS}
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+        raise CaptureFormatError(
+            f"{journal}: the journal of {path.name} cannot be read ({exc}): capture again with --force"
+        ) from exc
+    with h5py.File(path, "r+") as f:
+        if str(f.attrs.get("fingerprint_sha256", "")) != owner:
+            raise CaptureFormatError(f"{journal}: the journal belongs to another capture than {path.name}: remove it")
+        n_committed = int(f.attrs["n_frames"])
+        first = _chunk_start(n_committed)
+        if first == n_committed or not start <= first or start + len(rows["targets"]) < n_committed:
+            return  # no committed row shares a chunk with later writes, or the journal predates that chunk
+        for name, table in rows.items():
+            # Shrinking deletes the chunk, so the write makes a new one instead of reading the damaged one back.
+            f[name].resize(first, axis=0)
+            f[name].resize(n_committed, axis=0)
+            f[name][first:n_committed] = table[first - start : n_committed - start]
 
 
 def _zstd_compress(frame: np.ndarray) -> bytes:
@@ -334,6 +390,7 @@ class CaptureWriter:
             if self.path.exists() and not force:
                 raise FileExistsError(f"{self.path} exists: pass --force to overwrite it or --resume to continue it")
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            journal_path(self.path).unlink(missing_ok=True)  # a journal of the file this one replaces
             self._file = self._create(file_attrs, compression)
         self.compression = compression
         self._pool: ThreadPoolExecutor | None = None
@@ -350,6 +407,10 @@ class CaptureWriter:
         self._rows: dict[str, list[np.ndarray]] = {name: [] for name in _TABLE_DATASETS}
         self._n_buffered_rows = 0
         self._n_rows_on_disk = int(self._ds["targets"].shape[0])
+        # Rows on disk from the start of the last, partly filled chunk: the head of the next journal.
+        first = _chunk_start(self._n_rows_on_disk)
+        self._chunk_rows = {name: self._ds[name][first : self._n_rows_on_disk] for name in _TABLE_DATASETS}
+        self._fingerprint_sha = str(file_attrs["fingerprint_sha256"])
         self._closed = False
         self._last_flush_s = time.monotonic()
 
@@ -396,6 +457,7 @@ class CaptureWriter:
         return f
 
     def _reopen(self, file_attrs: dict[str, Any]) -> h5py.File:
+        _repair_from_journal(self.path)
         with open_capture(self.path) as existing:
             if existing.complete:
                 raise CaptureFormatError(
@@ -521,11 +583,19 @@ class CaptureWriter:
         while self._pending:
             self._write_pending()
         end = self._n_rows_on_disk + self._n_buffered_rows
-        for name, parts in self._rows.items():
+        new_rows = {name: np.concatenate(parts) for name, parts in self._rows.items()}
+        first = _chunk_start(self._n_rows_on_disk)
+        chunk_rows = {name: np.concatenate([self._chunk_rows[name], rows]) for name, rows in new_rows.items()}
+        _write_journal(journal_path(self.path), self._fingerprint_sha, first, chunk_rows)
+        for name, rows in new_rows.items():
             ds = self._ds[name]
             ds.resize(end, axis=0)
-            ds[self._n_rows_on_disk :] = np.concatenate(parts)
-            parts.clear()
+            ds[self._n_rows_on_disk :] = rows
+            self._rows[name].clear()
+        # Onto the disk now, while this journal covers the chunk: HDF5's chunk cache could write it after the next
+        # journal has replaced this one.
+        self._file.flush()
+        self._chunk_rows = {name: rows[_chunk_start(end) - first :] for name, rows in chunk_rows.items()}
         self._n_rows_on_disk = end
         self._n_buffered_rows = 0
 
@@ -578,6 +648,8 @@ class CaptureWriter:
                 self._file.close()
                 self._closed = True
             self._stop_pool()
+        if complete:
+            journal_path(self.path).unlink(missing_ok=True)
 
     def __enter__(self) -> CaptureWriter:
         return self
@@ -608,9 +680,14 @@ def _read_table(ds: h5py.Dataset, n_frames: int, path: Path) -> np.ndarray:
             try:
                 ds[start:stop]
             except OSError:
+                remedy = (
+                    "resume the capture (--resume), which rewrites them from its journal"
+                    if journal_path(path).exists()
+                    else "restore or capture it again"
+                )
                 raise CaptureFormatError(
                     f"{path}: dataset {name!r}, frames {start}..{stop - 1}: the data fail their checksum or cannot "
-                    f"be read (damaged file): restore or capture it again ({exc})"
+                    f"be read (damaged file): {remedy} ({exc})"
                 ) from exc
         raise CaptureFormatError(f"{path}: cannot read dataset {name!r}: {exc}") from exc
 
