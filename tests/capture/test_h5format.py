@@ -292,7 +292,7 @@ def test_committed_rows_of_a_chunk_damaged_in_its_rewrite_are_restored_from_the_
     assert journal.exists()
     _damage_first_chunk(path, "targets")
     with open_capture(path) as cap, pytest.raises(CaptureFormatError, match=r"frames 0\.\.17.*--resume"):
-        cap.targets
+        _ = cap.targets
     w = writer(path, resume=True)
     assert w.n_frames == 18
     w.append(**batch(3, 18))
@@ -316,7 +316,7 @@ def test_a_bad_or_foreign_journal_is_named(tmp_path: Path) -> None:
     with pytest.raises(CaptureFormatError, match="belongs to another capture"):
         writer(path, resume=True)
     journal.write_bytes(b"PK\x03\x04 half a zip")
-    with pytest.raises(CaptureFormatError, match="journal of cap.h5 cannot be read"):
+    with pytest.raises(CaptureFormatError, match=r"journal of cap\.h5 cannot be read"):
         writer(path, resume=True)
     writer(path, force=True).close()  # starting over drops the old file's journal
     assert not journal.exists()

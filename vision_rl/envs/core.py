@@ -37,6 +37,30 @@ STATS_SEED = 12345
 STATS_GROUPS = 20
 
 
+#: How the first action entry steers: the command itself, or a change of it (:func:`steering_command`).
+STEER_ACTIONS: tuple[str, ...] = ("angle", "rate")
+
+
+def steering_command(
+    action_steer: np.ndarray, previous_command_rad: np.ndarray, steer_action: str, max_change_rad: float
+) -> np.ndarray:
+    """The steering command (rad) an action's first entry gives.
+
+    ``angle``: the entry itself, clipped to +-pi/6. ``rate``: the previous command plus ``entry / (pi/6)`` (clipped to
+    [-1, 1]) times ``max_change_rad``, clipped to +-pi/6. The wheel cannot follow a command faster than the car's
+    steering rate limit (hatchback 1.2 rad/s, 0.12 rad per 0.1 s step), so an angle command far from the wheel only
+    sets the direction it moves in, and the wheel's angle is hidden from an observation that holds the previous
+    command: a policy then steers bang-bang. With ``rate`` and ``max_change_rad`` the car's limit over one control
+    step, the command stays where the wheel can be, and the observation's previous command is the wheel's angle up to
+    the actuator's 0.05 s lag.
+    """
+    action_steer = np.asarray(action_steer, dtype=np.float64)
+    if steer_action == "angle":
+        return np.clip(action_steer, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
+    change = np.clip(action_steer / ACTION_STEER_LIMIT_RAD, -1.0, 1.0) * max_change_rad
+    return np.clip(previous_command_rad + change, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
+
+
 @dataclass(frozen=True)
 class RacingConfig:
     """Everything that defines an environment; stored with policies so evaluation rebuilds the same one."""
@@ -63,6 +87,10 @@ class RacingConfig:
     steer_change_penalty_c_s: float = 0.0
     """c_s of a penalty ``c_s * (change of the steering command / its limit)^2`` per step, against bang-bang
     steering (not in the papers; 0: their reward)."""
+    steer_action: str = "angle"
+    """``angle``: the action's first entry is the steering command, rad (the papers); ``rate``: it asks for a change
+    of the command, ``action / (pi/6)`` times what the car's steering rate limit moves the wheel in one control step
+    (see :func:`steering_command`; not in the papers)."""
     car_penalty_c_c: float = 0.005
     """c_c of the overtaking reward (section IV-B: 0.005)."""
     overtake_gain_c_r: float = 1.0
@@ -87,6 +115,8 @@ class RacingConfig:
             raise ValueError(f"observation must be one of {OBSERVATION_KINDS}, got {self.observation!r}")
         if self.scenario not in SCENARIOS:
             raise ValueError(f"scenario must be one of {tuple(SCENARIOS)}, got {self.scenario!r}")
+        if self.steer_action not in STEER_ACTIONS:
+            raise ValueError(f"steer_action must be one of {STEER_ACTIONS}, got {self.steer_action!r}")
         if self.n_groups < 1:
             raise ValueError(f"n_groups must be >= 1, got {self.n_groups}")
         if self.episode_s < self.control_dt_s:
@@ -252,7 +282,9 @@ class RacingCore:
         actions = np.asarray(actions, dtype=np.float64).reshape(cfg.n_groups, 2)
         st = self.world.state
         s_prev = st.s_m[self.ego_ids].copy()
-        steer_rad = np.clip(actions[:, 0], -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
+        steer_rad = steering_command(
+            actions[:, 0], self.steer_command_rad, cfg.steer_action, self.car.max_steer_rate_radps * cfg.control_dt_s
+        )
         events = self.advance(steer_rad, np.clip(actions[:, 1], -1.0, 1.0))
         self.observer.remember(self.world.state)
         st = self.world.state

@@ -74,6 +74,8 @@ class TimeTrial(_RacingEnv):
     ## Action Space
     ``Box([-pi/6, -1], [pi/6, 1], float32)``: the front-wheel steering angle command in rad (+ left) and omega,
     throttle (> 0) or brake (< 0) in [-1, 1]. Steering is rate-limited and both commands pass a short actuator lag.
+    With ``steer_action="rate"`` (not in the papers) the first entry asks for a change of the steering command
+    instead: ``entry / (pi/6)`` of the most the car's steering rate limit turns the wheel in one control step.
 
     ## Observation Space
     ``observation="state"`` (default): ``Box(38,)`` float32, the privileged observation of Fuchs et al.: 13 edge
@@ -111,8 +113,8 @@ class TimeTrial(_RacingEnv):
     ## Arguments
     Any field of :class:`vision_rl.envs.core.RacingConfig`: ``track`` (built-in name, ``random:SEED``, CSV path),
     ``car``, ``observation``, ``control_dt_s``, ``episode_s``, ``wall_penalty_c_w``, ``steer_change_penalty_c_s``,
-    ``terminate_when_stuck``, ``normalize``, ``image_hw_px``, ``frame_delay_s``. For 20 cars in one world use
-    :func:`vision_rl.envs.make_vector_env`.
+    ``steer_action``, ``terminate_when_stuck``, ``normalize``, ``image_hw_px``, ``frame_delay_s``. For 20 cars in one
+    world use :func:`vision_rl.envs.make_vector_env`.
 
     ## Version History
     - v1: the world steps at the built-in AI's 0.02 s (an action is held over the five substeps, the same physics

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from vision_rl.envs.core import RacingConfig
+from vision_rl.envs.core import RacingConfig, steering_command
 from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
 from vision_rl.envs.observer import Observer
 from vision_rl.envs.racing_env import action_space
@@ -256,6 +256,8 @@ class PolicyDriver:
         kind, normalizer, encoder, image_hw_px: the observation it reads (as in training).
         control_dt_s: how often it acts, s (its training environment's control step).
         frame_delay_s: vision: how far its frames lag the state, s (as in training).
+        steer_action: how its first action entry steers (``angle`` or ``rate``, as in training; see
+            :func:`vision_rl.envs.core.steering_command`).
         identity: who it is, for the record (policy path, hashes, training steps).
     """
 
@@ -269,8 +271,10 @@ class PolicyDriver:
         control_dt_s: float = 0.1,
         identity: dict[str, Any] | None = None,
         frame_delay_s: float = 0.0,
+        steer_action: str = "angle",
     ) -> None:
         self.predict = predict
+        self.steer_action = steer_action
         self.kind, self.normalizer, self.encoder = kind, normalizer, encoder
         self.image_hw_px = image_hw_px
         self.control_dt_s = control_dt_s
@@ -286,12 +290,19 @@ class PolicyDriver:
         )
         self.observer.delay_frames(self.frame_delay_s, self.control_dt_s)
         self.car_ids = np.asarray(car_ids)
+        # As the environment: a run starts from the wheel angle the car was placed with.
+        self.steer_command_rad = world.state.vehicle.steer_rad[self.car_ids].copy()
+        self.max_steer_change_rad = world.car.max_steer_rate_radps * self.control_dt_s
 
     def act(self, state: WorldState) -> np.ndarray:
         assert self.observer is not None, "reset() first"
         self.observer.remember(state)  # called once per control step, as the environment does after each step
         action = np.asarray(self.predict(self.observer(state, self.car_ids)), dtype=np.float64)
-        return action.reshape(len(self.car_ids), 2)
+        action = action.reshape(len(self.car_ids), 2).copy()
+        action[:, 0] = self.steer_command_rad = steering_command(
+            action[:, 0], self.steer_command_rad, self.steer_action, self.max_steer_change_rad
+        )
+        return action
 
     def close(self) -> None:
         if self.observer is not None:
@@ -339,7 +350,7 @@ class LoadedPolicy:
         }
         config = self.config
         return PolicyDriver(self.act, spec.observation, spec.normalizer, self.encoder, config.image_hw_px,
-                            config.control_dt_s, identity, config.frame_delay_s)  # fmt: skip
+                            config.control_dt_s, identity, config.frame_delay_s, config.steer_action)  # fmt: skip
 
 
 def sac_policy(obs_dim: int, hidden_units: list[int], device: str = "cpu"):

@@ -37,7 +37,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecMonitor
 
-from vision_rl.envs.core import RacingConfig
+from vision_rl.envs.core import STEER_ACTIONS, RacingConfig
 from vision_rl.envs.observations import ObsNormalizer
 from vision_rl.envs.observer import Observer
 from vision_rl.envs.vector import make_sb3_vec_env
@@ -148,6 +148,9 @@ class TrainPolicyConfig:
     """c_s of the reward's steering-change penalty ``c_s * (change / limit)^2`` (0: the papers' reward)."""
     frame_delay_s: float = 0.0
     """Vision: frames lag the state by this long (the paper's 4 frames at 60 Hz: 0.067; 0: none)."""
+    steer_action: str = "angle"
+    """`angle`: the action is the steering command (the papers); `rate`: a change of it, up to the car's steering
+    rate limit per step (not in the papers)."""
     stats_steps: int = 50
     """Vision: control steps of the feature-statistics rollout."""
     learning_rate: float = 0.0
@@ -313,6 +316,7 @@ class _Run:
                 track=cfg.track, car=cfg.car, observation=self.kind, n_groups=cfg.cars, episode_s=cfg.episode_s,
                 wall_penalty_c_w=cfg.wall_penalty_c_w, image_hw_px=image_hw,
                 steer_change_penalty_c_s=cfg.steer_change_penalty_c_s, frame_delay_s=cfg.frame_delay_s,
+                steer_action=cfg.steer_action,
             )  # fmt: skip
             self.start_steps = 0
             self.train_time_before_s = 0.0
@@ -499,6 +503,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     if bad:
         name = bad[0]
         raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
+    if cfg.steer_action not in STEER_ACTIONS:
+        raise ValueError(f"--steer-action must be one of {', '.join(STEER_ACTIONS)}, got {cfg.steer_action!r}")
     if cfg.frame_delay_s > 0 and not cfg.encoder:
         raise ValueError("--frame-delay-s delays the vision frames: give --encoder (the state observation has none)")
     if cfg.workers is not None or cfg.address:

@@ -1,0 +1,57 @@
+"""The steering-rate action: hand-computed commands, the environment and a protocol driver steering alike."""
+
+import numpy as np
+import pytest
+
+from vision_rl.envs.core import RacingConfig, RacingCore, steering_command
+from vision_rl.phase2_rl.artifact import PolicyDriver
+from vision_rl.sim.vehicle import ACTION_STEER_LIMIT_RAD, get_preset
+
+LIMIT = ACTION_STEER_LIMIT_RAD
+
+
+def test_steering_command_by_hand():
+    prev = np.array([0.1, 0.1, 0.5, -0.2, 0.0])
+    action = np.array([LIMIT, -LIMIT / 2, LIMIT, 3 * LIMIT, 0.0])
+    # +1 of 0.12 rad; -0.5 of it; up to the lock; an entry beyond pi/6 asks for one full change; none
+    expected = np.array([0.22, 0.04, LIMIT, -0.08, 0.0])
+    np.testing.assert_allclose(steering_command(action, prev, "rate", 0.12), expected)
+    np.testing.assert_allclose(steering_command(np.array([0.3, -2.0]), prev[:2], "angle", 0.12), [0.3, -LIMIT])
+
+
+def test_a_bad_steer_action_is_refused():
+    with pytest.raises(ValueError, match="steer_action must be one of"):
+        RacingConfig(steer_action="torque")
+
+
+def test_the_env_adds_the_asked_change_to_the_last_command():
+    core = RacingCore(RacingConfig(track="expressway", n_groups=2, steer_action="rate"), seed=4)
+    core.reset_groups(np.arange(2))
+    start = core.world.state.vehicle.steer_rad[core.ego_ids].copy()
+    per_step = get_preset("hatchback").max_steer_rate_radps * 0.1  # 1.2 rad/s over a 0.1 s step
+    for k in range(1, 4):
+        core.step(np.array([[LIMIT, 1.0], [-LIMIT / 4, 1.0]]), autoreset=False)
+        np.testing.assert_allclose(core.world.state.prev_steer_cmd_rad[core.ego_ids],
+                                   start + k * per_step * np.array([1.0, -0.25]))  # fmt: skip
+
+
+def test_a_rate_policy_drives_the_protocol_as_it_drove_its_environment():
+    cfg = RacingConfig(track="technical", n_groups=2, steer_action="rate", normalize=False)
+    trained = RacingCore(cfg, seed=2)
+    trained.reset_groups(np.arange(2))
+    replayed = RacingCore(RacingConfig(track="technical", n_groups=2, normalize=False), seed=2)
+    replayed.reset_groups(np.arange(2))
+    rng = np.random.default_rng(0)
+    actions = np.column_stack([rng.uniform(-LIMIT, LIMIT, (12, 2)).ravel(), np.full(24, 0.6)]).reshape(12, 2, 2)
+    queue = list(actions)
+    driver = PolicyDriver(lambda obs: queue.pop(0), "state", None, steer_action="rate")
+    driver.reset(replayed.world, replayed.ego_ids)
+    for a in actions:
+        trained.step(a, autoreset=False)
+        replayed.step(driver.act(replayed.world.state), autoreset=False)  # absolute commands, angle mode
+    for name in ("x_m", "y_m", "yaw_rad", "steer_rad"):
+        np.testing.assert_array_equal(
+            getattr(replayed.world.state.vehicle, name), getattr(trained.world.state.vehicle, name)
+        )
+    assert np.ptp(trained.world.state.vehicle.steer_rad) > 0.01  # the cars did steer
+    driver.close()
