@@ -1,4 +1,4 @@
-"""The steering-rate action: hand-computed commands, the environment and a protocol driver steering alike."""
+"""The steering actions: hand-computed commands, the environment and a protocol driver steering alike."""
 
 import numpy as np
 import pytest
@@ -17,6 +17,11 @@ def test_steering_command_by_hand():
     expected = np.array([0.22, 0.04, LIMIT, -0.08, 0.0])
     np.testing.assert_allclose(steering_command(action, prev, "rate", 0.12), expected)
     np.testing.assert_allclose(steering_command(np.array([0.3, -2.0]), prev[:2], "angle", 0.12), [0.3, -LIMIT])
+    # speed_scaled, wheelbase 2.5 m: range 6 * 2.5 * 9.80665 / v^2 = 0.0613 rad at 60 m/s, pi/6 at 10 m/s
+    speed = np.array([60.0, 60.0, 10.0, 0.0])
+    scaled = steering_command(np.array([LIMIT, -LIMIT / 2, LIMIT / 2, LIMIT]), prev[:4], "speed_scaled", 0.12,
+                              speed, 2.5)  # fmt: skip
+    np.testing.assert_allclose(scaled, [147.09975 / 3600, -147.09975 / 7200, LIMIT / 2, LIMIT])
 
 
 def test_a_bad_steer_action_is_refused():
@@ -35,8 +40,9 @@ def test_the_env_adds_the_asked_change_to_the_last_command():
                                    start + k * per_step * np.array([1.0, -0.25]))  # fmt: skip
 
 
-def test_a_rate_policy_drives_the_protocol_as_it_drove_its_environment():
-    cfg = RacingConfig(track="technical", n_groups=2, steer_action="rate", normalize=False)
+@pytest.mark.parametrize("steer_action", ["rate", "speed_scaled"])
+def test_a_policy_drives_the_protocol_as_it_drove_its_environment(steer_action):
+    cfg = RacingConfig(track="technical", n_groups=2, steer_action=steer_action, normalize=False)
     trained = RacingCore(cfg, seed=2)
     trained.reset_groups(np.arange(2))
     replayed = RacingCore(RacingConfig(track="technical", n_groups=2, normalize=False), seed=2)
@@ -44,7 +50,7 @@ def test_a_rate_policy_drives_the_protocol_as_it_drove_its_environment():
     rng = np.random.default_rng(0)
     actions = np.column_stack([rng.uniform(-LIMIT, LIMIT, (12, 2)).ravel(), np.full(24, 0.6)]).reshape(12, 2, 2)
     queue = list(actions)
-    driver = PolicyDriver(lambda obs: queue.pop(0), "state", None, steer_action="rate")
+    driver = PolicyDriver(lambda obs: queue.pop(0), "state", None, steer_action=steer_action)
     driver.reset(replayed.world, replayed.ego_ids)
     for a in actions:
         trained.step(a, autoreset=False)

@@ -5,6 +5,7 @@ synchronous single-worker run, Ctrl-C and resume."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -192,3 +193,38 @@ def test_vision_samplers_embed_frames_with_the_runs_encoder(ray_local, gl_availa
     core.reset_groups(np.arange(2))
     np.testing.assert_allclose(core.observation(), observations[0], rtol=1e-4, atol=1e-4)
     run.close()
+
+
+def test_train_overtaking_with_a_worker_ends_stage_one_at_its_criterion_and_samples_stage_two(
+    ray_local, small_track, tmp_path, monkeypatch
+):
+    from tests.phase2_rl.test_overtaking import tiny_overtaking_config
+    from vision_rl.phase2_rl import overtaking as ot
+
+    class Timing:  # every driver laps in 30 s: the policy is within 5 % of the AI at the first evaluation
+        def summary(self):
+            return {"best_lap_time_s": 30.0, "n_finished": 1}
+
+    monkeypatch.setattr(ot, "time_laps", lambda *a, **k: Timing())
+    out = tmp_path / "run"
+    result = ot.train_overtaking(tiny_overtaking_config(small_track, out, agent="1", stage2_steps=40, eval_episodes=0,
+                                                        workers=1, max_staleness=0))  # fmt: skip
+    stage1, stage2 = result["stages"]
+    # The criterion's False stops the samplers' session as it stops SB3's learn: at the evaluation's step.
+    assert stage1["end_steps"] == 100 and stage1["criterion"]["met_at_steps"] == 100
+    assert stage2["status"] == "done" and (stage2["start_steps"], stage2["end_steps"]) == (100, 140)
+    spec = ot.read_overtaking_spec(out / "stage2" / "policy.json")
+    assert spec.num_timesteps == 140 and spec.racing_config["scenario"] == "stage2"
+    records = [json.loads(line) for line in (out / "stage1" / "metrics.jsonl").read_text().splitlines()]
+    assert [r.get("num_timesteps") for r in records] == [100]  # one evaluation, no lost sampler
+
+
+def test_train_overtaking_refuses_bad_sampling_options_before_writing(small_track, tmp_path):
+    from tests.phase2_rl.test_overtaking import tiny_overtaking_config
+    from vision_rl.phase2_rl.overtaking import train_overtaking
+
+    for change, message in [({"workers": 0}, "--workers 0"), ({"address": "auto"}, "needs --workers"),
+                            ({"workers": 1, "max_staleness": -1}, "--max-staleness -1")]:  # fmt: skip
+        with pytest.raises(ValueError, match=message):
+            train_overtaking(tiny_overtaking_config(small_track, tmp_path / "run", **change))
+        assert not (tmp_path / "run").exists()

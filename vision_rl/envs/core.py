@@ -20,7 +20,7 @@ from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE, Disrupt
 from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector
 from vision_rl.sim.track_library import load_track
-from vision_rl.sim.vehicle import ACTION_STEER_LIMIT_RAD, get_preset
+from vision_rl.sim.vehicle import ACTION_STEER_LIMIT_RAD, GRAVITY_MPS2, get_preset
 from vision_rl.sim.world import StepEvents, World, WorldConfig
 
 #: Scenario name -> (opponents per group, spacing between consecutive cars along the track in m).
@@ -37,28 +37,48 @@ STATS_SEED = 12345
 STATS_GROUPS = 20
 
 
-#: How the first action entry steers: the command itself, or a change of it (:func:`steering_command`).
-STEER_ACTIONS: tuple[str, ...] = ("angle", "rate")
+#: How the first action entry steers (:func:`steering_command`).
+STEER_ACTIONS: tuple[str, ...] = ("angle", "rate", "speed_scaled")
+#: ``speed_scaled``: the command's range at speed v is this many times ``wheelbase * g / v^2``, the angle a
+#: neutral-steering car needs for 1 g. Chosen to cover the built-in AI at skill 1.0 on expressway and technical
+#: (hatchback): its largest command was 0.072 rad at 40-45 m/s (the range there: 0.085 rad) and 0.155 rad at 25-30
+#: m/s (range 0.20); below about 17 m/s the range is the full pi/6.
+SPEED_SCALED_STEER_G_MULTIPLE = 6.0
 
 
 def steering_command(
-    action_steer: np.ndarray, previous_command_rad: np.ndarray, steer_action: str, max_change_rad: float
+    action_steer: np.ndarray,
+    previous_command_rad: np.ndarray,
+    steer_action: str,
+    max_change_rad: float,
+    speed_mps: np.ndarray | None = None,
+    wheelbase_m: float = 0.0,
 ) -> np.ndarray:
-    """The steering command (rad) an action's first entry gives.
+    """The steering command (rad) an action's first entry gives; every mode clips it to +-pi/6.
 
-    ``angle``: the entry itself, clipped to +-pi/6. ``rate``: the previous command plus ``entry / (pi/6)`` (clipped to
-    [-1, 1]) times ``max_change_rad``, clipped to +-pi/6. The wheel cannot follow a command faster than the car's
-    steering rate limit (hatchback 1.2 rad/s, 0.12 rad per 0.1 s step), so an angle command far from the wheel only
-    sets the direction it moves in, and the wheel's angle is hidden from an observation that holds the previous
-    command: a policy then steers bang-bang. With ``rate`` and ``max_change_rad`` the car's limit over one control
-    step, the command stays where the wheel can be, and the observation's previous command is the wheel's angle up to
-    the actuator's 0.05 s lag.
+    - ``angle``: the entry itself (the papers).
+    - ``rate``: the previous command plus ``entry / (pi/6)`` (clipped to [-1, 1]) times ``max_change_rad``. The wheel
+      cannot follow a command faster than the car's steering rate limit (hatchback 1.2 rad/s, 0.12 rad per 0.1 s
+      step), so an angle command far from the wheel only sets the direction it moves in, and the wheel's angle is
+      hidden from an observation that holds the previous command. With ``rate`` and ``max_change_rad`` the car's
+      limit over one control step, the observed previous command is the wheel's angle up to the actuator's lag.
+    - ``speed_scaled``: ``entry / (pi/6)`` of ``min(pi/6, k * wheelbase_m * g / speed_mps^2)``,
+      ``k = SPEED_SCALED_STEER_G_MULTIPLE``: the whole action range is spent on the angles a car can use at its
+      speed (as games scale a pad's steering with speed). At 160 km/h the papers' action asks for up to 0.52 rad
+      where the built-in AI never uses more than 0.07: one exploration step or one swing of a bang-bang policy
+      then spins the car.
     """
     action_steer = np.asarray(action_steer, dtype=np.float64)
+    share = np.clip(action_steer / ACTION_STEER_LIMIT_RAD, -1.0, 1.0)
     if steer_action == "angle":
-        return np.clip(action_steer, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
-    change = np.clip(action_steer / ACTION_STEER_LIMIT_RAD, -1.0, 1.0) * max_change_rad
-    return np.clip(previous_command_rad + change, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
+        command = action_steer
+    elif steer_action == "rate":
+        command = previous_command_rad + share * max_change_rad
+    else:
+        speed_sq = np.maximum(np.square(np.asarray(speed_mps, dtype=np.float64)), 1e-6)
+        command = share * np.minimum(ACTION_STEER_LIMIT_RAD,
+                                     SPEED_SCALED_STEER_G_MULTIPLE * wheelbase_m * GRAVITY_MPS2 / speed_sq)  # fmt: skip
+    return np.clip(command, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
 
 
 @dataclass(frozen=True)
@@ -88,9 +108,9 @@ class RacingConfig:
     """c_s of a penalty ``c_s * (change of the steering command / its limit)^2`` per step, against bang-bang
     steering (not in the papers; 0: their reward)."""
     steer_action: str = "angle"
-    """``angle``: the action's first entry is the steering command, rad (the papers); ``rate``: it asks for a change
-    of the command, ``action / (pi/6)`` times what the car's steering rate limit moves the wheel in one control step
-    (see :func:`steering_command`; not in the papers)."""
+    """``angle``: the action's first entry is the steering command, rad (the papers); ``rate``: a change of the
+    command, up to what the car's steering rate limit moves the wheel in one control step; ``speed_scaled``: a share
+    of the angles a car can use at its speed (see :func:`steering_command`; both not in the papers)."""
     car_penalty_c_c: float = 0.005
     """c_c of the overtaking reward (section IV-B: 0.005)."""
     overtake_gain_c_r: float = 1.0
@@ -282,9 +302,10 @@ class RacingCore:
         actions = np.asarray(actions, dtype=np.float64).reshape(cfg.n_groups, 2)
         st = self.world.state
         s_prev = st.s_m[self.ego_ids].copy()
-        steer_rad = steering_command(
-            actions[:, 0], self.steer_command_rad, cfg.steer_action, self.car.max_steer_rate_radps * cfg.control_dt_s
-        )
+        ego_speed = np.hypot(st.vehicle.vx_mps[self.ego_ids], st.vehicle.vy_mps[self.ego_ids])
+        steer_rad = steering_command(actions[:, 0], self.steer_command_rad, cfg.steer_action,
+                                     self.car.max_steer_rate_radps * cfg.control_dt_s, ego_speed,
+                                     self.car.wheelbase_m)  # fmt: skip
         events = self.advance(steer_rad, np.clip(actions[:, 1], -1.0, 1.0))
         self.observer.remember(self.world.state)
         st = self.world.state

@@ -74,8 +74,9 @@ class TimeTrial(_RacingEnv):
     ## Action Space
     ``Box([-pi/6, -1], [pi/6, 1], float32)``: the front-wheel steering angle command in rad (+ left) and omega,
     throttle (> 0) or brake (< 0) in [-1, 1]. Steering is rate-limited and both commands pass a short actuator lag.
-    With ``steer_action="rate"`` (not in the papers) the first entry asks for a change of the steering command
-    instead: ``entry / (pi/6)`` of the most the car's steering rate limit turns the wheel in one control step.
+    Not in the papers: with ``steer_action="rate"`` the first entry asks for a change of the steering command
+    instead (``entry / (pi/6)`` of the most the car's steering rate limit turns the wheel in one control step); with
+    ``"speed_scaled"`` for ``entry / (pi/6)`` of the angles usable at the car's speed, ``min(pi/6, 6 L g / v^2)``.
 
     ## Observation Space
     ``observation="state"`` (default): ``Box(38,)`` float32, the privileged observation of Fuchs et al.: 13 edge

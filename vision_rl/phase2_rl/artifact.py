@@ -256,7 +256,7 @@ class PolicyDriver:
         kind, normalizer, encoder, image_hw_px: the observation it reads (as in training).
         control_dt_s: how often it acts, s (its training environment's control step).
         frame_delay_s: vision: how far its frames lag the state, s (as in training).
-        steer_action: how its first action entry steers (``angle`` or ``rate``, as in training; see
+        steer_action: how its first action entry steers (as in training; see
             :func:`vision_rl.envs.core.steering_command`).
         identity: who it is, for the record (policy path, hashes, training steps).
     """
@@ -293,14 +293,16 @@ class PolicyDriver:
         # As the environment: a run starts from the wheel angle the car was placed with.
         self.steer_command_rad = world.state.vehicle.steer_rad[self.car_ids].copy()
         self.max_steer_change_rad = world.car.max_steer_rate_radps * self.control_dt_s
+        self.wheelbase_m = world.car.wheelbase_m
 
     def act(self, state: WorldState) -> np.ndarray:
         assert self.observer is not None, "reset() first"
         self.observer.remember(state)  # called once per control step, as the environment does after each step
         action = np.asarray(self.predict(self.observer(state, self.car_ids)), dtype=np.float64)
         action = action.reshape(len(self.car_ids), 2).copy()
+        speed = np.hypot(state.vehicle.vx_mps[self.car_ids], state.vehicle.vy_mps[self.car_ids])
         action[:, 0] = self.steer_command_rad = steering_command(
-            action[:, 0], self.steer_command_rad, self.steer_action, self.max_steer_change_rad
+            action[:, 0], self.steer_command_rad, self.steer_action, self.max_steer_change_rad, speed, self.wheelbase_m
         )
         return action
 

@@ -1,4 +1,4 @@
-"""Sampling in other processes: ``train-policy --workers N`` (Ray).
+"""Sampling in other processes: ``train-policy --workers N`` and ``train-overtaking --workers N`` (Ray).
 
 N sampler actors each step a world of the run's cars (with the frozen encoder for vision) and return transitions
 to the learner, this process, which adds them to its Stable-Baselines3 replay buffer and trains. Transitions
@@ -47,11 +47,13 @@ from typing import Any
 
 import numpy as np
 
-RAY_MISSING = "train-policy --workers needs Ray: pip install 'vision_rl[ray]'"
+RAY_MISSING = "--workers needs Ray: pip install 'vision_rl[ray]'"
 #: Seconds the learner blocks at most on samplers before it looks again (Ctrl-C and SIGTERM are handled between).
 WAIT_SLICE_S = 0.25
 #: Prefix of the sampler actors' names (listed by ``ray.util.list_named_actors()``).
 ACTOR_PREFIX = "vision_rl_sampler"
+#: Seconds between TensorBoard's rollout figures (the episodes' return and length, steps/s) of a session.
+LOG_EVERY_S = 30.0
 #: Arrays of a chunk of transitions, each (steps, cars, ...), as the replay buffer stores them.
 CHUNK_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
 
@@ -433,8 +435,10 @@ class SamplingLearner:
     """The learner's side of a session with sampler actors: :meth:`run` trains ``model`` (SB3 SAC, its replay
     buffer of ``pacing.n_cars`` envs) on their transitions until ``pacing.total_timesteps`` or a deadline;
     :meth:`close` stops the actors. ``on_vector_step()`` is called after each vector step is added (the model's
-    step count updated), ``log_event(record)`` when a sampler is lost. Raises :class:`SamplersLostError` when no
-    sampler is left (the model keeps what it learned). The constructor returns once every sampler is built."""
+    step count updated); when it returns False the session ends there (as an SB3 callback stops ``learn``; the
+    rest of that chunk is dropped). ``log_event(record)`` is called when a sampler is lost. Raises
+    :class:`SamplersLostError` when no sampler is left (the model keeps what it learned). The constructor returns
+    once every sampler is built."""
 
     def __init__(
         self,
@@ -462,6 +466,7 @@ class SamplingLearner:
         self.alive = dict(enumerate(self.handles))
         self.busy = {w: False for w in self.alive}
         self.lost: list[dict[str, Any]] = []
+        self.stopped = False
         self.inflight: dict[Any, tuple[int, int, int]] = {}  # object ref -> (worker, chunk id, steps)
         self.next_chunk_id = 0
         self.counts = {"chunks": 0, "transitions": 0, "sampler_busy_s": 0.0, "learner_wait_s": 0.0,
@@ -518,8 +523,9 @@ class SamplingLearner:
                 episode = {"r": float(chunk["episode_return"][k, i]), "l": int(chunk["episode_length"][k, i])}
                 model.ep_info_buffer.append({**episode, "t": round(elapsed, 6)})
             model._episode_num += len(ended)
-            if self.on_vector_step is not None:
-                self.on_vector_step()
+            if self.on_vector_step is not None and self.on_vector_step() is False:
+                self.stopped = True
+                break
         self.counts["chunks"] += 1
         self.counts["transitions"] += steps * n
         self.counts["sampler_busy_s"] += float(chunk["busy_s"])
@@ -543,7 +549,7 @@ class SamplingLearner:
         try:
             while True:
                 self._launch()
-                if pacer.done or (deadline_s is not None and time.perf_counter() - start >= deadline_s):
+                if pacer.done or self.stopped or (deadline_s is not None and time.perf_counter() - start >= deadline_s):
                     return
                 can_update = pacer.can_update()
                 if self.inflight:
@@ -599,6 +605,46 @@ def learn_with_samplers(
     finally:
         learner.close()
     return learner.stats()
+
+
+def learn_like_sb3(
+    model: Any,
+    setup: SamplerSetup,
+    cluster: Cluster,
+    *,
+    workers: int,
+    max_staleness: int,
+    version_every_updates: int,
+    total_timesteps: int,
+    callback: Any,
+    log_event: Callable[[dict[str, Any]], None] | None = None,
+) -> dict[str, Any]:
+    """``model.learn(total_timesteps - model.num_timesteps, callback)`` with ``workers`` sampler actors: the model's
+    own update ratio, batch size and random start steps; ``callback`` (an SB3 ``BaseCallback``) after every vector
+    step, on the same step counts (its False ends the session); TensorBoard's rollout figures every
+    :data:`LOG_EVERY_S`. Returns the session's :meth:`SamplingLearner.stats`."""
+    pacing = Pacing(
+        workers=workers, n_cars=model.n_envs, gradient_steps=model.gradient_steps,
+        train_freq_steps=model.train_freq.frequency, batch_size=model.batch_size,
+        learning_starts=int(model.learning_starts), start_timesteps=int(model.num_timesteps),
+        total_timesteps=total_timesteps, version_every_updates=version_every_updates, max_staleness=max_staleness,
+    )  # fmt: skip
+    callback.init_callback(model)
+    last_dump = [time.perf_counter(), model.num_timesteps]
+
+    def on_vector_step() -> bool:
+        go_on = callback.on_step()
+        # TensorBoard's rollout figures, which SB3's own loop writes every few episodes.
+        if time.perf_counter() - last_dump[0] >= LOG_EVERY_S and model.ep_info_buffer:
+            steps = model.num_timesteps - last_dump[1]
+            model.logger.record("rollout/ep_rew_mean", float(np.mean([e["r"] for e in model.ep_info_buffer])))
+            model.logger.record("rollout/ep_len_mean", float(np.mean([e["l"] for e in model.ep_info_buffer])))
+            model.logger.record("time/fps", int(steps / (time.perf_counter() - last_dump[0])))
+            model.logger.dump(step=model.num_timesteps)
+            last_dump[:] = [time.perf_counter(), model.num_timesteps]
+        return go_on
+
+    return learn_with_samplers(model, setup, pacing, cluster, on_vector_step=on_vector_step, log_event=log_event)
 
 
 def _first_line(exc: BaseException) -> str:

@@ -85,7 +85,14 @@ from vision_rl.phase2_rl.persist import (
     save_buffer,
     write_json,
 )
-from vision_rl.phase2_rl.train import PRESETS, SaveClock, next_multiple, resolve_preset, torch_device
+from vision_rl.phase2_rl.train import (
+    PRESETS,
+    SaveClock,
+    next_multiple,
+    resolve_preset,
+    sampler_setup,
+    torch_device,
+)
 
 OBSERVATION = "overtaking"
 OBS_DIM = len(OBS_NAMES[OBSERVATION])
@@ -193,6 +200,15 @@ class TrainOvertakingConfig:
     """Override the preset's updates per vector step (0: preset)."""
     device: str = "auto"
     """Torch device: auto, cpu or cuda."""
+    workers: int | None = None
+    """Sampler actors (Ray), each a world of --cars ego cars in its own process, while this process learns; leave
+    it out to sample in this process."""
+    address: str = ""
+    """With --workers: the Ray cluster to join (auto, host:port or ray://host:port); empty: start one here."""
+    max_staleness: int = 1
+    """With --workers: weight versions a sampler's policy may lag the learner's (0: synchronous)."""
+    version_every_updates: int = 20
+    """With --workers: learner updates per weight version sent to the samplers."""
 
 
 # ------------------------------------------------------------------------------------------------- the sidecar
@@ -331,6 +347,12 @@ def check_config(cfg: TrainOvertakingConfig) -> None:
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
         raise ValueError(f"--{bad[0].replace('_', '-')} {getattr(cfg, bad[0])} is out of range")
+    if cfg.workers is not None or cfg.address:
+        from vision_rl.phase2_rl.distributed import check_workers
+
+        if cfg.workers is None:
+            raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
+        check_workers(cfg.workers, cfg.max_staleness, cfg.version_every_updates)
     sac = resolve_preset(cfg)
     for stage in stages_of(cfg):
         if stage.buffer_size < cfg.cars:
@@ -604,6 +626,29 @@ class _StageSession:
         write_json(self.folder / STAGE_NAME, self.record)
         return self.record
 
+    def learn_with_samplers(self, model: SAC, loop: _StageLoop, cluster: Any) -> None:
+        """The stage's steps from ``cfg.workers`` sampler actors, each a world of this stage's scenario; a lost
+        sampler is a line of the stage's metrics.jsonl; when none is left, the stage is saved and the error raised."""
+        from vision_rl.phase2_rl.distributed import SamplersLostError, learn_like_sb3
+
+        cfg = self.cfg
+        setup = sampler_setup(self.racing_config, OBSERVATION, self.normalizer, self.fingerprint,
+                              self.run.sac.hidden_units, cfg.seed + int(model.num_timesteps))  # fmt: skip
+
+        def log_event(record: dict[str, Any]) -> None:
+            with open(self.folder / METRICS_NAME, "a") as f:
+                f.write(json.dumps({**record, "stage": self.stage.name, "train_time_s": round(self.train_time_s, 2)})
+                        + "\n")  # fmt: skip
+
+        try:
+            learn_like_sb3(model, setup, cluster, workers=int(cfg.workers or 0), max_staleness=cfg.max_staleness,
+                           version_every_updates=cfg.version_every_updates, total_timesteps=self.end_steps,
+                           callback=loop, log_event=log_event)  # fmt: skip
+        except SamplersLostError as exc:
+            self.save(model, buffer=True)
+            self.close()
+            raise SamplersLostError(f"{exc}; {self.folder} was saved: run the same command to continue") from None
+
     def close(self) -> None:
         self.env.close()
         if self.eval_driver is not None:
@@ -688,6 +733,20 @@ def train_overtaking(cfg: TrainOvertakingConfig, progress: Progress | None = Non
     """Train the stages of ``cfg.agent`` that are not done yet (continuing an interrupted one); returns the stage
     boundaries and the agent's policy folder. Ctrl-C (or SIGTERM where the caller maps it) saves the stage and
     returns with ``interrupted``."""
+    cluster = None
+    if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
+        from vision_rl.phase2_rl.distributed import connect
+
+        check_config(cfg)
+        cluster = connect(cfg.address, cfg.workers)
+    try:
+        return _train_stages(cfg, cluster, progress)
+    finally:
+        if cluster is not None:
+            cluster.close()
+
+
+def _train_stages(cfg: TrainOvertakingConfig, cluster: Any, progress: Progress | None) -> dict[str, Any]:
     run = OvertakingRun(cfg)
     interrupted = False
     trained: list[str] = []
@@ -707,7 +766,9 @@ def train_overtaking(cfg: TrainOvertakingConfig, progress: Progress | None = Non
         loop = _StageLoop(session, progress)
         remaining = session.end_steps - int(model.num_timesteps)
         try:
-            if remaining > 0:
+            if remaining > 0 and cluster is not None:
+                session.learn_with_samplers(model, loop, cluster)
+            elif remaining > 0:
                 model.learn(total_timesteps=remaining, callback=loop, reset_num_timesteps=False, log_interval=4)
         except KeyboardInterrupt:
             interrupted = True
@@ -740,16 +801,19 @@ def train_overtaking(cfg: TrainOvertakingConfig, progress: Progress | None = Non
 
 
 def read_metrics(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
-    """The records of a metrics.jsonl (a torn last line, from a kill mid-write, is skipped)."""
+    """The evaluation records of a metrics.jsonl (a torn last line, from a kill mid-write, is skipped; so are the
+    lines of events such as a lost sampler)."""
     records = []
     path = Path(path)
     if not path.is_file():
         return records
     for line in path.read_text().splitlines():
         try:
-            records.append(json.loads(line))
+            record = json.loads(line)
         except ValueError:
             continue
+        if "event" not in record:
+            records.append(record)
     return records
 
 

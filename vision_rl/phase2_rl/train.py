@@ -58,8 +58,6 @@ from vision_rl.phase2_rl.artifact import (
 from vision_rl.phase2_rl.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
 
 METRICS_NAME = "metrics.jsonl"
-#: With --workers: seconds between TensorBoard's rollout figures (the episodes' return and length, steps/s).
-LOG_EVERY_S = 30.0
 MAX_CARS = 1000
 
 
@@ -150,7 +148,7 @@ class TrainPolicyConfig:
     """Vision: frames lag the state by this long (the paper's 4 frames at 60 Hz: 0.067; 0: none)."""
     steer_action: str = "angle"
     """`angle`: the action is the steering command (the papers); `rate`: a change of it, up to the car's steering
-    rate limit per step (not in the papers)."""
+    rate limit per step; `speed_scaled`: a share of the angles usable at the car's speed (both not in the papers)."""
     stats_steps: int = 50
     """Vision: control steps of the feature-statistics rollout."""
     learning_rate: float = 0.0
@@ -574,38 +572,11 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
     """The session's steps from ``cfg.workers`` sampler actors (:mod:`vision_rl.phase2_rl.distributed`); the same
     evaluations, checkpoints and progress as the single-process loop, on the same step counts. A lost sampler is a
     line of metrics.jsonl; when none is left, the run is saved and the error raised."""
-    from vision_rl.phase2_rl.distributed import Pacing, SamplerSetup, SamplersLostError, learn_with_samplers
+    from vision_rl.phase2_rl.distributed import SamplersLostError, learn_like_sb3
 
-    cfg, p = run.cfg, run.preset
-    racing = racing_config_to_dict(run.racing)
-    track = Path(run.racing.track)
-    if track.suffix == ".csv" and track.is_file():  # the samplers may run in another folder
-        racing["track"] = str(track.resolve())
-    setup = SamplerSetup(
-        racing_config=racing, observation=run.kind, obs_normalizer=run.normalizer.to_dict(),
-        fingerprint=run.fingerprint, hidden_units=tuple(p.hidden_units), seed=run.seed + run.start_steps,
-        encoder_path=str(run.encoder_path.resolve()) if run.encoder_path is not None else "",
-        encoder_runtime=cfg.encoder_runtime,
-    )  # fmt: skip
-    pacing = Pacing(
-        workers=int(cfg.workers or 0), n_cars=run.racing.n_groups, gradient_steps=p.gradient_steps,
-        train_freq_steps=p.train_freq_steps, batch_size=p.batch_size, learning_starts=int(model.learning_starts),
-        start_timesteps=int(model.num_timesteps), total_timesteps=cfg.steps,
-        version_every_updates=cfg.version_every_updates, max_staleness=cfg.max_staleness,
-    )  # fmt: skip
-    loop.init_callback(model)
-    last_dump_s = [time.perf_counter(), 0]
-
-    def on_vector_step() -> None:
-        loop.on_step()
-        # TensorBoard's rollout figures, which SB3's own loop writes every few episodes.
-        if time.perf_counter() - last_dump_s[0] >= LOG_EVERY_S and model.ep_info_buffer:
-            steps = model.num_timesteps - last_dump_s[1]
-            model.logger.record("rollout/ep_rew_mean", float(np.mean([e["r"] for e in model.ep_info_buffer])))
-            model.logger.record("rollout/ep_len_mean", float(np.mean([e["l"] for e in model.ep_info_buffer])))
-            model.logger.record("time/fps", int(steps / (time.perf_counter() - last_dump_s[0])))
-            model.logger.dump(step=model.num_timesteps)
-            last_dump_s[:] = [time.perf_counter(), model.num_timesteps]
+    cfg = run.cfg
+    setup = sampler_setup(run.racing, run.kind, run.normalizer, run.fingerprint, run.preset.hidden_units,
+                          run.seed + run.start_steps, run.encoder_path, cfg.encoder_runtime)  # fmt: skip
 
     def log_event(record: dict[str, Any]) -> None:
         record = {**record, "train_time_s": round(run.train_time_s, 2)}
@@ -613,11 +584,38 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
             f.write(json.dumps(record) + "\n")
 
     try:
-        return learn_with_samplers(model, setup, pacing, cluster, on_vector_step=on_vector_step, log_event=log_event)
+        return learn_like_sb3(model, setup, cluster, workers=int(cfg.workers or 0), max_staleness=cfg.max_staleness,
+                              version_every_updates=cfg.version_every_updates, total_timesteps=cfg.steps,
+                              callback=loop, log_event=log_event)  # fmt: skip
     except SamplersLostError as exc:
         run.save(model, buffer=True)
         run.close()
         raise SamplersLostError(f"{exc}; the run in {run.out} was saved: continue it with --resume") from None
+
+
+def sampler_setup(
+    racing: RacingConfig,
+    kind: str,
+    normalizer: ObsNormalizer,
+    fingerprint: dict[str, Any],
+    hidden_units: tuple[int, ...],
+    seed: int,
+    encoder_path: Path | None = None,
+    encoder_runtime: str = "auto",
+) -> Any:
+    """What the sampler actors of a run build their world and policy from; a CSV track by its absolute path, as the
+    samplers may run in another folder."""
+    from vision_rl.phase2_rl.distributed import SamplerSetup
+
+    config = racing_config_to_dict(racing)
+    track = Path(racing.track)
+    if track.suffix == ".csv" and track.is_file():
+        config["track"] = str(track.resolve())
+    return SamplerSetup(
+        racing_config=config, observation=kind, obs_normalizer=normalizer.to_dict(), fingerprint=fingerprint,
+        hidden_units=tuple(hidden_units), seed=seed,
+        encoder_path=str(encoder_path.resolve()) if encoder_path is not None else "", encoder_runtime=encoder_runtime,
+    )  # fmt: skip
 
 
 def read_metrics(path: str | os.PathLike[str], events: bool = False) -> list[dict[str, Any]]:
