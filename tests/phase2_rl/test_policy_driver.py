@@ -36,3 +36,14 @@ def test_driver_observations_equal_the_environments_with_a_frame_delay(gl_availa
     driver.close()
     core.observer.close()
 
+
+
+def test_a_driver_for_a_config_observes_and_steers_as_that_environment():
+    # Regression: train-policy's periodic evaluation once built its driver without the frame delay and the steering
+    # action of the run's environment, so its learning curves timed another policy than the one saved.
+    cfg = RacingConfig(track="technical", observation="vision", image_hw_px=(24, 40), control_dt_s=0.2,
+                       frame_delay_s=0.1, steer_action="speed_scaled")  # fmt: skip
+    driver = PolicyDriver.for_config(lambda obs: obs, "vision", None, _MeanColour(), cfg)
+    assert (driver.image_hw_px, driver.control_dt_s, driver.frame_delay_s, driver.steer_action) == (
+        (24, 40), 0.2, 0.1, "speed_scaled"
+    )

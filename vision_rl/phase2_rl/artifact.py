@@ -282,6 +282,16 @@ class PolicyDriver:
         self.identity = identity or {"driver": "policy", "observation": kind}
         self.observer: Observer | None = None
 
+    @classmethod
+    def for_config(
+        cls, predict, kind: str, normalizer: ObsNormalizer | None, encoder, config: RacingConfig,
+        identity: dict[str, Any] | None = None,
+    ) -> PolicyDriver:  # fmt: skip
+        """A driver that observes and steers as the environment ``config`` did in training (frame size, control
+        step, frame delay, steering action)."""
+        return cls(predict, kind, normalizer, encoder, config.image_hw_px, config.control_dt_s, identity,
+                   config.frame_delay_s, config.steer_action)  # fmt: skip
+
     def reset(self, world: World, car_ids: np.ndarray) -> None:
         if self.observer is not None:
             self.observer.close()
@@ -351,8 +361,7 @@ class LoadedPolicy:
             "seed": spec.seed,
         }
         config = self.config
-        return PolicyDriver(self.act, spec.observation, spec.normalizer, self.encoder, config.image_hw_px,
-                            config.control_dt_s, identity, config.frame_delay_s, config.steer_action)  # fmt: skip
+        return PolicyDriver.for_config(self.act, spec.observation, spec.normalizer, self.encoder, config, identity)
 
 
 def sac_policy(obs_dim: int, hidden_units: list[int], device: str = "cpu"):

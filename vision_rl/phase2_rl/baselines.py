@@ -677,8 +677,8 @@ class _OnlineSession:
         cfg = self.cfg
         t0 = time.perf_counter()
         if self.eval_driver is None:
-            self.eval_driver = PolicyDriver(lambda obs: model.predict(obs, deterministic=True)[0], OBSERVATION,
-                                            self.normalizer, None, control_dt_s=self.racing.control_dt_s)  # fmt: skip
+            self.eval_driver = PolicyDriver.for_config(lambda obs: model.predict(obs, deterministic=True)[0],
+                                                       OBSERVATION, self.normalizer, None, self.racing)  # fmt: skip
         summary = time_laps(self.eval_driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps,
                             cfg.eval_time_limit_s).summary()  # fmt: skip
         eval_time_s = time.perf_counter() - t0

@@ -554,8 +554,8 @@ class _StageSession:
         cfg, run = self.cfg, self.run
         t0 = time.perf_counter()
         if self.eval_driver is None:
-            self.eval_driver = PolicyDriver(lambda obs: model.predict(obs, deterministic=True)[0], OBSERVATION,
-                                            self.normalizer, None, control_dt_s=self.racing_config.control_dt_s)
+            self.eval_driver = PolicyDriver.for_config(lambda obs: model.predict(obs, deterministic=True)[0],
+                                                       OBSERVATION, self.normalizer, None, self.racing_config)
         timing = time_laps(self.eval_driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps,
                            cfg.eval_time_limit_s)  # fmt: skip
         summary = timing.summary()

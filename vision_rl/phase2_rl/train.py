@@ -396,10 +396,10 @@ class _Run:
         cfg = self.cfg
         t0 = time.perf_counter()
         if self.eval_driver is None:
-            self.eval_driver = PolicyDriver(
+            self.eval_driver = PolicyDriver.for_config(
                 lambda obs: model.predict(obs, deterministic=True)[0], self.kind, self.normalizer, self.encoder,
-                self.racing.image_hw_px, self.racing.control_dt_s,
-            )  # fmt: skip
+                self.racing,
+            )
         timing = time_laps(self.eval_driver, self.racing.track, self.racing.car, range(cfg.eval_seeds), cfg.eval_laps)
         summary = timing.summary()
         eval_time = time.perf_counter() - t0
