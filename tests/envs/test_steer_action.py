@@ -61,3 +61,25 @@ def test_a_policy_drives_the_protocol_as_it_drove_its_environment(steer_action):
         )
     assert np.ptp(trained.world.state.vehicle.steer_rad) > 0.01  # the cars did steer
     driver.close()
+
+
+def _worst_heading_error_deg(steer_action: str) -> tuple[float, float]:
+    core = RacingCore(RacingConfig(track="expressway", n_groups=1, steer_action=steer_action, normalize=False), seed=0)
+    core.reset_groups(np.array([0]))
+    # 150 km/h on the straight before the chicane where the policies' stuck starts stop (2.9 km).
+    core.world.reset(s_m=np.array([2500.0]), lateral_m=np.array([0.0]), speed_mps=np.array([41.7]), car_ids=[0])
+    core.steer_command_rad[:] = 0.0
+    worst = 0.0
+    for k in range(20):  # the bang-bang the policies learn: full lock one way, then the other, at 10 Hz
+        core.step(np.array([[LIMIT if k % 2 == 0 else -LIMIT, 0.3]]), autoreset=False)
+        v = core.world.state.vehicle
+        heading = core.track.project(np.array([[v.x_m[0], v.y_m[0]]])).heading_rad[0]
+        worst = max(worst, abs((v.yaw_rad[0] - heading + np.pi) % (2 * np.pi) - np.pi))
+    return np.degrees(worst), core.world.state.wall_contact_time_s[0]
+
+
+def test_a_full_range_swing_at_150_kmh_throws_the_car_into_the_wall_but_not_its_speed_scaled_range():
+    angle_deg, angle_wall_s = _worst_heading_error_deg("angle")
+    scaled_deg, scaled_wall_s = _worst_heading_error_deg("speed_scaled")
+    assert angle_deg > 15.0 and angle_wall_s > 0.0  # measured: 23 deg, 0.9 s on the wall
+    assert scaled_deg < 6.0 and scaled_wall_s == 0.0  # measured: 3.4 deg
