@@ -65,3 +65,15 @@ def test_plot_and_video(small_track, tmp_path):
 
     frames = imageio.mimread(str(mp4))
     assert len(frames) == len(timing.time_s) == 30 and frames[0].shape == (64, 96, 3)
+
+
+def test_evaluate_sections_say_when_no_lap_finished_and_refuse_bad_options(state_run):
+    from vision_rl.commands.evaluate import format_timing
+
+    out, _ = state_run
+    result = evaluate_policy(out, laps=1, seeds=1, time_limit_s=3.0, write=False, sections_m=50.0)
+    assert result["n_finished"] == 0 and result["sections"]["rows"] is None
+    assert "sections: no seed finished its scored lap" in format_timing(result)
+    for bad in ({"sections_m": -1.0}, {"sections_m": 50.0, "reference_skill": 0.0}):
+        with pytest.raises(ValueError, match="--sections-m must be >= 0"):
+            evaluate_policy(out, write=False, **bad)

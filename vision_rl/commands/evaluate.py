@@ -33,6 +33,19 @@ def format_timing(result: dict[str, Any]) -> list[str]:
         )
         status = "" if s["dnf_reason"] is None else f"; DNF: {s['dnf_reason']}"
         lines.append(f"  seed {s['seed']}: {laps or 'no lap'}; {s['distance_m']:.0f} m driven{status}")
+    sections = result.get("sections")
+    if sections is not None and sections["rows"] is None:
+        lines.append("sections: no seed finished its scored lap")
+    elif sections is not None:
+        ref = sections["reference"]
+        rows = sorted(sections["rows"], key=lambda r: -r["loss_s"])[:TOP_SECTIONS]
+        lines.append(f"where the best lap loses most against the built-in AI at skill {ref['skill']:g} "
+                     f"({_lap(ref['lap_time_s'])}), {sections['section_m']:g} m sections:")  # fmt: skip
+        lines.append("  from m    lap s  AI s   lost s  min km/h (AI)  wall s")
+        for r in rows:
+            lines.append(f"  {r['start_m']:6.0f}  {r['time_s']:6.2f}  {r['reference_time_s']:5.2f}  "
+                         f"{r['loss_s']:+6.2f}  {r['min_speed_kmh']:5.0f} ({r['reference_min_speed_kmh']:3.0f})  "
+                         f"{r['wall_contact_s']:6.1f}")  # fmt: skip
     for key in ("plot", "video", "evaluation_json"):
         if result.get(key):
             lines.append(f"{key}: {result[key]}")
@@ -68,8 +81,16 @@ class EvaluateOptions:
     """Store evaluation.json beside the policy for the leaderboard."""
     encoder_runtime: str = "auto"
     """Vision: auto (ONNX Runtime on a CPU when installed, 2-6x faster than torch here), torch or onnxruntime."""
+    sections_m: float = 0.0
+    """Cut the best scored lap into sections this long and compare it with the built-in AI's (0: off)."""
+    reference_skill: float = 1.0
+    """With --sections-m: the built-in AI's skill on the same starts (1.0: its fastest)."""
     json: bool = False
     """Print the result as JSON."""
+
+
+#: Sections printed by ``evaluate --sections-m`` (the JSON holds them all).
+TOP_SECTIONS = 8
 
 
 def run_evaluate(opts: EvaluateOptions) -> int:
@@ -80,7 +101,8 @@ def run_evaluate(opts: EvaluateOptions) -> int:
     result = evaluate_policy(
         opts.policy, laps=opts.laps, seeds=opts.seeds, seed=opts.seed, encoder=opts.encoder,
         time_limit_s=opts.time_limit_s, video=opts.video, plot=opts.plot, name=opts.name, device=opts.device,
-        write=opts.write, encoder_runtime=opts.encoder_runtime,
+        write=opts.write, encoder_runtime=opts.encoder_runtime, sections_m=opts.sections_m,
+        reference_skill=opts.reference_skill,
     )  # fmt: skip
     emit(result, opts.json, format_timing)
     return 0

@@ -12,7 +12,8 @@ from typing import Any
 
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.outputs import check_video_dependencies, format_lap_time, plot_trajectory, write_video
-from vision_rl.evaluation.protocol import time_laps
+from vision_rl.evaluation.protocol import BuiltinAI, LapTiming, time_laps
+from vision_rl.evaluation.sections import compare_sections, lap_sections
 from vision_rl.phase2_rl.artifact import MODEL_NAME, LoadedPolicy, load_policy
 from vision_rl.phase2_rl.persist import atomic_write
 
@@ -44,11 +45,18 @@ def evaluate_policy(
     device: str = "cpu",
     write: bool = True,
     encoder_runtime: str = "auto",
+    sections_m: float = 0.0,
+    reference_skill: float = 1.0,
 ) -> dict[str, Any]:
     """Run the protocol for a policy (path or loaded) on the track and car it was trained on; returns the record
-    and, with ``write``, stores it as ``evaluation.json`` beside the policy for the leaderboard."""
+    and, with ``write``, stores it as ``evaluation.json`` beside the policy for the leaderboard. ``sections_m`` > 0
+    adds ``sections``: the best scored lap against the built-in AI's at ``reference_skill``, section by section
+    (:mod:`vision_rl.evaluation.sections`)."""
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds}")
+    if sections_m < 0 or not 0.0 < reference_skill <= 1.0:
+        raise ValueError(f"--sections-m must be >= 0 and --reference-skill in (0, 1], got {sections_m}, "
+                         f"{reference_skill}")  # fmt: skip
     if video:
         check_video_dependencies()
     loaded = policy if isinstance(policy, LoadedPolicy) else load_policy(policy, encoder, device, encoder_runtime)
@@ -56,7 +64,7 @@ def evaluate_policy(
     driver = loaded.driver()
     try:
         timing = time_laps(driver, config.track, config.car, range(seed, seed + seeds), laps, time_limit_s,
-                           record=bool(plot or video))  # fmt: skip
+                           record=bool(plot or video or sections_m))  # fmt: skip
     finally:
         driver.close()
     result = evaluation_record(timing, driver.identity, name or default_policy_name(loaded.weights_path))
@@ -65,8 +73,24 @@ def evaluate_policy(
              f"(seed {result['best_seed']}, {timing.track.name}, {timing.car.name})")  # fmt: skip
     result["plot"] = str(plot_trajectory(timing, best, plot, title)) if plot else None
     result["video"] = str(write_video(timing, best, video, config.image_hw_px)) if video else None
+    if sections_m > 0:
+        result["sections"] = _sections(timing, best, sections_m, reference_skill)
     if write:
         out = evaluation_path(loaded.weights_path)
         atomic_write(out, lambda tmp: tmp.write_text(json.dumps(result, indent=2)))
         result["evaluation_json"] = str(out)
     return result
+
+
+def _sections(timing: LapTiming, best: int, section_m: float, reference_skill: float) -> dict[str, Any]:
+    reference: dict[str, Any] = {"driver": "built-in AI", "skill": reference_skill, "lap_time_s": None}
+    rows = None
+    if timing.scored(best) is not None:
+        ai = time_laps(BuiltinAI(skill=reference_skill), timing.track, timing.car,
+                       [run.seed for run in timing.runs], timing.laps, record=True)  # fmt: skip
+        ai_best = ai.best_index()
+        if ai.scored(ai_best) is None:
+            raise ValueError(f"the built-in AI at skill {reference_skill:g} finished no lap: no reference")
+        reference["lap_time_s"] = ai.scored(ai_best).lap_time_s
+        rows = compare_sections(lap_sections(timing, best, section_m), lap_sections(ai, ai_best, section_m))
+    return {"section_m": section_m, "reference": reference, "rows": rows}
