@@ -41,8 +41,8 @@ STATS_GROUPS = 20
 STEER_ACTIONS: tuple[str, ...] = ("angle", "rate", "speed_scaled")
 #: ``speed_scaled``: the command's range at speed v is this many times ``wheelbase * g / v^2``, the angle a
 #: neutral-steering car needs for 1 g. Chosen to cover the built-in AI at skill 1.0 on expressway and technical
-#: (hatchback): its largest command was 0.072 rad at 40-45 m/s (the range there: 0.085 rad) and 0.155 rad at 25-30
-#: m/s (range 0.20); below about 17 m/s the range is the full pi/6.
+#: (hatchback, L = 2.566 m): its largest command was 0.072 rad at 40-45 m/s (the range at 42.5 m/s: 0.084 rad) and
+#: 0.155 rad at 25-30 m/s (range at 27.5 m/s: 0.20); below 17 m/s (61 km/h) the range is the full pi/6.
 SPEED_SCALED_STEER_G_MULTIPLE = 6.0
 
 
