@@ -189,3 +189,11 @@ def test_train_ddpg_tiny_run_evaluates_saves_and_resumes(gl_available, track, tm
 
     (found,), refused = find_evaluations(out)  # the leaderboard reads it like a policy's
     assert found["name"] == "ddpg asymmetric" and not refused
+
+    from vision_rl.commands.main import main
+
+    png = tmp_path / "reward.png"
+    assert main(["evaluate-ddpg", "--agent", str(out), "--seeds", "1", "--laps", "1", "--time-limit-s", "2",
+                 "--no-save", "--reward-plot", str(png), "--reward-laps", "2"]) == 0  # fmt: skip
+    profile = json.loads(png.with_suffix(".json").read_text())
+    assert png.stat().st_size > 1000 and [lap["lap"] for lap in profile["laps"]] == [1, 2]

@@ -46,7 +46,7 @@ def format_timing(result: dict[str, Any]) -> list[str]:
             lines.append(f"  {r['start_m']:6.0f}  {r['time_s']:6.2f}  {r['reference_time_s']:5.2f}  "
                          f"{r['loss_s']:+6.2f}  {r['min_speed_kmh']:5.0f} ({r['reference_min_speed_kmh']:3.0f})  "
                          f"{r['wall_contact_s']:6.1f}")  # fmt: skip
-    for key in ("plot", "video", "evaluation_json"):
+    for key in ("plot", "video", "evaluation_json", "reward_plot"):
         if result.get(key):
             lines.append(f"{key}: {result[key]}")
     return lines

@@ -24,6 +24,13 @@ class EvaluateDDPGOptions:
     """Stop a run after this long, s (0: 3 x the limit lap time per lap)."""
     save: bool = True
     """Write evaluation.json beside the agent."""
+    reward_plot: str = ""
+    """Also write the paper's figure (PNG, its numbers beside it as .json): reward against lap distance over
+    --reward-laps laps of one episode from the start line."""
+    reward_laps: int = 3
+    """Laps of that figure (the paper: 3)."""
+    reward_bin_m: float = 50.0
+    """Lap distance per point of that figure, m."""
     json: bool = False
     """Print the result as JSON."""
 
@@ -36,6 +43,20 @@ def run_evaluate_ddpg(opts: EvaluateDDPGOptions) -> int:
         raise ValueError("--agent is required: a train-ddpg run folder or its ddpg.pt")
     if opts.seeds < 1 or opts.laps < 1 or opts.time_limit_s < 0:
         raise ValueError("--seeds and --laps must be >= 1 and --time-limit-s >= 0")
+    if opts.reward_laps < 1 or opts.reward_bin_m <= 0:
+        raise ValueError("--reward-laps must be >= 1 and --reward-bin-m > 0")
     result = evaluate_ddpg(opts.agent, opts.seeds, opts.laps, opts.variant or None, opts.time_limit_s, opts.save)
+    if opts.reward_plot:
+        from pathlib import Path
+
+        from vision_rl.phase2_rl.ddpg import load_agent
+        from vision_rl.phase2_rl.ddpg_reward import lap_reward_profile, plot_lap_reward
+        from vision_rl.phase2_rl.persist import write_json
+
+        agent = load_agent(opts.agent, variant=opts.variant or None)
+        profile = lap_reward_profile(agent.act, agent.env, opts.reward_laps, opts.reward_bin_m)
+        result["reward_plot"] = str(plot_lap_reward(profile, opts.reward_plot, f"ddpg {agent.hyper.variant}"))
+        result["reward_json"] = str(Path(opts.reward_plot).with_suffix(".json"))
+        write_json(Path(result["reward_json"]), profile)
     emit(result, opts.json, format_timing)
     return 0
