@@ -103,3 +103,19 @@ def test_policy_paths_resolve_from_folder_weights_and_snapshot(tmp_path):
 def test_bad_encoder_runtime_is_refused_before_loading(tmp_path):
     with pytest.raises(ValueError, match="encoder runtime must be one of"):
         load_policy(tmp_path / "nothing", encoder_runtime="tensorrt")  # before the missing policy is noticed
+
+
+def test_a_kill_between_the_weights_and_their_sidecar_reads_the_previous_pair(tmp_path):
+    import torch
+
+    from vision_rl.phase2_rl.persist import ArtifactError, previous_weights_path, read_agent, write_agent_state
+
+    path = tmp_path / "policy.pt"
+    fingerprint = {"observation": "state"}
+    sha_a = write_agent_state({"policy": {"w": torch.zeros(3)}}, path, fingerprint)
+    sha_b = write_agent_state({"policy": {"w": torch.ones(3)}}, path, fingerprint)  # the sidecar still says sha_a
+    assert previous_weights_path(path).is_file()
+    assert read_agent(path, fingerprint, sha_a)["policy"]["w"].sum() == 0  # the pair the sidecar describes
+    assert read_agent(path, fingerprint, sha_b)["policy"]["w"].sum() == 3
+    with pytest.raises(ArtifactError, match="the file changed after it was written"):
+        read_agent(path, fingerprint, "0" * 64)

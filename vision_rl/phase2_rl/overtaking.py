@@ -599,8 +599,8 @@ class _StageSession:
         )  # fmt: skip
 
     def save(self, model: SAC, buffer: bool) -> None:
-        """Weights then sidecar (a kill between leaves the old pair, refused by its checksum only if torn), and the
-        replay buffer when ``buffer``."""
+        """Weights then sidecar (a kill between leaves the sidecar naming the previous weights, kept beside the new
+        ones as ``policy.pt.prev``), and the replay buffer when ``buffer``."""
         self.folder.mkdir(parents=True, exist_ok=True)
         sha = save_agent(model, self.folder / MODEL_NAME, self.fingerprint)
         self.spec(model, sha).write(self.folder / SIDECAR_NAME)

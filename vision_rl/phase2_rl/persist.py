@@ -18,6 +18,7 @@ import io
 import json
 import os
 import pickle
+import shutil
 import zipfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -110,9 +111,26 @@ def save_agent(model: OffPolicyAlgorithm, path: str | os.PathLike[str], fingerpr
     return write_agent_state(agent_state(model), path, fingerprint)
 
 
+def previous_weights_path(path: str | os.PathLike[str]) -> Path:
+    """Where :func:`write_agent_state` keeps the file it replaces: ``<name>.prev``."""
+    path = Path(path)
+    return path.with_name(path.name + ".prev")
+
+
 def write_agent_state(state: Mapping[str, Any], path: str | os.PathLike[str], fingerprint: Mapping[str, Any]) -> str:
-    """Write an :func:`agent_state` dict with ``fingerprint``; returns the file's SHA-256."""
+    """Write an :func:`agent_state` dict with ``fingerprint``; returns the file's SHA-256. The file it replaces stays
+    beside it (:func:`previous_weights_path`, a hard link) until the next write: callers write the sidecar that
+    records the new checksum after this, and a kill in between leaves a sidecar that names the previous file, which
+    :func:`read_agent` then reads, so that such a kill loses the last interval only."""
+    path = Path(path)
     payload = {"format": AGENT_FORMAT, "format_version": FORMAT_VERSION, "fingerprint": dict(fingerprint), **state}
+    if path.is_file():
+        previous = previous_weights_path(path)
+        previous.unlink(missing_ok=True)
+        try:
+            os.link(path, previous)
+        except OSError:  # a filesystem without hard links
+            shutil.copyfile(path, previous)
     return atomic_write(path, lambda tmp: torch.save(payload, tmp))
 
 
@@ -157,6 +175,10 @@ def read_agent(
     path = Path(path)
     if sha256 is not None:
         actual = file_sha256(path)
+        previous = previous_weights_path(path)
+        if actual != sha256 and previous.is_file() and file_sha256(previous) == sha256:
+            # Killed after the weights were replaced and before their sidecar was: the last complete pair.
+            path, actual = previous, sha256
         if actual != sha256:
             raise ArtifactError(f"{path}: its SHA-256 is {actual[:12]}..., not the recorded {sha256[:12]}...: the "
                                 "file changed after it was written")  # fmt: skip

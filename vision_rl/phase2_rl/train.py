@@ -465,8 +465,8 @@ class _Run:
     def save(self, model: SAC, buffer: bool = True, snapshot: bool = False) -> None:
         """Weights (policy.pt) and sidecar; the replay buffer when ``buffer`` (and cfg.save_buffer); with
         ``snapshot`` also checkpoints/policy_<steps>.pt and its sidecar. The sidecar is written after the weights
-        it describes, so a kill between the two leaves the previous pair, whose checksum then refuses the new
-        weights: resume from the last snapshot in that case."""
+        it describes; a kill between the two leaves it naming the previous weights, which stay beside the new ones
+        (``policy.pt.prev``) and are what a resume then reads."""
         sha = save_agent(model, self.out / MODEL_NAME, self.fingerprint)
         spec = self.spec(model, MODEL_NAME, sha)
         spec.write(self.out / SIDECAR_NAME)
