@@ -22,6 +22,11 @@ def test_steering_command_by_hand():
     scaled = steering_command(np.array([LIMIT, -LIMIT / 2, LIMIT / 2, LIMIT]), prev[:4], "speed_scaled", 0.12,
                               speed, 2.5)  # fmt: skip
     np.testing.assert_allclose(scaled, [147.09975 / 3600, -147.09975 / 7200, LIMIT / 2, LIMIT])
+    # rate_scaled: 0.1 + 0.12 = 0.22 clipped to the 0.0409 rad usable at 60 m/s; 0.1 - 0.06 = 0.04 inside it;
+    # at 10 m/s the range is pi/6 and the rate rules
+    rate_scaled = steering_command(np.array([LIMIT, -LIMIT / 2, LIMIT, -LIMIT]), prev[:4], "rate_scaled", 0.12,
+                                   speed, 2.5)  # fmt: skip
+    np.testing.assert_allclose(rate_scaled, [147.09975 / 3600, 0.04, LIMIT, -0.32])
 
 
 def test_a_bad_steer_action_is_refused():
@@ -40,7 +45,7 @@ def test_the_env_adds_the_asked_change_to_the_last_command():
                                    start + k * per_step * np.array([1.0, -0.25]))  # fmt: skip
 
 
-@pytest.mark.parametrize("steer_action", ["rate", "speed_scaled"])
+@pytest.mark.parametrize("steer_action", ["rate", "speed_scaled", "rate_scaled"])
 def test_a_policy_drives_the_protocol_as_it_drove_its_environment(steer_action):
     cfg = RacingConfig(track="technical", n_groups=2, steer_action=steer_action, normalize=False)
     trained = RacingCore(cfg, seed=2)

@@ -38,7 +38,7 @@ STATS_GROUPS = 20
 
 
 #: How the first action entry steers (:func:`steering_command`).
-STEER_ACTIONS: tuple[str, ...] = ("angle", "rate", "speed_scaled")
+STEER_ACTIONS: tuple[str, ...] = ("angle", "rate", "speed_scaled", "rate_scaled")
 #: ``speed_scaled``: the command's range at speed v is this many times ``wheelbase * g / v^2``, the angle a
 #: neutral-steering car needs for 1 g. Chosen to cover the built-in AI at skill 1.0 on expressway and technical
 #: (hatchback, L = 2.566 m): its largest command was 0.072 rad at 40-45 m/s (the range at 42.5 m/s: 0.084 rad) and
@@ -67,18 +67,21 @@ def steering_command(
       speed (as games scale a pad's steering with speed). At 160 km/h the papers' action asks for up to 0.52 rad
       where the built-in AI never uses more than 0.07: one exploration step or one swing of a bang-bang policy
       then spins the car.
+    - ``rate_scaled``: ``rate`` with the command clipped to the ``speed_scaled`` range: the wheel's angle stays
+      observable and the wheel never leaves the angles usable at the car's speed.
     """
     action_steer = np.asarray(action_steer, dtype=np.float64)
     share = np.clip(action_steer / ACTION_STEER_LIMIT_RAD, -1.0, 1.0)
     if steer_action == "angle":
-        command = action_steer
-    elif steer_action == "rate":
-        command = previous_command_rad + share * max_change_rad
-    else:
-        speed_sq = np.maximum(np.square(np.asarray(speed_mps, dtype=np.float64)), 1e-6)
-        command = share * np.minimum(ACTION_STEER_LIMIT_RAD,
-                                     SPEED_SCALED_STEER_G_MULTIPLE * wheelbase_m * GRAVITY_MPS2 / speed_sq)  # fmt: skip
-    return np.clip(command, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
+        return np.clip(action_steer, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
+    if steer_action == "rate":
+        return np.clip(previous_command_rad + share * max_change_rad, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
+    speed_sq = np.maximum(np.square(np.asarray(speed_mps, dtype=np.float64)), 1e-6)
+    one_g_rad = wheelbase_m * GRAVITY_MPS2 / speed_sq
+    usable_rad = np.minimum(ACTION_STEER_LIMIT_RAD, SPEED_SCALED_STEER_G_MULTIPLE * one_g_rad)
+    if steer_action == "speed_scaled":
+        return share * usable_rad
+    return np.clip(previous_command_rad + share * max_change_rad, -usable_rad, usable_rad)
 
 
 @dataclass(frozen=True)
@@ -110,7 +113,8 @@ class RacingConfig:
     steer_action: str = "angle"
     """``angle``: the action's first entry is the steering command, rad (the papers); ``rate``: a change of the
     command, up to what the car's steering rate limit moves the wheel in one control step; ``speed_scaled``: a share
-    of the angles a car can use at its speed (see :func:`steering_command`; both not in the papers)."""
+    of the angles a car can use at its speed; ``rate_scaled``: ``rate`` within that range (see :func:`steering_command`;
+    none in the papers)."""
     car_penalty_c_c: float = 0.005
     """c_c of the overtaking reward (section IV-B: 0.005)."""
     overtake_gain_c_r: float = 1.0

@@ -76,7 +76,8 @@ class TimeTrial(_RacingEnv):
     throttle (> 0) or brake (< 0) in [-1, 1]. Steering is rate-limited and both commands pass a short actuator lag.
     Not in the papers: with ``steer_action="rate"`` the first entry asks for a change of the steering command
     instead (``entry / (pi/6)`` of the most the car's steering rate limit turns the wheel in one control step); with
-    ``"speed_scaled"`` for ``entry / (pi/6)`` of the angles usable at the car's speed, ``min(pi/6, 6 L g / v^2)``.
+    ``"speed_scaled"`` for ``entry / (pi/6)`` of the angles usable at the car's speed, ``min(pi/6, 6 L g / v^2)``;
+    with ``"rate_scaled"`` for a change as in ``rate``, the command clipped to that range.
 
     ## Observation Space
     ``observation="state"`` (default): ``Box(38,)`` float32, the privileged observation of Fuchs et al.: 13 edge
