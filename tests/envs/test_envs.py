@@ -85,6 +85,20 @@ def test_wall_penalty_only_in_contact():
     assert penalised
 
 
+@pytest.mark.parametrize("terminate_on_wall", [False, True])
+def test_a_wall_ends_the_episode_only_when_asked(terminate_on_wall):
+    core = _core(n_groups=1, terminate_on_wall=terminate_on_wall)
+    core.reset_groups(np.array([0]))
+    core.world.reset(s_m=50.0, speed_mps=25.0, heading_offset_rad=0.6)  # aimed at the left wall
+    for step in range(20):
+        _, reward, terminated, truncated, _ = core.step(np.array([[0.0, 0.0]]), autoreset=False)
+        assert terminated[0] == (terminate_on_wall and core.world.state.wall_contact[0])
+        if core.world.state.wall_contact[0]:
+            break
+    assert core.world.state.wall_contact[0] and step > 0  # it drove a while before the wall
+    assert not truncated[0]
+
+
 def test_overtaking_reward_and_info_on_setting_a():
     core = _core(n_groups=1, scenario="setting_a", observation="overtaking")
     obs, info = None, None

@@ -127,6 +127,9 @@ class RacingConfig:
     """An episode starts at this share of the limit speed at the start point (the AI's speed there)."""
     terminate_when_stuck: bool = False
     """End (terminate) an episode when the ego is stuck by :data:`vision_rl.sim.fleet.STUCK_RULE`."""
+    terminate_on_wall: bool = False
+    """End (terminate) an episode at the first control step in which the ego touches a wall, as the DDPG paper ends
+    one on a crash (not in the GT Sport papers: their wall penalty alone). The step keeps its reward."""
     normalize: bool = True
     """Normalise vector observations (z-score; lidar min-max) with cached statistics."""
     image_hw_px: tuple[int, int] = (280, 470)
@@ -335,6 +338,8 @@ class RacingCore:
         stuck = self.stuck.update(st.unwrapped_s_m[ego])
         if cfg.terminate_when_stuck:
             terminated[stuck] = True
+        if cfg.terminate_on_wall:
+            terminated[st.wall_contact[ego]] = True
         truncated = (self.steps >= cfg.max_episode_steps) & ~terminated
         infos = [self._info(g, events) for g in range(cfg.n_groups)]
         done = terminated | truncated

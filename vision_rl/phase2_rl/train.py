@@ -144,11 +144,14 @@ class TrainPolicyConfig:
     """c_w of the reward's wall penalty."""
     steer_change_penalty_c_s: float = 0.0
     """c_s of the reward's steering-change penalty ``c_s * (change / limit)^2`` (0: the papers' reward)."""
+    wall_ends_episode: bool = False
+    """End a training episode when the car touches a wall (a terminal step; not in the GT Sport papers)."""
     frame_delay_s: float = 0.0
     """Vision: frames lag the state by this long (the paper's 4 frames at 60 Hz: 0.067; 0: none)."""
     steer_action: str = "angle"
     """`angle`: the action is the steering command (the papers); `rate`: a change of it, up to the car's steering
-    rate limit per step; `speed_scaled`: a share of the angles usable at the car's speed (both not in the papers)."""
+    rate limit per step; `speed_scaled`: a share of the angles usable at the car's speed; `rate_scaled`: `rate`
+    within that share (none in the papers)."""
     stats_steps: int = 50
     """Vision: control steps of the feature-statistics rollout."""
     learning_rate: float = 0.0
@@ -314,7 +317,7 @@ class _Run:
                 track=cfg.track, car=cfg.car, observation=self.kind, n_groups=cfg.cars, episode_s=cfg.episode_s,
                 wall_penalty_c_w=cfg.wall_penalty_c_w, image_hw_px=image_hw,
                 steer_change_penalty_c_s=cfg.steer_change_penalty_c_s, frame_delay_s=cfg.frame_delay_s,
-                steer_action=cfg.steer_action,
+                steer_action=cfg.steer_action, terminate_on_wall=cfg.wall_ends_episode,
             )  # fmt: skip
             self.start_steps = 0
             self.train_time_before_s = 0.0
