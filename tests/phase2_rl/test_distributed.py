@@ -17,7 +17,7 @@ from vision_rl.phase2_rl.train import PRESETS, _TrainingLoop, read_metrics, trai
 
 
 def _pacing(**kw) -> Pacing:
-    base = dict(workers=1, n_cars=2, gradient_steps=1, batch_size=32, learning_starts=50, start_timesteps=0,
+    base = dict(workers=1, n_cars=2, gradient_steps=1, learning_starts=50, start_timesteps=0,
                 total_timesteps=400, version_every_updates=4, max_staleness=1)  # fmt: skip
     return Pacing(**{**base, **kw})
 

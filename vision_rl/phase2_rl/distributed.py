@@ -154,8 +154,6 @@ class Pacing:
     """Cars of each sampler's world (transitions per vector step)."""
     gradient_steps: int
     """Updates earned by every ``train_freq_steps`` vector steps after the random start steps (the run's ratio)."""
-    batch_size: int
-    """Transitions per update."""
     learning_starts: int
     """Transitions (the model's step count) before which actions are random and no step earns updates."""
     start_timesteps: int
@@ -281,6 +279,10 @@ class SamplerSetup:
     """Vision: the encoder checkpoint (an absolute path every node can read)."""
     encoder_runtime: str = "auto"
     """Vision: the encoder's runtime on the sampler's CPU."""
+
+    def body(self) -> type:
+        """The class of the sampler actors built from this setup."""
+        return Sampler
 
 
 def worker_seed(seed: int, worker: int) -> int:
@@ -410,10 +412,10 @@ class Sampler:
         return out
 
 
-def start_samplers(cluster: Cluster, setup: SamplerSetup, workers: int) -> list[Any]:
-    """``workers`` sampler actors (one CPU each), named ``vision_rl_sampler_<run>_<w>``."""
+def start_samplers(cluster: Cluster, setup: Any, workers: int) -> list[Any]:
+    """``workers`` sampler actors of class ``setup.body()`` (one CPU each), named ``vision_rl_sampler_<run>_<w>``."""
     ray = cluster.ray
-    remote = ray.remote(num_cpus=1, max_restarts=0)(Sampler)
+    remote = ray.remote(num_cpus=1, max_restarts=0)(setup.body())
     token = uuid.uuid4().hex[:8]
     return [remote.options(name=f"{ACTOR_PREFIX}_{token}_{w}").remote(setup, w) for w in range(workers)]
 
@@ -431,26 +433,37 @@ def add_vector_step(buffer: Any, chunk: Mapping[str, np.ndarray], k: int) -> Non
 # ------------------------------------------------------------------------------------------------- the learner
 
 
-class SamplingLearner:
-    """The learner's side of a session with sampler actors: :meth:`run` trains ``model`` (SB3 SAC, its replay
-    buffer of ``pacing.n_cars`` envs) on their transitions until ``pacing.total_timesteps`` or a deadline;
-    :meth:`close` stops the actors. ``on_vector_step()`` is called after each vector step is added (the model's
-    step count updated); when it returns False the session ends there (as an SB3 callback stops ``learn``; the
-    rest of that chunk is dropped). ``log_event(record)`` is called when a sampler is lost. Raises
-    :class:`SamplersLostError` when no sampler is left (the model keeps what it learned). The constructor returns
-    once every sampler is built."""
+class Learner:
+    """What a :class:`SamplingLearner` trains: the algorithm's side of a session (SAC's :class:`SB3Learner`, the
+    DDPG learner of :mod:`vision_rl.phase2_rl.ddpg_sampling`)."""
 
-    def __init__(
-        self,
-        model: Any,
-        setup: SamplerSetup,
-        pacing: Pacing,
-        cluster: Cluster,
-        on_vector_step: Callable[[], Any] | None = None,
-        log_event: Callable[[dict[str, Any]], None] | None = None,
-    ) -> None:
-        from ray.exceptions import RayError
+    def num_steps(self) -> int:
+        """Transitions trained on so far (the run's step count)."""
+        raise NotImplementedError
 
+    def weights(self) -> dict[str, np.ndarray]:
+        """The actor's weights as numpy arrays, what the samplers load."""
+        raise NotImplementedError
+
+    def started(self, worker: int, ready: Any) -> None:
+        """Sampler ``worker`` is built; ``ready`` is what its ``ready()`` returned."""
+
+    def take(self, chunk: Mapping[str, Any], worker: int, steps: int, elapsed_s: float) -> bool:
+        """Add the ``steps`` vector steps of ``worker``'s chunk in order; False ends the session after the step that
+        asked it (the rest of the chunk is dropped)."""
+        raise NotImplementedError
+
+    def update(self) -> None:
+        """One gradient update."""
+        raise NotImplementedError
+
+
+class SB3Learner(Learner):
+    """An SB3 off-policy model (SAC) whose replay buffer holds ``n_cars`` envs; ``on_vector_step()`` is called after
+    each vector step is added (the model's step count updated), and its False ends the session as an SB3 callback
+    stops ``learn``."""
+
+    def __init__(self, model: Any, on_vector_step: Callable[[], Any] | None = None) -> None:
         if getattr(model.replay_buffer, "optimize_memory_usage", False):
             raise DistributedError("sampling with --workers needs a replay buffer without optimize_memory_usage")
         if model.ep_info_buffer is None:  # set by SB3's learn(), which this loop replaces
@@ -458,9 +471,53 @@ class SamplingLearner:
 
             model.ep_info_buffer = deque(maxlen=model._stats_window_size)
             model.ep_success_buffer = deque(maxlen=model._stats_window_size)
+        self.model, self.on_vector_step = model, on_vector_step
+
+    def num_steps(self) -> int:
+        return int(self.model.num_timesteps)
+
+    def weights(self) -> dict[str, np.ndarray]:
+        return actor_weights(self.model)
+
+    def take(self, chunk: Mapping[str, Any], worker: int, steps: int, elapsed_s: float) -> bool:
+        model = self.model
+        n = model.n_envs
+        for k in range(steps):
+            add_vector_step(model.replay_buffer, chunk, k)
+            model.num_timesteps += n
+            ended = np.flatnonzero(chunk["dones"][k])
+            for i in ended:
+                episode = {"r": float(chunk["episode_return"][k, i]), "l": int(chunk["episode_length"][k, i])}
+                model.ep_info_buffer.append({**episode, "t": round(elapsed_s, 6)})
+            model._episode_num += len(ended)
+            if self.on_vector_step is not None and self.on_vector_step() is False:
+                return False
+        return True
+
+    def update(self) -> None:
+        self.model.train(gradient_steps=1, batch_size=self.model.batch_size)
+
+
+class SamplingLearner:
+    """The learner's side of a session with sampler actors (built from ``setup``, of class ``setup.body()``):
+    :meth:`run` trains ``learner`` on their transitions until ``pacing.total_timesteps`` or a deadline;
+    :meth:`close` stops the actors. ``log_event(record)`` is called when a sampler is lost. Raises
+    :class:`SamplersLostError` when no sampler is left (the learner keeps what it learned). The constructor returns
+    once every sampler is built."""
+
+    def __init__(
+        self,
+        learner: Learner,
+        setup: Any,
+        pacing: Pacing,
+        cluster: Cluster,
+        log_event: Callable[[dict[str, Any]], None] | None = None,
+    ) -> None:
+        from ray.exceptions import RayError
+
         self.ray, self.ray_error = cluster.ray, RayError
-        self.model, self.pacing = model, pacing
-        self.on_vector_step, self.log_event = on_vector_step, log_event
+        self.learner, self.pacing = learner, pacing
+        self.log_event = log_event
         self.pacer = Pacer(pacing)
         self.handles = start_samplers(cluster, setup, pacing.workers)
         self.alive = dict(enumerate(self.handles))
@@ -472,7 +529,7 @@ class SamplingLearner:
         self.counts = {"chunks": 0, "transitions": 0, "sampler_busy_s": 0.0, "learner_wait_s": 0.0,
                        "duration_s": 0.0}  # fmt: skip
         self.t_session = time.perf_counter()
-        self.weights = [self.ray.put(actor_weights(model))]
+        self.weights = [self.ray.put(learner.weights())]
         try:
             # Every sampler is built (world, encoder, policy) before anything is timed.
             pending = {h.ready.remote(): w for w, h in self.alive.items()}
@@ -481,9 +538,11 @@ class SamplingLearner:
                 for ref in ready:
                     worker = pending.pop(ref)
                     try:
-                        self.ray.get(ref)
+                        value = self.ray.get(ref)
                     except RayError as exc:
                         self._lose(worker, _first_line(exc))
+                    else:
+                        learner.started(worker, value)
         except BaseException:
             self.close()
             raise
@@ -492,7 +551,7 @@ class SamplingLearner:
         self.alive.pop(worker, None)
         self.busy.pop(worker, None)
         self.ray.kill(self.handles[worker], no_restart=True)
-        record = {"event": "sampler_lost", "worker": worker, "num_timesteps": int(self.model.num_timesteps),
+        record = {"event": "sampler_lost", "worker": worker, "num_timesteps": self.learner.num_steps(),
                   "reason": reason, "samplers_alive": len(self.alive)}  # fmt: skip
         self.lost.append(record)
         if self.log_event is not None:
@@ -500,11 +559,10 @@ class SamplingLearner:
         if not self.alive:
             raise SamplersLostError(
                 f"all {self.pacing.workers} sampler actors died (the last: {reason}); training stopped at "
-                f"{self.model.num_timesteps} steps"
+                f"{self.learner.num_steps()} steps"
             )
 
     def _take(self, ref: Any) -> None:
-        model, n = self.model, self.pacing.n_cars
         worker, chunk_id, steps = self.inflight.pop(ref)
         try:
             chunk = self.ray.get(ref)
@@ -514,20 +572,10 @@ class SamplingLearner:
             return
         self.busy[worker] = False
         self.pacer.receive(chunk_id, steps)
-        elapsed = time.perf_counter() - self.t_session
-        for k in range(steps):
-            add_vector_step(model.replay_buffer, chunk, k)
-            model.num_timesteps += n
-            ended = np.flatnonzero(chunk["dones"][k])
-            for i in ended:
-                episode = {"r": float(chunk["episode_return"][k, i]), "l": int(chunk["episode_length"][k, i])}
-                model.ep_info_buffer.append({**episode, "t": round(elapsed, 6)})
-            model._episode_num += len(ended)
-            if self.on_vector_step is not None and self.on_vector_step() is False:
-                self.stopped = True
-                break
+        if not self.learner.take(chunk, worker, steps, time.perf_counter() - self.t_session):
+            self.stopped = True
         self.counts["chunks"] += 1
-        self.counts["transitions"] += steps * n
+        self.counts["transitions"] += steps * self.pacing.n_cars
         self.counts["sampler_busy_s"] += float(chunk["busy_s"])
 
     def _launch(self) -> None:
@@ -566,9 +614,9 @@ class SamplingLearner:
                 elif not can_update:
                     raise RuntimeError(f"sampling stalled: {pacer.__dict__}")  # the pacing rules exclude this
                 if can_update:
-                    self.model.train(gradient_steps=1, batch_size=self.pacing.batch_size)
+                    self.learner.update()
                     if pacer.updated():
-                        self.weights = [ray.put(actor_weights(self.model))]
+                        self.weights = [ray.put(self.learner.weights())]
         finally:
             counts["duration_s"] += time.perf_counter() - start
 
@@ -590,21 +638,20 @@ class SamplingLearner:
 
 
 def learn_with_samplers(
-    model: Any,
-    setup: SamplerSetup,
+    learner: Learner,
+    setup: Any,
     pacing: Pacing,
     cluster: Cluster,
-    on_vector_step: Callable[[], Any] | None = None,
     log_event: Callable[[dict[str, Any]], None] | None = None,
     deadline_s: float | None = None,
 ) -> dict[str, Any]:
     """A :class:`SamplingLearner` session from start to end (or ``deadline_s`` seconds); its :meth:`stats`."""
-    learner = SamplingLearner(model, setup, pacing, cluster, on_vector_step, log_event)
+    session = SamplingLearner(learner, setup, pacing, cluster, log_event)
     try:
-        learner.run(deadline_s)
+        session.run(deadline_s)
     finally:
-        learner.close()
-    return learner.stats()
+        session.close()
+    return session.stats()
 
 
 def learn_like_sb3(
@@ -625,7 +672,7 @@ def learn_like_sb3(
     :data:`LOG_EVERY_S`. Returns the session's :meth:`SamplingLearner.stats`."""
     pacing = Pacing(
         workers=workers, n_cars=model.n_envs, gradient_steps=model.gradient_steps,
-        train_freq_steps=model.train_freq.frequency, batch_size=model.batch_size,
+        train_freq_steps=model.train_freq.frequency,
         learning_starts=int(model.learning_starts), start_timesteps=int(model.num_timesteps),
         total_timesteps=total_timesteps, version_every_updates=version_every_updates, max_staleness=max_staleness,
     )  # fmt: skip
@@ -644,7 +691,7 @@ def learn_like_sb3(
             last_dump[:] = [time.perf_counter(), model.num_timesteps]
         return go_on
 
-    return learn_with_samplers(model, setup, pacing, cluster, on_vector_step=on_vector_step, log_event=log_event)
+    return learn_with_samplers(SB3Learner(model, on_vector_step), setup, pacing, cluster, log_event=log_event)
 
 
 def _first_line(exc: BaseException) -> str:
@@ -731,7 +778,7 @@ def bench_sampling(
         hidden_units=tuple(BENCH_SAC["hidden_units"]), seed=seed,
     )  # fmt: skip
     pacing = Pacing(
-        workers=workers, n_cars=cars, gradient_steps=BENCH_SAC["gradient_steps"], batch_size=BENCH_SAC["batch_size"],
+        workers=workers, n_cars=cars, gradient_steps=BENCH_SAC["gradient_steps"],
         learning_starts=0, start_timesteps=int(model.num_timesteps), total_timesteps=None,
         version_every_updates=version_every_updates, max_staleness=max_staleness,
     )  # fmt: skip
@@ -742,7 +789,7 @@ def bench_sampling(
     standalone, standalone_s = 0, 0.0
     cluster = connect(address, workers)
     try:
-        learner = SamplingLearner(model, setup, pacing, cluster)
+        learner = SamplingLearner(SB3Learner(model), setup, pacing, cluster)
         try:
             for _ in range(slices):
                 t0 = time.perf_counter()
