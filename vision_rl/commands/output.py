@@ -53,3 +53,15 @@ def interrupt_on_sigterm() -> Any:
 
 def restore_sigterm(previous: Any) -> None:
     signal.signal(signal.SIGTERM, previous)
+
+
+def format_sampling(sampling: dict[str, Any] | None) -> list[str]:
+    """The line of a trainer's result about its sampler actors (none without --workers)."""
+    if not sampling:
+        return []
+    lost = f", {len(sampling['samplers_lost'])} lost" if sampling["samplers_lost"] else ""
+    return [
+        f"sampling: {sampling['workers']} sampler actors{lost}, {sampling['chunks']} chunks, "
+        f"{sampling['weight_versions']} weight versions, staleness at most {sampling['max_staleness_seen']} "
+        f"(bound {sampling['max_staleness']}), learner waited {sampling['learner_wait_s']:.0f} s for data"
+    ]

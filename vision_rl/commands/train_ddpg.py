@@ -6,7 +6,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
+from vision_rl.commands.output import (
+    emit,
+    format_sampling,
+    interrupt_on_sigterm,
+    progress_bar,
+    restore_sigterm,
+    show,
+)
 from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig
 
 
@@ -33,6 +40,7 @@ def format_train_ddpg(result: dict[str, Any]) -> list[str]:
         f"steps, {result['n_updates']} updates, {result['episodes']} episodes, {result['train_time_s']:.0f} s of "
         "training" + (" (interrupted: saved, continue with --resume)" if result["interrupted"] else ""),
         f"metrics: {result['metrics_jsonl']}   episodes: {result['episodes_jsonl']}",
+        *format_sampling(result.get("sampling")),
     ]
     last = result.get("last_eval")
     if last:

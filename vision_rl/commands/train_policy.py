@@ -5,7 +5,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
+from vision_rl.commands.output import (
+    emit,
+    format_sampling,
+    interrupt_on_sigterm,
+    progress_bar,
+    restore_sigterm,
+    show,
+)
 from vision_rl.phase2_rl.train import TrainPolicyConfig
 
 
@@ -28,14 +35,7 @@ def format_train_policy(result: dict[str, Any]) -> list[str]:
         + (" (interrupted: saved, continue with --resume)" if result["interrupted"] else ""),
         f"metrics: {result['metrics_jsonl']}   TensorBoard: {result['tensorboard']}",
     ]
-    sampling = result.get("sampling")
-    if sampling:
-        lost = f", {len(sampling['samplers_lost'])} lost" if sampling["samplers_lost"] else ""
-        lines.append(
-            f"sampling: {sampling['workers']} sampler actors{lost}, {sampling['chunks']} chunks, "
-            f"{sampling['weight_versions']} weight versions, staleness at most {sampling['max_staleness_seen']} "
-            f"(bound {sampling['max_staleness']}), learner waited {sampling['learner_wait_s']:.0f} s for data"
-        )
+    lines += format_sampling(result.get("sampling"))
     last = result.get("last_eval")
     if last:
         lines.append(f"last evaluation at {last['num_timesteps']} steps: lap {format_lap_time(last['lap_time_s'])}, "

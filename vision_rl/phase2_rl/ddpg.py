@@ -341,23 +341,27 @@ class FrameReplay:
         self.valid[cars, rows] = False
         self.dirty[rows // self.chunk_rows] = True
 
-    def start(self, obs: Mapping[str, np.ndarray]) -> None:
-        """Every car's first observation (after a reset of all cars)."""
-        self._write_obs(self._cars, self.pos, obs)
+    def start(self, obs: Mapping[str, np.ndarray], cars: np.ndarray | None = None) -> None:
+        """The first observation of every car, or of ``cars`` (after a reset of those cars)."""
+        cars = self._cars if cars is None else np.asarray(cars)
+        self._write_obs(cars, self.pos[cars], obs)
 
     def add(self, action: np.ndarray, reward: np.ndarray, terminated: np.ndarray, next_obs: Mapping[str, np.ndarray],
-            done: np.ndarray, reset_obs: Mapping[str, np.ndarray] | None = None) -> None:  # fmt: skip
-        """One step of every car: its action, reward and termination on its pending row, then ``next_obs`` (the
-        final observation where ``done``) in the next row and, where ``done``, ``reset_obs`` (the new episode's
-        first observation, rows of the done cars in order) in the row after."""
-        cars, rows = self._cars, self.pos
+            done: np.ndarray, reset_obs: Mapping[str, np.ndarray] | None = None,
+            cars: np.ndarray | None = None) -> None:  # fmt: skip
+        """One step of every car (or of ``cars``, the columns of one sampler's world, in its order): its action,
+        reward and termination on its pending row, then ``next_obs`` (the final observation where ``done``) in the
+        next row and, where ``done``, ``reset_obs`` (the new episode's first observation, rows of the done cars in
+        order) in the row after."""
+        cars = self._cars if cars is None else np.asarray(cars)
+        rows = self.pos[cars]
         self.action[cars, rows] = action
         self.reward[cars, rows] = reward
         self.terminated[cars, rows] = terminated
         self.valid[cars, rows] = True
-        self.pos = (self.pos + 1) % self.rows
-        self._write_obs(cars, self.pos, next_obs)
-        done_cars = np.flatnonzero(done)
+        self.pos[cars] = (rows + 1) % self.rows
+        self._write_obs(cars, self.pos[cars], next_obs)
+        done_cars = cars[np.flatnonzero(done)]
         if len(done_cars):
             assert reset_obs is not None, "finished cars need their new episode's first observation"
             self.pos[done_cars] = (self.pos[done_cars] + 1) % self.rows

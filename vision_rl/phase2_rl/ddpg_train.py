@@ -46,6 +46,7 @@ from vision_rl.phase2_rl.ddpg import (
     save_agent_file,
     save_replay,
 )
+from vision_rl.phase2_rl.ddpg_sampling import end_reason
 from vision_rl.phase2_rl.persist import ArtifactError, atomic_write, check_fingerprint
 
 METRICS_NAME = "metrics.jsonl"
@@ -136,6 +137,15 @@ class TrainDDPGConfig:
     """torch threads (0: torch's default); the renderer and the simulator use the other core."""
     device: str = "cpu"
     """torch device."""
+    workers: int | None = None
+    """Sampler actors (Ray), each a world of --cars cars in its own process, while this process learns; leave it
+    out to sample in this process."""
+    address: str = ""
+    """With --workers: the Ray cluster to join (auto, host:port or ray://host:port); empty: start one here."""
+    max_staleness: int = 1
+    """With --workers: weight versions a sampler's actor may lag the learner's (0: synchronous)."""
+    version_every_updates: int = 20
+    """With --workers: learner updates per weight version sent to the samplers."""
 
     def hyper(self) -> DDPGHyper:
         return DDPGHyper(variant=self.variant, actor_lr=self.actor_lr, critic_lr=self.critic_lr, tau=self.tau,
@@ -165,8 +175,15 @@ def check_bounds(cfg: TrainDDPGConfig) -> None:
     for name, ok in checks.items():
         if not ok:
             raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
-    if cfg.buffer_size < 4 * cfg.cars:
-        raise ValueError(f"--buffer-size {cfg.buffer_size} leaves fewer than 4 rows per car for {cfg.cars} cars")
+    columns = cfg.cars * (cfg.workers or 1)
+    if cfg.buffer_size < 4 * columns:
+        raise ValueError(f"--buffer-size {cfg.buffer_size} leaves fewer than 4 rows per car for {columns} cars")
+    if cfg.workers is not None or cfg.address:
+        from vision_rl.phase2_rl.distributed import check_workers
+
+        if cfg.workers is None:
+            raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
+        check_workers(cfg.workers, cfg.max_staleness, cfg.version_every_updates)
 
 
 def _read_sidecar(path: Path) -> dict[str, Any]:
@@ -266,28 +283,37 @@ class _Run:
             self.driver.close()
 
 
-def _end_reason(info: dict[str, np.ndarray], i: int, terminated: bool, max_line_distance_m: float) -> str:
-    if not terminated:
-        return "time"
-    if info["crash_state"][i]:
-        return f"crash {int(info['crash_state'][i])}"
-    if info["line_distance_m"][i] > max_line_distance_m:
-        return "line distance"
-    return "stuck"
-
-
 def train_ddpg(cfg: TrainDDPGConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Train (or resume) as configured; returns where things went and the last evaluation. A KeyboardInterrupt
     (Ctrl-C, or SIGTERM where the caller maps it) saves everything and returns with ``interrupted``."""
+    check_bounds(cfg)
+    cluster = None
+    if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
+        from vision_rl.phase2_rl.distributed import connect
+
+        cluster = connect(cfg.address, cfg.workers)
+    try:
+        return _train(cfg, cluster, progress)
+    finally:
+        if cluster is not None:
+            cluster.close()
+
+
+def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dict[str, Any]:
     run = _Run(cfg)
     if cfg.torch_threads > 0:
         torch.set_num_threads(cfg.torch_threads)
     hyper, env = run.hyper, run.env
     n = env.n_cars
+    workers = cfg.workers or 0
+    trained_with = (run.previous or {}).get("train_config", {}).get("workers") or 0
+    if run.previous is not None and trained_with != workers:
+        raise DDPGError(f"{run.out} was trained with --workers {trained_with or 'left out'}: its replay buffer has "
+                        f"a column per car of every sampler; resume it with the same --workers")  # fmt: skip
     # A resumed session draws new start points and noise: reusing the first session's would replay its episodes.
     session_seed = cfg.seed + run.num_steps
     agent = DDPGAgent(hyper, env, n_cars=n, seed=session_seed, device=cfg.device)
-    buffer = FrameReplay(hyper.buffer_size, n, env.image_hw_px if env.frames else None)
+    buffer = FrameReplay(hyper.buffer_size, n * max(workers, 1), env.image_hw_px if env.frames else None)
     learning_starts = cfg.learning_starts
     restored = 0
     if run.previous is not None:
@@ -303,66 +329,44 @@ def train_ddpg(cfg: TrainDDPGConfig, progress: Progress | None = None) -> dict[s
             learning_starts = cfg.learning_starts
         else:
             learning_starts = 0
-    core = PixelRacingCore(env, seed=session_seed)
     rng = np.random.default_rng(session_seed + 1)
-    core.reset_cars(core.ids)
-    obs = core.observation()
-    if run.previous is not None and restored:
-        # The restored rows end with each car's pending observation; this session starts new episodes after them.
-        buffer.pos = (buffer.pos + 1) % buffer.rows
-    buffer.start(obs)
-    agent.noise.reset()
-    collected = 0
     next_eval = (run.num_steps // cfg.eval_every_steps + 1) * cfg.eval_every_steps if cfg.eval_every_steps else None
     next_ckpt = (run.num_steps // cfg.checkpoint_every_steps + 1) * cfg.checkpoint_every_steps \
         if cfg.checkpoint_every_steps else None  # fmt: skip
     last_light = time.perf_counter()
     interrupted = False
+    sampling = None
     episodes_file = open(run.out / EPISODES_NAME, "a")  # closed in the finally below
+
+    def after_vector_step() -> None:
+        """What follows every step of all cars, here or from a sampler: evaluation, checkpoints, progress."""
+        nonlocal next_eval, next_ckpt, last_light
+        if next_eval is not None and run.num_steps >= next_eval and cfg.eval_seeds > 0:
+            run.evaluate(agent)
+            next_eval += cfg.eval_every_steps
+        if next_ckpt is not None and run.num_steps >= next_ckpt:
+            run.save(agent, buffer)
+            next_ckpt += cfg.checkpoint_every_steps
+            last_light = time.perf_counter()
+        elif cfg.checkpoint_every_min and time.perf_counter() - last_light >= 60.0 * cfg.checkpoint_every_min:
+            run.save(agent, None)
+            last_light = time.perf_counter()
+        if progress is not None:
+            progress(run.num_steps, cfg.steps, run.last_eval)
+
+    def log_episode(record: dict[str, Any]) -> None:
+        episodes_file.write(json.dumps({"episode": run.episodes, "num_steps": run.num_steps, **record,
+                                        "train_time_s": round(run.train_time_s, 2)}) + "\n")  # fmt: skip
+        episodes_file.flush()
+        run.episodes += 1
+
     try:
-        while run.num_steps < cfg.steps:
-            keys = agent.act(obs, explore=True)
-            next_obs, reward, terminated, truncated, info = core.step(keys)
-            done = terminated | truncated
-            reset_obs = None
-            if done.any():
-                ids = np.flatnonzero(done)
-                for i in ids:  # one line per finished episode (episode ends, not steps)
-                    episodes_file.write(json.dumps({
-                        "episode": run.episodes, "num_steps": run.num_steps, "car": int(i),
-                        "return": round(float(info["episode_return"][i]), 3), "steps": int(info["episode_steps"][i]),
-                        "distance_m": round(float(info["progress_m"][i]), 2),
-                        "laps": int(info["laps_completed"][i]),
-                        "end": _end_reason(info, i, bool(terminated[i]), env.max_line_distance_m),
-                        "train_time_s": round(run.train_time_s, 2),
-                    }) + "\n")  # fmt: skip
-                    run.episodes += 1
-                episodes_file.flush()
-                core.reset_cars(ids)
-                reset_obs = core.observation(ids)
-                agent.noise.reset(ids)
-            buffer.add(keys, reward, terminated, next_obs, done, reset_obs)
-            if reset_obs is not None:
-                for key in next_obs:
-                    next_obs[key][ids] = reset_obs[key]
-            obs = next_obs
-            run.num_steps += n
-            collected += n
-            if collected >= learning_starts and buffer.size >= hyper.batch_size:
-                for _ in range(cfg.updates_per_step):
-                    agent.update(buffer.sample(hyper.batch_size, rng))
-            if next_eval is not None and run.num_steps >= next_eval and cfg.eval_seeds > 0:
-                run.evaluate(agent)
-                next_eval += cfg.eval_every_steps
-            if next_ckpt is not None and run.num_steps >= next_ckpt:
-                run.save(agent, buffer)
-                next_ckpt += cfg.checkpoint_every_steps
-                last_light = time.perf_counter()
-            elif cfg.checkpoint_every_min and time.perf_counter() - last_light >= 60.0 * cfg.checkpoint_every_min:
-                run.save(agent, None)
-                last_light = time.perf_counter()
-            if progress is not None:
-                progress(run.num_steps, cfg.steps, run.last_eval)
+        if workers:
+            sampling = _learn_with_samplers(run, agent, buffer, rng, restored > 0, learning_starts, cluster,
+                                            log_episode, after_vector_step)  # fmt: skip
+        else:
+            _learn_here(run, agent, buffer, rng, restored > 0, learning_starts, session_seed, log_episode,
+                        after_vector_step)  # fmt: skip
         if cfg.eval_seeds > 0 and (run.last_eval is None or run.last_eval["num_steps"] != run.num_steps):
             run.evaluate(agent)
     except KeyboardInterrupt:
@@ -371,7 +375,6 @@ def train_ddpg(cfg: TrainDDPGConfig, progress: Progress | None = None) -> dict[s
         episodes_file.close()
     run.save(agent, buffer)
     run.close()
-    core.close()
     return {
         "out": str(run.out),
         "agent": str(run.out / AGENT_NAME),
@@ -388,7 +391,96 @@ def train_ddpg(cfg: TrainDDPGConfig, progress: Progress | None = None) -> dict[s
         "last_eval": run.last_eval,
         "metrics_jsonl": str(run.out / METRICS_NAME),
         "episodes_jsonl": str(run.out / EPISODES_NAME),
+        "sampling": sampling,
     }
+
+
+def _learn_here(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: np.random.Generator, restored: bool,
+                learning_starts: int, session_seed: int, log_episode: Callable[[dict[str, Any]], None],
+                after_vector_step: Callable[[], None]) -> None:  # fmt: skip
+    """The session's steps in this process: the world, then an update, one step of all cars at a time."""
+    cfg, env, hyper = run.cfg, run.env, run.hyper
+    n = env.n_cars
+    core = PixelRacingCore(env, seed=session_seed)
+    try:
+        core.reset_cars(core.ids)
+        obs = core.observation()
+        if restored:
+            # The restored rows end with each car's pending observation; this session starts new episodes after.
+            buffer.pos = (buffer.pos + 1) % buffer.rows
+        buffer.start(obs)
+        agent.noise.reset()
+        collected = 0
+        while run.num_steps < cfg.steps:
+            keys = agent.act(obs, explore=True)
+            next_obs, reward, terminated, truncated, info = core.step(keys)
+            done = terminated | truncated
+            reset_obs = None
+            if done.any():
+                ids = np.flatnonzero(done)
+                for i in ids:  # one line per finished episode (episode ends, not steps)
+                    log_episode({
+                        "car": int(i), "return": round(float(info["episode_return"][i]), 3),
+                        "steps": int(info["episode_steps"][i]), "distance_m": round(float(info["progress_m"][i]), 2),
+                        "laps": int(info["laps_completed"][i]),
+                        "end": end_reason(info, i, bool(terminated[i]), env.max_line_distance_m),
+                    })  # fmt: skip
+                core.reset_cars(ids)
+                reset_obs = core.observation(ids)
+                agent.noise.reset(ids)
+            buffer.add(keys, reward, terminated, next_obs, done, reset_obs)
+            if reset_obs is not None:
+                for key in next_obs:
+                    next_obs[key][ids] = reset_obs[key]
+            obs = next_obs
+            run.num_steps += n
+            collected += n
+            if collected >= learning_starts and buffer.size >= hyper.batch_size:
+                for _ in range(cfg.updates_per_step):
+                    agent.update(buffer.sample(hyper.batch_size, rng))
+            after_vector_step()
+    finally:
+        core.close()
+
+
+def _learn_with_samplers(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: np.random.Generator,
+                         restored: bool, learning_starts: int, cluster: Any,
+                         log_episode: Callable[[dict[str, Any]], None],
+                         after_vector_step: Callable[[], None]) -> dict[str, Any]:  # fmt: skip
+    """The session's steps from ``cfg.workers`` sampler actors (:mod:`vision_rl.phase2_rl.ddpg_sampling`), the same
+    updates per step, evaluations and checkpoints as :func:`_learn_here`. A lost sampler is a line of
+    metrics.jsonl; when none is left, the run is saved and the error raised."""
+    from vision_rl.phase2_rl.ddpg_sampling import DDPGLearner, sampler_setup
+    from vision_rl.phase2_rl.distributed import Pacing, SamplersLostError, learn_with_samplers
+
+    cfg, env = run.cfg, run.env
+    n = env.n_cars
+
+    def on_vector_step(worker: int, episodes: list[dict[str, Any]]) -> None:
+        for record in episodes:
+            log_episode({k: v for k, v in record.items() if k != "step"})
+        run.num_steps += n
+        after_vector_step()
+
+    def log_event(record: dict[str, Any]) -> None:
+        record = {**record, "num_steps": run.num_steps, "train_time_s": round(run.train_time_s, 2)}
+        with open(run.out / METRICS_NAME, "a") as f:
+            f.write(json.dumps(record) + "\n")
+
+    pacing = Pacing(
+        workers=int(cfg.workers or 0), n_cars=n, gradient_steps=cfg.updates_per_step,
+        learning_starts=learning_starts if restored else max(learning_starts, run.hyper.batch_size),
+        start_timesteps=0, total_timesteps=max(0, cfg.steps - run.num_steps),
+        version_every_updates=cfg.version_every_updates, max_staleness=cfg.max_staleness,
+    )  # fmt: skip
+    setup = sampler_setup(run.hyper, env, run.fingerprint, cfg.seed + run.num_steps)
+    learner = DDPGLearner(agent, buffer, n, rng, restored, on_vector_step)
+    try:
+        return learn_with_samplers(learner, setup, pacing, cluster, log_event=log_event)
+    except SamplersLostError as exc:
+        run.save(agent, buffer)
+        run.close()
+        raise SamplersLostError(f"{exc}; the run in {run.out} was saved: continue it with --resume") from None
 
 
 def evaluate_ddpg(path: str | os.PathLike[str], seeds: int = 3, laps: int = 2, variant: str | None = None,

@@ -1,0 +1,197 @@
+"""`train-ddpg --workers N`: DDPG's transitions from N sampler actors (Ray), the learner in this process.
+
+Each sampler steps its own PixelRacing world of the run's ``cars`` cars (rendering their frames) with a copy of the
+actor and its own OU noise, and returns chunks of vector steps as numpy arrays: keys, rewards, terminations, the
+next observation (the final one where an episode ended) and, where one ended, the new episode's first observation,
+plus one record per finished episode. The learner's frame replay has one column of rows per car of every sampler
+(``workers x cars``), each column a continuous stream, so every frame is still stored once. The pacing, the
+staleness bound and the handling of a lost sampler are :mod:`vision_rl.phase2_rl.distributed`'s; DDPG explores
+with the actor and its noise from the first step, so the pacing's random start steps only delay the updates
+(until ``max(learning_starts, batch_size)`` transitions, as the single-process loop waits for both).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vision_rl.phase2_rl.distributed import Learner, worker_seed
+
+OBS_KEYS = ("image", "motion", "goal")
+
+
+def end_reason(info: Mapping[str, np.ndarray], i: int, terminated: bool, max_line_distance_m: float) -> str:
+    """Why car ``i``'s episode ended, from a PixelRacing step's info: time, crash <state>, line distance, stuck."""
+    if not terminated:
+        return "time"
+    if info["crash_state"][i]:
+        return f"crash {int(info['crash_state'][i])}"
+    if info["line_distance_m"][i] > max_line_distance_m:
+        return "line distance"
+    return "stuck"
+
+
+@dataclass(frozen=True)
+class DDPGSamplerSetup:
+    """What a DDPG sampler actor builds its world and actor from: plain values only."""
+
+    hyper: Mapping[str, Any]
+    """The run's ``DDPGHyper`` as a dict."""
+    env: Mapping[str, Any]
+    """The run's ``PixelRacingConfig.to_dict()`` (``n_cars`` cars per sampler; a CSV track by its absolute path)."""
+    fingerprint: Mapping[str, Any]
+    """The run's fingerprint; a sampler whose track, car or networks differ refuses to start."""
+    seed: int
+    """Base seed; sampler w uses a child of (seed, w)."""
+
+    def body(self) -> type:
+        return DDPGSampler
+
+
+def sampler_setup(hyper: Any, env: Any, fingerprint: Mapping[str, Any], seed: int) -> DDPGSamplerSetup:
+    import dataclasses
+
+    env_dict = env.to_dict()
+    track = Path(env.track)
+    if track.suffix == ".csv" and track.is_file():
+        env_dict["track"] = str(track.resolve())
+    return DDPGSamplerSetup(hyper=dataclasses.asdict(hyper), env=env_dict, fingerprint=dict(fingerprint), seed=seed)
+
+
+def actor_weights(agent: Any) -> dict[str, np.ndarray]:
+    """The actor's ``state_dict`` (batch-norm statistics included) as numpy arrays."""
+    return {name: t.detach().cpu().numpy() for name, t in agent.actor.state_dict().items()}
+
+
+class DDPGSampler:
+    """The body of a DDPG sampler actor. ``ready()`` returns its cars' first observations; ``sample(weights,
+    version, steps, random_steps)`` steps the world ``steps`` times acting with the actor plus OU noise (the
+    version's weights, fetched only when ``version`` changes; ``random_steps`` is ignored: see the module
+    docstring) and returns the chunk."""
+
+    def __init__(self, setup: DDPGSamplerSetup, worker: int) -> None:
+        import torch
+
+        from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
+        from vision_rl.phase2_rl.ddpg import DDPGAgent, DDPGHyper, ddpg_fingerprint
+
+        torch.set_num_threads(1)  # the learner and the other samplers share the cores
+        self.torch = torch
+        self.worker = worker
+        seed = worker_seed(setup.seed, worker)
+        env = PixelRacingConfig.from_dict(dict(setup.env))
+        hyper = DDPGHyper(**dict(setup.hyper))
+        mine = ddpg_fingerprint(hyper, env)
+        for key, want in setup.fingerprint.items():
+            if mine.get(key) != want:
+                raise ValueError(f"sampler {worker} was built for {key} = {mine.get(key)!r}, the run has {want!r}")
+        self.agent = DDPGAgent(hyper, env, n_cars=env.n_cars, seed=seed)
+        self.core = PixelRacingCore(env, seed=seed)
+        self.core.reset_cars(self.core.ids)
+        self.obs = self.core.observation()
+        self.max_line_distance_m = env.max_line_distance_m
+        self.version = -1
+
+    def ready(self) -> dict[str, np.ndarray]:
+        return self.obs
+
+    def pid(self) -> int:
+        return os.getpid()
+
+    def sample(self, weights: list[Any], version: int, steps: int, random_steps: int) -> dict[str, Any]:
+        torch = self.torch
+        t0 = time.perf_counter()
+        if version != self.version:
+            import ray
+
+            state = ray.get(weights[0])
+            self.agent.actor.load_state_dict({k: torch.tensor(np.array(v)) for k, v in state.items()})
+            self.version = version
+        n = self.core.config.n_cars
+        out: dict[str, Any] = {
+            "keys": np.empty((steps, n, 4), np.float32), "reward": np.empty((steps, n), np.float32),
+            "terminated": np.empty((steps, n), bool), "done": np.empty((steps, n), bool), "episodes": [],
+        }  # fmt: skip
+        for key, value in self.obs.items():
+            out[f"next_{key}"] = np.empty((steps, *value.shape), value.dtype)
+            out[f"reset_{key}"] = np.zeros((steps, *value.shape), value.dtype)
+        for k in range(steps):
+            keys = self.agent.act(self.obs, explore=True).astype(np.float32)  # stored exactly as applied
+            next_obs, reward, terminated, truncated, info = self.core.step(keys)
+            done = terminated | truncated
+            out["keys"][k], out["reward"][k], out["terminated"][k], out["done"][k] = keys, reward, terminated, done
+            for key, value in next_obs.items():
+                out[f"next_{key}"][k] = value
+            ended = np.flatnonzero(done)
+            if len(ended):
+                for i in ended:
+                    out["episodes"].append({
+                        "step": k, "car": int(i), "return": round(float(info["episode_return"][i]), 3),
+                        "steps": int(info["episode_steps"][i]), "distance_m": round(float(info["progress_m"][i]), 2),
+                        "laps": int(info["laps_completed"][i]),
+                        "end": end_reason(info, i, bool(terminated[i]), self.max_line_distance_m),
+                    })  # fmt: skip
+                self.core.reset_cars(ended)
+                reset_obs = self.core.observation(ended)
+                self.agent.noise.reset(ended)
+                for key, value in reset_obs.items():
+                    out[f"reset_{key}"][k, ended] = value
+                    next_obs[key][ended] = value
+            self.obs = next_obs
+        out["version"] = np.int64(version)
+        out["busy_s"] = np.float64(time.perf_counter() - t0)
+        return out
+
+
+class DDPGLearner(Learner):
+    """The DDPG agent and its frame replay (``workers x cars`` columns) on the samplers' chunks.
+
+    ``restored``: the replay holds rows of an earlier session (each sampler's first observation then starts a new
+    row after them). ``on_vector_step(worker, episodes)`` is called after each vector step is stored, with the
+    records of the episodes that ended in it; it counts the step and does what the single-process loop does after
+    one (evaluations, checkpoints, progress)."""
+
+    def __init__(self, agent: Any, buffer: Any, cars: int, rng: np.random.Generator, restored: bool,
+                 on_vector_step: Callable[[int, list[dict[str, Any]]], None]) -> None:  # fmt: skip
+        self.agent, self.buffer, self.cars, self.rng = agent, buffer, cars, rng
+        self.restored, self.on_vector_step = restored, on_vector_step
+        self.steps = 0
+
+    def columns(self, worker: int) -> np.ndarray:
+        return np.arange(worker * self.cars, (worker + 1) * self.cars)
+
+    def num_steps(self) -> int:
+        return self.steps
+
+    def weights(self) -> dict[str, np.ndarray]:
+        return actor_weights(self.agent)
+
+    def started(self, worker: int, ready: Any) -> None:
+        cols = self.columns(worker)
+        if self.restored:
+            self.buffer.pos[cols] = (self.buffer.pos[cols] + 1) % self.buffer.rows
+        self.buffer.start({key: ready[key] for key in OBS_KEYS if key in ready}, cars=cols)
+
+    def take(self, chunk: Mapping[str, Any], worker: int, steps: int, elapsed_s: float) -> bool:
+        cols = self.columns(worker)
+        keys = [key for key in OBS_KEYS if f"next_{key}" in chunk]
+        episodes = chunk["episodes"]
+        for k in range(steps):
+            done = chunk["done"][k]
+            ended = np.flatnonzero(done)
+            reset = {key: chunk[f"reset_{key}"][k, ended] for key in keys} if len(ended) else None
+            self.buffer.add(chunk["keys"][k], chunk["reward"][k], chunk["terminated"][k],
+                            {key: chunk[f"next_{key}"][k] for key in keys}, done, reset, cars=cols)  # fmt: skip
+            self.steps += self.cars
+            ended_here = [{**e, "car": int(cols[e["car"]]), "worker": worker} for e in episodes if e["step"] == k]
+            self.on_vector_step(worker, ended_here)
+        return True
+
+    def update(self) -> None:
+        self.agent.update(self.buffer.sample(self.agent.hyper.batch_size, self.rng))
