@@ -72,7 +72,7 @@ def test_a_samplers_steps_reach_the_frame_replay_as_its_world_gives_them(ray_loc
 def test_a_run_resumes_only_with_the_workers_it_was_trained_with(ray_local, gl_available, track, tmp_path):
     out = tmp_path / "run"
     train_ddpg(_config(track, out, steps=8, variant="state-actor"))
-    with pytest.raises(DDPGError, match="trained with --workers 1.*resume it with the same --workers"):
+    with pytest.raises(DDPGError, match=r"trained with --workers 1.*resume it with the same --workers"):
         train_ddpg(_config(track, out, steps=16, variant="state-actor", workers=None, resume=True))
     resumed = train_ddpg(_config(track, out, steps=16, variant="state-actor", resume=True))
     assert resumed["num_steps"] == 16 and resumed["buffer_restored"] == 8
