@@ -12,6 +12,7 @@ with the actor and its noise from the first step, so the pacing's random start s
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from collections.abc import Callable, Mapping
@@ -55,8 +56,8 @@ class DDPGSamplerSetup:
 
 
 def sampler_setup(hyper: Any, env: Any, fingerprint: Mapping[str, Any], seed: int) -> DDPGSamplerSetup:
-    import dataclasses
-
+    """The setup of a run's samplers (``hyper`` a DDPGHyper, ``env`` a PixelRacingConfig); a CSV track by its
+    absolute path, as the samplers may run in another folder."""
     env_dict = env.to_dict()
     track = Path(env.track)
     if track.suffix == ".csv" and track.is_file():
