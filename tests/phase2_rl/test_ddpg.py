@@ -183,8 +183,15 @@ def test_train_ddpg_tiny_run_evaluates_saves_and_resumes(gl_available, track, tm
     assert resumed["n_updates"] == result["n_updates"] + 3  # updates go on at once on the restored buffer
     assert json.loads((out / "ddpg.json").read_text())["counters"]["num_steps"] == 30
 
-    timing = evaluate_ddpg(out, seeds=1, laps=1, time_limit_s=2.0)
+    timing = evaluate_ddpg(out, seeds=1, laps=1, time_limit_s=2.0, video=str(tmp_path / "best.mp4"),
+                           plot=str(tmp_path / "best.png"))  # fmt: skip
     assert timing["n_seeds"] == 1 and timing["driver"]["variant"] == "asymmetric"
+    import imageio.v2 as imageio
+
+    with imageio.get_reader(timing["video"]) as reader:  # 2 s at the protocol's 10 Hz, the game screen's size
+        frames = [frame for frame in reader]
+    assert len(frames) == 20 and frames[0].shape == (280, 470, 3) and frames[0].std() > 5
+    assert (tmp_path / "best.png").stat().st_size > 1000
     from vision_rl.evaluation.leaderboard import find_evaluations
 
     (found,), refused = find_evaluations(out)  # the leaderboard reads it like a policy's

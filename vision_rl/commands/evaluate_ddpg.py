@@ -24,6 +24,11 @@ class EvaluateDDPGOptions:
     """Stop a run after this long, s (0: 3 x the limit lap time per lap)."""
     save: bool = True
     """Write evaluation.json beside the agent."""
+    video: str = ""
+    """Also write an MP4 of the best start's run: the driver's view at the game screen's 470x280, a track map,
+    speed and lap clock."""
+    plot: str = ""
+    """Also write a PNG of the best start's trajectory (speed along the track)."""
     reward_plot: str = ""
     """Also write the paper's figure (PNG, its numbers beside it as .json): reward against lap distance over
     --reward-laps laps of one episode from the start line."""
@@ -45,7 +50,8 @@ def run_evaluate_ddpg(opts: EvaluateDDPGOptions) -> int:
         raise ValueError("--seeds and --laps must be >= 1 and --time-limit-s >= 0")
     if opts.reward_laps < 1 or opts.reward_bin_m <= 0:
         raise ValueError("--reward-laps must be >= 1 and --reward-bin-m > 0")
-    result = evaluate_ddpg(opts.agent, opts.seeds, opts.laps, opts.variant or None, opts.time_limit_s, opts.save)
+    result = evaluate_ddpg(opts.agent, opts.seeds, opts.laps, opts.variant or None, opts.time_limit_s, opts.save,
+                           video=opts.video, plot=opts.plot)  # fmt: skip
     if opts.reward_plot:
         from pathlib import Path
 

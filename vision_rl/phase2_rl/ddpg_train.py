@@ -484,21 +484,31 @@ def _learn_with_samplers(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: 
 
 
 def evaluate_ddpg(path: str | os.PathLike[str], seeds: int = 3, laps: int = 2, variant: str | None = None,
-                  time_limit_s: float = 0.0, write: bool = True) -> dict[str, Any]:  # fmt: skip
+                  time_limit_s: float = 0.0, write: bool = True, video: str = "",
+                  plot: str = "") -> dict[str, Any]:  # fmt: skip
     """Time a saved agent (a run folder or its ddpg.pt) with the lap-time protocol on its own track and car; with
-    ``write``, the record goes to ``evaluation.json`` beside it, where the leaderboard finds it."""
+    ``write``, the record goes to ``evaluation.json`` beside it, where the leaderboard finds it. ``video`` / ``plot``:
+    an MP4 of the best start's driver view (at the game screen's size, not the actor's 89x120) / a PNG of its
+    trajectory."""
+    from vision_rl.evaluation.outputs import check_video_dependencies, plot_trajectory, write_video
     from vision_rl.phase2_rl.ddpg import load_agent, resolve_agent_path
 
+    if video:
+        check_video_dependencies()
     agent = load_agent(path, variant=variant)
     driver = DDPGDriver(agent)
     try:
-        timing = time_laps(driver, agent.env.track, agent.env.car, range(seeds), laps, time_limit_s=time_limit_s)
+        timing = time_laps(driver, agent.env.track, agent.env.car, range(seeds), laps, time_limit_s=time_limit_s,
+                           record=bool(video or plot))  # fmt: skip
     finally:
         driver.close()
     variant = agent.hyper.variant
     identity = {"driver": "ddpg", "variant": variant, "observation": f"ddpg {variant}", "agent": str(path),
                 "counters": getattr(agent, "counters", {})}  # fmt: skip
     record = evaluation_record(timing, identity, f"ddpg {variant}")
+    best = timing.best_index()
+    record["video"] = str(write_video(timing, best, video)) if video else None
+    record["plot"] = str(plot_trajectory(timing, best, plot, f"ddpg {variant}")) if plot else None
     if write:
         out = resolve_agent_path(path).with_name("evaluation.json")
         atomic_write(out, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
