@@ -20,9 +20,10 @@ setup: $(BIN)/vision-rl
 quick: setup
 	$(BIN)/vision-rl pipeline --quick
 
-# State SAC over 3 training seeds (1M steps each, the cpu preset): mean, spread and best of the protocol's lap.
+# State SAC over 3 training seeds (400k steps each, the cpu preset, the rate-within-speed-scaled steering action):
+# mean, spread and best of the protocol's lap (docs/results/state-expressway-hatchback-speed-scaled).
 experiment: setup
-	$(BIN)/vision-rl experiment --seeds 0,1,2 --steps 1000000
+	$(BIN)/vision-rl experiment --seeds 0,1,2 --steps 400000 --steer-action rate_scaled
 
 test: setup
 	$(BIN)/python -m pytest -q
