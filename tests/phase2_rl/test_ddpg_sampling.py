@@ -1,5 +1,5 @@
 """train-ddpg --workers on the session's local Ray cluster: a sampler's transitions in the learner's frame replay
-as its world gives them, the update count, resume rules and bad options."""
+as its world gives them, and the update count (faults and bad options: tests/faults/test_ddpg_sampling.py)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import pytest
 
 from tests.phase2_rl.conftest import STADIUM, stadium_csv
 from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
-from vision_rl.phase2_rl.ddpg import DDPGError, FrameReplay, load_replay
+from vision_rl.phase2_rl.ddpg import FrameReplay, load_replay
 from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig, train_ddpg
-from vision_rl.phase2_rl.distributed import DistributedError, worker_seed
+from vision_rl.phase2_rl.distributed import worker_seed
 
 HW = (32, 48)
 
@@ -22,7 +22,7 @@ def track(tmp_path_factory) -> str:
     return str(stadium_csv(tmp_path_factory.mktemp("track") / "stadium.csv", *STADIUM))
 
 
-def _config(track: str, out, **kw) -> TrainDDPGConfig:
+def ddpg_config(track: str, out, **kw) -> TrainDDPGConfig:
     base = dict(track=track, cars=2, steps=24, out=str(out), image_hw_px=HW, buffer_size=200, learning_starts=8,
                 batch_size=8, eval_every_steps=0, eval_seeds=0, checkpoint_every_steps=0, workers=1,
                 max_staleness=0, version_every_updates=2)  # fmt: skip
@@ -31,7 +31,7 @@ def _config(track: str, out, **kw) -> TrainDDPGConfig:
 
 def test_a_samplers_steps_reach_the_frame_replay_as_its_world_gives_them(ray_local, gl_available, track, tmp_path):
     out = tmp_path / "run"
-    result = train_ddpg(_config(track, out))
+    result = train_ddpg(ddpg_config(track, out))
     sampling = result["sampling"]
     assert result["num_steps"] == 24 and sampling["workers"] == 1 and sampling["samplers_lost"] == []
     # 12 vector steps of 2 cars; as SB3 counts, those ending past the 8 start transitions earn one update each
@@ -67,24 +67,3 @@ def test_a_samplers_steps_reach_the_frame_replay_as_its_world_gives_them(ray_loc
     assert buffer.size == 24 and ended > 0  # the episodes that ended took their two rows
     episodes = (out / "episodes.jsonl").read_text().splitlines()
     assert len(episodes) == ended and all(json.loads(e)["worker"] == 0 for e in episodes)
-
-
-def test_a_run_resumes_only_with_the_workers_it_was_trained_with(ray_local, gl_available, track, tmp_path):
-    out = tmp_path / "run"
-    train_ddpg(_config(track, out, steps=8, variant="state-actor"))
-    with pytest.raises(DDPGError, match=r"trained with --workers 1.*resume it with the same --workers"):
-        train_ddpg(_config(track, out, steps=16, variant="state-actor", workers=None, resume=True))
-    resumed = train_ddpg(_config(track, out, steps=16, variant="state-actor", resume=True))
-    assert resumed["num_steps"] == 16 and resumed["buffer_restored"] == 8
-
-
-@pytest.mark.parametrize("change,message", [
-    (dict(workers=0), "--workers"),
-    (dict(workers=None, address="auto"), "--address auto needs --workers"),
-    (dict(max_staleness=-1), "--max-staleness"),
-])  # fmt: skip
-def test_bad_sampling_options_are_refused_before_anything_is_written(track, tmp_path, change, message):
-    out = tmp_path / "run"
-    with pytest.raises((ValueError, DistributedError), match=message):
-        train_ddpg(_config(track, out, **change))
-    assert not out.exists()
