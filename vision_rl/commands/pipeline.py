@@ -82,7 +82,7 @@ SIZES: dict[str, PipelineSizes] = {
     # CI: a few hundred steps on whatever track the test picks, short evaluation runs.
     "tiny": PipelineSizes(
         train_laps=1, eval_laps=1, capture_cars=2, capture_fps=5, image_hw_px=(64, 96), repr_epochs=1,
-        repr_max_steps=3, sac_preset="cpu", steer_action="speed_scaled", state_steps=200, vision_steps=120,
+        repr_max_steps=3, sac_preset="cpu", steer_action="rate_scaled", state_steps=200, vision_steps=120,
         state_cars=2, vision_cars=2,
         state_learning_starts=50, vision_learning_starts=40, vision_gradient_steps=0, batch_size=32,
         buffer_size=5_000, eval_every_steps=100, state_eval_seeds=1, vision_eval_seeds=1, stats_steps=5,
@@ -97,12 +97,12 @@ SIZES: dict[str, PipelineSizes] = {
     # against 50 ms with 20: with 10 cars it drove one lap after 150k steps (491 s) and two (lap 2 in 2:24.1)
     # after 200k (648 s; 587 s with the encoder on ONNX Runtime). The whole pipeline took 14.6 min with 150k
     # vision steps, 15.6-17.1 with 200k and 4 encoder epochs, 17.2 with 10.
-    # Speed-scaled steering: over 3 training seeds it finished 9 of 9 starts with state (400k steps, 2:15.1 against
-    # 2:18.6 with the papers' action) and 8 of 9 with vision (200k, 2:18.1 against 2:21.0 with 5 of 9);
-    # docs/results/*-speed-scaled and vision-expressway-hatchback.
+    # Steering: a change of the command within the range usable at the car's speed (rate_scaled). Over 3 training
+    # seeds of 400k state steps it lapped in 2:11.5 (9 of 9 starts) against 2:15.1 with the speed-scaled range
+    # alone and 2:18.6 (6 of 9) with the papers' angle; vision: docs/results/vision-expressway-hatchback.
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
-        repr_max_steps=-1, sac_preset="cpu", steer_action="speed_scaled", state_steps=250_000, vision_steps=200_000,
+        repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=200_000,
         state_cars=20,
         vision_cars=10, state_learning_starts=-1, vision_learning_starts=5_000, vision_gradient_steps=0,
         batch_size=0, buffer_size=0, eval_every_steps=50_000, state_eval_seeds=3, vision_eval_seeds=3,
