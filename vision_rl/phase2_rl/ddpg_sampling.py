@@ -27,15 +27,19 @@ from vision_rl.phase2_rl.distributed import Learner, worker_seed
 OBS_KEYS = ("image", "motion", "goal")
 
 
-def end_reason(info: Mapping[str, np.ndarray], i: int, terminated: bool, max_line_distance_m: float) -> str:
-    """Why car ``i``'s episode ended, from a PixelRacing step's info: time, crash <state>, line distance, stuck."""
+def episode_record(info: Mapping[str, np.ndarray], i: int, terminated: bool, max_line_distance_m: float) -> dict:
+    """The line of episodes.jsonl of car ``i``, whose episode ended in a PixelRacing step with ``info``: return,
+    steps, distance, laps and why it ended (time, crash <state>, line distance, stuck)."""
     if not terminated:
-        return "time"
-    if info["crash_state"][i]:
-        return f"crash {int(info['crash_state'][i])}"
-    if info["line_distance_m"][i] > max_line_distance_m:
-        return "line distance"
-    return "stuck"
+        end = "time"
+    elif info["crash_state"][i]:
+        end = f"crash {int(info['crash_state'][i])}"
+    elif info["line_distance_m"][i] > max_line_distance_m:
+        end = "line distance"
+    else:
+        end = "stuck"
+    return {"car": int(i), "return": round(float(info["episode_return"][i]), 3), "steps": int(info["episode_steps"][i]),
+            "distance_m": round(float(info["progress_m"][i]), 2), "laps": int(info["laps_completed"][i]), "end": end}
 
 
 @dataclass(frozen=True)
@@ -132,12 +136,8 @@ class DDPGSampler:
             ended = np.flatnonzero(done)
             if len(ended):
                 for i in ended:
-                    out["episodes"].append({
-                        "step": k, "car": int(i), "return": round(float(info["episode_return"][i]), 3),
-                        "steps": int(info["episode_steps"][i]), "distance_m": round(float(info["progress_m"][i]), 2),
-                        "laps": int(info["laps_completed"][i]),
-                        "end": end_reason(info, i, bool(terminated[i]), self.max_line_distance_m),
-                    })  # fmt: skip
+                    record = episode_record(info, i, bool(terminated[i]), self.max_line_distance_m)
+                    out["episodes"].append({"step": k, **record})
                 self.core.reset_cars(ended)
                 reset_obs = self.core.observation(ended)
                 self.agent.noise.reset(ended)

@@ -46,7 +46,7 @@ from vision_rl.phase2_rl.ddpg import (
     save_agent_file,
     save_replay,
 )
-from vision_rl.phase2_rl.ddpg_sampling import end_reason
+from vision_rl.phase2_rl.ddpg_sampling import episode_record
 from vision_rl.phase2_rl.persist import ArtifactError, atomic_write, check_fingerprint
 
 METRICS_NAME = "metrics.jsonl"
@@ -419,12 +419,7 @@ def _learn_here(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: np.random
             if done.any():
                 ids = np.flatnonzero(done)
                 for i in ids:  # one line per finished episode (episode ends, not steps)
-                    log_episode({
-                        "car": int(i), "return": round(float(info["episode_return"][i]), 3),
-                        "steps": int(info["episode_steps"][i]), "distance_m": round(float(info["progress_m"][i]), 2),
-                        "laps": int(info["laps_completed"][i]),
-                        "end": end_reason(info, i, bool(terminated[i]), env.max_line_distance_m),
-                    })  # fmt: skip
+                    log_episode(episode_record(info, i, bool(terminated[i]), env.max_line_distance_m))
                 core.reset_cars(ids)
                 reset_obs = core.observation(ids)
                 agent.noise.reset(ids)
