@@ -1,4 +1,6 @@
-"""Sampling in other processes: ``train-policy --workers N`` and ``train-overtaking --workers N`` (Ray).
+"""Sampling in other processes: ``train-policy --workers N`` and ``train-overtaking --workers N`` (Ray); the
+learner's side is a :class:`Learner`, so ``train-ddpg --workers N`` shares the pacing
+(:mod:`vision_rl.phase2_rl.ddpg_sampling`).
 
 N sampler actors each step a world of the run's cars (with the frozen encoder for vision) and return transitions
 to the learner, this process, which adds them to its Stable-Baselines3 replay buffer and trains. Transitions
