@@ -286,17 +286,11 @@ class _Run:
 def train_ddpg(cfg: TrainDDPGConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Train (or resume) as configured; returns where things went and the last evaluation. A KeyboardInterrupt
     (Ctrl-C, or SIGTERM where the caller maps it) saves everything and returns with ``interrupted``."""
-    check_bounds(cfg)
-    cluster = None
-    if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
-        from vision_rl.phase2_rl.distributed import connect
+    from vision_rl.phase2_rl.distributed import cluster_for
 
-        cluster = connect(cfg.address, cfg.workers)
-    try:
+    check_bounds(cfg)  # options, Ray's cluster and the worker count are checked before the run folder is touched
+    with cluster_for(cfg.workers, cfg.address) as cluster:
         return _train(cfg, cluster, progress)
-    finally:
-        if cluster is not None:
-            cluster.close()
 
 
 def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dict[str, Any]:

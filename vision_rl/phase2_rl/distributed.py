@@ -43,7 +43,8 @@ import signal
 import threading
 import time
 import uuid
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -141,6 +142,20 @@ def connect(address: str, workers: int) -> Cluster:
             f"takes one; use --workers {max(1, int(cpus))} or a larger cluster"
         )
     return Cluster(ray, started, cpus, address)
+
+
+@contextmanager
+def cluster_for(workers: int | None, address: str) -> Iterator[Cluster | None]:
+    """The Ray cluster of a trainer's session with ``workers`` sampler actors, closed when it ends; None without
+    ``--workers`` (Ray is then not imported)."""
+    if workers is None:
+        yield None
+        return
+    cluster = connect(address, workers)
+    try:
+        yield cluster
+    finally:
+        cluster.close()
 
 
 # ------------------------------------------------------------------------------------------------- pacing

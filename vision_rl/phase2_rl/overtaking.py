@@ -733,17 +733,12 @@ def train_overtaking(cfg: TrainOvertakingConfig, progress: Progress | None = Non
     """Train the stages of ``cfg.agent`` that are not done yet (continuing an interrupted one); returns the stage
     boundaries and the agent's policy folder. Ctrl-C (or SIGTERM where the caller maps it) saves the stage and
     returns with ``interrupted``."""
-    cluster = None
-    if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
-        from vision_rl.phase2_rl.distributed import connect
+    from vision_rl.phase2_rl.distributed import cluster_for
 
+    if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
         check_config(cfg)
-        cluster = connect(cfg.address, cfg.workers)
-    try:
+    with cluster_for(cfg.workers, cfg.address) as cluster:
         return _train_stages(cfg, cluster, progress)
-    finally:
-        if cluster is not None:
-            cluster.close()
 
 
 def _train_stages(cfg: TrainOvertakingConfig, cluster: Any, progress: Progress | None) -> dict[str, Any]:

@@ -529,13 +529,11 @@ def _preset_from_spec(spec: PolicySpec) -> SACPreset:
 def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Train (or resume) as configured; returns where things went and the last evaluation. A KeyboardInterrupt
     (Ctrl-C, or SIGTERM where the caller maps it) saves everything and returns with ``interrupted``."""
-    cluster = None
-    if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
-        from vision_rl.phase2_rl.distributed import connect
+    from vision_rl.phase2_rl.distributed import cluster_for
 
+    if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
         check_bounds(cfg)
-        cluster = connect(cfg.address, cfg.workers)
-    try:
+    with cluster_for(cfg.workers, cfg.address) as cluster:
         run = _Run(cfg)
         model = run.build()
         loop = _TrainingLoop(run, progress)
@@ -551,9 +549,6 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
             interrupted = True
         run.save(model, buffer=True, snapshot=not interrupted and remaining > 0)
         run.close()
-    finally:
-        if cluster is not None:
-            cluster.close()
     return {
         "out": str(run.out),
         "policy": str(run.out / MODEL_NAME),
