@@ -17,12 +17,18 @@ import os
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from vision_rl.phase2_rl.distributed import Learner, worker_seed
+from vision_rl.phase2_rl.distributed import (
+    Learner,
+    actor_weights,
+    check_sampler_fingerprint,
+    load_actor_weights,
+    portable_track,
+    worker_seed,
+)
 
 OBS_KEYS = ("image", "motion", "goal")
 
@@ -60,18 +66,9 @@ class DDPGSamplerSetup:
 
 
 def sampler_setup(hyper: Any, env: Any, fingerprint: Mapping[str, Any], seed: int) -> DDPGSamplerSetup:
-    """The setup of a run's samplers (``hyper`` a DDPGHyper, ``env`` a PixelRacingConfig); a CSV track by its
-    absolute path, as the samplers may run in another folder."""
-    env_dict = env.to_dict()
-    track = Path(env.track)
-    if track.suffix == ".csv" and track.is_file():
-        env_dict["track"] = str(track.resolve())
+    """The setup of a run's samplers (``hyper`` a DDPGHyper, ``env`` a PixelRacingConfig)."""
+    env_dict = {**env.to_dict(), "track": portable_track(env.track)}
     return DDPGSamplerSetup(hyper=dataclasses.asdict(hyper), env=env_dict, fingerprint=dict(fingerprint), seed=seed)
-
-
-def actor_weights(agent: Any) -> dict[str, np.ndarray]:
-    """The actor's ``state_dict`` (batch-norm statistics included) as numpy arrays."""
-    return {name: t.detach().cpu().numpy() for name, t in agent.actor.state_dict().items()}
 
 
 class DDPGSampler:
@@ -87,15 +84,12 @@ class DDPGSampler:
         from vision_rl.phase2_rl.ddpg import DDPGAgent, DDPGHyper, ddpg_fingerprint
 
         torch.set_num_threads(1)  # the learner and the other samplers share the cores
-        self.torch = torch
         self.worker = worker
         seed = worker_seed(setup.seed, worker)
         env = PixelRacingConfig.from_dict(dict(setup.env))
         hyper = DDPGHyper(**dict(setup.hyper))
         mine = ddpg_fingerprint(hyper, env)
-        for key, want in setup.fingerprint.items():
-            if mine.get(key) != want:
-                raise ValueError(f"sampler {worker} was built for {key} = {mine.get(key)!r}, the run has {want!r}")
+        check_sampler_fingerprint(worker, mine, setup.fingerprint)
         self.agent = DDPGAgent(hyper, env, n_cars=env.n_cars, seed=seed)
         self.core = PixelRacingCore(env, seed=seed)
         self.core.reset_cars(self.core.ids)
@@ -110,13 +104,9 @@ class DDPGSampler:
         return os.getpid()
 
     def sample(self, weights: list[Any], version: int, steps: int, random_steps: int) -> dict[str, Any]:
-        torch = self.torch
         t0 = time.perf_counter()
         if version != self.version:
-            import ray
-
-            state = ray.get(weights[0])
-            self.agent.actor.load_state_dict({k: torch.tensor(np.array(v)) for k, v in state.items()})
+            load_actor_weights(self.agent.actor, weights)
             self.version = version
         n = self.core.config.n_cars
         out: dict[str, Any] = {

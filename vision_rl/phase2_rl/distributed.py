@@ -46,6 +46,7 @@ import uuid
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -308,8 +309,29 @@ def worker_seed(seed: int, worker: int) -> int:
 
 
 def actor_weights(model: Any) -> dict[str, np.ndarray]:
-    """The SAC actor's ``state_dict`` as numpy arrays (what the samplers load)."""
+    """``model.actor``'s ``state_dict`` (batch-norm statistics included) as numpy arrays: what the samplers load."""
     return {name: t.detach().cpu().numpy() for name, t in model.actor.state_dict().items()}
+
+
+def load_actor_weights(actor: Any, weights: list[Any]) -> None:
+    """Load the version that ``weights`` (a one-element list holding a Ray object reference) names into ``actor``."""
+    import ray
+    import torch
+
+    actor.load_state_dict({k: torch.tensor(np.array(v)) for k, v in ray.get(weights[0]).items()})
+
+
+def check_sampler_fingerprint(worker: int, mine: Mapping[str, Any], run: Mapping[str, Any]) -> None:
+    """Refuse to build sampler ``worker`` when its world or networks differ from the run's."""
+    for key, want in run.items():
+        if mine.get(key) != want:
+            raise ValueError(f"sampler {worker} was built for {key} = {mine.get(key)!r}, the run has {want!r}")
+
+
+def portable_track(track: str) -> str:
+    """A CSV track by its absolute path (the samplers may run in another folder); a built-in name as it is."""
+    path = Path(track)
+    return str(path.resolve()) if path.suffix == ".csv" and path.is_file() else track
 
 
 class Sampler:
@@ -356,9 +378,7 @@ class Sampler:
         else:
             core.observer.normalizer = normalizer
         mine = policy_fingerprint(config, setup.observation, self.env.observation_space.shape[0], encoder_sha)
-        for key, want in setup.fingerprint.items():
-            if mine.get(key) != want:
-                raise ValueError(f"sampler {worker} was built for {key} = {mine.get(key)!r}, the run has {want!r}")
+        check_sampler_fingerprint(worker, mine, setup.fingerprint)
         self.policy = SACPolicy(
             self.env.observation_space, self.env.action_space, lambda _: 0.0, net_arch=list(setup.hidden_units)
         )
@@ -381,10 +401,7 @@ class Sampler:
         torch = self.torch
         t0 = time.perf_counter()
         if steps > random_steps and version != self.version:
-            import ray
-
-            state = ray.get(weights[0])
-            self.policy.actor.load_state_dict({k: torch.tensor(np.array(v)) for k, v in state.items()})
+            load_actor_weights(self.policy.actor, weights)
             self.version = version
         n, dim = self.env.num_envs, self.env.observation_space.shape[0]
         out = {

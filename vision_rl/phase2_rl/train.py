@@ -601,14 +601,10 @@ def sampler_setup(
     encoder_path: Path | None = None,
     encoder_runtime: str = "auto",
 ) -> Any:
-    """What the sampler actors of a run build their world and policy from; a CSV track by its absolute path, as the
-    samplers may run in another folder."""
-    from vision_rl.phase2_rl.distributed import SamplerSetup
+    """What the sampler actors of a run build their world and policy from."""
+    from vision_rl.phase2_rl.distributed import SamplerSetup, portable_track
 
-    config = racing_config_to_dict(racing)
-    track = Path(racing.track)
-    if track.suffix == ".csv" and track.is_file():
-        config["track"] = str(track.resolve())
+    config = {**racing_config_to_dict(racing), "track": portable_track(racing.track)}
     return SamplerSetup(
         racing_config=config, observation=kind, obs_normalizer=normalizer.to_dict(), fingerprint=fingerprint,
         hidden_units=tuple(hidden_units), seed=seed,
