@@ -122,3 +122,19 @@ def test_a_killed_stage_resumes_from_its_checkpoint(small_track, tmp_path, fault
     fault.recovered("SIGKILL to train-overtaking mid-stage 1",
                     "the light checkpoint (weights, optimisers, counters) and the buffer saved when the stage began "
                     "survive; the same command finishes the stage and goes on to stage 2")  # fmt: skip
+
+
+def test_the_analysis_takes_one_policy_and_writes_its_figures(agent1_run, tmp_path, fault):
+    from vision_rl.commands.evaluate_overtaking import EvaluateOvertakingOptions, run_evaluate_overtaking
+
+    policy = str(agent1_run / "stage2")
+    with pytest.raises(SettingError) as excinfo:
+        run_evaluate_overtaking(EvaluateOvertakingOptions(analysis=True, policy=f"{policy},{policy}"))
+    assert "--analysis takes one --policy, got 2" in str(excinfo.value)
+    fault.refused("evaluate-overtaking --analysis with two policies", str(excinfo.value))
+    opts = EvaluateOvertakingOptions(analysis=True, policy=policy, quick=True, time_limit_s=5.0, out=str(tmp_path))
+    assert run_evaluate_overtaking(opts) == 0
+    analysis = json.loads((tmp_path / "overtaking_analysis.json").read_text())
+    assert analysis["reference"]["name"] == "built-in AI" and analysis["agent"]["run"]["seed"] == analysis["run"]
+    assert len(analysis["agent"]["time_s"]) == len(analysis["agent"]["x_m"]) and analysis["agent"]["time_s"][0] == 0
+    assert (tmp_path / "overtaking_timeline.png").stat().st_size > 1000

@@ -12,10 +12,17 @@ import pytest
 from vision_rl.evaluation.protocol import BuiltinAI
 from vision_rl.phase2_rl.overtaking_eval import (
     SETTINGS,
+    TRACE_DT_S,
+    RunTrace,
     SettingError,
+    contact_intervals,
+    fastest_run,
     learning_curves,
+    overtake_moments,
     run_setting,
     summarise_runs,
+    trace_setting,
+    write_analysis_outputs,
     write_learning_curves,
     write_setting_outputs,
 )
@@ -64,8 +71,15 @@ def test_a_braking_driver_is_stuck_with_no_contact_and_nobody_passed(small_track
 
 
 def test_the_built_in_ai_follows_and_the_outputs_are_written(small_track, tmp_path):
-    runs = run_setting(BuiltinAI(), small_track, "tt_cup", "A", runs=1, time_limit_s=15.0)
+    runs, traces = trace_setting(BuiltinAI(), small_track, "tt_cup", "A", runs=1, time_limit_s=15.0)
     assert runs[0]["end"] == "time limit" and runs[0]["travel_time_s"] == pytest.approx(15.0)
+    trace = traces[0]  # sampled every 0.1 s from the start to the end, the metrics' final values included
+    np.testing.assert_allclose(trace.time_s, np.arange(151) * TRACE_DT_S, atol=1e-9)
+    np.testing.assert_allclose(trace.gap_m[0], [50.0, 100.0, 150.0, 200.0, 250.0], atol=1e-6)
+    assert trace.x_m.shape == (151, 6) and np.all(trace.gap_m > 0.0) and overtake_moments(trace) == []
+    assert trace.wall_contact_s[-1] == runs[0]["wall_contact_s"] and trace.car_contact_s[-1] == 0.0
+    assert np.sum(np.hypot(np.diff(trace.x_m[:, 0]), np.diff(trace.y_m[:, 0]))) == pytest.approx(
+        runs[0]["travel_distance_m"], rel=0.01)  # fmt: skip
     assert runs[0]["wall_contact_s"] == 0.0 and runs[0]["travel_distance_m"] > 300.0
     result = {"setting": "A", "separation_m": 50.0, "track_name": "stadium", "car": "tt_cup",
               "drivers": [{"name": "built-in AI", "reference": True, "runs": runs, "summary": summarise_runs(runs)}]}
@@ -112,3 +126,51 @@ def test_learning_curves_over_seeds_with_the_stage_switch(tmp_path):
     assert json.loads(Path(files["json"]).read_text())["curriculum"]["x"] == cur["x"]
     by_time = learning_curves(runs, "1", axis="train_time_s")
     assert by_time["curriculum"]["x"][-1] == 60.0
+
+
+def _trace(track, gaps: np.ndarray, car_contact_s: np.ndarray) -> RunTrace:
+    """A hand-made trace: the agent on the centre line from s = 0 at 40 m/s, opponent j ``gaps[:, j-1]`` ahead."""
+    t = np.arange(len(gaps)) * TRACE_DT_S
+    s = np.column_stack([40.0 * t, 40.0 * t[:, None] + gaps]) % track.length_m
+    xy = track.position_at(s.ravel()).reshape(*s.shape, 2)
+    yaw = track.heading_at(s.ravel()).reshape(s.shape)
+    return RunTrace(t, xy[..., 0], xy[..., 1], yaw, np.full(len(t), 40.0), gaps, car_contact_s, np.zeros(len(t)))
+
+
+def test_passes_that_stood_contacts_and_the_fastest_run():
+    gaps = np.full((10, 5), 30.0)
+    gaps[:, 0] = [5, 3, 1, -1, -2, 1, -1, -3, -4, -5]  # passed at sample 3, re-passed, passed again at 6
+    gaps[:, 2] = -8.0  # behind the agent from the start
+    t = np.arange(10) * TRACE_DT_S
+    trace = RunTrace(t, np.zeros((10, 6)), np.zeros((10, 6)), np.zeros((10, 6)), np.full(10, 25.0), gaps,
+                     np.array([0, 0, 0.02, 0.04, 0.04, 0.04, 0.06, 0.06, 0.06, 0.06]), np.zeros(10))  # fmt: skip
+    moments = overtake_moments(trace)
+    assert [(m["opponent"], m["sample"]) for m in moments] == [(3, 0), (1, 6)]
+    assert moments[1]["time_s"] == pytest.approx(0.6) and moments[1]["speed_kmh"] == pytest.approx(90.0)
+    assert contact_intervals(t, trace.car_contact_s) == [(pytest.approx(0.1), pytest.approx(0.3)),
+                                                         (pytest.approx(0.5), pytest.approx(0.6))]  # fmt: skip
+    assert contact_intervals(t, trace.wall_contact_s) == []
+    runs = [{"all_overtaken": False, "overtaken": 4, "travel_time_s": 50.0},
+            {"all_overtaken": True, "overtaken": 5, "travel_time_s": 90.0},
+            {"all_overtaken": True, "overtaken": 5, "travel_time_s": 80.0}]  # fmt: skip
+    assert fastest_run(runs) == 2 and fastest_run(runs[:1]) == 0
+
+
+def test_analysis_figures_and_the_driver_view_at_each_pass(small_track, tmp_path):
+    track = load_track(small_track)
+    gaps = np.tile(np.arange(1, 6) * 10.0, (40, 1)) - 5.0 * np.arange(40)[:, None]  # one pass each 0.2 s
+    trace = _trace(track, gaps, np.zeros(40))
+    record = {"name": "agent", "run": {"run": 0, "seed": 0, "overtaken": 5, "travel_time_s": 3.9,
+              "car_contact_s": 0.0, "wall_contact_s": 0.0}, "time_s": trace.time_s.tolist(),
+              "overtaken": np.sum(gaps < 0, axis=1).tolist(), "moments": overtake_moments(trace),
+              "car_contacts": [], "wall_contacts": [(1.0, 1.2)]}  # fmt: skip
+    analysis = {"setting": "A", "track_name": track.name, "car": "tt_cup", "agent": record, "reference": record}
+    files = write_analysis_outputs(analysis, trace, track, tmp_path)
+    assert [m["opponent"] for m in record["moments"]] == [1, 2, 3, 4, 5]
+    assert Path(files["timeline"]).stat().st_size > 1000 and Path(files["paths"]).stat().st_size > 1000
+    assert len(files["frames"]) == 5
+    from PIL import Image
+
+    view = np.asarray(Image.open(files["frames"][0]))
+    assert view.shape == (280, 470, 3) and view.std() > 10.0  # a rendered scene, not a blank image
+    assert json.loads(Path(files["json"]).read_text())["agent"]["moments"] == record["moments"]

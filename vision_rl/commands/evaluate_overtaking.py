@@ -40,6 +40,9 @@ class EvaluateOvertakingOptions:
     """Comma-separated run folders (one per training seed): draw curriculum vs standard SAC learning curves instead."""
     curves_agent: str = "1"
     """Curriculum agent of the learning curves (1: stages 1-2, as the paper's Fig. 3)."""
+    analysis: bool = False
+    """With one --policy: the paper's Fig. 6 for its fastest run of --setting (cars overtaken against time with the
+    collisions, the path of each pass, the driver view at each) beside the built-in AI's run with the same opponents."""
     quick: bool = False
     """2 runs of at most 20 s each (for a check in seconds)."""
     json: bool = False
@@ -85,6 +88,21 @@ def format_curves(result: dict[str, Any]) -> list[str]:
     return lines
 
 
+def format_analysis(result: dict[str, Any]) -> list[str]:
+    lines = [f"setting {result['setting']}, run {result['run']} of {result['runs']} (seed "
+             f"{result['agent']['run']['seed']}): the fastest of {result['agent']['name']}"]  # fmt: skip
+    for key in ("agent", "reference"):
+        record = result[key]
+        run = record["run"]
+        passes = ", ".join(f"car {m['opponent']} at {m['time_s']:.1f} s" for m in record["moments"]) or "none"
+        lines.append(f"  {record['name']:<28} {run['overtaken']}/5 in {run['travel_time_s']:.1f} s, car contact "
+                     f"{run['car_contact_s']:.1f} s, wall {run['wall_contact_s']:.1f} s; passes: {passes}")  # fmt: skip
+    files = result["files"]
+    lines.append("files: " + ", ".join(str(v) for k, v in files.items() if k != "frames")
+                 + (f", {len(files['frames'])} frames" if files.get("frames") else ""))  # fmt: skip
+    return lines
+
+
 def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
     from vision_rl.phase2_rl.overtaking_eval import (
         check_setting,
@@ -101,8 +119,39 @@ def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
         return 0
     check_setting(opts.setting)
     runs, limit = (2, opts.time_limit_s or 20.0) if opts.quick else (opts.runs, opts.time_limit_s)
+    if opts.analysis:
+        return _analysis(opts, runs, limit)
     result = evaluate_overtaking(_split(opts.policy), opts.setting, runs, opts.seed, limit, opts.lead_margin_m,
                                  opts.reference, _split(opts.names), opts.track, opts.car)  # fmt: skip
     result["files"] = write_setting_outputs(result, opts.out)
     emit(result, opts.json, format_setting)
+    return 0
+
+
+def _analysis(opts: EvaluateOvertakingOptions, runs: int, limit_s: float) -> int:
+    from vision_rl.phase2_rl.overtaking import load_overtaking_policy
+    from vision_rl.phase2_rl.overtaking_eval import SettingError, analyse_overtaking, write_analysis_outputs
+    from vision_rl.sim.track_library import load_track
+    from vision_rl.sim.vehicle import get_preset
+
+    policies = _split(opts.policy)
+    if len(policies) != 1:
+        raise SettingError(f"--analysis takes one --policy, got {len(policies)}")
+    policy = load_overtaking_policy(policies[0])
+    track, car = load_track(policy.config.track), get_preset(policy.config.car)
+    name = _split(opts.names)[0] if opts.names else policies[0]
+    driver = policy.driver()
+    try:
+        result, trace = analyse_overtaking(driver, name, track, car, opts.setting, runs, opts.seed, limit_s,
+                                           opts.lead_margin_m)  # fmt: skip
+    finally:
+        if hasattr(driver, "close"):
+            driver.close()
+    result["files"] = write_analysis_outputs(result, trace, track, opts.out, car_length_m=car.length_m,
+                                             car_width_m=car.width_m)  # fmt: skip
+    # The paths stay in the JSON file; the printed result keeps the runs, passes and contacts.
+    paths = ("time_s", "overtaken", "speed_kmh", "x_m", "y_m")
+    for key in ("agent", "reference"):
+        result[key] = {k: v for k, v in result[key].items() if k not in paths}
+    emit(result, opts.json, format_analysis)
     return 0

@@ -30,7 +30,7 @@ import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -74,6 +74,32 @@ def check_setting(setting: str) -> float:
     return SETTINGS[setting]
 
 
+class RunTrace(NamedTuple):
+    """One run of a setting sampled every :data:`TRACE_DT_S` from its start until it ended (T samples); car 0 is
+    the agent, cars 1-5 the opponents in their start order."""
+
+    time_s: np.ndarray
+    """(T,) time since the start, s."""
+    x_m: np.ndarray
+    """(T, 6) world-frame positions, m."""
+    y_m: np.ndarray
+    """(T, 6)"""
+    yaw_rad: np.ndarray
+    """(T, 6)"""
+    speed_mps: np.ndarray
+    """(T,) the agent's speed, m/s."""
+    gap_m: np.ndarray
+    """(T, 5) each opponent's centre-line lead over the agent, m (negative: the agent is ahead)."""
+    car_contact_s: np.ndarray
+    """(T,) the agent's car-contact time so far, s."""
+    wall_contact_s: np.ndarray
+    """(T,) the agent's wall-contact time so far, s."""
+
+
+#: Sampling interval of a :class:`RunTrace`, s: the policies' control step.
+TRACE_DT_S = 0.1
+
+
 def run_setting(
     driver: Driver,
     track: Track | str,
@@ -85,6 +111,20 @@ def run_setting(
     lead_margin_m: float = LEAD_MARGIN_M,
 ) -> list[dict[str, Any]]:
     """``runs`` runs of ``setting`` with ``driver`` on the agent's car (see the module's rules); one dict per run."""
+    return trace_setting(driver, track, car, setting, runs, seed, time_limit_s, lead_margin_m)[0]
+
+
+def trace_setting(
+    driver: Driver,
+    track: Track | str,
+    car: VehicleParams | str,
+    setting: str,
+    runs: int = 10,
+    seed: int = 0,
+    time_limit_s: float = 0.0,
+    lead_margin_m: float = LEAD_MARGIN_M,
+) -> tuple[list[dict[str, Any]], list[RunTrace]]:
+    """:func:`run_setting`'s runs and, for each, its :class:`RunTrace`."""
     separation_m = check_setting(setting)
     if runs < 1:
         raise SettingError(f"--runs must be >= 1, got {runs}")
@@ -125,6 +165,25 @@ def run_setting(
     action = np.zeros((runs, 2))
     gap = np.tile(start_gap_m, (runs, 1))
     steps = math.ceil(limit_s / AI_CONTROL_DT_S - 1e-9)
+    trace_every = round(TRACE_DT_S / AI_CONTROL_DT_S)
+    samples = np.zeros(runs, dtype=np.int64)
+    rows_max = steps // trace_every + 2
+    trace = {name: np.zeros((rows_max, runs) + shape) for name, shape in (
+        ("time_s", ()), ("x_m", (k,)), ("y_m", (k,)), ("yaw_rad", (k,)), ("speed_mps", ()), ("gap_m", (k - 1,)),
+        ("car_contact_s", ()), ("wall_contact_s", ()))}  # fmt: skip
+
+    def record(which: np.ndarray) -> None:
+        st, rows, ids = world.state, samples[which], ego[which]
+        cars = ids[:, None] + np.arange(k)
+        for name, value in (("time_s", st.time_s[ids]), ("x_m", st.vehicle.x_m[cars]),
+                            ("y_m", st.vehicle.y_m[cars]), ("yaw_rad", st.vehicle.yaw_rad[cars]),
+                            ("speed_mps", np.hypot(st.vehicle.vx_mps[ids], st.vehicle.vy_mps[ids])),
+                            ("gap_m", gap[which]), ("car_contact_s", st.car_contact_time_s[ids]),
+                            ("wall_contact_s", st.wall_contact_time_s[ids])):  # fmt: skip
+            trace[name][rows, which] = value
+        samples[which] += 1
+
+    record(np.arange(runs))
     for step in range(steps):
         if step % every == 0:
             action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(runs, 2)
@@ -140,6 +199,8 @@ def run_setting(
         stuck_now &= active & ~led
         last = step == steps - 1
         ended = led | stuck_now | (active & last)
+        if (step + 1) % trace_every == 0 or ended.any():
+            record(np.flatnonzero(active))
         if ended.any():
             idx = np.flatnonzero(ended)
             end["travel_time_s"][idx] = st.time_s[ego[idx]]
@@ -152,6 +213,7 @@ def run_setting(
             active &= ~ended
         if not active.any():
             break
+    traces = [RunTrace(**{name: values[: samples[r], r] for name, values in trace.items()}) for r in range(runs)]
     return [
         {
             "run": r, "seed": seed + r, "opponent_skills": [round(float(x), 4) for x in skill[r, 1:]],
@@ -160,7 +222,7 @@ def run_setting(
             "end": reason[r],
         }
         for r in range(runs)
-    ]  # fmt: skip
+    ], traces  # fmt: skip
 
 
 def summarise_runs(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -281,6 +343,161 @@ def write_setting_outputs(result: dict[str, Any], out: str | os.PathLike[str]) -
     return {"json": str(json_path), "png": str(png_path)}
 
 
+# ------------------------------------------------------------------------------------------------- Fig. 6
+
+
+def overtake_moments(trace: RunTrace) -> list[dict[str, Any]]:
+    """The passes that stood: for each opponent the agent is ahead of at the end of the run, the last sample at
+    which its lead turned negative, with the agent's position and speed there; in time order."""
+    moments = []
+    final = trace.gap_m[-1] if len(trace.time_s) else np.zeros(0)
+    for j in np.flatnonzero(final < 0.0):
+        behind = trace.gap_m[:, j] >= 0.0  # the opponent still leads
+        i = int(np.flatnonzero(behind)[-1]) + 1 if behind.any() else 0
+        moments.append({"opponent": int(j) + 1, "sample": i, "time_s": float(trace.time_s[i]),
+                        "x_m": float(trace.x_m[i, 0]), "y_m": float(trace.y_m[i, 0]),
+                        "speed_kmh": float(3.6 * trace.speed_mps[i])})  # fmt: skip
+    return sorted(moments, key=lambda m: m["time_s"])
+
+
+def contact_intervals(time_s: np.ndarray, cumulative_s: np.ndarray) -> list[tuple[float, float]]:
+    """The (start, end) times, s, of the sample intervals in which a cumulative contact time grew, neighbours
+    merged."""
+    grew = np.diff(cumulative_s) > 0.0
+    edges = np.diff(np.concatenate([[0], grew.astype(np.int8), [0]]))
+    return [(float(time_s[a]), float(time_s[b])) for a, b in
+            zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True)]  # fmt: skip
+
+
+def fastest_run(runs: Sequence[dict[str, Any]]) -> int:
+    """Index of the fastest run that overtook all five; with none, the run that passed most, then the shortest."""
+    return min(range(len(runs)), key=lambda r: (not runs[r]["all_overtaken"], -runs[r]["overtaken"],
+                                                runs[r]["travel_time_s"]))  # fmt: skip
+
+
+def _trace_record(name: str, run: dict[str, Any], trace: RunTrace) -> dict[str, Any]:
+    overtaken = np.sum(trace.gap_m < 0.0, axis=1)
+    return {
+        "name": name, "run": run, "moments": overtake_moments(trace),
+        "car_contacts": contact_intervals(trace.time_s, trace.car_contact_s),
+        "wall_contacts": contact_intervals(trace.time_s, trace.wall_contact_s),
+        "time_s": np.round(trace.time_s, 2).tolist(), "overtaken": overtaken.tolist(),
+        "speed_kmh": np.round(3.6 * trace.speed_mps, 1).tolist(),
+        "x_m": np.round(trace.x_m, 2).tolist(), "y_m": np.round(trace.y_m, 2).tolist(),
+    }  # fmt: skip
+
+
+def analyse_overtaking(
+    driver: Driver,
+    name: str,
+    track: Track | str,
+    car: VehicleParams | str,
+    setting: str = "A",
+    runs: int = 10,
+    seed: int = 0,
+    time_limit_s: float = 0.0,
+    lead_margin_m: float = LEAD_MARGIN_M,
+) -> tuple[dict[str, Any], RunTrace]:
+    """The paper's Fig. 6 data: ``driver``'s fastest run of ``setting`` (:func:`fastest_run`) and the built-in AI's
+    run with the same seed (the same opponents), each with the cars overtaken against time, the car- and
+    wall-contact intervals, the passes that stood and the paths. Returns the record and the driver's trace (for
+    :func:`write_analysis_outputs`' frames)."""
+    rows, traces = trace_setting(driver, track, car, setting, runs, seed, time_limit_s, lead_margin_m)
+    best = fastest_run(rows)
+    ai_rows, ai_traces = trace_setting(BuiltinAI(), track, car, setting, 1, seed + best, time_limit_s, lead_margin_m)
+    track = track if isinstance(track, Track) else load_track(track)
+    return {
+        "setting": setting, "separation_m": SETTINGS[setting], "runs": runs, "seed": seed, "run": best,
+        "track_name": track.name, "car": car if isinstance(car, str) else car.name, "trace_dt_s": TRACE_DT_S,
+        "agent": _trace_record(name, rows[best], traces[best]),
+        "reference": _trace_record("built-in AI", ai_rows[0], ai_traces[0]),
+    }, traces[best]  # fmt: skip
+
+
+def write_analysis_outputs(
+    analysis: dict[str, Any], trace: RunTrace, track: Track, out: str | os.PathLike[str], frames: bool = True,
+    car_length_m: float = 4.1, car_width_m: float = 1.7,
+) -> dict[str, Any]:
+    """``overtaking_analysis.json``; ``overtaking_timeline.png`` (cars overtaken against time, car collisions as
+    long and wall collisions as short vertical lines, as the paper's Fig. 6); ``overtaking_paths.png`` (the agent's
+    path coloured by speed 3 s either side of each pass, with the passed car's path); and, with ``frames``, the
+    agent's driver view at each pass (``overtake_<k>.png``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    files: dict[str, Any] = {"json": str(out / "overtaking_analysis.json")}
+    atomic_write(out / "overtaking_analysis.json", lambda tmp: tmp.write_text(json.dumps(analysis)))
+
+    def save(fig: Any, path: Path) -> str:
+        tmp = path.with_name(f".{path.name}.tmp.png")
+        fig.savefig(tmp, dpi=110)
+        plt.close(fig)
+        os.replace(tmp, path)
+        return str(path)
+
+    fig, axes = plt.subplots(2, 1, figsize=(8.0, 5.0), sharex=True)
+    for ax, record, color in zip(axes, (analysis["agent"], analysis["reference"]), ("C0", "0.4"), strict=True):
+        ax.step(record["time_s"], record["overtaken"], where="post", color=color)
+        for start, _ in record["car_contacts"]:
+            ax.axvline(start, ymin=0.0, ymax=1.0, color="r", linewidth=0.8)
+        for start, _ in record["wall_contacts"]:
+            ax.axvline(start, ymin=0.0, ymax=0.25, color="k", linewidth=0.8)
+        ax.set_ylim(-0.2, 5.5)
+        ax.set_ylabel("cars overtaken")
+        run = record["run"]
+        ax.set_title(f"{record['name']}: run {run['run']} (seed {run['seed']}), {run['overtaken']}/5 in "
+                     f"{run['travel_time_s']:.1f} s; car contact {run['car_contact_s']:.1f} s (long red), "
+                     f"wall {run['wall_contact_s']:.1f} s (short black)", fontsize=8)  # fmt: skip
+    axes[1].set_xlabel("time (s)")
+    fig.suptitle(f"setting {analysis['setting']}, {analysis['track_name']}, {analysis['car']}", fontsize=9)
+    fig.tight_layout()
+    files["timeline"] = save(fig, out / "overtaking_timeline.png")
+
+    moments = analysis["agent"]["moments"]
+    if moments:
+        fig, axes = plt.subplots(1, len(moments), figsize=(3.2 * len(moments), 3.6), squeeze=False)
+        half = round(3.0 / TRACE_DT_S)
+        windows = [slice(max(m["sample"] - half, 0), m["sample"] + half + 1) for m in moments]
+        kmh = 3.6 * trace.speed_mps
+        norm = matplotlib.colors.Normalize(min(kmh[w].min() for w in windows), max(kmh[w].max() for w in windows))
+        for ax, moment, window in zip(axes[0], moments, windows, strict=True):
+            i, j = moment["sample"], moment["opponent"]
+            xs, ys = trace.x_m[window], trace.y_m[window]
+            for wall in (track.left_wall_xy_m, track.right_wall_xy_m):
+                ax.plot(wall[:, 0], wall[:, 1], color="0.5", linewidth=0.8)
+            ax.plot(xs[:, j], ys[:, j], color="0.2", linestyle="--", linewidth=1.0, label=f"opponent {j}")
+            points = ax.scatter(xs[:, 0], ys[:, 0], c=kmh[window], cmap="viridis", norm=norm, s=6)
+            ax.plot(trace.x_m[i, 0], trace.y_m[i, 0], "r+", markersize=10)
+            centre = 0.5 * np.array([xs.min() + xs.max(), ys.min() + ys.max()])
+            box = 0.5 * max(np.ptp(xs), np.ptp(ys)) + 15.0  # a square view: the path's extent and a margin, m
+            ax.set_xlim(centre[0] - box, centre[0] + box)
+            ax.set_ylim(centre[1] - box, centre[1] + box)
+            ax.set_aspect("equal")
+            ax.set_title(f"pass {j} at {moment['time_s']:.1f} s, {moment['speed_kmh']:.0f} km/h", fontsize=8)
+            ax.tick_params(labelsize=6)
+        fig.colorbar(points, ax=axes[0].tolist(), label="agent speed (km/h)", shrink=0.8)
+        files["paths"] = save(fig, out / "overtaking_paths.png")
+    if frames and moments:
+        from PIL import Image
+
+        from vision_rl.render import Renderer
+
+        samples = [m["sample"] for m in moments]
+        with Renderer(track, car_length_m=car_length_m, car_width_m=car_width_m) as renderer:
+            views = [renderer.render(trace.x_m[i], trace.y_m[i], trace.yaw_rad[i], view_ids=np.array([0]))[0]
+                     for i in samples]  # fmt: skip
+        files["frames"] = []
+        for moment, view in zip(moments, views, strict=True):
+            path = out / f"overtake_{moment['opponent']}.png"
+            atomic_write(path, lambda tmp, v=view: Image.fromarray(v).save(tmp, format="PNG"))
+            files["frames"].append(str(path))
+    return files
+
+
 # ------------------------------------------------------------------------------------------------- Fig. 3
 
 
@@ -385,11 +602,19 @@ def write_learning_curves(result: dict[str, Any], out: str | os.PathLike[str]) -
 __all__ = [
     "METRICS",
     "SETTINGS",
+    "TRACE_DT_S",
+    "RunTrace",
     "SettingError",
+    "analyse_overtaking",
+    "contact_intervals",
     "evaluate_overtaking",
+    "fastest_run",
     "learning_curves",
+    "overtake_moments",
     "run_setting",
     "summarise_runs",
+    "trace_setting",
+    "write_analysis_outputs",
     "write_learning_curves",
     "write_setting_outputs",
 ]
