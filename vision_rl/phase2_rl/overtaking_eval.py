@@ -168,7 +168,7 @@ def trace_setting(
     trace_every = round(TRACE_DT_S / AI_CONTROL_DT_S)
     samples = np.zeros(runs, dtype=np.int64)
     rows_max = steps // trace_every + 2
-    trace = {name: np.zeros((rows_max, runs) + shape) for name, shape in (
+    trace = {name: np.zeros((rows_max, runs, *shape)) for name, shape in (
         ("time_s", ()), ("x_m", (k,)), ("y_m", (k,)), ("yaw_rad", (k,)), ("speed_mps", ()), ("gap_m", (k - 1,)),
         ("car_contact_s", ()), ("wall_contact_s", ()))}  # fmt: skip
 
