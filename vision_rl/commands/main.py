@@ -61,6 +61,9 @@ COMMANDS: dict[str, Command] = {
         "Phase 2 over several training seeds: mean, spread, best", f"{_C}.experiment", "ExperimentOptions",
         "run_experiment_command",
     ),
+    "tune": Command(
+        "Phase 2: an Optuna search over train-policy's recipe", f"{_C}.tune", "TuneOptions", "run_tune_command"
+    ),
     "evaluate": Command("a policy through the lap-time protocol", f"{_C}.evaluate", "EvaluateOptions", "run_evaluate"),
     "leaderboard": Command(
         "lap-time table: AI, limit, policies (Table 1)", f"{_C}.evaluate", "LeaderboardOptions", "run_leaderboard"

@@ -164,6 +164,10 @@ class TrainPolicyConfig:
     """Override the preset's random start steps (-1: preset)."""
     gradient_steps: int = 0
     """Override the preset's updates per vector step (0: preset)."""
+    gamma: float = 0.0
+    """Override the preset's discount per 0.1 s step (0: preset)."""
+    hidden_units: str = ""
+    """Override the preset's hidden layer widths of actor and critics, e.g. 128,128 (empty: preset)."""
     device: str = "auto"
     """Torch device: auto, cpu or cuda."""
     encoder_runtime: str = "auto"
@@ -179,18 +183,33 @@ class TrainPolicyConfig:
     """With --workers: learner updates per weight version sent to the samplers."""
 
 
+def parse_hidden_units(text: str) -> tuple[int, ...]:
+    """``"128,128"`` -> (128, 128); empty -> (); a non-positive or non-integer width is refused."""
+    try:
+        units = tuple(int(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        units = (0,)
+    if any(u < 1 for u in units):
+        raise ValueError(f"--hidden-units {text!r}: give positive layer widths separated by commas, e.g. 256,256")
+    return units
+
+
 def resolve_preset(cfg: Any) -> SACPreset:
     """The preset ``cfg.preset`` with ``cfg``'s overrides (learning_rate, batch_size, buffer_size, learning_starts,
-    gradient_steps; 0 or -1: the preset's); any trainer's config with those fields."""
+    gradient_steps, and where the config has them gamma and hidden_units; 0, -1 or empty: the preset's); any
+    trainer's config with those fields."""
     if cfg.preset not in PRESETS:
         raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
     preset = PRESETS[cfg.preset]
+    gamma, hidden = getattr(cfg, "gamma", 0.0), parse_hidden_units(getattr(cfg, "hidden_units", ""))
     overrides = {
         "learning_rate": cfg.learning_rate if cfg.learning_rate > 0 else None,
         "batch_size": cfg.batch_size if cfg.batch_size > 0 else None,
         "buffer_size": cfg.buffer_size if cfg.buffer_size > 0 else None,
         "learning_starts": cfg.learning_starts if cfg.learning_starts >= 0 else None,
         "gradient_steps": cfg.gradient_steps if cfg.gradient_steps > 0 else None,
+        "gamma": gamma if gamma > 0 else None,
+        "hidden_units": hidden or None,
     }
     return dataclasses.replace(preset, **{k: v for k, v in overrides.items() if v is not None})
 
@@ -415,6 +434,10 @@ class _Run:
             "lap_time_s": summary["best_lap_time_s"],
             "lap_times_s": [[lap["lap_time_s"] for lap in s["laps"]] for s in summary["seeds"]],
             "finished": summary["n_finished"],
+            "scored_lap_times_s": [s["lap_time_s"] for s in summary["seeds"]],
+            "scored_wall_contact_s": [s["laps"][-1]["wall_contact_s"] if s["finished"] else 0.0
+                                      for s in summary["seeds"]],
+            "limit_lap_time_s": summary["limit_lap_time_s"],
             "dnf_reasons": [s["dnf_reason"] for s in summary["seeds"]],
             "distance_m": float(np.mean([s["distance_m"] for s in summary["seeds"]])),
             "wall_contact_s": None if summary["best_lap"] is None else summary["best_lap"]["wall_contact_s"],
@@ -498,12 +521,13 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "steer_change_penalty_c_s": cfg.steer_change_penalty_c_s >= 0, "stats_steps": cfg.stats_steps >= 1,
         "frame_delay_s": 0 <= cfg.frame_delay_s <= 1,
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
-        "gradient_steps": cfg.gradient_steps >= 0,
+        "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1,
     }  # fmt: skip
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
         name = bad[0]
         raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
+    parse_hidden_units(cfg.hidden_units)
     if cfg.steer_action not in STEER_ACTIONS:
         raise ValueError(f"--steer-action must be one of {', '.join(STEER_ACTIONS)}, got {cfg.steer_action!r}")
     if cfg.frame_delay_s > 0 and not cfg.encoder:
