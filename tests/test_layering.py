@@ -21,6 +21,7 @@ HEAVY = {
     "torch": ("datasets", "phase1_repr", "evaluation", "phase2_rl", "commands"),
     "lightning": ("datasets", "phase1_repr", "phase2_rl", "commands"),
     "moderngl": ("render",),
+    "optuna": ("phase2_rl",),
 }
 
 
