@@ -92,3 +92,28 @@ def test_an_experiment_resumes_only_unfinished_seeds_and_refuses_another_recipe(
     assert "tiny (3 seeds)" in names and not any("seed-" in n for n in names)
     (row,) = [r for r in table["rows"] if r["name"] == "tiny (3 seeds)"]
     assert row["lap_time_mean_s"] == again["summary"]["lap_time_mean_s"]
+
+
+def test_curves_over_seeds_and_the_time_to_beat_the_ai(tmp_path):
+    from vision_rl.phase2_rl.experiment import EPOCH_STEPS, compare_learning_curves, summarise_curves, time_to_beat
+
+    per_seed = {"0": {"num_timesteps": [100, 200, 300], "train_time_s": [10.0, 20.0, 30.0],
+                      "lap_time_s": [None, 140.0, 130.0]},
+                "1": {"num_timesteps": [100, 200, 300], "train_time_s": [12.0, 22.0, 34.0],
+                      "lap_time_s": [None, None, 132.0]}}  # fmt: skip
+    curves = {"per_seed": per_seed, **summarise_curves(per_seed)}
+    assert curves["seeds_finished"] == ["0/2", "1/2", "2/2"] and curves["mean_lap_time_s"] == [None, 140.0, 131.0]
+    assert curves["std_lap_time_s"][2] == pytest.approx(np.sqrt(2.0)) and curves["mean_train_time_s"][2] == 32.0
+    # At 200 steps one seed's 140 s beats 141 s, but the other did not finish: the first full beat is at 300.
+    assert time_to_beat(curves, 141.0) == {"num_timesteps": 300, "epochs": 300 / EPOCH_STEPS, "train_time_s": 32.0}
+    assert time_to_beat(curves, 130.0) is None
+    path = tmp_path / "a.json"
+    path.write_text(json.dumps({"per_seed": per_seed}))
+    result = compare_learning_curves([path, path], ["a", "b"], 120.0, 141.0, tmp_path / "fig")
+    assert result["series"][1]["time_to_beat_ai"]["num_timesteps"] == 300
+    assert (tmp_path / "fig" / "compare.png").stat().st_size > 1000
+    with pytest.raises(ValueError, match="2 names for 1 curve files"):
+        compare_learning_curves([path], ["a", "b"], 120.0, 141.0, tmp_path / "fig")
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(ValueError, match="not a learning_curves.json"):
+        compare_learning_curves([tmp_path / "bad.json"], ["a"], 120.0, 141.0, tmp_path / "fig")

@@ -61,6 +61,9 @@ COMMANDS: dict[str, Command] = {
         "Phase 2 over several training seeds: mean, spread, best", f"{_C}.experiment", "ExperimentOptions",
         "run_experiment_command",
     ),
+    "curves": Command(
+        "experiments' learning curves on one figure (Fig. 3 right)", f"{_C}.experiment", "CurvesOptions", "run_curves"
+    ),
     "tune": Command(
         "Phase 2: an Optuna search over train-policy's recipe", f"{_C}.tune", "TuneOptions", "run_tune_command"
     ),

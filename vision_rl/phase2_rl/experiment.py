@@ -13,13 +13,14 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from vision_rl.evaluation.leaderboard import EXPERIMENT_FORMAT, aggregate_seeds
+from vision_rl.evaluation.leaderboard import AI_SEEDS, EXPERIMENT_FORMAT, aggregate_seeds
+from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.phase1_repr.checkpoint import checkpoint_sha256
 from vision_rl.phase2_rl.artifact import SIDECAR_NAME, PolicySpec
 from vision_rl.phase2_rl.evaluate import evaluate_policy
@@ -126,55 +127,145 @@ def run_experiment(
          "wall_contact_s": None if e["best_lap"] is None else e["best_lap"]["wall_contact_s"]}
         for seed, e in zip(seeds, evaluations, strict=True)
     ]  # fmt: skip
-    record["learning_curves"] = write_learning_curves(root, seeds, evaluations[0]["limit_lap_time_s"])
+    ai = time_laps(BuiltinAI(), cfg.track, cfg.car, seeds=AI_SEEDS).summary()["best_lap_time_s"]
+    record["learning_curves"] = write_learning_curves(root, seeds, evaluations[0]["limit_lap_time_s"], ai)
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
     return {**record, "experiment_json": str(path)}
 
 
+#: The vision paper's epoch (Fig. 3 right): 20 trials of 100 s at 10 Hz, 20,000 environment steps.
+EPOCH_STEPS = 20_000
+
+
 def learning_curves(root: str | os.PathLike[str], seeds: tuple[int, ...]) -> dict[str, Any]:
     """The periodic evaluations of every seed's run (``metrics.jsonl``: the protocol's lap against environment
-    steps and training seconds) and their mean over the seeds that finished the lap at each step."""
+    steps and training seconds) and their summary over the seeds (:func:`summarise_curves`)."""
     per_seed = {}
     for seed in seeds:
         records = read_metrics(Path(root) / f"seed-{seed}" / METRICS_NAME)
-        per_seed[seed] = {
+        per_seed[str(seed)] = {
             "num_timesteps": [r["num_timesteps"] for r in records],
             "train_time_s": [r["train_time_s"] for r in records],
             "lap_time_s": [r["lap_time_s"] for r in records],
         }
+    return {"per_seed": per_seed, **summarise_curves(per_seed)}
+
+
+def summarise_curves(per_seed: dict[str, dict[str, list]]) -> dict[str, Any]:
+    """At each evaluated step: epochs (:data:`EPOCH_STEPS`), mean and standard deviation of the lap over the seeds
+    that finished it, how many did, and the seeds' mean training time (s)."""
     steps = sorted({n for c in per_seed.values() for n in c["num_timesteps"]})
-    mean, finished = [], []
+    out: dict[str, list] = {"num_timesteps": steps, "epochs": [n / EPOCH_STEPS for n in steps], "mean_lap_time_s": [],
+                            "std_lap_time_s": [], "seeds_finished": [], "mean_train_time_s": []}  # fmt: skip
     for n in steps:
-        laps = [c["lap_time_s"][c["num_timesteps"].index(n)] for c in per_seed.values() if n in c["num_timesteps"]]
-        done = [t for t in laps if t is not None]
-        mean.append(float(np.mean(done)) if done else None)
-        finished.append(f"{len(done)}/{len(laps)}")
-    return {"per_seed": per_seed, "num_timesteps": steps, "mean_lap_time_s": mean, "seeds_finished": finished}
+        at = [(c["lap_time_s"][i], c["train_time_s"][i]) for c in per_seed.values()
+              for i in [c["num_timesteps"].index(n)] if n in c["num_timesteps"]]  # fmt: skip
+        done = [lap for lap, _ in at if lap is not None]
+        out["mean_lap_time_s"].append(float(np.mean(done)) if done else None)
+        out["std_lap_time_s"].append(float(np.std(done, ddof=1)) if len(done) > 1 else None)
+        out["seeds_finished"].append(f"{len(done)}/{len(at)}")
+        out["mean_train_time_s"].append(float(np.mean([t for _, t in at])))
+    return out
 
 
-def write_learning_curves(root: str | os.PathLike[str], seeds: tuple[int, ...], limit_lap_time_s: float) -> dict:
-    """:func:`learning_curves` as ``learning_curves.json`` and ``learning_curves.png`` in the experiment folder."""
+def time_to_beat(curves: dict[str, Any], reference_lap_time_s: float) -> dict[str, Any] | None:
+    """The first evaluation at which every seed evaluated there finished and their mean lap beats the reference
+    (the built-in AI's): steps, epochs and the seeds' mean training time; None if it never does."""
+    for i, n in enumerate(curves["num_timesteps"]):
+        done, evaluated = (int(x) for x in curves["seeds_finished"][i].split("/"))
+        mean = curves["mean_lap_time_s"][i]
+        if done == evaluated and mean is not None and mean < reference_lap_time_s:
+            return {"num_timesteps": n, "epochs": curves["epochs"][i], "train_time_s": curves["mean_train_time_s"][i]}
+    return None
+
+
+def plot_learning_curves(
+    series: Sequence[tuple[str, dict[str, Any]]],
+    limit_lap_time_s: float,
+    ai_lap_time_s: float | None,
+    path: str | os.PathLike[str],
+    seeds_drawn: bool = False,
+) -> None:
+    """Lap against environment steps (the paper's epochs on the top axis) and against training minutes: each
+    series' mean over its seeds with a +-1 std band (``seeds_drawn``: each seed's own line too), the limit and the
+    built-in AI's lap; the legend says when each mean beats the AI."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+    for k, (label, curves) in enumerate(series):
+        color = f"C{k}"
+        mean = np.array([np.nan if v is None else v for v in curves["mean_lap_time_s"]])
+        std = np.array([0.0 if v is None else v for v in curves["std_lap_time_s"]])
+        beat = None if ai_lap_time_s is None else time_to_beat(curves, ai_lap_time_s)
+        when = "" if ai_lap_time_s is None else (" (never beats the AI)" if beat is None else
+                f" (beats the AI at {beat['num_timesteps'] / 1000:.0f}k steps, {beat['train_time_s'] / 60:.0f} min)")
+        n_seeds = len(curves["per_seed"])
+        for ax, x in zip(axes, (np.array(curves["num_timesteps"]), np.array(curves["mean_train_time_s"]) / 60),
+                         strict=True):  # fmt: skip
+            ax.plot(x, mean, "-", color=color, lw=2, label=f"{label}: mean of {n_seeds} seeds{when}")
+            ax.fill_between(x, mean - std, mean + std, color=color, alpha=0.2)
+        if seeds_drawn:
+            for j, (seed, c) in enumerate(curves["per_seed"].items()):
+                y = [np.nan if t is None else t for t in c["lap_time_s"]]
+                style = dict(marker="osv^D"[j % 5], lw=0.7, ms=3, alpha=0.6, color=color)
+                axes[0].plot(c["num_timesteps"], y, label=f"seed {seed}", **style)
+                axes[1].plot(np.array(c["train_time_s"]) / 60, y, **style)
+    for ax in axes:
+        ax.axhline(limit_lap_time_s, color="grey", ls="--", lw=1, label="physical limit (QSS)")
+        if ai_lap_time_s is not None:
+            ax.axhline(ai_lap_time_s, color="k", ls=":", lw=1, label="built-in AI, default skill")
+    axes[0].set_xlabel("environment steps (transitions over all cars)")
+    top = axes[0].secondary_xaxis("top", functions=(lambda n: n / EPOCH_STEPS, lambda e: e * EPOCH_STEPS))
+    top.set_xlabel("the paper's epochs (20 trials of 100 s)")
+    axes[1].set_xlabel("training time (min; evaluations excluded)")
+    axes[0].set_ylabel("protocol lap 2, s (missing: no seed finished)")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(path)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    plt.close(fig)
+
+
+def write_learning_curves(
+    root: str | os.PathLike[str], seeds: tuple[int, ...], limit_lap_time_s: float, ai_lap_time_s: float | None = None
+) -> dict:
+    """:func:`learning_curves` as ``learning_curves.json`` (with the limit, the AI's lap and when the mean beat it)
+    and ``learning_curves.png`` in the experiment folder."""
     root = Path(root)
     curves = learning_curves(root, seeds)
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    for seed, c in curves["per_seed"].items():
-        y = [np.nan if t is None else t for t in c["lap_time_s"]]
-        ax.plot(c["num_timesteps"], y, "o-", lw=0.8, ms=3, alpha=0.6, label=f"seed {seed}")
-    y = [np.nan if t is None else t for t in curves["mean_lap_time_s"]]
-    ax.plot(curves["num_timesteps"], y, "k-", lw=2, label="mean of the seeds that finished")
-    ax.axhline(limit_lap_time_s, color="grey", ls="--", lw=1, label="physical limit (QSS)")
-    ax.set_xlabel("environment steps (transitions over all cars)")
-    ax.set_ylabel("protocol lap 2, s (missing: no lap)")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    curves.update(limit_lap_time_s=limit_lap_time_s, ai_lap_time_s=ai_lap_time_s,
+                  time_to_beat_ai=None if ai_lap_time_s is None else time_to_beat(curves, ai_lap_time_s))  # fmt: skip
     png = root / "learning_curves.png"
-    atomic_write(png, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
-    plt.close(fig)
+    plot_learning_curves([("SAC", curves)], limit_lap_time_s, ai_lap_time_s, png, seeds_drawn=True)
     data = root / "learning_curves.json"
     atomic_write(data, lambda tmp: tmp.write_text(json.dumps(curves, indent=2)))
     return {"png": str(png), "json": str(data)}
+
+
+def compare_learning_curves(
+    files: Sequence[str | os.PathLike[str]], names: Sequence[str], limit_lap_time_s: float, ai_lap_time_s: float,
+    out: str | os.PathLike[str],
+) -> dict[str, Any]:
+    """Several experiments' ``learning_curves.json`` on one figure (the paper's Fig. 3 right: state and vision
+    agents, or encoders of different Phase 1 seeds): ``compare.png`` and ``compare.json`` in ``out``."""
+    if len(names) != len(files):
+        raise ValueError(f"--names gives {len(names)} names for {len(files)} curve files")
+    series = []
+    for name, file in zip(names, files, strict=True):
+        try:
+            per_seed = json.loads(Path(file).read_text())["per_seed"]
+        except (OSError, ValueError, KeyError) as exc:
+            raise ValueError(f"{file}: not a learning_curves.json of an experiment ({exc})") from None
+        curves = {"per_seed": per_seed, **summarise_curves(per_seed)}
+        curves["time_to_beat_ai"] = time_to_beat(curves, ai_lap_time_s)
+        series.append((name, curves))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    plot_learning_curves(series, limit_lap_time_s, ai_lap_time_s, out / "compare.png")
+    record = {"limit_lap_time_s": limit_lap_time_s, "ai_lap_time_s": ai_lap_time_s,
+              "series": [{"name": n, "file": str(f), **c} for (n, c), f in zip(series, files, strict=True)]}
+    atomic_write(out / "compare.json", lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
+    return {**record, "files": {"png": str(out / "compare.png"), "json": str(out / "compare.json")}}
