@@ -21,7 +21,6 @@ from vision_rl.phase2_rl.overtaking_eval import (
     overtake_moments,
     run_setting,
     summarise_runs,
-    trace_setting,
     write_analysis_outputs,
     write_learning_curves,
     write_setting_outputs,
@@ -59,19 +58,19 @@ def test_opponents_start_ahead_along_the_centre_line(small_track, setting):
 
 
 def test_a_braking_driver_is_stuck_with_no_contact_and_nobody_passed(small_track):
-    runs = run_setting(Scripted(0.0, -1.0), small_track, "tt_cup", "A", runs=2, time_limit_s=30.0)
+    runs, _ = run_setting(Scripted(0.0, -1.0), small_track, "tt_cup", "A", runs=2, time_limit_s=30.0)
     for run in runs:
         assert run["end"].startswith("stuck") and run["overtaken"] == 0 and not run["all_overtaken"]
         assert 5.0 <= run["travel_time_s"] < 15.0  # stopped within seconds, then the 5 s stuck window
         assert run["car_contact_s"] == 0.0 and run["wall_contact_s"] == 0.0
         assert 20.0 < run["travel_distance_m"] < 200.0  # braking from ~30 m/s on the straight
     assert runs[0]["opponent_skills"] != runs[1]["opponent_skills"]  # drawn per run seed
-    again = run_setting(Scripted(0.0, -1.0), small_track, "tt_cup", "A", runs=2, time_limit_s=30.0)
+    again, _ = run_setting(Scripted(0.0, -1.0), small_track, "tt_cup", "A", runs=2, time_limit_s=30.0)
     assert again == runs  # the same seeds, the same runs
 
 
 def test_the_built_in_ai_follows_and_the_outputs_are_written(small_track, tmp_path):
-    runs, traces = trace_setting(BuiltinAI(), small_track, "tt_cup", "A", runs=1, time_limit_s=15.0)
+    runs, traces = run_setting(BuiltinAI(), small_track, "tt_cup", "A", runs=1, time_limit_s=15.0)
     assert runs[0]["end"] == "time limit" and runs[0]["travel_time_s"] == pytest.approx(15.0)
     trace = traces[0]  # sampled every 0.1 s from the start to the end, the metrics' final values included
     np.testing.assert_allclose(trace.time_s, np.arange(151) * TRACE_DT_S, atol=1e-9)

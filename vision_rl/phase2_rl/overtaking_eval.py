@@ -109,22 +109,9 @@ def run_setting(
     seed: int = 0,
     time_limit_s: float = 0.0,
     lead_margin_m: float = LEAD_MARGIN_M,
-) -> list[dict[str, Any]]:
-    """``runs`` runs of ``setting`` with ``driver`` on the agent's car (see the module's rules); one dict per run."""
-    return trace_setting(driver, track, car, setting, runs, seed, time_limit_s, lead_margin_m)[0]
-
-
-def trace_setting(
-    driver: Driver,
-    track: Track | str,
-    car: VehicleParams | str,
-    setting: str,
-    runs: int = 10,
-    seed: int = 0,
-    time_limit_s: float = 0.0,
-    lead_margin_m: float = LEAD_MARGIN_M,
 ) -> tuple[list[dict[str, Any]], list[RunTrace]]:
-    """:func:`run_setting`'s runs and, for each, its :class:`RunTrace`."""
+    """``runs`` runs of ``setting`` with ``driver`` on the agent's car (see the module's rules): one dict of
+    metrics per run, and each run's :class:`RunTrace`."""
     separation_m = check_setting(setting)
     if runs < 1:
         raise SettingError(f"--runs must be >= 1, got {runs}")
@@ -285,7 +272,7 @@ def evaluate_overtaking(
     rows = []
     for name, driver, identity in drivers:
         try:
-            per_run = run_setting(driver, track_obj, car, setting, runs, seed, time_limit_s, lead_margin_m)
+            per_run, _ = run_setting(driver, track_obj, car, setting, runs, seed, time_limit_s, lead_margin_m)
         finally:
             if hasattr(driver, "close"):
                 driver.close()
@@ -402,9 +389,9 @@ def analyse_overtaking(
     run with the same seed (the same opponents), each with the cars overtaken against time, the car- and
     wall-contact intervals, the passes that stood and the paths. Returns the record and the driver's trace (for
     :func:`write_analysis_outputs`' frames)."""
-    rows, traces = trace_setting(driver, track, car, setting, runs, seed, time_limit_s, lead_margin_m)
+    rows, traces = run_setting(driver, track, car, setting, runs, seed, time_limit_s, lead_margin_m)
     best = fastest_run(rows)
-    ai_rows, ai_traces = trace_setting(BuiltinAI(), track, car, setting, 1, seed + best, time_limit_s, lead_margin_m)
+    ai_rows, ai_traces = run_setting(BuiltinAI(), track, car, setting, 1, seed + best, time_limit_s, lead_margin_m)
     track = track if isinstance(track, Track) else load_track(track)
     return {
         "setting": setting, "separation_m": SETTINGS[setting], "runs": runs, "seed": seed, "run": best,
@@ -613,7 +600,6 @@ __all__ = [
     "overtake_moments",
     "run_setting",
     "summarise_runs",
-    "trace_setting",
     "write_analysis_outputs",
     "write_learning_curves",
     "write_setting_outputs",
