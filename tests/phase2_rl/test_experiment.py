@@ -115,5 +115,5 @@ def test_curves_over_seeds_and_the_time_to_beat_the_ai(tmp_path):
     with pytest.raises(ValueError, match="2 names for 1 curve files"):
         compare_learning_curves([path], ["a", "b"], 120.0, 141.0, tmp_path / "fig")
     (tmp_path / "bad.json").write_text("{}")
-    with pytest.raises(ValueError, match="not a learning_curves.json"):
+    with pytest.raises(ValueError, match=r"not a learning_curves\.json"):
         compare_learning_curves([tmp_path / "bad.json"], ["a"], 120.0, 141.0, tmp_path / "fig")
