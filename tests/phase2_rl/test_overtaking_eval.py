@@ -145,6 +145,7 @@ def test_passes_that_stood_contacts_and_the_fastest_run():
                      np.array([0, 0, 0.02, 0.04, 0.04, 0.04, 0.06, 0.06, 0.06, 0.06]), np.zeros(10))  # fmt: skip
     moments = overtake_moments(trace)
     assert [(m["opponent"], m["sample"]) for m in moments] == [(3, 0), (1, 6)]
+    assert [m["approach_sample"] for m in moments] == [0, 6]  # never 10 m ahead: the pass itself
     assert moments[1]["time_s"] == pytest.approx(0.6) and moments[1]["speed_kmh"] == pytest.approx(90.0)
     assert contact_intervals(t, trace.car_contact_s) == [(pytest.approx(0.1), pytest.approx(0.3)),
                                                          (pytest.approx(0.5), pytest.approx(0.6))]  # fmt: skip
@@ -166,6 +167,8 @@ def test_analysis_figures_and_the_driver_view_at_each_pass(small_track, tmp_path
     analysis = {"setting": "A", "track_name": track.name, "car": "tt_cup", "agent": record, "reference": record}
     files = write_analysis_outputs(analysis, trace, track, tmp_path)
     assert [m["opponent"] for m in record["moments"]] == [1, 2, 3, 4, 5]
+    # car j leads by 10 j - 5 k m at sample k: 10 m ahead at k = 2j - 2, passed (lead < 0) at k = 2j + 1
+    assert [(m["approach_sample"], m["sample"]) for m in record["moments"]] == [(0, 3), (2, 5), (4, 7), (6, 9), (8, 11)]
     assert Path(files["timeline"]).stat().st_size > 1000 and Path(files["paths"]).stat().st_size > 1000
     assert len(files["frames"]) == 5
     from PIL import Image

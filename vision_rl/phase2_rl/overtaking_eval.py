@@ -333,17 +333,25 @@ def write_setting_outputs(result: dict[str, Any], out: str | os.PathLike[str]) -
 # ------------------------------------------------------------------------------------------------- Fig. 6
 
 
+#: The driver's view of a pass is drawn at the last sample before it with the passed car this far ahead, m (at the
+#: pass itself the car is beside the agent, out of a forward camera's view).
+APPROACH_GAP_M = 10.0
+
+
 def overtake_moments(trace: RunTrace) -> list[dict[str, Any]]:
     """The passes that stood: for each opponent the agent is ahead of at the end of the run, the last sample at
-    which its lead turned negative, with the agent's position and speed there; in time order."""
+    which its lead turned negative, with the agent's position and speed there, and the approach sample (the last
+    before the pass with the car :data:`APPROACH_GAP_M` ahead, or the pass itself); in time order."""
     moments = []
     final = trace.gap_m[-1] if len(trace.time_s) else np.zeros(0)
     for j in np.flatnonzero(final < 0.0):
         behind = trace.gap_m[:, j] >= 0.0  # the opponent still leads
         i = int(np.flatnonzero(behind)[-1]) + 1 if behind.any() else 0
+        ahead = np.flatnonzero(trace.gap_m[:i, j] >= APPROACH_GAP_M)
         moments.append({"opponent": int(j) + 1, "sample": i, "time_s": float(trace.time_s[i]),
                         "x_m": float(trace.x_m[i, 0]), "y_m": float(trace.y_m[i, 0]),
-                        "speed_kmh": float(3.6 * trace.speed_mps[i])})  # fmt: skip
+                        "speed_kmh": float(3.6 * trace.speed_mps[i]),
+                        "approach_sample": int(ahead[-1]) if len(ahead) else i})  # fmt: skip
     return sorted(moments, key=lambda m: m["time_s"])
 
 
@@ -408,7 +416,7 @@ def write_analysis_outputs(
     """``overtaking_analysis.json``; ``overtaking_timeline.png`` (cars overtaken against time, car collisions as
     long and wall collisions as short vertical lines, as the paper's Fig. 6); ``overtaking_paths.png`` (the agent's
     path coloured by speed 3 s either side of each pass, with the passed car's path); and, with ``frames``, the
-    agent's driver view at each pass (``overtake_<k>.png``)."""
+    agent's driver view as it closes in on each pass (``overtake_<k>.png``, at the moment's approach sample)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -473,7 +481,7 @@ def write_analysis_outputs(
 
         from vision_rl.render import Renderer
 
-        samples = [m["sample"] for m in moments]
+        samples = [m["approach_sample"] for m in moments]
         with Renderer(track, car_length_m=car_length_m, car_width_m=car_width_m) as renderer:
             views = [renderer.render(trace.x_m[i], trace.y_m[i], trace.yaw_rad[i], view_ids=np.array([0]))[0]
                      for i in samples]  # fmt: skip
