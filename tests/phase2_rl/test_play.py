@@ -95,3 +95,24 @@ def test_recorded_actions_replayed_in_the_environment_give_the_recorded_observat
         rewards.append(r[0])
     np.testing.assert_allclose(np.stack(obs), demos.observations, atol=1e-4)
     np.testing.assert_allclose(rewards, demos.rewards[:-1], atol=1e-4)
+
+
+def test_a_person_through_setting_a_is_a_reference_row_of_the_evaluation(gl_available, monkeypatch, tmp_path):
+    from vision_rl.phase2_rl.overtaking_eval import SettingError, evaluate_overtaking
+
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    pygame.init()
+    brake = [pygame.event.Event(pygame.KEYDOWN, key=pygame.K_DOWN)]  # held through both runs
+    cfg = PlayConfig(name="tester", track="expressway", car="tt_cup", setting="A", time_limit_s=20.0, realtime=False,
+                     window_hw_px=(64, 96), runs=str(tmp_path / "runs"))  # fmt: skip
+    result = play(cfg, events=lambda: brake)
+    assert [(r["run"], r["seed"]) for r in result["runs"]] == [(0, 0), (1, 1)] and not result["quit"]
+    assert all(r["overtaken"] == 0 and r["end"].startswith("stuck") for r in result["runs"])  # stopped behind
+    evaluation = evaluate_overtaking([], "A", runs=2, time_limit_s=20.0, reference=False,
+                                     humans=[result["setting_json"]])  # fmt: skip
+    (row,) = evaluation["drivers"]
+    assert row["name"] == "human (tester)" and row["reference"] and row["runs"] == result["runs"]
+    with pytest.raises(SettingError, match="setting A on expressway with the tt_cup, not setting B"):
+        evaluate_overtaking([], "B", reference=False, humans=[result["setting_json"]])
+    with pytest.raises(ValueError, match="--setting must be one of A, B"):
+        play(PlayConfig(name="tester", setting="C"))

@@ -24,6 +24,8 @@ class EvaluateOvertakingOptions:
     """Comma-separated names of those policies in the table and charts (default: run/stage)."""
     reference: bool = True
     """Add the built-in AI driving the agent's car (the reference row)."""
+    human: str = ""
+    """Comma-separated setting.json files of `vision-rl play --setting` (a person's runs, the paper's reference)."""
     track: str = ""
     """Track (default: the policies'; expressway with no policy); a policy of another track is refused."""
     car: str = ""
@@ -122,7 +124,8 @@ def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
     if opts.analysis:
         return _analysis(opts, runs, limit)
     result = evaluate_overtaking(_split(opts.policy), opts.setting, runs, opts.seed, limit, opts.lead_margin_m,
-                                 opts.reference, _split(opts.names), opts.track, opts.car)  # fmt: skip
+                                 opts.reference, _split(opts.names), opts.track, opts.car,
+                                 humans=_split(opts.human))  # fmt: skip
     result["files"] = write_setting_outputs(result, opts.out)
     emit(result, opts.json, format_setting)
     return 0

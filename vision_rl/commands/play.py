@@ -22,6 +22,16 @@ class PlayOptions(PlayConfig):
 def format_play(result: dict[str, Any]) -> list[str]:
     from vision_rl.evaluation.outputs import format_lap_time
 
+    if result.get("setting"):
+        lines = [f"{result['name']} in setting {result['setting']}: {len(result['runs'])} runs"]
+        for run in result["runs"]:
+            lines.append(f"  run {run['run']} (seed {run['seed']}): {run['overtaken']}/5 overtaken in "
+                         f"{run['travel_time_s']:.1f} s, car contact {run['car_contact_s']:.1f} s, wall "
+                         f"{run['wall_contact_s']:.1f} s ({run['end']})")  # fmt: skip
+        if result.get("setting_json"):
+            lines.append(f"row: {result['setting_json']} (evaluate-overtaking --human)")
+        return [*lines, "ended by the player"] if result["quit"] else lines
+
     lines = [f"{result['name']}: {result['n_transitions']} transitions recorded"]
     if result.get("demos"):
         lines.append(f"demonstrations: {result['demos']}")

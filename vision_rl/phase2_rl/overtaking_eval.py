@@ -237,13 +237,15 @@ def evaluate_overtaking(
     track: str = "",
     car: str = "",
     device: str = "cpu",
+    humans: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Each policy (a stage folder of train-overtaking) and, with ``reference``, the built-in AI through
     ``setting``; all on the policies' track and car (``track``/``car`` refuse a policy made for others, and say
-    where to evaluate when no policy is given)."""
+    where to evaluate when no policy is given). ``humans``: ``setting.json`` files of ``play --setting``, added as
+    reference rows (refused when made for another setting, track or car)."""
     separation_m = check_setting(setting)
-    if not policies and not reference:
-        raise SettingError("nothing to evaluate: give --policy or keep --reference")
+    if not policies and not reference and not humans:
+        raise SettingError("nothing to evaluate: give --policy or --human, or keep --reference")
     if names and len(names) != len(policies):
         raise SettingError(f"--names gives {len(names)} names for {len(policies)} policies")
     loaded = [load_overtaking_policy(p, device) for p in policies]
@@ -278,12 +280,27 @@ def evaluate_overtaking(
                 driver.close()
         rows.append({"name": name, "driver": identity, "reference": identity.get("driver") == "built-in AI",
                      "runs": per_run, "summary": summarise_runs(per_run)})  # fmt: skip
+    for path in humans:
+        rows.append(_human_row(path, setting, track_obj, car))
     return {
         "setting": setting, "separation_m": separation_m, "opponents": OPPONENTS, "runs": runs, "seed": seed,
         "time_limit_s": time_limit_s if time_limit_s > 0 else DEFAULT_TIME_LIMIT_S[setting],
         "lead_margin_m": lead_margin_m, "track_name": track_obj.name, "track_geometry_hash": track_obj.geometry_hash,
         "car": car, "opponent_skill_range": list(OPPONENT_SKILL_RANGE), "drivers": rows,
     }  # fmt: skip
+
+
+def _human_row(path: str | os.PathLike[str], setting: str, track: Track, car: str) -> dict[str, Any]:
+    """A row of ``play --setting``, checked against what the others drove."""
+    try:
+        row = json.loads(Path(path).read_text())
+        made_for = (row["setting"], row["track_geometry_hash"], row["car"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise SettingError(f"--human {path}: not a setting.json of vision-rl play --setting ({exc})") from None
+    if made_for != (setting, track.geometry_hash, car):
+        raise SettingError(f"--human {path} was driven in setting {row['setting']} on {row['track_name']} with the "
+                           f"{row['car']}, not setting {setting} on {track.name} with the {car}")  # fmt: skip
+    return {k: row[k] for k in ("name", "driver", "reference", "runs", "summary")}
 
 
 def _policy_name(path: Path) -> str:

@@ -14,6 +14,7 @@ from vision_rl.evaluation.human import HumanDriver, HumanQuit, check_display
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.protocol import time_laps
 from vision_rl.phase2_rl.demos import OBSERVATION, demo_fingerprint, environment_normalizer, write_demos
+from vision_rl.phase2_rl.overtaking_eval import check_setting, run_setting, summarise_runs
 from vision_rl.phase2_rl.persist import atomic_write
 from vision_rl.sim.track_library import load_track
 
@@ -48,6 +49,11 @@ class PlayConfig:
     """Folder of the runs; the row goes to RUNS/human/ALIAS-TRACK-CAR/evaluation.json."""
     demos: str = ""
     """Demonstrations file (default: demos.npz beside the row)."""
+    setting: str = ""
+    """Empty: the time trial. A or B: the overtaking paper's setting (five AI cars 50 / 200 m ahead), --setting-runs
+    runs whose best is the human reference of evaluate-overtaking --human (the paper's car: --car tt_cup)."""
+    setting_runs: int = 2
+    """Runs of --setting (the paper's human drove 2); run k meets the opponents of every agent's run --seed + k."""
 
 
 def check_play_config(cfg: PlayConfig) -> None:
@@ -59,6 +65,10 @@ def check_play_config(cfg: PlayConfig) -> None:
         raise ValueError(f"--time-limit-s must be >= 0, got {cfg.time_limit_s}")
     if min(cfg.window_hw_px) < 64:
         raise ValueError(f"--window-hw-px {cfg.window_hw_px}: at least 64 x 64")
+    if cfg.setting:
+        check_setting(cfg.setting)
+        if cfg.setting_runs < 1:
+            raise ValueError(f"--setting-runs must be >= 1, got {cfg.setting_runs}")
 
 
 def play(cfg: PlayConfig, events=None) -> dict[str, Any]:
@@ -66,6 +76,8 @@ def play(cfg: PlayConfig, events=None) -> dict[str, Any]:
     ended by the player keeps its demonstrations and writes no row. ``events``: a scripted input source."""
     check_play_config(cfg)
     check_display()
+    if cfg.setting:
+        return play_setting(cfg, events)
     track = load_track(cfg.track)
     normalizer = environment_normalizer(cfg.track, cfg.car)
     driver = HumanDriver(
@@ -101,3 +113,40 @@ def play(cfg: PlayConfig, events=None) -> dict[str, Any]:
     atomic_write(evaluation, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
     return {**result, **{k: record[k] for k in ("best_lap_time_s", "n_finished", "limit_lap_time_s", "best_lap")},
             "dnf_reason": timing.runs[0].dnf_reason, "evaluation_json": str(evaluation)}  # fmt: skip
+
+
+#: The file of a human's runs of a setting, beside the time-trial row: RUNS/human/ALIAS-TRACK-CAR-setting-X/.
+SETTING_ROW_NAME = "setting.json"
+
+
+def play_setting(cfg: PlayConfig, events=None) -> dict[str, Any]:
+    """The overtaking paper's human reference: ``cfg.setting_runs`` runs of setting A or B with a
+    :class:`HumanDriver` (run k meets the opponents of every agent's run ``cfg.seed + k``), written as a row that
+    ``evaluate-overtaking --human`` adds beside the agents. A run ended by the player ends the series; the runs
+    before it are kept."""
+    track = load_track(cfg.track)
+    driver = HumanDriver(cfg.camera, cfg.window_hw_px, cfg.input, cfg.realtime, None, events)
+    runs: list[dict[str, Any]] = []
+    quit_run = False
+    try:
+        for k in range(cfg.setting_runs):
+            try:
+                rows, _ = run_setting(driver, track, cfg.car, cfg.setting, 1, cfg.seed + k, cfg.time_limit_s)
+            except HumanQuit:
+                quit_run = True
+                break
+            runs.append({**rows[0], "run": k})
+    finally:
+        driver.close()
+    name = f"human ({cfg.name})"
+    if not runs:
+        return {"name": name, "setting": cfg.setting, "quit": True, "runs": []}
+    row = {
+        "name": name, "driver": {**driver.identity, "alias": cfg.name}, "reference": True, "setting": cfg.setting,
+        "track_name": track.name, "track_geometry_hash": track.geometry_hash, "car": cfg.car, "runs": runs,
+        "summary": summarise_runs(runs),
+    }  # fmt: skip
+    out = Path(cfg.runs) / "human" / f"{cfg.name}-{track.name}-{cfg.car}-setting-{cfg.setting}" / SETTING_ROW_NAME
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(out, lambda tmp: tmp.write_text(json.dumps(row, indent=2)))
+    return {**row, "quit": quit_run, "setting_json": str(out)}
