@@ -252,3 +252,25 @@ def test_sb3_sac_runs_2000_steps_on_the_vector_env():
     action, _ = model.predict(obs, deterministic=True)
     assert action.shape == (20, 2)
     assert dataclasses.asdict(venv.config)["n_groups"] == 20
+
+
+def test_the_off_track_penalty_charges_the_steps_that_end_beyond_the_edge_line():
+    core = _core(n_groups=1, wall_penalty_c_w=0.0, off_track_penalty_c_o=0.01)
+    core.reset_groups(np.array([0]))
+    core.world.reset(s_m=50.0, speed_mps=25.0, heading_offset_rad=0.3)  # drifting left across the edge line
+    charged = 0
+    for _ in range(20):
+        s_prev = core.world.state.s_m[0]
+        _, reward, _, _, _ = core.step(np.array([[0.0, 0.0]]), autoreset=False)
+        st = core.world.state
+        progress = core.track.progress_delta(s_prev, st.s_m[0])
+        side_m = st.lateral_m[0] + 0.5 * core.car.width_m  # drifting left: the body's left side
+        beyond = core.track.beyond_edge_line(st.s_m[:1], np.array([side_m]))[0]
+        # by hand: 5 m to the wall here, the edge line 15 % of that (0.75 m) inside it
+        assert core.track.width_left_at(st.s_m[:1])[0] == 5.0 and beyond == (side_m > 5.0 - 0.75)
+        speed2 = st.vehicle.vx_mps[0] ** 2 + st.vehicle.vy_mps[0] ** 2
+        assert reward[0] == pytest.approx(progress - 0.01 * beyond * speed2, rel=1e-5, abs=1e-5)
+        charged += bool(beyond)
+    assert 0 < charged < 20  # on the track at first, then beyond the line
+    with pytest.raises(ValueError, match="penalty weights"):
+        _core(n_groups=1, off_track_penalty_c_o=-0.1)

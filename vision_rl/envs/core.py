@@ -15,7 +15,13 @@ import numpy as np
 
 from vision_rl.envs import observations as obs_lib
 from vision_rl.envs.observer import OBSERVATION_KINDS, Observer
-from vision_rl.envs.rewards import overtaking_reward, racing_reward, steering_change_penalty, wrapped_gap_m
+from vision_rl.envs.rewards import (
+    off_track_penalty,
+    overtaking_reward,
+    racing_reward,
+    steering_change_penalty,
+    wrapped_gap_m,
+)
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE, Disruptor
 from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector
@@ -110,6 +116,10 @@ class RacingConfig:
     steer_change_penalty_c_s: float = 0.0
     """c_s of a penalty ``c_s * (change of the steering command / its limit)^2`` per step, against bang-bang
     steering (not in the papers; 0: their reward)."""
+    off_track_penalty_c_o: float = 0.0
+    """c_o of a penalty ``c_o * |v|^2`` per step that ends with the side of the ego's body beyond the painted edge
+    line (a wheel on the kerb; :func:`vision_rl.envs.rewards.off_track_penalty`; not in the papers; 0: their
+    reward)."""
     steer_action: str = "angle"
     """``angle``: the action's first entry is the steering command, rad (the papers); ``rate``: a change of the
     command, up to what the car's steering rate limit moves the wheel in one control step; ``speed_scaled``: a share
@@ -146,6 +156,8 @@ class RacingConfig:
             raise ValueError(f"steer_action must be one of {STEER_ACTIONS}, got {self.steer_action!r}")
         if self.n_groups < 1:
             raise ValueError(f"n_groups must be >= 1, got {self.n_groups}")
+        if min(self.wall_penalty_c_w, self.steer_change_penalty_c_s, self.off_track_penalty_c_o) < 0:
+            raise ValueError("the reward's penalty weights (c_w, c_s, c_o) must be >= 0")
         if self.episode_s < self.control_dt_s:
             raise ValueError("episode_s must cover at least one control step")
         ratio = self.control_dt_s / AI_CONTROL_DT_S
@@ -320,6 +332,12 @@ class RacingCore:
         progress = self.track.progress_delta(s_prev, st.s_m[ego])
         speed = np.hypot(st.vehicle.vx_mps[ego], st.vehicle.vy_mps[ego])
         reward = racing_reward(progress, st.wall_contact[ego], speed, cfg.wall_penalty_c_w)
+        if cfg.off_track_penalty_c_o > 0:
+            # The body's outer side, not its centre: on our tracks the band between the edge line and the wall is
+            # at most 1 m wide, so a centre beyond the line leaves less than 0.2 m to the wall.
+            lateral = st.lateral_m[ego]
+            beyond = self.track.beyond_edge_line(st.s_m[ego], lateral + np.copysign(0.5 * self.car.width_m, lateral))
+            reward = reward - off_track_penalty(beyond, speed, cfg.off_track_penalty_c_o)
         if cfg.steer_change_penalty_c_s > 0:
             reward = reward - steering_change_penalty(
                 self.steer_command_rad, steer_rad, ACTION_STEER_LIMIT_RAD, cfg.steer_change_penalty_c_s

@@ -30,6 +30,17 @@ def steering_change_penalty(
     return steer_change_penalty_c_s * np.square(change)
 
 
+def off_track_penalty(beyond_edge_line: np.ndarray, speed_mps: np.ndarray, off_track_penalty_c_o: float) -> np.ndarray:
+    """``c_o * |v|^2`` for a car whose body ends the step over the painted edge line (a wheel on the kerb or
+    shoulder band before the wall).
+
+    Not in either paper: GT Sport's Tokyo Expressway has its walls at the track's edge, ours have a band between.
+    Policies on the papers' reward enter slow corners faster than the AI, run wide over that band and lean on the
+    outer wall (docs/results/state-expressway-hatchback-speed-scaled); this term, of the wall term's form, charges
+    running wide before the wall is reached."""
+    return off_track_penalty_c_o * beyond_edge_line * np.square(speed_mps)
+
+
 def wrapped_gap_m(cp_other_m: np.ndarray, cp_ego_m: np.ndarray, lap_length_m: float) -> np.ndarray:
     """``cp_i - cp_ego`` in metres of track, wrapped to (-half lap, half lap]: positive when car i is ahead."""
     half = 0.5 * lap_length_m

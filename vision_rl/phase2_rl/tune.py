@@ -64,6 +64,7 @@ SEARCH_SPACE: dict[str, Param] = {
     "hidden_units": Param("choice", ("128,128", "256,256", "256,256,256"), "network width and depth"),
     "episode_s": Param("choice", (50.0, 100.0, 200.0), "episode length: how often a car restarts at random"),
     "wall_penalty_c_w": Param("log", (0.002, 0.02), "the wall penalty's weight (the papers: 0.005)"),
+    "off_track_penalty_c_o": Param("choice", (0.0, 0.002, 0.005), "a penalty for running wide of the edge line"),
     "steer_change_penalty_c_s": Param("choice", (0.0, 0.1, 0.5), "action smoothing by a steering-change penalty"),
     "steer_action": Param("choice", STEER_ACTIONS, "what the steering action means"),
 }
