@@ -92,6 +92,8 @@ def test_summary_mean_spread_best():
     s = summarise_runs(runs)
     assert s["travel_time_s"] == {"mean": 15.0, "std": 5.0, "best": 10.0}
     assert s["car_contact_s"]["best"] == 0.0 and s["all_overtaken_runs"] == 1
+    assert s["fastest_all_five_s"] == 10.0  # the 20 s run passed three
+    assert summarise_runs(runs[1:])["fastest_all_five_s"] is None
     assert s["overtaken"] == {"mean": 4.0, "min": 3, "max": 5}
     with pytest.raises(SettingError, match="--setting must be one of A, B"):
         run_setting(BuiltinAI(), "expressway", "tt_cup", "C")

@@ -70,7 +70,10 @@ def format_setting(result: dict[str, Any]) -> list[str]:
         lines.append(f"  {row['name']:<28} {s['all_overtaken_runs']:>3}/{s['runs']:<2} {s['overtaken']['mean']:>7.1f} "
                      f"{cell(s, 'travel_time_s'):>16} {cell(s, 'travel_distance_m', 0):>18} "
                      f"{cell(s, 'car_contact_s'):>12} {cell(s, 'wall_contact_s'):>12}")  # fmt: skip
-    lines.append("  (mean+-std (best) over the runs)")
+    fastest = ", ".join(f"{row['name']} {row['summary']['fastest_all_five_s']:.1f} s" for row in result["drivers"]
+                        if row["summary"].get("fastest_all_five_s") is not None)  # fmt: skip
+    lines.append("  (mean+-std (best) over the runs; best includes runs that ended early, stuck)")
+    lines.append(f"  fastest run that passed all five: {fastest or 'none'}")
     lines.append(f"files: {result['files']['json']}, {result['files']['png']}")
     return lines
 

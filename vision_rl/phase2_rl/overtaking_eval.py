@@ -220,6 +220,10 @@ def summarise_runs(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
         out[name] = {"mean": float(values.mean()), "std": float(values.std()), "best": float(values.min())}
     overtaken = np.array([r["overtaken"] for r in runs])
     out["all_overtaken_runs"] = int(sum(r["all_overtaken"] for r in runs))
+    # "best" above includes runs that ended early, stuck: short, but no overtake. The fastest run that passed all five
+    # is what the paper's bars compare.
+    complete = [r["travel_time_s"] for r in runs if r["all_overtaken"]]
+    out["fastest_all_five_s"] = float(min(complete)) if complete else None
     out["runs"] = len(runs)
     out["overtaken"] = {"mean": float(overtaken.mean()), "min": int(overtaken.min()), "max": int(overtaken.max())}
     return out
@@ -328,6 +332,8 @@ def write_setting_outputs(result: dict[str, Any], out: str | os.PathLike[str]) -
         means = [r["summary"][metric]["mean"] for r in rows]
         stds = [r["summary"][metric]["std"] for r in rows]
         bests = [r["summary"][metric]["best"] for r in rows]
+        if metric == "travel_time_s":  # the fastest run that passed all five (the plain best when none did)
+            bests = [r["summary"].get("fastest_all_five_s") or b for r, b in zip(rows, bests, strict=True)]
         ax.bar(x, means, yerr=stds, capsize=4, color=["0.6" if r["reference"] else "C0" for r in rows])
         ax.plot(x, bests, "k.", label="best run")
         for r in rows:
