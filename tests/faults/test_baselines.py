@@ -44,7 +44,7 @@ def runs(tmp_path_factory, small_track, small_demos):
 def test_an_unknown_algorithm_is_refused(fault):
     with pytest.raises(ValueError) as excinfo:
         check_config(TrainBaselineConfig(algo="planet"))
-    assert "--algo must be one of bc, gail, td3, sac" in str(excinfo.value)
+    assert "--algo must be one of bc, gail, td3, sac, dreamer" in str(excinfo.value)
     fault.refused("train-baseline --algo planet", str(excinfo.value))
 
 

@@ -187,4 +187,5 @@ def test_the_commands_record_train_quick_and_refuse_in_one_line(small_track, tmp
     assert result["status"] == "done" and result["num_timesteps"] == 300 and result["settings"]["cars"] == 2
     assert main(["train-baseline", "--algo", "planet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["vision-rl train-baseline: error: --algo must be one of bc, gail, td3, sac, got 'planet'"]
+    assert err == ["vision-rl train-baseline: error: --algo must be one of bc, gail, td3, sac, dreamer, got 'planet'; "
+                   "PlaNet's row is trained as its successor, --algo dreamer"]

@@ -21,6 +21,11 @@ alone, Eq. 1 with ``c_w`` 0.005, the 96-D ``overtaking`` observation), all with 
   network, and the same recipe and budget as our SAC stage 1 (train-overtaking's ``cpu`` preset: batch, buffer,
   random start steps, learning rate, gamma, tau, one update per vector step, 20 cars, 1M steps).
 - **sac**: SB3's SAC as train-overtaking's stage 1, for a fixed number of steps (no stopping criterion).
+- **dreamer** (the PlaNet row): PlaNet's recurrent world model with Dreamer's actor and value learned in
+  imagination instead of PlaNet's per-step CEM planner (:mod:`.dreamer` says why), one update of all three every
+  ``dreamer_train_every_steps`` transitions after the preset's random start steps, the preset's buffer size spread
+  over the cars' sequences; ``batch_size`` and ``learning_rate`` override its sequences per update and its world
+  model's step size.
 
 The run folder (``--out``, default ``runs/baselines/<algo>-<track>-<car>-s<seed>``): ``policy.pt`` (an agent file
 without pickle, :mod:`vision_rl.phase2_rl.persist`, whose fingerprint adds ``algo`` to the policy fingerprint;
@@ -41,6 +46,7 @@ import json
 import os
 import shutil
 import time
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,10 +81,12 @@ from vision_rl.phase2_rl.artifact import (
     sac_policy,
 )
 from vision_rl.phase2_rl.demos import OBS_DIM, OBSERVATION, Demos, load_demos_for, race_config
+from vision_rl.phase2_rl.dreamer import DreamerAgent, DreamerRecipe, SequenceReplay
 from vision_rl.phase2_rl.overtaking import BUDGETS
 from vision_rl.phase2_rl.persist import (
     ArtifactError,
     agent_state,
+    atomic_write,
     load_buffer,
     read_agent,
     restore_agent,
@@ -89,8 +97,8 @@ from vision_rl.phase2_rl.persist import (
 from vision_rl.phase2_rl.train import PRESETS, SACPreset, SaveClock, next_multiple, torch_device
 from vision_rl.sim.track_library import load_track
 
-ALGOS = ("bc", "gail", "td3", "sac")
-ONLINE = ("gail", "td3", "sac")
+ALGOS = ("bc", "gail", "td3", "sac", "dreamer")
+ONLINE = ("gail", "td3", "sac", "dreamer")
 #: The paper's network for every method (section IV-B): 2 hidden layers of 256 ReLU units.
 HIDDEN_UNITS = (256, 256)
 RUN_NAME = "baseline.json"
@@ -111,7 +119,7 @@ class TrainBaselineConfig:
     """A Table III baseline (bc, gail, td3 or sac) on the single-car race, MLP 2 x 256, the 96-D observation."""
 
     algo: str = "bc"
-    """bc, gail, td3 or sac."""
+    """bc, gail, td3, sac or dreamer (the PlaNet row)."""
     steps: int = 0
     """bc: cap on gradient updates (0: 200k; it stops at convergence); online: environment steps over all cars
     (0: our SAC stage 1's budget, 1M)."""
@@ -169,6 +177,10 @@ class TrainBaselineConfig:
     """gail: discriminator learning rate."""
     td3_noise: float = 0.1
     """td3: std of the Gaussian exploration noise, as a share of each action's half range."""
+    dreamer_train_every_steps: int = 100
+    """dreamer: transitions (over all cars) per update of the world model, actor and value."""
+    dreamer_sequence_steps: int = 32
+    """dreamer: control steps per training sequence."""
     device: str = "auto"
     """Torch device: auto, cpu or cuda."""
 
@@ -183,7 +195,8 @@ def default_out(cfg: TrainBaselineConfig) -> Path:
 def check_config(cfg: TrainBaselineConfig) -> None:
     """One clear line for a bad option, before anything is built or written."""
     if cfg.algo not in ALGOS:
-        raise ValueError(f"--algo must be one of {', '.join(ALGOS)}, got {cfg.algo!r}")
+        hint = "; PlaNet's row is trained as its successor, --algo dreamer" if cfg.algo.lower() == "planet" else ""
+        raise ValueError(f"--algo must be one of {', '.join(ALGOS)}, got {cfg.algo!r}{hint}")
     if cfg.preset not in PRESETS:
         raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
     checks = {
@@ -196,7 +209,8 @@ def check_config(cfg: TrainBaselineConfig) -> None:
         "bc_min_improvement": 0 <= cfg.bc_min_improvement < 1, "bc_max_epochs": cfg.bc_max_epochs >= 1,
         "gail_disc_every_steps": cfg.gail_disc_every_steps >= 1, "gail_disc_updates": cfg.gail_disc_updates >= 0,
         "gail_disc_batch": cfg.gail_disc_batch >= 1, "gail_disc_lr": cfg.gail_disc_lr > 0,
-        "td3_noise": cfg.td3_noise >= 0,
+        "td3_noise": cfg.td3_noise >= 0, "dreamer_train_every_steps": cfg.dreamer_train_every_steps >= 1,
+        "dreamer_sequence_steps": cfg.dreamer_sequence_steps >= 2,
     }  # fmt: skip
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
@@ -220,6 +234,13 @@ def resolve_recipe(cfg: TrainBaselineConfig) -> SACPreset:
     )  # fmt: skip
 
 
+def dreamer_recipe(cfg: TrainBaselineConfig) -> DreamerRecipe:
+    """Dreamer's recipe with the options' overrides (sequences per update, the world model's step size)."""
+    base = DreamerRecipe(hidden_units=HIDDEN_UNITS)
+    return dataclasses.replace(base, batch_sequences=cfg.batch_size or base.batch_sequences,
+                               sequence_steps=cfg.dreamer_sequence_steps, model_lr=cfg.learning_rate or base.model_lr)
+
+
 def total_steps(cfg: TrainBaselineConfig) -> int:
     if cfg.steps:
         return cfg.steps
@@ -236,6 +257,8 @@ def settings_of(cfg: TrainBaselineConfig, demos: Demos | None) -> dict[str, Any]
     keep = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("steps", "out", "force", "device")}
     if cfg.algo in ONLINE:
         keep["recipe"] = json.loads(json.dumps(dataclasses.asdict(resolve_recipe(cfg))))
+    if cfg.algo == "dreamer":
+        keep["dreamer"] = json.loads(json.dumps(dataclasses.asdict(dreamer_recipe(cfg))))
     if demos is not None:
         keep["demos_sha256"] = demos.sha256
     return keep
@@ -755,11 +778,236 @@ def train_online(cfg: TrainBaselineConfig, progress: Progress | None = None) -> 
     }  # fmt: skip
 
 
+# ------------------------------------------------------------------------------------------------- dreamer
+
+SEQUENCE_BUFFER_FORMAT = "vision_rl.sequence_replay"
+
+
+def save_sequence_replay(replay: SequenceReplay, path: Path, fingerprint: dict[str, Any]) -> str:
+    """The replay's filled rows (oldest first per car) as ``.npz`` without pickle; returns the file's SHA-256."""
+    meta = {"format": SEQUENCE_BUFFER_FORMAT, "format_version": 1, "fingerprint": fingerprint,
+            "n_cars": replay.n_cars}  # fmt: skip
+    arrays = replay.arrays()
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
+
+    return atomic_write(path, write)
+
+
+def load_sequence_replay(replay: SequenceReplay, path: Path, fingerprint: dict[str, Any]) -> int:
+    """Fill a fresh replay from :func:`save_sequence_replay`'s file; returns the rows restored. Refuses a damaged
+    file, another fingerprint or another shape in one line (:class:`ArtifactError`)."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(str(data["meta"]))
+            if meta.get("format") != SEQUENCE_BUFFER_FORMAT or meta.get("format_version") != 1:
+                raise ArtifactError(f"{path}: not a vision_rl sequence-replay file of format 1")
+            check_fingerprint(meta["fingerprint"], fingerprint, str(path))
+            arrays = {name: data[name] for name in (*SequenceReplay.ARRAYS, "written")}
+        return replay.restore(arrays)
+    except ArtifactError:
+        raise
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ArtifactError(f"{path}: damaged or mismatched sequence-replay file: {first}") from None
+
+
+def _to_env_units(actions: np.ndarray) -> np.ndarray:
+    """Actions in [-1, 1] to the environment's ``[steer rad, omega]``."""
+    space = action_space()
+    return space.low + 0.5 * (np.clip(actions, -1.0, 1.0) + 1.0) * (space.high - space.low)
+
+
+class DreamerDriver(PolicyDriver):
+    """A Dreamer agent as a protocol driver: its recurrent state restarts with every protocol run."""
+
+    def __init__(self, agent: DreamerAgent, config: RacingConfig, normalizer, identity: dict[str, Any]) -> None:
+        super().__init__(self._predict, OBSERVATION, normalizer, None, config.image_hw_px, config.control_dt_s,
+                         identity, config.frame_delay_s, config.steer_action)  # fmt: skip
+        self.agent = agent
+
+    def reset(self, world, car_ids: np.ndarray) -> None:
+        super().reset(world, car_ids)
+        self.carry = self.agent.initial(len(car_ids))
+        self.first = np.ones(len(car_ids))
+
+    def _predict(self, obs: np.ndarray) -> np.ndarray:
+        action, self.carry = self.agent.act(self.carry, obs, self.first, explore=False)
+        self.first = np.zeros(len(obs))
+        return _to_env_units(action)
+
+
+@dataclass
+class LoadedDreamer:
+    """A trained Dreamer agent ready to drive (as :class:`~.artifact.LoadedPolicy` for the protocol)."""
+
+    agent: DreamerAgent
+    spec: PolicySpec
+    weights_path: Path
+    spec_path: Path
+
+    @property
+    def config(self) -> RacingConfig:
+        return self.spec.config
+
+    def driver(self) -> DreamerDriver:
+        spec = self.spec
+        identity = {"driver": "policy", "observation": spec.observation, "policy": str(self.weights_path),
+                    "policy_sha256": spec.weights_sha256, "num_timesteps": spec.num_timesteps,
+                    "train_time_s": spec.train_time_s, "seed": spec.seed, "algo": "dreamer"}  # fmt: skip
+        return DreamerDriver(self.agent, self.config, spec.normalizer, identity)
+
+
+def _dreamer_from_spec(spec: PolicySpec, device: str = "cpu") -> DreamerAgent:
+    recipe = DreamerRecipe(**{k: tuple(v) if isinstance(v, list) else v
+                              for k, v in spec.train_config["dreamer"].items()})  # fmt: skip
+    return DreamerAgent(OBS_DIM, 2, recipe, seed=spec.seed, device=device)
+
+
+def train_dreamer(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict[str, Any]:
+    """The Dreamer agent (see :mod:`.dreamer`) up to ``steps``, continuing a run folder's saved state."""
+    run = _RunFolder(cfg, None)
+    out, preset, recipe = run.out, resolve_recipe(cfg), dreamer_recipe(cfg)
+    torch.set_num_threads(max(preset.torch_threads, 1))
+    device = torch_device(cfg.device)
+    racing = race_config(cfg.track, cfg.car, cfg.cars, cfg.episode_s)
+    fingerprint = baseline_fingerprint(racing, "dreamer")
+    end_steps, n_cars = total_steps(cfg), cfg.cars
+    agent = DreamerAgent(OBS_DIM, 2, recipe, seed=cfg.seed, device=device)
+    replay = SequenceReplay(max(preset.buffer_size // n_cars, recipe.sequence_steps), n_cars, OBS_DIM, 2)
+    spec = PolicySpec.read(out / SIDECAR_NAME) if (out / SIDECAR_NAME).is_file() else None
+    steps, train_time_before_s, rows_restored = 0, 0.0, 0
+    if spec is not None:
+        try:
+            check_fingerprint(spec.fingerprint, fingerprint, str(out / SIDECAR_NAME))
+            state = read_agent(out / spec.model, fingerprint, spec.weights_sha256)
+            agent.load_state_dict(state)
+            if (out / BUFFER_NAME).is_file():
+                rows_restored = load_sequence_replay(replay, out / BUFFER_NAME, fingerprint)
+        except ArtifactError as exc:
+            raise BaselineError(f"cannot continue {out}: {exc}") from None
+        except (KeyError, RuntimeError, ValueError) as exc:
+            raise BaselineError(f"cannot continue {out}: its weights do not fit this recipe's networks: "
+                                f"{str(exc).splitlines()[0]}") from None  # fmt: skip
+        steps, agent.n_updates = int(state["counters"]["num_timesteps"]), int(state["counters"]["n_updates"])
+        train_time_before_s = spec.train_time_s
+    if steps >= end_steps:
+        return {**run.record, "out": str(out), "policy": str(out), "interrupted": False, "trained_now": False}
+    # Without its buffer a continued run first collects again what it would have learned from.
+    learning_starts = preset.learning_starts if rows_restored or steps == 0 else steps + preset.learning_starts
+    venv = make_sb3_vec_env(racing, seed=cfg.seed + steps)
+    if spec is not None:  # the numbers the policy was trained with
+        venv.core.observer.normalizer = spec.normalizer
+    normalizer = venv.core.observer.normalizer
+    rng = np.random.default_rng(cfg.seed + steps)
+    updates_at_start, steps_at_start = agent.n_updates, steps
+    session_start = time.perf_counter()
+    eval_time_s = 0.0
+    episode_returns: list[float] = []
+    running_return = np.zeros(n_cars)
+    last_eval: dict[str, Any] | None = None
+    last_terms: dict[str, float] = {}
+
+    def train_time_s() -> float:
+        return train_time_before_s + time.perf_counter() - session_start - eval_time_s
+
+    def save(buffer: bool) -> None:
+        counters = {"num_timesteps": steps, "n_updates": agent.n_updates, "episode_num": 0}
+        sha = write_agent_state({**agent.state_dict(), "counters": counters}, out / MODEL_NAME, fingerprint)
+        recipe_record = {**json.loads(json.dumps(dataclasses.asdict(preset))), "hidden_units": list(HIDDEN_UNITS),
+                         "dreamer": json.loads(json.dumps(dataclasses.asdict(recipe))),
+                         "train_every_steps": cfg.dreamer_train_every_steps}  # fmt: skip
+        _spec(cfg, racing, normalizer, fingerprint, sha, recipe_record, steps, train_time_s(),
+              run.settings).write(out / SIDECAR_NAME)  # fmt: skip
+        if buffer:
+            save_sequence_replay(replay, out / BUFFER_NAME, fingerprint)
+        run.update(status="running", num_timesteps=steps, train_time_s=round(train_time_s(), 2))
+
+    def evaluate() -> None:
+        nonlocal eval_time_s, last_eval
+        t0 = time.perf_counter()
+        driver = DreamerDriver(agent, racing, normalizer, {"driver": "policy", "algo": "dreamer"})
+        try:
+            summary = time_laps(driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps,
+                                cfg.eval_time_limit_s).summary()  # fmt: skip
+        finally:
+            driver.close()
+        eval_time_s += time.perf_counter() - t0
+        last_eval = {"num_timesteps": steps, "train_time_s": round(train_time_s(), 2), "n_updates": agent.n_updates,
+                     "lap_time_s": summary["best_lap_time_s"], "finished": summary["n_finished"],
+                     "ep_rew_mean": float(np.mean(episode_returns[-100:])) if episode_returns else None,
+                     "eval_time_s": round(time.perf_counter() - t0, 2), **last_terms}  # fmt: skip
+        _append_metrics(out, last_eval)
+
+    next_eval = next_multiple(steps, cfg.eval_every_steps)
+    saves = SaveClock(steps, cfg.checkpoint_every_steps, cfg.checkpoint_every_min)
+    all_cars = np.arange(n_cars)
+    obs = venv.reset()
+    carry = agent.initial(n_cars)
+    first = np.ones(n_cars)
+    replay.add(all_cars, obs, np.zeros((n_cars, 2)), np.zeros(n_cars), np.ones(n_cars), first)
+    interrupted = False
+    if steps == 0:
+        save(buffer=False)  # the run folder holds a loadable policy from the start
+    try:
+        while steps < end_steps:
+            action, carry = agent.act(carry, obs, first, explore=True)
+            if steps < learning_starts:  # uniform random actions fill the replay first
+                action = rng.uniform(-1.0, 1.0, (n_cars, 2))
+                carry = (carry[0], torch.as_tensor(action, dtype=torch.float32, device=agent.device))
+            next_obs, rewards, dones, infos = venv.step(_to_env_units(action))
+            rows, continues = next_obs.copy(), np.ones(n_cars)
+            done_cars = np.flatnonzero(dones)
+            for i in done_cars:  # the last observation of an ended episode, and whether it ended by a crash
+                rows[i] = infos[i]["terminal_observation"]
+                continues[i] = float(infos[i].get("TimeLimit.truncated", False))
+            replay.add(all_cars, rows, action, rewards, continues, np.zeros(n_cars))
+            running_return += rewards
+            if len(done_cars):
+                replay.add(done_cars, next_obs[done_cars], np.zeros((len(done_cars), 2)), np.zeros(len(done_cars)),
+                           np.ones(len(done_cars)), np.ones(len(done_cars)))  # fmt: skip
+                episode_returns.extend(running_return[done_cars].tolist())
+                running_return[done_cars] = 0.0
+            first, obs = dones.astype(np.float64), next_obs
+            steps += n_cars
+            due = (steps - learning_starts) // cfg.dreamer_train_every_steps if steps >= learning_starts else 0
+            while agent.n_updates < due and replay.can_sample(recipe.sequence_steps):
+                batch = replay.sample(rng, recipe.batch_sequences, recipe.sequence_steps, agent.device)
+                last_terms = agent.update(batch)
+            if next_eval is not None and steps >= next_eval:
+                evaluate()
+                next_eval = next_multiple(steps, cfg.eval_every_steps)
+            if progress is not None:
+                progress("step", steps, end_steps, last_eval)
+            kind = saves.due(steps)
+            if kind is not None:
+                save(buffer=kind == "full")
+    except KeyboardInterrupt:
+        interrupted = True
+    wall_s = time.perf_counter() - session_start
+    save(buffer=True)
+    venv.close()
+    run.update(status="interrupted" if interrupted else "done", steps=end_steps, num_timesteps=steps)
+    steps_now, updates_now = steps - steps_at_start, agent.n_updates - updates_at_start
+    return {
+        **run.record, "out": str(out), "policy": str(out), "interrupted": interrupted, "trained_now": steps_now > 0,
+        "buffer_restored": rows_restored,
+        "session": {"steps": steps_now, "updates": updates_now, "wall_s": round(wall_s, 2),
+                    "transitions_per_s": round(steps_now / wall_s, 1) if wall_s > 0 else None,
+                    "updates_per_s": round(updates_now / wall_s, 2) if wall_s > 0 else None},
+    }  # fmt: skip
+
+
+
 def train_baseline(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Train (or continue) one Table III baseline; returns its run record, the policy folder and the figures."""
     check_config(cfg)
     if cfg.algo == "bc":
         return train_bc(cfg, progress)
+    if cfg.algo == "dreamer":
+        return train_dreamer(cfg, progress)
     return train_online(cfg, progress)
 
 
@@ -772,7 +1020,9 @@ def baseline_algo(spec: PolicySpec) -> str:
     return str(spec.fingerprint.get("algo", "sac"))
 
 
-def load_baseline(path: str | os.PathLike[str], algo: str | None = None, device: str = "cpu") -> LoadedPolicy:
+def load_baseline(
+    path: str | os.PathLike[str], algo: str | None = None, device: str = "cpu"
+) -> LoadedPolicy | LoadedDreamer:
     """A Table III policy (a train-baseline folder, or a train-overtaking stage-1 folder as SAC) ready to drive,
     refusing, in one line, a policy of another observation, network size or algorithm (``algo``), and every
     check of :func:`~.artifact.load_policy` (checksum, fingerprint against the track as it loads today)."""
@@ -789,6 +1039,18 @@ def load_baseline(path: str | os.PathLike[str], algo: str | None = None, device:
     units = spec.sac.get("hidden_units")
     if [int(u) for u in units or []] != list(HIDDEN_UNITS):
         raise BaselineError(f"{sidecar}: hidden units {units}, not the paper's {list(HIDDEN_UNITS)}")
+    if recorded == "dreamer":
+        expected = baseline_fingerprint(spec.config, "dreamer")
+        try:
+            check_fingerprint(spec.fingerprint, expected, str(sidecar))
+            agent = _dreamer_from_spec(spec, device)
+            agent.load_state_dict(read_agent(weights, expected, spec.weights_sha256), optimizers=False)
+        except ArtifactError as exc:
+            raise PolicyError(str(exc)) from None
+        except (RuntimeError, KeyError, TypeError) as exc:
+            raise PolicyError(f"{weights}: the weights do not fit the recorded Dreamer recipe: "
+                              f"{str(exc).splitlines()[0]}") from None  # fmt: skip
+        return LoadedDreamer(agent, spec, weights, sidecar)
     if recorded != "td3":
         return load_policy(path, device=device)
     from gymnasium import spaces
@@ -826,6 +1088,7 @@ __all__ = [
     "Discriminator",
     "GAILReplayBuffer",
     "GAILUpdater",
+    "LoadedDreamer",
     "TrainBaselineConfig",
     "baseline_algo",
     "check_table_track",
