@@ -143,6 +143,9 @@ def test_a_dreamer_run_continues_with_its_sequences_and_refuses_a_damaged_buffer
     (copy / "replay_buffer.npz").write_bytes(b"not a zip")
     with pytest.raises(BaselineError, match="damaged or mismatched sequence-replay file"):
         train_baseline(dataclasses.replace(cfg, out=str(copy), steps=500))
+    (copy / "replay_buffer.npz").unlink()  # without its sequences it collects again, then updates at the same rate
+    refilled = train_baseline(dataclasses.replace(cfg, out=str(copy), steps=600))
+    assert refilled["buffer_restored"] == 0 and refilled["session"]["updates"] == (600 - 400 - 100) // 50
     weights = copy / "policy.pt"
     weights.write_bytes(weights.read_bytes()[:-10])
     with pytest.raises(PolicyError, match="SHA-256"):

@@ -972,7 +972,8 @@ def train_dreamer(cfg: TrainBaselineConfig, progress: Progress | None = None) ->
                 running_return[done_cars] = 0.0
             first, obs = dones.astype(np.float64), next_obs
             steps += n_cars
-            due = (steps - learning_starts) // cfg.dreamer_train_every_steps if steps >= learning_starts else 0
+            trained_steps = steps - max(learning_starts, steps_at_start)
+            due = updates_at_start + max(trained_steps, 0) // cfg.dreamer_train_every_steps
             while agent.n_updates < due and replay.can_sample(recipe.sequence_steps):
                 batch = replay.sample(rng, recipe.batch_sequences, recipe.sequence_steps, agent.device)
                 last_terms = agent.update(batch)
