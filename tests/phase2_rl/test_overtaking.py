@@ -171,3 +171,24 @@ def test_evaluate_times_an_overtaking_policy_like_any_other(curriculum):
     record = evaluate_policy(out / "agent3-stage3", laps=1, seeds=1, time_limit_s=5.0)
     assert record["driver"]["observation"] == "overtaking" and record["protocol"]["version"] >= 1
     assert (out / "agent3-stage3" / "evaluation.json").is_file()
+
+
+def test_a_c_r_ablation_starts_from_another_runs_stage_one(curriculum, small_track, tmp_path):
+    out, _ = curriculum
+    ablation = tmp_path / "c_r-2"
+    cfg = tiny_overtaking_config(small_track, ablation, agent="1", overtake_gain_c_r=2.0, stage1_from=str(out))
+    result = train_overtaking(cfg)
+    assert result["trained_now"] == ["stage2"] and result["done"]  # stage 1 was not trained again
+    assert (ablation / "stage1" / "policy.pt").stat().st_ino == (out / "stage1" / "policy.pt").stat().st_ino
+    run = json.loads((ablation / "run.json").read_text())
+    assert run["settings"]["overtake_gain_c_r"] == 2.0 and run["stage1_from"] == str(out)
+    assert run["ai_lap_time_s"] == json.loads((out / "run.json").read_text())["ai_lap_time_s"]
+    assert load_overtaking_policy(ablation / "stage2").spec.config.overtake_gain_c_r == 2.0
+    again = train_overtaking(cfg)  # continued like any run folder: nothing left to do
+    assert again["trained_now"] == [] and again["done"]
+    with pytest.raises(ot.OvertakingRunError, match="its seed is 0, not 1"):
+        train_overtaking(tiny_overtaking_config(small_track, tmp_path / "seed1", agent="1", seed=1,
+                                                stage1_from=str(out)))  # fmt: skip
+    with pytest.raises(ot.OvertakingRunError, match="no run.json there"):
+        train_overtaking(tiny_overtaking_config(small_track, tmp_path / "none", agent="1",
+                                                stage1_from=str(tmp_path)))  # fmt: skip

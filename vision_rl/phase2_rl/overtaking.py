@@ -130,6 +130,10 @@ BUDGETS: dict[str, CurriculumBudget] = {
 }
 
 
+#: Shared settings that stage 1 (racing alone) does not depend on: a run may start from another's stage 1 across them.
+STAGE1_FREE_SETTINGS = ("overtake_gain_c_r", "detection_range_c_d_m")
+
+
 class OvertakingRunError(ValueError):
     """A run folder that cannot be continued as asked (other settings, missing stages); the message says why."""
 
@@ -164,6 +168,9 @@ class TrainOvertakingConfig:
     """Steps of stage 3 (0: the preset's)."""
     stage3_buffer_size: int = 0
     """FIFO buffer of stage 3, transitions (0: half of --stage3-steps, so older data is gone mid-stage)."""
+    stage1_from: str = ""
+    """A run folder whose finished stage 1 this one starts from (hard-linked in when this one has none): the c_r
+    ablation, since racing alone does not depend on c_r or c_d; every other shared setting must agree."""
     standard_steps: int = 0
     """Steps of standard SAC (0: stage-1 cap + stage 2 + stage 3, the curriculum's budget)."""
     episode_s: float = 100.0
@@ -711,8 +718,36 @@ class OvertakingRun:
                 raise OvertakingRunError(f"{self.out} is not empty and holds no {RUN_NAME}: give another --out")
             self.record = {"format": RUN_FORMAT, "settings": self.settings, "ai_lap_time_s": None}
             write_json(run_path, self.record)
+        if cfg.stage1_from and not (self.out / "stage1").exists():
+            self.adopt_stage1(Path(cfg.stage1_from))
         if self.sac.torch_threads > 0:
             torch.set_num_threads(self.sac.torch_threads)
+
+    def adopt_stage1(self, source: Path) -> None:
+        """Link ``source``'s finished stage 1 into this run folder, refusing a source of other settings (c_r and c_d
+        aside) or an unfinished stage 1; the built-in AI's lap, timed on the same protocol, comes along."""
+        theirs = _read_json(source / RUN_NAME) if (source / RUN_NAME).is_file() else None
+        if theirs is None:
+            raise OvertakingRunError(f"--stage1-from {source}: no {RUN_NAME} there: give a train-overtaking run folder")
+        other = theirs.get("settings") or {}
+        mine = {k: v for k, v in self.settings.items() if k not in STAGE1_FREE_SETTINGS}
+        for key, want in mine.items():
+            if other.get(key) != want:
+                raise OvertakingRunError(f"--stage1-from {source}: its {key} is {other.get(key)!r}, not {want!r}")
+        record = source / "stage1" / STAGE_NAME
+        if not record.is_file() or _read_json(record).get("status") != "done":
+            raise OvertakingRunError(f"--stage1-from {source}: its stage1 is not done")
+
+        def link(src: str, dst: str) -> None:
+            try:
+                os.link(src, dst)
+            except OSError:  # another filesystem
+                shutil.copy2(src, dst)
+
+        shutil.copytree(source / "stage1", self.out / "stage1", copy_function=link)
+        self.record.update({k: theirs[k] for k in ("ai_lap_time_s", "ai_timing") if k in theirs},
+                           stage1_from=str(source))  # fmt: skip
+        write_json(self.out / RUN_NAME, self.record)
 
     def ai_lap_time_s(self) -> float | None:
         """The built-in AI's lap time on the evaluation's protocol (computed once per run folder)."""
