@@ -189,6 +189,6 @@ def test_a_c_r_ablation_starts_from_another_runs_stage_one(curriculum, small_tra
     with pytest.raises(ot.OvertakingRunError, match="its seed is 0, not 1"):
         train_overtaking(tiny_overtaking_config(small_track, tmp_path / "seed1", agent="1", seed=1,
                                                 stage1_from=str(out)))  # fmt: skip
-    with pytest.raises(ot.OvertakingRunError, match="no run.json there"):
+    with pytest.raises(ot.OvertakingRunError, match=r"no run\.json there"):
         train_overtaking(tiny_overtaking_config(small_track, tmp_path / "none", agent="1",
                                                 stage1_from=str(tmp_path)))  # fmt: skip
