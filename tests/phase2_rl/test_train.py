@@ -160,3 +160,26 @@ def test_sigterm_saves_like_ctrl_c(small_track, tmp_path, monkeypatch, capsys):
     assert "interrupted: saved" in capsys.readouterr().out
     assert 100 <= PolicySpec.read(out / "policy.json").num_timesteps < 200
     assert signal.getsignal(signal.SIGTERM) == handler  # the command's handler is gone again
+
+
+def test_n_step_returns_sum_the_rewards_before_the_critics_bootstrap(small_track, tmp_path):
+    from vision_rl.phase2_rl.train import _Run
+
+    run = _Run(tiny_train_config(small_track, tmp_path / "n3", n_step=3))
+    model = run.build()
+    try:
+        buffer, gamma = model.replay_buffer, model.gamma
+        assert type(buffer).__name__ == "NStepReplayBuffer" and buffer.n_steps == 3
+        obs = np.zeros((buffer.n_envs, *buffer.obs_shape), dtype=np.float32)
+        action = np.zeros((buffer.n_envs, 2), dtype=np.float32)
+        no_end = np.zeros(buffer.n_envs, dtype=bool)
+        for reward in (1.0, 2.0, 3.0, 4.0):
+            buffer.add(obs, obs, action, np.full(buffer.n_envs, reward), no_end, [{}] * buffer.n_envs)
+        batch = buffer._get_samples(np.array([0, 1]))
+        np.testing.assert_allclose(batch.rewards.numpy().ravel(), [1 + 2 * gamma + 3 * gamma**2,
+                                                                   2 + 3 * gamma + 4 * gamma**2], rtol=1e-6)
+        np.testing.assert_allclose(batch.discounts.numpy().ravel(), gamma**3, rtol=1e-6)
+    finally:
+        run.close()
+    with pytest.raises(ValueError, match="--n-step 3 needs one car's steps in a row"):
+        train_policy(tiny_train_config(small_track, tmp_path / "w2", n_step=3, workers=2))

@@ -170,6 +170,9 @@ class TrainPolicyConfig:
     """Override the preset's discount per 0.1 s step (0: preset)."""
     hidden_units: str = ""
     """Override the preset's hidden layer widths of actor and critics, e.g. 128,128 (empty: preset)."""
+    n_step: int = 1
+    """Rewards summed over N control steps before the critics bootstrap (Stable-Baselines3's n-step replay; 1: the
+    papers' one-step targets)."""
     device: str = "auto"
     """Torch device: auto, cpu or cuda."""
     encoder_runtime: str = "auto"
@@ -387,7 +390,7 @@ class _Run:
             learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
             train_freq=(p.train_freq_steps, "step"), gradient_steps=p.gradient_steps,
             policy_kwargs={"net_arch": list(p.hidden_units)}, seed=self.seed + self.start_steps,
-            device=self.device, verbose=0,
+            device=self.device, verbose=0, n_steps=self.cfg.n_step,
         )  # fmt: skip
         encoder_sha = self.encoder_sha256 if self.kind == "vision" else None
         self.fingerprint = policy_fingerprint(self.racing, self.kind, venv.observation_space.shape[0], encoder_sha)
@@ -525,7 +528,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "off_track_penalty_c_o": cfg.off_track_penalty_c_o >= 0,
         "frame_delay_s": 0 <= cfg.frame_delay_s <= 1,
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
-        "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1,
+        "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
     }  # fmt: skip
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
@@ -542,6 +545,9 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         if cfg.workers is None:
             raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
         check_workers(cfg.workers, cfg.max_staleness, cfg.version_every_updates)
+        if cfg.n_step > 1 and cfg.workers > 1:
+            # The learner's buffer interleaves the samplers' vector steps, so a column is not one car's time line.
+            raise ValueError(f"--n-step {cfg.n_step} needs one car's steps in a row: use --workers 1 or leave it out")
     # The world holds every car's state and, for vision, renders every car's frame each step; 1,000 cars is far
     # beyond the papers' 20 and what one process can step at a useful rate.
     if cfg.cars > MAX_CARS:

@@ -62,6 +62,7 @@ SEARCH_SPACE: dict[str, Param] = {
     "gradient_steps": Param("choice", (1, 2, 4), "updates per vector step: learning per sample against samples/s"),
     "gamma": Param("choice", (0.98, 0.99, 0.995), "discount per 0.1 s: horizon 5, 10 or 20 s"),
     "hidden_units": Param("choice", ("128,128", "256,256", "256,256,256"), "network width and depth"),
+    "n_step": Param("choice", (1, 3, 5), "n-step returns: reward reaches the critics n steps sooner"),
     "episode_s": Param("choice", (50.0, 100.0, 200.0), "episode length: how often a car restarts at random"),
     "wall_penalty_c_w": Param("log", (0.002, 0.02), "the wall penalty's weight (the papers: 0.005)"),
     "off_track_penalty_c_o": Param("choice", (0.0, 0.002, 0.005), "a penalty for running wide of the edge line"),
