@@ -125,8 +125,23 @@ def test_learning_curves_over_seeds_with_the_stage_switch(tmp_path):
     files = write_learning_curves(result, tmp_path / "fig")
     assert Path(files["png"]).stat().st_size > 1000
     assert json.loads(Path(files["json"]).read_text())["curriculum"]["x"] == cur["x"]
+    assert result["complete"] and cur["n_seeds"] == [2] * 6 and cur["per_seed"][1][0] == pytest.approx(13.0)
     by_time = learning_curves(runs, "1", axis="train_time_s")
     assert by_time["curriculum"]["x"][-1] == 60.0
+
+
+def test_a_seed_still_training_counts_only_where_every_seed_has_a_point(tmp_path):
+    runs = [_fake_run(tmp_path, 0, 200), _fake_run(tmp_path, 2, 300)]
+    for name in ("stage2", "standard"):  # seed 2 has trained to 400 steps only
+        metrics = runs[1] / name / "metrics.jsonl"
+        metrics.write_text("".join(line + "\n" for line in metrics.read_text().splitlines()
+                                   if json.loads(line)["num_timesteps"] <= 400))  # fmt: skip
+    result = learning_curves(runs, "1")
+    assert result["standard"]["n_seeds"] == [2, 2, 2, 2, 1, 1] and not result["complete"]
+    # Standard SAC's mean at 400 (both seeds: 4 and 6), not at 600 where only seed 0 is: 5.0.
+    assert (result["standard_final_x"], result["standard_final_return"]) == (400, pytest.approx(5.0))
+    assert result["curriculum_steps_to_standard_final"] == 100 and result["share_of_standard_steps"] == 0.25
+    assert Path(write_learning_curves(result, tmp_path / "fig")["png"]).stat().st_size > 1000
 
 
 def _trace(track, gaps: np.ndarray, car_contact_s: np.ndarray) -> RunTrace:

@@ -82,13 +82,19 @@ def format_curves(result: dict[str, Any]) -> list[str]:
     lines = []
     for label in ("curriculum", "standard"):
         data = result[label]
-        final = next((v for v in reversed(data["mean"]) if v is not None), None)
-        lines.append(f"{label}: {data['seeds_with_data']} seeds, {len(data['x'])} points, final mean return "
-                     + ("-" if final is None else f"{final:.1f}"))  # fmt: skip
-    if result.get("share_of_standard_steps") is not None:
-        steps = result["curriculum_steps_to_standard_final"]
-        lines.append(f"curriculum reaches standard SAC's final return at {steps:.0f} steps, "
+        lines.append(f"{label}: {data['seeds_with_data']} seeds, {len(data['x'])} points, up to "
+                     f"{data['x'][-1] if data['x'] else 0:.0f} ({min(data['n_seeds'] or [0])}-"
+                     f"{max(data['n_seeds'] or [0])} seeds a point)")  # fmt: skip
+    final = result.get("standard_final_return")
+    if final is not None:
+        partial = "" if result["complete"] else " (a seed is still training: the last point every seed reached)"
+        lines.append(f"standard SAC's final mean return {final:.1f} at {result['standard_final_x']:.0f}{partial}")
+    steps = result.get("curriculum_steps_to_standard_final")
+    if steps is not None:
+        lines.append(f"curriculum (every seed) reaches it at {steps:.0f} steps, "
                      f"{100 * result['share_of_standard_steps']:.0f} % of standard SAC's steps")  # fmt: skip
+    elif final is not None and result["axis"] == "num_timesteps":
+        lines.append("curriculum (every seed) has not reached it")
     lines.append(f"files: {result['files']['json']}, {result['files']['png']}")
     return lines
 

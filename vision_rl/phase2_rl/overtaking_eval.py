@@ -538,8 +538,10 @@ def learning_curves(
 ) -> dict[str, Any]:
     """Curriculum (``curriculum_agent``'s stages) and standard SAC over the run folders (one per training seed):
     mean and standard deviation of the overtaking return on a common axis (``num_timesteps`` or
-    ``train_time_s``), each seed's stage switches, and the share of standard SAC's steps at which the
-    curriculum's mean first reaches standard SAC's final mean return (the issue's target: at most one half)."""
+    ``train_time_s``), the seeds behind each point and each seed's own curve, each seed's stage switches, and the
+    share of standard SAC's steps at which the curriculum's mean first reaches standard SAC's final mean return
+    (the issue's target: at most one half). Only points that every seed with data reaches count for the target:
+    while a seed is still training, the final return is that of the last such point and ``complete`` is False."""
     if axis not in ("num_timesteps", "train_time_s"):
         raise SettingError(f"axis must be num_timesteps or train_time_s, got {axis!r}")
     if not runs:
@@ -554,23 +556,30 @@ def learning_curves(
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 mean, std = np.nanmean(values, axis=0), np.nanstd(values, axis=0)
+        with_data = [i for i, c in enumerate(curves) if c["records"]]
+        n_seeds = np.isfinite(values).sum(axis=0)
         result[label] = {
             "x": grid.tolist(), "mean": _nan_to_none(mean), "std": _nan_to_none(std),
-            "seeds_with_data": int(sum(bool(c["records"]) for c in curves)),
+            "n_seeds": n_seeds.tolist(), "seeds_with_data": len(with_data),
+            "per_seed": [_nan_to_none(values[i]) for i in range(len(curves))],
             "stage_switches": [c["stage_switches"] for c in curves],
         }  # fmt: skip
-    std_mean = [v for v in result["standard"]["mean"] if v is not None]
-    result["standard_final_return"] = std_mean[-1] if std_mean else None
-    reach = None
-    if std_mean and axis == "num_timesteps":
-        final = std_mean[-1]
-        for x, v in zip(result["curriculum"]["x"], result["curriculum"]["mean"], strict=True):
-            if v is not None and v >= final:
-                reach = x
-                break
-        total = result["standard"]["x"][-1] if result["standard"]["x"] else None
+
+    def common(label: str) -> list[tuple[float, float]]:
+        data = result[label]
+        return [(x, v) for x, v, n in zip(data["x"], data["mean"], data["n_seeds"], strict=True)
+                if v is not None and n == data["seeds_with_data"]]  # fmt: skip
+
+    standard, curriculum = common("standard"), common("curriculum")
+    result["standard_final_return"] = standard[-1][1] if standard else None
+    result["standard_final_x"] = standard[-1][0] if standard else None
+    # Every run folder has both curves and each curve's last point has every seed.
+    result["complete"] = all(result[k]["n_seeds"][-1:] == [len(runs)] for k in ("standard", "curriculum"))
+    if standard and axis == "num_timesteps":
+        final_x, final = standard[-1]
+        reach = next((x for x, v in curriculum if v >= final), None)
         result["curriculum_steps_to_standard_final"] = reach
-        result["share_of_standard_steps"] = None if reach is None or not total else reach / total
+        result["share_of_standard_steps"] = None if reach is None else reach / final_x
     return result
 
 
@@ -599,8 +608,13 @@ def write_learning_curves(result: dict[str, Any], out: str | os.PathLike[str]) -
         mean = np.array([np.nan if v is None else v for v in data["mean"]])
         std = np.array([np.nan if v is None else v for v in data["std"]])
         name = f"curriculum SAC (agent {result['curriculum_agent']})" if label == "curriculum" else "standard SAC"
-        ax.plot(x, mean, color=color, label=f"{name}, {data['seeds_with_data']} seeds")
-        ax.fill_between(x, mean - std, mean + std, color=color, alpha=0.25)
+        every = np.array(data["n_seeds"]) == data["seeds_with_data"]
+        # Solid where every seed has a point, dotted where some are still training; each seed thin.
+        ax.plot(x, np.where(every, mean, np.nan), color=color, label=f"{name}, mean of {data['seeds_with_data']} seeds")
+        ax.plot(x, mean, color=color, linestyle=":", linewidth=1)
+        ax.fill_between(x, mean - std, mean + std, where=every, color=color, alpha=0.25)
+        for seed_values in data["per_seed"]:
+            ax.plot(x, [np.nan if v is None else v for v in seed_values], color=color, linewidth=0.6, alpha=0.4)
     if result["axis"] == "num_timesteps":
         switches = [s["num_timesteps"] for seed in result["curriculum"]["stage_switches"] for s in seed
                     if s["stage"] == "stage2" and s["num_timesteps"] is not None]  # fmt: skip
