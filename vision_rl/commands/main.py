@@ -88,7 +88,7 @@ COMMANDS: dict[str, Command] = {
         "run_record_demos",
     ),
     "train-baseline": Command(
-        "a Table III baseline (bc, gail, td3, sac) on the single-car race", f"{_C}.train_baseline",
+        "a Table III baseline (bc, gail, td3, sac, dreamer) on the single-car race", f"{_C}.train_baseline",
         "TrainBaselineOptions", "run_train_baseline",
     ),
     "table3": Command("Table III: AI and baselines on the protocol, beside the paper", f"{_C}.table3", "Table3Options",

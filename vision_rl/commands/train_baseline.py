@@ -1,4 +1,5 @@
-"""`train-baseline`: a Table III baseline of the overtaking paper (bc, gail, td3, sac) on the single-car race."""
+"""`train-baseline`: a Table III baseline of the overtaking paper (bc, gail, td3, sac, dreamer) on the single-car
+race."""
 
 from __future__ import annotations
 
@@ -16,8 +17,8 @@ QUICK = dict(steps=300, cars=2, learning_starts=100, batch_size=32, buffer_size=
 
 @dataclass(frozen=True)
 class TrainBaselineOptions(TrainBaselineConfig):
-    """A Table III baseline on the single-car race (MLP 2 x 256, the 96-D observation); online ones (gail, td3, sac)
-    continue their run folder when run again."""
+    """A Table III baseline on the single-car race (MLP 2 x 256, the 96-D observation); online ones (gail, td3, sac,
+    dreamer) continue their run folder when run again."""
 
     quick: bool = False
     """Tiny sizes for options left at their defaults: seconds."""

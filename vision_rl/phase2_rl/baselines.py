@@ -116,7 +116,8 @@ class BaselineError(ValueError):
 
 @dataclass(frozen=True)
 class TrainBaselineConfig:
-    """A Table III baseline (bc, gail, td3 or sac) on the single-car race, MLP 2 x 256, the 96-D observation."""
+    """A Table III baseline (bc, gail, td3, sac or dreamer) on the single-car race, MLP 2 x 256, the 96-D
+    observation."""
 
     algo: str = "bc"
     """bc, gail, td3, sac or dreamer (the PlaNet row)."""
@@ -999,7 +1000,6 @@ def train_dreamer(cfg: TrainBaselineConfig, progress: Progress | None = None) ->
                     "transitions_per_s": round(steps_now / wall_s, 1) if wall_s > 0 else None,
                     "updates_per_s": round(updates_now / wall_s, 2) if wall_s > 0 else None},
     }  # fmt: skip
-
 
 
 def train_baseline(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict[str, Any]:
