@@ -36,6 +36,9 @@ def test_the_table_times_the_ai_and_the_runs_beside_the_paper(bc_run, small_trac
     assert bc["run"] == str(bc_run) and bc["status"] in ("timed", "DNF") and len(bc["runs"]) == 1
     if bc["lap_time_s"] is not None:
         assert bc["lap_ratio_to_ai"] == pytest.approx(bc["lap_time_s"] / rows["ai"]["lap_time_s"])
+    over = bc["over_training_seeds"]
+    assert over["n_training_seeds"] == 1 and over["finished"] == f"{bc['finished']}/1"
+    assert over["lap_time_mean_s"] == bc["lap_time_s"] and over["lap_time_std_s"] is None
     assert bc["paper"]["lap_ratio_to_ai"] == pytest.approx(108.0 / 86.9)
     assert bc["paper"]["speed_ratio_to_ai"] == pytest.approx(146.8 / 184.4)
     for key in ("gail", "sac", "td3", "planet"):
@@ -53,3 +56,8 @@ def test_found_runs_of_another_track_are_skipped_with_the_reason(bc_run, tmp_pat
     assert result["skipped"][0]["run"] == str(bc_run) and "not 'expressway'" in result["skipped"][0]["reason"]
     assert {row["key"]: row["status"] for row in result["rows"]}["bc"] == "not trained"
     assert result["rows"][0]["status"] == "DNF" and result["rows"][0]["lap_time_s"] is None  # 1 s: no lap
+
+
+def test_a_run_named_twice_is_refused_as_one_training_seed(bc_run, small_track):
+    with pytest.raises(ValueError, match="more than once"):
+        table3(Table3Config(runs=f"{bc_run},{bc_run}", track=small_track, car="tt_cup", seeds=1, laps=1))

@@ -46,8 +46,15 @@ def format_table3(result: dict[str, Any]) -> list[str]:
                          + "; ".join(row.get("dnf_reasons") or []))  # fmt: skip
         if row.get("reason"):
             lines.append(f"  {row['name']}: {row['reason']}")
-        if row.get("run"):
-            lines.append(f"  {row['name']}: {row['run']} ({row.get('num_timesteps')} steps)")
+        over = row.get("over_training_seeds")
+        if over:
+            spread = "" if over["lap_time_std_s"] is None else f" +- {_num(over['lap_time_std_s'])}"
+            mean = "no lap" if over["lap_time_mean_s"] is None else f"lap mean {_num(over['lap_time_mean_s'])}{spread} s"
+            lines.append(f"  {row['name']}: {over['n_training_seeds']} training seeds, {mean} over the "
+                         f"{over['n_training_seeds_finished']} that finished, starts finished {over['finished']}")
+        for run in row.get("runs") or []:
+            lap = "DNF" if run["lap_time_s"] is None else f"{_num(run['lap_time_s'])} s"
+            lines.append(f"  {row['name']}: {run['run']} (seed {run['seed']}, {run['num_timesteps']} steps): {lap}")
     for skip in result["skipped"]:
         lines.append(f"  skipped {skip['run']}: {skip['reason']}")
     return lines
