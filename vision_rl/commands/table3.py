@@ -49,7 +49,8 @@ def format_table3(result: dict[str, Any]) -> list[str]:
         over = row.get("over_training_seeds")
         if over:
             spread = "" if over["lap_time_std_s"] is None else f" +- {_num(over['lap_time_std_s'])}"
-            mean = "no lap" if over["lap_time_mean_s"] is None else f"lap mean {_num(over['lap_time_mean_s'])}{spread} s"
+            mean_s = over["lap_time_mean_s"]
+            mean = "no lap" if mean_s is None else f"lap mean {_num(mean_s)}{spread} s"
             lines.append(f"  {row['name']}: {over['n_training_seeds']} training seeds, {mean} over the "
                          f"{over['n_training_seeds_finished']} that finished, starts finished {over['finished']}")
         for run in row.get("runs") or []:
