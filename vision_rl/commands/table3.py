@@ -51,8 +51,8 @@ def format_table3(result: dict[str, Any]) -> list[str]:
             spread = "" if over["lap_time_std_s"] is None else f" +- {_num(over['lap_time_std_s'])}"
             mean_s = over["lap_time_mean_s"]
             mean = "no lap" if mean_s is None else f"lap mean {_num(mean_s)}{spread} s"
-            lines.append(f"  {row['name']}: {over['n_training_seeds']} training seeds, {mean} over the "
-                         f"{over['n_training_seeds_finished']} that finished, starts finished {over['finished']}")
+            lines.append(f"  {row['name']}: over {over['n_training_seeds']} training seed(s), {mean} (of the "
+                         f"{over['n_training_seeds_finished']} with a lap), starts finished {over['finished']}")
         for run in row.get("runs") or []:
             lap = "DNF" if run["lap_time_s"] is None else f"{_num(run['lap_time_s'])} s"
             lines.append(f"  {row['name']}: {run['run']} (seed {run['seed']}, {run['num_timesteps']} steps): {lap}")

@@ -711,7 +711,7 @@ class _OnlineSession:
         record = {
             "num_timesteps": int(model.num_timesteps), "train_time_s": round(self.train_time_s, 2),
             "n_updates": int(getattr(model, "_n_updates", 0)), "lap_time_s": summary["best_lap_time_s"],
-            "finished": summary["n_finished"],
+            "finished": summary["n_finished"], "dnf_reasons": [seed["dnf_reason"] for seed in summary["seeds"]],
             "ep_rew_mean": float(np.mean([e["r"] for e in episodes])) if episodes else None,
             "eval_time_s": round(eval_time_s, 2),
         }  # fmt: skip
@@ -938,6 +938,7 @@ def train_dreamer(cfg: TrainBaselineConfig, progress: Progress | None = None) ->
         eval_time_s += time.perf_counter() - t0
         last_eval = {"num_timesteps": steps, "train_time_s": round(train_time_s(), 2), "n_updates": agent.n_updates,
                      "lap_time_s": summary["best_lap_time_s"], "finished": summary["n_finished"],
+                     "dnf_reasons": [seed["dnf_reason"] for seed in summary["seeds"]],
                      "ep_rew_mean": float(np.mean(episode_returns[-100:])) if episode_returns else None,
                      "eval_time_s": round(time.perf_counter() - t0, 2), **last_terms}  # fmt: skip
         _append_metrics(out, last_eval)
