@@ -183,3 +183,16 @@ def test_n_step_returns_sum_the_rewards_before_the_critics_bootstrap(small_track
         run.close()
     with pytest.raises(ValueError, match="--n-step 3 needs one car's steps in a row"):
         train_policy(tiny_train_config(small_track, tmp_path / "w2", n_step=3, workers=2))
+
+
+def test_read_metrics_drops_the_evaluations_a_resume_replaced(tmp_path):
+    # killed after the 300-step evaluation, resumed from the 200-step checkpoint: the first 300 is another policy's
+    lines = [{"num_timesteps": 100, "lap_time_s": 99.0}, {"num_timesteps": 200, "lap_time_s": 98.0},
+             {"event": "sampler_lost", "num_timesteps": 250}, {"num_timesteps": 300, "lap_time_s": 90.0},
+             {"num_timesteps": 300, "lap_time_s": 97.0}, {"num_timesteps": 400, "lap_time_s": 96.0}]  # fmt: skip
+    path = tmp_path / "metrics.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in lines) + '{"num_timesteps": 5')  # a torn last line
+    records = read_metrics(path)
+    assert [(r["num_timesteps"], r["lap_time_s"]) for r in records] == [(100, 99.0), (200, 98.0), (300, 97.0),
+                                                                        (400, 96.0)]  # fmt: skip
+    assert [r.get("event") for r in read_metrics(path, events=True)] == [None, None, "sampler_lost", None, None]

@@ -93,6 +93,7 @@ from vision_rl.phase2_rl.train import (
     sampler_setup,
     torch_device,
 )
+from vision_rl.phase2_rl.train import read_metrics as read_train_metrics
 
 OBSERVATION = "overtaking"
 OBS_DIM = len(OBS_NAMES[OBSERVATION])
@@ -831,20 +832,11 @@ def _train_stages(cfg: TrainOvertakingConfig, cluster: Any, progress: Progress |
 
 
 def read_metrics(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
-    """The evaluation records of a metrics.jsonl (a torn last line, from a kill mid-write, is skipped; so are the
-    lines of events such as a lost sampler)."""
-    records = []
+    """The evaluation records of a stage's metrics.jsonl, as :func:`~vision_rl.phase2_rl.train.read_metrics` reads
+    them (a torn last line, event lines and the evaluations a resume from an older checkpoint replaced are left
+    out); none when the stage has not started."""
     path = Path(path)
-    if not path.is_file():
-        return records
-    for line in path.read_text().splitlines():
-        try:
-            record = json.loads(line)
-        except ValueError:
-            continue
-        if "event" not in record:
-            records.append(record)
-    return records
+    return read_train_metrics(path) if path.is_file() else []
 
 
 def learning_curve(out: str | os.PathLike[str], agent: str) -> dict[str, Any]:

@@ -648,14 +648,22 @@ def sampler_setup(
 
 def read_metrics(path: str | os.PathLike[str], events: bool = False) -> list[dict[str, Any]]:
     """The evaluation records of a run's metrics.jsonl (a torn last line, from a kill mid-write, is skipped); with
-    ``events`` also the lines that record events (a lost sampler: ``{"event": "sampler_lost", ...}``)."""
-    records = []
+    ``events`` also the lines that record events (a lost sampler: ``{"event": "sampler_lost", ...}``).
+
+    A run killed after an evaluation resumes from its last checkpoint, which may be older, and evaluates those steps
+    again with the policy that now exists: an evaluation at step N drops the earlier ones at N or later, so every
+    record left belongs to the run's history."""
+    records: list[dict[str, Any]] = []
     for line in Path(path).read_text().splitlines():
         try:
             record = json.loads(line)
         except ValueError:
             continue
-        if events or "event" not in record:
+        if "event" not in record and "num_timesteps" in record:
+            step = record["num_timesteps"]
+            records = [r for r in records if "event" in r or r.get("num_timesteps", -1) < step]
+            records.append(record)
+        elif events or "event" not in record:
             records.append(record)
     return records
 
