@@ -50,9 +50,10 @@ def format_table3(result: dict[str, Any]) -> list[str]:
         if over:
             spread = "" if over["lap_time_std_s"] is None else f" +- {_num(over['lap_time_std_s'])}"
             mean_s = over["lap_time_mean_s"]
-            mean = "no lap" if mean_s is None else f"lap mean {_num(mean_s)}{spread} s"
-            lines.append(f"  {row['name']}: over {over['n_training_seeds']} training seed(s), {mean} (of the "
-                         f"{over['n_training_seeds_finished']} with a lap), starts finished {over['finished']}")
+            mean = ("no lap" if mean_s is None else
+                    f"lap mean {_num(mean_s)}{spread} s (of the {over['n_training_seeds_finished']} with a lap)")
+            lines.append(f"  {row['name']}: over {over['n_training_seeds']} training seed(s), {mean}, "
+                         f"starts finished {over['finished']}")  # fmt: skip
         for run in row.get("runs") or []:
             lap = "DNF" if run["lap_time_s"] is None else f"{_num(run['lap_time_s'])} s"
             lines.append(f"  {row['name']}: {run['run']} (seed {run['seed']}, {run['num_timesteps']} steps): {lap}")
