@@ -193,3 +193,33 @@ def test_analysis_figures_and_the_driver_view_at_each_pass(small_track, tmp_path
     view = np.asarray(Image.open(files["frames"][0]))
     assert view.shape == (280, 470, 3) and view.std() > 10.0  # a rendered scene, not a blank image
     assert json.loads(Path(files["json"]).read_text())["agent"]["moments"] == record["moments"]
+
+
+class BrakingInTurn:
+    """The built-in AI in every run, except that run r >= 1 brakes to a stop from r x 0.33 s on: the runs get stuck
+    one by one, between trace samples, while run 0 drives to the time limit."""
+
+    def __init__(self) -> None:
+        self.ai = BuiltinAI()
+        self.control_dt_s = self.ai.control_dt_s
+
+    def reset(self, world, car_ids) -> None:
+        self.ai.reset(world, car_ids)
+        self.ids = np.asarray(car_ids)
+
+    def act(self, state) -> np.ndarray:
+        action = np.array(self.ai.act(state), dtype=np.float64)
+        braking = state.time_s[self.ids] >= 0.33 * np.arange(len(self.ids))
+        braking[0] = False
+        action[braking] = (0.0, -1.0)
+        return action
+
+
+def test_runs_that_end_between_trace_samples_leave_the_others_traces_whole(small_track):
+    runs, traces = run_setting(BrakingInTurn(), small_track, "tt_cup", "A", runs=5, time_limit_s=12.0)
+    assert runs[0]["end"] == "time limit" and all(run["end"].startswith("stuck") for run in runs[1:])
+    ends = [run["travel_time_s"] for run in runs[1:]]
+    assert len(set(ends)) == 4  # four separate end events
+    for run, trace in zip(runs, traces):
+        assert trace.time_s[-1] == pytest.approx(run["travel_time_s"])  # each trace ends where its run ended
+        assert np.all(np.diff(trace.time_s) > 0.0) and np.all(np.diff(trace.time_s) <= TRACE_DT_S + 1e-9)

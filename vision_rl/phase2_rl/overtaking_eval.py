@@ -186,8 +186,10 @@ def run_setting(
         stuck_now &= active & ~led
         last = step == steps - 1
         ended = led | stuck_now | (active & last)
-        if (step + 1) % trace_every == 0 or ended.any():
+        if (step + 1) % trace_every == 0:
             record(np.flatnonzero(active))
+        elif ended.any():  # only the runs that end get a sample off the grid, so rows_max bounds every run
+            record(np.flatnonzero(ended))
         if ended.any():
             idx = np.flatnonzero(ended)
             end["travel_time_s"][idx] = st.time_s[ego[idx]]
