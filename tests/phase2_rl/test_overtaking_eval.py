@@ -220,6 +220,6 @@ def test_runs_that_end_between_trace_samples_leave_the_others_traces_whole(small
     assert runs[0]["end"] == "time limit" and all(run["end"].startswith("stuck") for run in runs[1:])
     ends = [run["travel_time_s"] for run in runs[1:]]
     assert len(set(ends)) == 4  # four separate end events
-    for run, trace in zip(runs, traces):
+    for run, trace in zip(runs, traces, strict=True):
         assert trace.time_s[-1] == pytest.approx(run["travel_time_s"])  # each trace ends where its run ended
         assert np.all(np.diff(trace.time_s) > 0.0) and np.all(np.diff(trace.time_s) <= TRACE_DT_S + 1e-9)
