@@ -42,7 +42,7 @@ def format_table3(result: dict[str, Any]) -> list[str]:
         lines.append(f"  {row['name']:<32} {ours} | {theirs}")
     for row in result["rows"]:
         if row["status"] == "DNF" or row.get("dnf_reasons"):
-            lines.append(f"  {row['name']}: {row.get('finished')}/{row.get('seeds')} seeds finished; "
+            lines.append(f"  {row['name']}: {row.get('finished')}/{row.get('seeds')} starts finished; "
                          + "; ".join(row.get("dnf_reasons") or []))  # fmt: skip
         if row.get("reason"):
             lines.append(f"  {row['name']}: {row['reason']}")
@@ -56,7 +56,8 @@ def format_table3(result: dict[str, Any]) -> list[str]:
                          f"starts finished {over['finished']}")  # fmt: skip
         for run in row.get("runs") or []:
             lap = "DNF" if run["lap_time_s"] is None else f"{_num(run['lap_time_s'])} s"
-            lines.append(f"  {row['name']}: {run['run']} (seed {run['seed']}, {run['num_timesteps']} steps): {lap}")
+            steps = f", {run['num_timesteps']} steps" if run["num_timesteps"] else ""  # bc trains on no env steps
+            lines.append(f"  {row['name']}: {run['run']} (seed {run['seed']}{steps}): {lap}")
     for skip in result["skipped"]:
         lines.append(f"  skipped {skip['run']}: {skip['reason']}")
     return lines
