@@ -167,8 +167,9 @@ def _kill_shard_once(index: int, after_frames: int):
 def test_a_worker_killed_mid_shard_fails_only_its_shard_and_resume_redoes_only_it(
     gl_available, ray_local, tmp_path, fault
 ):
-    # Two laps a shard (about 400 frames), every batch flushed: the kill lands mid-shard with frames on disk.
-    cfg = _config(tmp_path, laps=4, task_retries=0, flush_interval_s=0.0)
+    # Six laps a shard (about 1,200 frames), every batch flushed: the kill lands mid-shard with frames on disk (with
+    # two laps, an idle machine finished the shard within one report interval, before the kill).
+    cfg = _config(tmp_path, laps=12, task_retries=0, flush_interval_s=0.0)
     on_shards, killed = _kill_shard_once(1, after_frames=20)
     first = capture_sharded(cfg, on_shards=on_shards)
     assert killed, "the shard finished before it could be killed"
