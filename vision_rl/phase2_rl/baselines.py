@@ -275,6 +275,13 @@ def _read_json(path: Path) -> dict[str, Any]:
     return data
 
 
+def _eval_figures(summary: dict[str, Any]) -> dict[str, Any]:
+    """A periodic evaluation's protocol figures in metrics.jsonl: the best lap, the starts finished and why each
+    start did not (None where it finished)."""
+    return {"lap_time_s": summary["best_lap_time_s"], "finished": summary["n_finished"],
+            "dnf_reasons": [seed["dnf_reason"] for seed in summary["seeds"]]}  # fmt: skip
+
+
 def _append_metrics(folder: Path, record: dict[str, Any]) -> None:
     with open(folder / METRICS_NAME, "a") as f:
         f.write(json.dumps(record) + "\n")
@@ -710,8 +717,7 @@ class _OnlineSession:
         episodes = list(model.ep_info_buffer or [])
         record = {
             "num_timesteps": int(model.num_timesteps), "train_time_s": round(self.train_time_s, 2),
-            "n_updates": int(getattr(model, "_n_updates", 0)), "lap_time_s": summary["best_lap_time_s"],
-            "finished": summary["n_finished"], "dnf_reasons": [seed["dnf_reason"] for seed in summary["seeds"]],
+            "n_updates": int(getattr(model, "_n_updates", 0)), **_eval_figures(summary),
             "ep_rew_mean": float(np.mean([e["r"] for e in episodes])) if episodes else None,
             "eval_time_s": round(eval_time_s, 2),
         }  # fmt: skip
@@ -937,8 +943,7 @@ def train_dreamer(cfg: TrainBaselineConfig, progress: Progress | None = None) ->
             driver.close()
         eval_time_s += time.perf_counter() - t0
         last_eval = {"num_timesteps": steps, "train_time_s": round(train_time_s(), 2), "n_updates": agent.n_updates,
-                     "lap_time_s": summary["best_lap_time_s"], "finished": summary["n_finished"],
-                     "dnf_reasons": [seed["dnf_reason"] for seed in summary["seeds"]],
+                     **_eval_figures(summary),
                      "ep_rew_mean": float(np.mean(episode_returns[-100:])) if episode_returns else None,
                      "eval_time_s": round(time.perf_counter() - t0, 2), **last_terms}  # fmt: skip
         _append_metrics(out, last_eval)
