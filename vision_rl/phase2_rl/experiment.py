@@ -194,7 +194,7 @@ def plot_learning_curves(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5), sharey=True)
     for k, (label, curves) in enumerate(series):
         color = f"C{k}"
         mean = np.array([np.nan if v is None else v for v in curves["mean_lap_time_s"]])
@@ -222,8 +222,11 @@ def plot_learning_curves(
     top.set_xlabel("the paper's epochs (20 trials of 100 s)")
     axes[1].set_xlabel("training time (min; evaluations excluded)")
     axes[0].set_ylabel("protocol lap 2, s (missing: no seed finished)")
-    axes[0].legend(fontsize=7)
-    fig.tight_layout()
+    # Below the axes, so that the legend never hides a curve or a tick label.
+    handles, labels = axes[0].get_legend_handles_labels()
+    n_rows = -(-len(labels) // 2)
+    fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=7)
+    fig.tight_layout(rect=(0, 0.035 * n_rows, 1, 1))
     path = Path(path)
     atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     plt.close(fig)
