@@ -1,8 +1,10 @@
 """DDPG agents and runs: another variant's checkpoint, frames of another size, a track without a racing line, a
-pickle that would run code, a changed replay chunk."""
+pickle that would run code, a changed replay chunk, a kill after the last checkpoint, runs compare-ddpg cannot
+compare."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +12,7 @@ import pytest
 import torch
 
 from tests.phase2_rl.conftest import STADIUM, stadium_csv
+from tests.phase2_rl.test_ddpg_compare import hand_made_run
 from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingError, goal_line
 from vision_rl.phase2_rl.ddpg import (
     DDPGAgent,
@@ -114,3 +117,49 @@ def test_a_changed_replay_chunk_is_refused(tmp_path, fault):
     with pytest.raises(ArtifactError, match="variant") as excinfo:
         load_replay(FrameReplay(20, 1, HW), tmp_path / "replay", {"variant": "symmetric"})
     fault.refused("a replay buffer of another variant", str(excinfo.value))
+
+
+def test_episodes_logged_after_the_last_checkpoint_are_dropped_on_resume(track, tmp_path, fault):
+    from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig, train_ddpg
+
+    base = dict(variant="state-actor", track=track, cars=2, steps=10**7, out=str(tmp_path / "run"), buffer_size=200,
+                learning_starts=8, batch_size=8, eval_every_steps=0, eval_seeds=0, checkpoint_every_steps=0,
+                train_minutes=0.02)  # fmt: skip
+    first = train_ddpg(TrainDDPGConfig(**base))
+    episodes = tmp_path / "run" / "episodes.jsonl"
+    logged = episodes.read_text().splitlines()
+    assert len(logged) == first["episodes"] > 0
+    # What a kill after the checkpoint leaves: an episode the resume drives again, and a line torn mid-write.
+    with open(episodes, "a") as f:
+        f.write(json.dumps({"episode": first["episodes"], "num_steps": first["num_steps"]}) + '\n{"episode": 9, "nu')
+    second = train_ddpg(TrainDDPGConfig(**{**base, "train_minutes": 0.03, "resume": True}))
+    records = [json.loads(line) for line in episodes.read_text().splitlines()]
+    assert [r["episode"] for r in records] == list(range(second["episodes"]))  # each episode once, in order
+    assert records[: len(logged)] == [json.loads(line) for line in logged]
+    fault.recovered("train-ddpg killed after its last checkpoint, then resumed",
+                    "episodes.jsonl keeps the checkpoint's episodes and drops those driven again and a torn line")
+
+
+def test_runs_compare_ddpg_cannot_compare_are_refused(tmp_path, fault):
+    from vision_rl.phase2_rl.ddpg_compare import compare_runs
+
+    a = hand_made_run(tmp_path / "a", "asymmetric", 10.0, [(1, 100, 0)])
+    with pytest.raises(DDPGError, match="not a train-ddpg run folder") as excinfo:
+        compare_runs([a, tmp_path])
+    fault.refused("compare-ddpg given a folder that is not a train-ddpg run", str(excinfo.value))
+    with pytest.raises(DDPGError, match="1 names for 2 runs") as excinfo:
+        compare_runs([a, a], names=["only one"])
+    fault.refused("compare-ddpg with fewer --names than runs", str(excinfo.value))
+    other = hand_made_run(tmp_path / "b", "symmetric", 10.0, [(1, 100, 0)], track="Spa")
+    with pytest.raises(DDPGError, match="different tracks or cars") as excinfo:
+        compare_runs([a, other])
+    fault.refused("compare-ddpg of runs on two tracks", str(excinfo.value))
+    with open(a / "episodes.jsonl", "a") as f:
+        f.write('{"train_time_s": 70.0, "dist')
+    with pytest.raises(DDPGError, match="line 2 is not an episode record") as excinfo:
+        compare_runs([a])
+    fault.refused("compare-ddpg of a run whose episodes.jsonl has a torn line", str(excinfo.value))
+    (a / "episodes.jsonl").unlink()
+    with pytest.raises(DDPGError, match="has not finished an episode yet") as excinfo:
+        compare_runs([a])
+    fault.refused("compare-ddpg of a run with no finished episode", str(excinfo.value))

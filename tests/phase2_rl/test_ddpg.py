@@ -12,11 +12,14 @@ import torch
 from tests.phase2_rl.conftest import STADIUM, stadium_csv
 from vision_rl.envs.pixel_racing import PixelRacingConfig
 from vision_rl.phase2_rl.ddpg import (
+    BENCH_LAYOUTS,
     DDPGAgent,
+    DDPGError,
     DDPGHyper,
     FrameReplay,
     OUNoise,
     PixelActor,
+    bench_updates,
     ddpg_fingerprint,
     load_agent,
     load_replay,
@@ -204,3 +207,32 @@ def test_train_ddpg_tiny_run_evaluates_saves_and_resumes(gl_available, track, tm
                  "--no-save", "--reward-plot", str(png), "--reward-laps", "2"]) == 0  # fmt: skip
     profile = json.loads(png.with_suffix(".json").read_text())
     assert png.stat().st_size > 1000 and [lap["lap"] for lap in profile["laps"]] == [1, 2]
+
+
+def test_bench_times_each_layout_and_refuses_an_unknown_one(track):
+    """Eager, channels-last and compiled trunks each complete timed updates; a misspelt layout is one clear error."""
+    env = _env(track)
+    for layout in BENCH_LAYOUTS:
+        figures = bench_updates(DDPGHyper(batch_size=4), env, updates=1, warmup=1, layout=layout)
+        assert figures["updates_per_s"] > 0
+        assert figures["ms_per_update"] == pytest.approx(1000 / figures["updates_per_s"])
+    with pytest.raises(DDPGError, match="layout must be one of"):
+        bench_updates(DDPGHyper(batch_size=4), env, updates=1, layout="channels-last")
+
+
+def test_train_minutes_stop_a_run_and_a_resume_with_more_continues_it(track, tmp_path):
+    """The equal wall-clock budget: a run stops when its training time reaches --train-minutes, long before its
+    steps, and a resume with a larger budget trains on from where it stopped."""
+    from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig, train_ddpg
+
+    base = dict(variant="state-actor", track=track, cars=2, steps=10**7, out=str(tmp_path / "run"), buffer_size=200,
+                learning_starts=8, batch_size=8, eval_every_steps=0, eval_seeds=0, checkpoint_every_steps=0,
+                train_minutes=0.02)  # fmt: skip
+    first = train_ddpg(TrainDDPGConfig(**base))
+    assert first["stopped_by"] == "train_minutes" and 0 < first["num_steps"] < 10**7
+    assert 1.2 <= first["train_time_s"] < 10.0
+    second = train_ddpg(TrainDDPGConfig(**{**base, "train_minutes": 0.04, "resume": True}))
+    assert second["stopped_by"] == "train_minutes" and second["num_steps"] > first["num_steps"]
+    assert 2.4 <= second["train_time_s"] < 12.0
+    with pytest.raises(ValueError, match="--train-minutes -1"):
+        train_ddpg(TrainDDPGConfig(**{**base, "train_minutes": -1.0, "force": True}))

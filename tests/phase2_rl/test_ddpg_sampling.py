@@ -67,3 +67,10 @@ def test_a_samplers_steps_reach_the_frame_replay_as_its_world_gives_them(ray_loc
     assert buffer.size == 24 and ended > 0  # the episodes that ended took their two rows
     episodes = (out / "episodes.jsonl").read_text().splitlines()
     assert len(episodes) == ended and all(json.loads(e)["worker"] == 0 for e in episodes)
+
+
+def test_train_minutes_end_a_sampled_session(ray_local, track, tmp_path):
+    """With samplers, the learner ends the session when the run's --train-minutes are up, not at its steps."""
+    result = train_ddpg(ddpg_config(track, tmp_path / "run", variant="state-actor", steps=10**7, train_minutes=0.03))
+    assert result["stopped_by"] == "train_minutes" and 0 < result["num_steps"] < 10**7
+    assert result["train_time_s"] >= 1.8 and result["sampling"]["samplers_lost"] == []

@@ -99,10 +99,14 @@ def run_bench_render(opts: BenchRenderOptions) -> int:
 @dataclass(frozen=True)
 class BenchDDPGOptions:
     """Measure the DDPG agent's update rate at the paper's batch 32 on random 89x120 frames, for each variant, in
-    eager (NCHW) and channels-last memory layout, side by side in one run."""
+    eager (NCHW) and channels-last memory layout and with its conv trunks compiled (torch.compile), side by side in
+    one run."""
 
     variants: str = "asymmetric,symmetric,state-actor"
     """Variants to time, comma-separated."""
+    layouts: str = "eager,channels_last,compiled"
+    """Layouts of the convolutions to time, comma-separated: eager (NCHW), channels_last, compiled (channels-last
+    through torch.compile, which needs a C++ compiler; it is compiled in the untimed updates)."""
     updates: int = 5
     """Timed updates per case (after 2 untimed)."""
     torch_threads: int = 1
@@ -115,23 +119,27 @@ def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
     import torch
 
     from vision_rl.envs.pixel_racing import PixelRacingConfig
-    from vision_rl.phase2_rl.ddpg import DDPGHyper, bench_updates
+    from vision_rl.phase2_rl.ddpg import BENCH_LAYOUTS, DDPGHyper, bench_updates
 
     if opts.updates < 1 or opts.torch_threads < 1:
         raise ValueError("--updates and --torch-threads must be >= 1")
+    layouts = [v.strip() for v in opts.layouts.split(",") if v.strip()]
+    if not layouts or any(v not in BENCH_LAYOUTS for v in layouts):
+        raise ValueError(f"--layouts {opts.layouts!r}: choose from {', '.join(BENCH_LAYOUTS)}")
     torch.set_num_threads(opts.torch_threads)
     rows = []
     for variant in [v.strip() for v in opts.variants.split(",") if v.strip()]:
         env = PixelRacingConfig(frames=variant != "state-actor")
-        for channels_last in (False, True):
-            figures = bench_updates(DDPGHyper(variant=variant, channels_last=channels_last), env, opts.updates)
+        # The state-only actor has no convolutions: one row says what it costs.
+        for layout in layouts if env.frames else layouts[:1]:
+            figures = bench_updates(DDPGHyper(variant=variant), env, opts.updates, layout=layout)
             rounded = {k: round(v, 3) for k, v in figures.items()}
-            rows.append({"variant": variant, "channels_last": channels_last, "batch_size": 32,
-                         "image_hw_px": list(env.image_hw_px), **rounded})  # fmt: skip
+            rows.append({"variant": variant, "layout": layout if env.frames else "no convolutions",
+                         "batch_size": 32, "image_hw_px": list(env.image_hw_px), **rounded})  # fmt: skip
 
     def text(result):
         return [
-            f"{r['variant']:<12} {'channels-last' if r['channels_last'] else 'eager (NCHW)':<14} "
+            f"{r['variant']:<12} {r['layout']:<16} "
             f"{r['updates_per_s']:8.2f} updates/s  ({r['ms_per_update']:.0f} ms each)"
             for r in result["rows"]
         ]

@@ -66,3 +66,48 @@ def run_evaluate_ddpg(opts: EvaluateDDPGOptions) -> int:
         write_json(Path(result["reward_json"]), profile)
     emit(result, opts.json, format_timing)
     return 0
+
+
+@dataclass(frozen=True)
+class CompareDDPGOptions:
+    """train-ddpg runs side by side at equal training time: distance per training episode against training minutes
+    and episodes, and each run's first completed lap (PNG, and its numbers as JSON beside it)."""
+
+    runs: str = ""
+    """train-ddpg run folders, comma-separated (one track and car)."""
+    names: str = ""
+    """Their names in the figure, comma-separated (default: variant and seed)."""
+    bin_minutes: float = 5.0
+    """Training minutes per point of the time axis."""
+    out: str = "ddpg_compare.png"
+    """The figure (PNG); the numbers go beside it as .json."""
+    json: bool = False
+    """Print the result as JSON."""
+
+
+def format_compare(result: dict) -> list[str]:
+    lines = [f"{result['track']} / {result['car']}: {len(result['runs'])} runs over the common "
+             f"{result['common_minutes']:.1f} training minutes; distance per episode over its last third:"]  # fmt: skip
+    for r in result["runs"]:
+        distance = "none" if r["mean_distance_last_m"] is None else f"{r['mean_distance_last_m']:.0f} m"
+        lap = "no lap" if r["first_lap_episode"] is None else (
+            f"first lap in episode {r['first_lap_episode']} after {r['first_lap_minutes']:.1f} min")
+        lines.append(f"  {r['name']:<20} {distance:>8} (best {r['best_distance_m'] or 0:.0f} m), {r['episodes']} "
+                     f"episodes, {r['updates']} updates ({r['updates_per_s']:.2f}/s); {lap}")  # fmt: skip
+    return [*lines, f"figure: {result['figure']}   numbers: {result['json']}"]
+
+
+def run_compare_ddpg(opts: CompareDDPGOptions) -> int:
+    from pathlib import Path
+
+    from vision_rl.phase2_rl.ddpg_compare import compare_runs, plot_comparison
+    from vision_rl.phase2_rl.persist import write_json
+
+    runs = [r.strip() for r in opts.runs.split(",") if r.strip()]
+    names = [n.strip() for n in opts.names.split(",") if n.strip()]
+    result = compare_runs(runs, names, opts.bin_minutes)
+    result["figure"] = str(plot_comparison(result, opts.out))
+    result["json"] = str(Path(opts.out).with_suffix(".json"))
+    write_json(result["json"], result)
+    emit(result, opts.json, format_compare)
+    return 0

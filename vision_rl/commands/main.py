@@ -102,6 +102,10 @@ COMMANDS: dict[str, Command] = {
     "evaluate-ddpg": Command(
         "a DDPG agent through the lap-time protocol", f"{_C}.evaluate_ddpg", "EvaluateDDPGOptions", "run_evaluate_ddpg"
     ),
+    "compare-ddpg": Command(
+        "DDPG runs at equal training time (distance per episode)", f"{_C}.evaluate_ddpg", "CompareDDPGOptions",
+        "run_compare_ddpg",
+    ),
 }  # fmt: skip
 
 

@@ -42,7 +42,7 @@ import pickle
 import time
 import zipfile
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -723,10 +723,25 @@ class DDPGDriver:
 # ------------------------------------------------------------------------------------------------ bench
 
 
+#: Memory layouts and compilation of the convolutions that :func:`bench_updates` times.
+BENCH_LAYOUTS = ("eager", "channels_last", "compiled")
+
+
 def bench_updates(hyper: DDPGHyper, env: PixelRacingConfig, updates: int = 10, warmup: int = 2,
-                  seed: int = 0) -> dict[str, float]:  # fmt: skip
-    """Updates per second at ``hyper.batch_size`` on random frames and states (what the network costs, no sim)."""
+                  seed: int = 0, layout: str = "") -> dict[str, float]:  # fmt: skip
+    """Updates per second at ``hyper.batch_size`` on random frames and states (what the network costs, no sim).
+
+    ``layout`` overrides ``hyper.channels_last``: ``eager`` (NCHW), ``channels_last``, or ``compiled`` (channels-last
+    with every conv trunk through ``torch.compile``; its compilation happens in the untimed warm-up updates)."""
+    if layout and layout not in BENCH_LAYOUTS:
+        raise DDPGError(f"layout must be one of {BENCH_LAYOUTS}, got {layout!r}")
+    if layout:
+        hyper = replace(hyper, channels_last=layout != "eager")
     agent = DDPGAgent(hyper, env, seed=seed)
+    if layout == "compiled":
+        for net in (agent.actor, agent.critic, agent.actor_target, agent.critic_target):
+            if isinstance(getattr(net, "trunk", None), ConvTrunk):
+                net.trunk.net = torch.compile(net.trunk.net)
     rng = np.random.default_rng(seed)
     n = hyper.batch_size
 

@@ -146,10 +146,10 @@ class DDPGLearner(Learner):
     ``restored``: the replay holds rows of an earlier session (each sampler's first observation then starts a new
     row after them). ``on_vector_step(worker, episodes)`` is called after each vector step is stored, with the
     records of the episodes that ended in it; it counts the step and does what the single-process loop does after
-    one (evaluations, checkpoints, progress)."""
+    one (evaluations, checkpoints, progress), and returns False to end the session (the run's time is up)."""
 
     def __init__(self, agent: Any, buffer: Any, cars: int, rng: np.random.Generator, restored: bool,
-                 on_vector_step: Callable[[int, list[dict[str, Any]]], None]) -> None:  # fmt: skip
+                 on_vector_step: Callable[[int, list[dict[str, Any]]], bool]) -> None:  # fmt: skip
         self.agent, self.buffer, self.cars, self.rng = agent, buffer, cars, rng
         self.restored, self.on_vector_step = restored, on_vector_step
         self.steps = 0
@@ -181,7 +181,8 @@ class DDPGLearner(Learner):
                             {key: chunk[f"next_{key}"][k] for key in keys}, done, reset, cars=cols)  # fmt: skip
             self.steps += self.cars
             ended_here = [{**e, "car": int(cols[e["car"]]), "worker": worker} for e in episodes if e["step"] == k]
-            self.on_vector_step(worker, ended_here)
+            if not self.on_vector_step(worker, ended_here):
+                return False
         return True
 
     def update(self) -> None:

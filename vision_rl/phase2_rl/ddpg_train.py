@@ -71,6 +71,9 @@ class TrainDDPGConfig:
     """Cars driving at once, each alone (one frame each per step, rendered in one call)."""
     steps: int = 100_000
     """Transitions to train on (all cars together), including those of a resumed run."""
+    train_minutes: float = 0.0
+    """Also stop once the run's training time (all its sessions, evaluations excluded) reaches this many minutes
+    (0: no limit): the equal wall-clock budget of a comparison of variants, trained in chunks with --resume."""
     seed: int = 0
     """Seed of the networks, the noise and the episodes' start points."""
     out: str = ""
@@ -169,7 +172,7 @@ def check_bounds(cfg: TrainDDPGConfig) -> None:
         "updates_per_step": cfg.updates_per_step >= 0, "eval_every_steps": cfg.eval_every_steps >= 0,
         "eval_seeds": cfg.eval_seeds >= 0, "eval_laps": cfg.eval_laps >= 1,
         "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
+        "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "train_minutes": cfg.train_minutes >= 0,
         "torch_threads": cfg.torch_threads >= 0, "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
     }  # fmt: skip
     for name, ok in checks.items():
@@ -194,6 +197,23 @@ def _read_sidecar(path: Path) -> dict[str, Any]:
     if data.get("format") != SIDECAR_FORMAT:
         raise DDPGError(f"{path}: not a train-ddpg sidecar (no format {SIDECAR_FORMAT!r})")
     return data
+
+
+def _drop_lost_episodes(path: Path, num_steps: int) -> None:
+    """Keep the lines of episodes.jsonl that end before ``num_steps``, the resumed checkpoint's step count: those
+    after it were lost with the kill and are driven again, and a line torn by the kill is no record."""
+    if not path.is_file():
+        return
+    lines = path.read_text().splitlines()
+    kept = []
+    for line in lines:
+        try:
+            if json.loads(line)["num_steps"] < num_steps:
+                kept.append(line)
+        except (ValueError, KeyError, TypeError):
+            continue
+    if len(kept) != len(lines):
+        atomic_write(path, lambda tmp: tmp.write_text("".join(line + "\n" for line in kept)))
 
 
 class _Run:
@@ -228,6 +248,8 @@ class _Run:
         self.num_steps = int(counters.get("num_steps", 0))
         self.episodes = int(counters.get("episodes", 0))
         self.train_time_before_s = float(counters.get("train_time_s", 0.0))
+        if cfg.resume:
+            _drop_lost_episodes(self.out / EPISODES_NAME, self.num_steps)
         self.session_start = time.perf_counter()
         self.last_eval: dict[str, Any] | None = None
         self.driver: DDPGDriver | None = None
@@ -235,6 +257,11 @@ class _Run:
     @property
     def train_time_s(self) -> float:
         return self.train_time_before_s + time.perf_counter() - self.session_start
+
+    @property
+    def out_of_time(self) -> bool:
+        """The run has had its --train-minutes."""
+        return self.cfg.train_minutes > 0 and self.train_time_s >= 60.0 * self.cfg.train_minutes
 
     def counters(self, agent: DDPGAgent) -> dict[str, Any]:
         return {"num_steps": self.num_steps, "n_updates": agent.n_updates, "episodes": self.episodes,
@@ -379,6 +406,7 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
         "n_updates": agent.n_updates,
         "episodes": run.episodes,
         "train_time_s": round(run.train_time_s, 2),
+        "stopped_by": "interrupt" if interrupted else "steps" if run.num_steps >= cfg.steps else "train_minutes",
         "interrupted": interrupted,
         "resumed": cfg.resume,
         "buffer_restored": restored if cfg.resume else None,
@@ -405,7 +433,8 @@ def _learn_here(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: np.random
         buffer.start(obs)
         agent.noise.reset()
         collected = 0
-        while run.num_steps < cfg.steps:
+        run.session_start = time.perf_counter()  # training time starts with the first step, after the set-up
+        while run.num_steps < cfg.steps and not run.out_of_time:
             keys = agent.act(obs, explore=True)
             next_obs, reward, terminated, truncated, info = core.step(keys)
             done = terminated | truncated
@@ -445,11 +474,12 @@ def _learn_with_samplers(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: 
     cfg, env = run.cfg, run.env
     n = env.n_cars
 
-    def on_vector_step(worker: int, episodes: list[dict[str, Any]]) -> None:
+    def on_vector_step(worker: int, episodes: list[dict[str, Any]]) -> bool:
         for record in episodes:
             log_episode({k: v for k, v in record.items() if k != "step"})
         run.num_steps += n
         after_vector_step()
+        return not run.out_of_time
 
     def log_event(record: dict[str, Any]) -> None:
         record = {**record, "num_steps": run.num_steps, "train_time_s": round(run.train_time_s, 2)}
@@ -464,6 +494,7 @@ def _learn_with_samplers(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: 
     )  # fmt: skip
     setup = sampler_setup(run.hyper, env, run.fingerprint, cfg.seed + run.num_steps)
     learner = DDPGLearner(agent, buffer, n, rng, restored, on_vector_step)
+    run.session_start = time.perf_counter()  # training time starts with the samplers, after the set-up
     try:
         return learn_with_samplers(learner, setup, pacing, cluster, log_event=log_event)
     except SamplersLostError as exc:
