@@ -9,8 +9,9 @@ laps, why it ended).
 
 What survives a kill: the agent is saved every ``checkpoint_every_min`` minutes (light: no buffer) and, with the
 buffer, every ``checkpoint_every_steps``; Ctrl-C (and SIGTERM, which the command maps to it) saves everything and
-returns. ``--resume`` continues with the stored agent and buffer; without a saved buffer it collects
-``learning_starts`` transitions before updating again.
+returns. ``--resume`` continues with the stored agent and buffer (without a saved buffer it collects
+``learning_starts`` transitions before updating again) and cuts ``episodes.jsonl`` back to the checkpoint's episodes.
+``--train-minutes`` bounds the run's training time over all its sessions, for comparisons at equal wall-clock.
 """
 
 from __future__ import annotations
