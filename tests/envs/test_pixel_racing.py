@@ -140,6 +140,20 @@ def test_reward_in_the_environment_is_speed_less_line_distance(small_track):
     assert ((reward > 0.9 * v0 - 1.0) & (reward <= v0 + 0.5)).all()  # coasting on the line: about its speed
 
 
+def test_a_standing_start_is_at_rest_and_the_accelerate_key_moves_the_car_on(small_track):
+    """start_skill 0: the car waits at standstill on the line (reward about 0), and 1 s of the accelerate key
+    alone takes the gt3 to a speed a 9.81 m/s^2 car could not beat, forward along the line."""
+    core = PixelRacingCore(PixelRacingConfig(track=small_track, frames=False, start="line", start_skill=0.0), seed=0)
+    core.reset_cars(core.ids)
+    assert core.world.state.vehicle.vx_mps[0] == 0.0
+    _, reward, terminated, _, info = core.step(np.zeros((1, 4)))  # no pedal: it stays at rest
+    assert not terminated[0] and abs(info["forward_speed_mps"][0]) < 0.05 and abs(reward[0]) < 0.1
+    for _ in range(10):
+        _, reward, terminated, _, info = core.step(np.array([[1.0, 0.0, 0.0, 0.0]]))
+    assert not terminated[0] and 3.0 < info["forward_speed_mps"][0] < 9.81 * 1.1
+    assert info["lap_distance_m"][0] > 1.0 and reward[0] > 2.0
+
+
 def test_crash_states_from_known_states(straight_track):
     spin = math.radians(30.0)
     ok = _world(straight_track, 200.0, 0.0)

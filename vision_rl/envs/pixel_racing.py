@@ -103,7 +103,8 @@ class PixelRacingConfig:
     """``random``: a uniformly random point of the track; ``line``: the start/finish line. On the racing line,
     heading along the track, at ``start_skill`` x the limit speed there."""
     start_skill: float = DEFAULT_SKILL
-    """Share of the limit speed a car starts at (the built-in AI's speed)."""
+    """Share of the limit speed a car starts at (the built-in AI's speed; 0: from standstill, as a game session
+    restarts)."""
 
     def __post_init__(self) -> None:
         checks = [
@@ -119,7 +120,7 @@ class PixelRacingConfig:
             (self.crash_penalty_beta >= 0, "crash_penalty_beta", ">= 0"),
             (self.max_line_distance_m > 0, "max_line_distance_m", "positive"),
             (0 < self.spin_slip_deg < 180, "spin_slip_deg", "within (0, 180)"),
-            (0 < self.start_skill <= 1, "start_skill", "within (0, 1]"),
+            (0 <= self.start_skill <= 1, "start_skill", "within [0, 1]"),
         ]
         for ok, name, want in checks:
             if not ok:

@@ -49,6 +49,7 @@ from vision_rl.phase2_rl.ddpg import (
 )
 from vision_rl.phase2_rl.ddpg_sampling import episode_record
 from vision_rl.phase2_rl.persist import ArtifactError, atomic_write, check_fingerprint
+from vision_rl.sim.ai_driver import DEFAULT_SKILL
 
 METRICS_NAME = "metrics.jsonl"
 EPISODES_NAME = "episodes.jsonl"
@@ -101,6 +102,9 @@ class TrainDDPGConfig:
     """Episode time limit, s."""
     start: str = "random"
     """Episodes start at a random point (random) or on the start/finish line (line)."""
+    start_speed_share: float = DEFAULT_SKILL
+    """Episodes start at this share of the limit speed there (the built-in AI's; 0: from standstill, as a session
+    of the game restarts)."""
     buffer_size: int = 100_000
     """Replay capacity, frames over all cars (100,000 89x120 frames: 3.2 GB)."""
     batch_size: int = 32
@@ -163,6 +167,7 @@ class TrainDDPGConfig:
             render_scale=self.render_scale, frames=self.variant != "state-actor", goal_frame=self.goal_frame,
             racing_line=self.racing_line, line_distance_alpha=self.line_distance_alpha,
             crash_penalty_beta=self.crash_penalty_beta, max_line_distance_m=self.max_line_distance_m, start=self.start,
+            start_skill=self.start_speed_share,
         )  # fmt: skip
 
 
