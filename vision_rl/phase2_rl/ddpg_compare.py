@@ -104,7 +104,9 @@ def plot_comparison(result: dict[str, Any], path: str | os.PathLike[str], window
 
     path = Path(path)
     fig, (by_time, by_episode) = plt.subplots(1, 2, figsize=(12, 4.5))
-    centres = np.asarray(result["bin_start_minutes"]) + 0.5 * result["bin_minutes"]
+    starts = np.asarray(result["bin_start_minutes"])
+    # Each bin's point at its middle; the last bin ends at the common time.
+    centres = 0.5 * (starts + np.minimum(starts + result["bin_minutes"], result["common_minutes"]))
     for k, row in enumerate(result["runs"]):
         colour = f"C{k}"
         by_time.scatter(row["episode_minutes"], row["episode_distance_m"], s=4, alpha=0.25, color=colour)
