@@ -19,6 +19,7 @@ from vision_rl.phase2_rl.ddpg import (
     FrameReplay,
     OUNoise,
     PixelActor,
+    StateActor,
     bench_updates,
     ddpg_fingerprint,
     load_agent,
@@ -67,6 +68,25 @@ def test_actor_shapes_output_ranges_and_small_initial_outputs():
     assert keys.shape == (5, 4)
     assert (keys[:, [0, 3]] >= 0).all() and (keys[:, 1:3].abs() <= 1).all()
     assert keys.abs().max() < 0.2  # the output layer starts at variance scaling 1e-2
+
+
+def test_a_relu_pedal_below_zero_has_no_gradient_and_a_sigmoid_pedal_has_one():
+    """Why the paper's relu pedals die: once the accelerate pre-activation is negative, the actor outputs 0 and the
+    critic's push towards pressing it reaches no weight. A sigmoid pedal starts half pressed and keeps a gradient."""
+    torch.manual_seed(0)
+    h = torch.randn(5, 300)
+    for activation, grad_nonzero in (("relu", False), ("sigmoid", True)):
+        actor = StateActor(np.zeros(18), np.ones(18), pedal_activation=activation)
+        with torch.no_grad():
+            actor.head.out.bias[0] = -1.0  # the accelerate pre-activation below zero for every input
+        keys = actor.head(h)
+        keys[:, 0].sum().backward()  # the critic asks for more throttle
+        assert (actor.head.out.weight.grad[0].abs().sum() > 0) == grad_nonzero
+        assert (keys[:, 0] > 0).all() == grad_nonzero
+    fresh = StateActor(np.zeros(18), np.ones(18), pedal_activation="sigmoid").head(h)
+    np.testing.assert_allclose(fresh[:, [0, 3]].detach().numpy(), 0.5, atol=0.1)  # both pedals about half the step
+    with pytest.raises(DDPGError, match="pedal_activation must be one of"):
+        DDPGHyper(pedal_activation="softplus")
 
 
 def test_ou_noise_reverts_to_the_mean_with_theta_0_8():

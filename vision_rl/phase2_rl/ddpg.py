@@ -63,6 +63,7 @@ from vision_rl.sim.vehicle import get_preset
 from vision_rl.sim.world import World, WorldState
 
 VARIANTS = ("asymmetric", "symmetric", "state-actor")
+PEDAL_ACTIVATIONS = ("relu", "sigmoid")
 AGENT_FORMAT = "vision_rl.ddpg_agent"
 REPLAY_FORMAT = "vision_rl.ddpg_replay"
 FORMAT_VERSION = 1
@@ -111,6 +112,10 @@ class DDPGHyper:
     """Ornstein-Uhlenbeck time step per control step (1: x <- x + theta (mu - x) + sigma N, the Keras DDPG code's)."""
     output_init_scale: float = 1e-2
     """Variance-scaling scale of the actor's output layer."""
+    pedal_activation: str = "relu"
+    """Output activation of the accelerate and brake keys: relu (the paper's; a pedal whose pre-activation turns
+    negative passes no gradient, so the actor can never press it again) or sigmoid (never without a gradient; a fresh
+    actor holds both pedals half the step, as it holds both steering keys)."""
     reward_scale: float = 1.0
     """Rewards are multiplied by this in the critic's targets (1: the paper's)."""
     channels_last: bool = True
@@ -119,6 +124,8 @@ class DDPGHyper:
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
             raise DDPGError(f"variant must be one of {VARIANTS}, got {self.variant!r}")
+        if self.pedal_activation not in PEDAL_ACTIVATIONS:
+            raise DDPGError(f"pedal_activation must be one of {PEDAL_ACTIVATIONS}, got {self.pedal_activation!r}")
         for name in ("actor_lr", "critic_lr", "ou_sigma", "ou_theta", "ou_dt", "output_init_scale", "reward_scale"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
@@ -190,16 +197,18 @@ def _variance_scaling_(linear: nn.Linear, scale: float) -> None:
 
 
 class _KeyHead(nn.Module):
-    """Four outputs: accelerate and brake ReLU, left and right tanh."""
+    """Four outputs: accelerate and brake through ``pedal_activation`` (the paper's relu, or sigmoid), left and right
+    tanh."""
 
-    def __init__(self, n_in: int, init_scale: float) -> None:
+    def __init__(self, n_in: int, init_scale: float, pedal_activation: str = "relu") -> None:
         super().__init__()
         self.out = nn.Linear(n_in, 4)
         _variance_scaling_(self.out, init_scale)
+        self.pedal = torch.relu if pedal_activation == "relu" else torch.sigmoid
 
     def forward(self, h: torch.Tensor) -> torch.Tensor:
         z = self.out(h)
-        return torch.stack([torch.relu(z[:, 0]), torch.tanh(z[:, 1]), torch.tanh(z[:, 2]), torch.relu(z[:, 3])], 1)
+        return torch.stack([self.pedal(z[:, 0]), torch.tanh(z[:, 1]), torch.tanh(z[:, 2]), self.pedal(z[:, 3])], 1)
 
 
 class _Scaled(nn.Module):
@@ -217,11 +226,11 @@ class _Scaled(nn.Module):
 class PixelActor(nn.Module):
     """Frames (n, H, W, 3) uint8 -> keys (n, 4)."""
 
-    def __init__(self, image_hw_px: tuple[int, int], init_scale: float = 1e-2) -> None:
+    def __init__(self, image_hw_px: tuple[int, int], init_scale: float = 1e-2, pedal_activation: str = "relu") -> None:
         super().__init__()
         self.trunk = ConvTrunk(image_hw_px)
         self.dense = _dense_pathway(self.trunk.out_dim)
-        self.head = _KeyHead(300, init_scale)
+        self.head = _KeyHead(300, init_scale, pedal_activation)
 
     def forward(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
         return self.head(self.dense(self.trunk(obs["image"])))
@@ -230,11 +239,12 @@ class PixelActor(nn.Module):
 class StateActor(nn.Module):
     """Motion and goal -> keys (n, 4): the state-only actor of the ablation."""
 
-    def __init__(self, offset: np.ndarray, scale: np.ndarray, init_scale: float = 1e-2) -> None:
+    def __init__(self, offset: np.ndarray, scale: np.ndarray, init_scale: float = 1e-2,
+                 pedal_activation: str = "relu") -> None:  # fmt: skip
         super().__init__()
         self.scaled = _Scaled(offset, scale)
         self.dense = _dense_pathway(18)
-        self.head = _KeyHead(300, init_scale)
+        self.head = _KeyHead(300, init_scale, pedal_activation)
 
     def forward(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
         return self.head(self.dense(self.scaled(obs["motion"], obs["goal"])))
@@ -490,8 +500,8 @@ class DDPGAgent:
         torch.manual_seed(seed)
         offset, scale = critic_input_scale(load_track(env.track), get_preset(env.car), env.goal_frame)
         hw = env.image_hw_px
-        self.actor = PixelActor(hw, hyper.output_init_scale) if hyper.pixel_actor else StateActor(
-            offset, scale, hyper.output_init_scale)  # fmt: skip
+        self.actor = PixelActor(hw, hyper.output_init_scale, hyper.pedal_activation) if hyper.pixel_actor else \
+            StateActor(offset, scale, hyper.output_init_scale, hyper.pedal_activation)  # fmt: skip
         self.critic = PixelCritic(hw) if hyper.pixel_critic else Critic(offset, scale)
         self.actor_target = self._copy(self.actor)
         self.critic_target = self._copy(self.critic)

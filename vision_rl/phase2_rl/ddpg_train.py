@@ -127,6 +127,9 @@ class TrainDDPGConfig:
     """OU noise scale."""
     reward_scale: float = 1.0
     """Rewards are multiplied by this in the critic's targets."""
+    pedal_activation: str = "relu"
+    """Output activation of the accelerate and brake keys: relu (the paper's) or sigmoid (a pedal never loses its
+    gradient; not in the paper)."""
     channels_last: bool = True
     """Channels-last convolutions (faster on CPUs)."""
     eval_every_steps: int = 10_000
@@ -159,7 +162,7 @@ class TrainDDPGConfig:
         return DDPGHyper(variant=self.variant, actor_lr=self.actor_lr, critic_lr=self.critic_lr, tau=self.tau,
                          gamma=self.gamma, batch_size=self.batch_size, buffer_size=self.buffer_size,
                          ou_theta=self.ou_theta, ou_sigma=self.ou_sigma, reward_scale=self.reward_scale,
-                         channels_last=self.channels_last)  # fmt: skip
+                         channels_last=self.channels_last, pedal_activation=self.pedal_activation)  # fmt: skip
 
     def env(self) -> PixelRacingConfig:
         return PixelRacingConfig(
