@@ -103,7 +103,7 @@ class PixelRacingConfig:
     """``random``: a uniformly random point of the track; ``line``: the start/finish line. On the racing line,
     heading along the track, at ``start_skill`` x the limit speed there."""
     start_skill: float = DEFAULT_SKILL
-    """Share of the limit speed a car starts at (the built-in AI's speed; 0: from standstill, as a game session
+    """Share of the limit speed a car starts at (the built-in AI's speed; 0: from standstill, as a race in the game
     restarts)."""
 
     def __post_init__(self) -> None:

@@ -103,8 +103,8 @@ class TrainDDPGConfig:
     start: str = "random"
     """Episodes start at a random point (random) or on the start/finish line (line)."""
     start_speed_share: float = DEFAULT_SKILL
-    """Episodes start at this share of the limit speed there (the built-in AI's; 0: from standstill, as a session
-    of the game restarts)."""
+    """Episodes start at this share of the limit speed there (the built-in AI's; 0: from standstill, as a race in
+    the game restarts)."""
     buffer_size: int = 100_000
     """Replay capacity, frames over all cars (100,000 89x120 frames: 3.2 GB)."""
     batch_size: int = 32
