@@ -24,7 +24,7 @@ def hand_made_run(folder, variant: str, minutes: float, episodes: list[tuple[flo
 
 
 def test_runs_are_cut_at_the_common_time_and_binned(tmp_path):
-    a_episodes = [(1, 100, 0), (4, 300, 0), (12, 500, 0), (25, 5000, 1), (29, 900, 0)]
+    a_episodes = [(1, 100, 0), (4, 300, 0), (12, 500, 0), (25, 5000, 1), (29, 900, 0), (30, 700, 0)]
     a = hand_made_run(tmp_path / "a", "asymmetric", 30.0, a_episodes)
     # Trained 40 minutes: its episodes after minute 30 are not compared.
     s_episodes = [(2, 50, 0), (21, 150, 0), (28, 250, 0), (35, 9000, 1)]
@@ -32,8 +32,9 @@ def test_runs_are_cut_at_the_common_time_and_binned(tmp_path):
     result = compare_runs([a, s], bin_min=10.0)
     assert result["common_minutes"] == 30.0 and result["bin_start_minutes"] == [0.0, 10.0, 20.0]
     ra, rs = result["runs"]
-    assert ra["name"] == "asymmetric s1" and ra["bin_mean_distance_m"] == [200.0, 500.0, 2950.0]
-    assert ra["bin_episodes"] == [2, 1, 2] and ra["mean_distance_last_m"] == 2950.0  # minutes 20-30
+    # The episode ending at the common minute 30 counts in the last bin.
+    assert ra["name"] == "asymmetric s1" and ra["bin_mean_distance_m"] == [200.0, 500.0, 2200.0]
+    assert ra["bin_episodes"] == [2, 1, 3] and ra["mean_distance_last_m"] == 2200.0  # minutes 20-30
     assert ra["first_lap_episode"] == 4 and ra["first_lap_minutes"] == 25.0 and ra["best_distance_m"] == 5000.0
     assert rs["episodes"] == 3 and rs["bin_mean_distance_m"] == [50.0, None, 200.0]
     assert rs["first_lap_episode"] is None and rs["best_distance_m"] == 250.0

@@ -500,8 +500,8 @@ class DDPGAgent:
         torch.manual_seed(seed)
         offset, scale = critic_input_scale(load_track(env.track), get_preset(env.car), env.goal_frame)
         hw = env.image_hw_px
-        self.actor = PixelActor(hw, hyper.output_init_scale, hyper.pedal_activation) if hyper.pixel_actor else \
-            StateActor(offset, scale, hyper.output_init_scale, hyper.pedal_activation)  # fmt: skip
+        init, pedal = hyper.output_init_scale, hyper.pedal_activation
+        self.actor = PixelActor(hw, init, pedal) if hyper.pixel_actor else StateActor(offset, scale, init, pedal)
         self.critic = PixelCritic(hw) if hyper.pixel_critic else Critic(offset, scale)
         self.actor_target = self._copy(self.actor)
         self.critic_target = self._copy(self.critic)

@@ -38,7 +38,7 @@ def read_episodes(run: str | os.PathLike[str]) -> tuple[dict[str, Any], list[dic
     for number, line in enumerate(path.read_text().splitlines(), 1):
         try:
             record = json.loads(line)
-            records.append({k: float(record[k]) for k in ("train_time_s", "distance_m", "laps", "return")})
+            records.append({k: float(record[k]) for k in ("train_time_s", "distance_m", "laps")})
         except (ValueError, KeyError, TypeError):
             raise DDPGError(f"{path}: line {number} is not an episode record") from None
     return sidecar, records
@@ -47,13 +47,14 @@ def read_episodes(run: str | os.PathLike[str]) -> tuple[dict[str, Any], list[dic
 def compare_runs(runs: Sequence[str | os.PathLike[str]], names: Sequence[str] = (),
                  bin_min: float = 5.0) -> dict[str, Any]:  # fmt: skip
     """Distance per episode of each run in bins of ``bin_min`` training minutes up to the common time, with a
-    summary per run: episodes, mean and best distance over the last third of the common time, first lap."""
+    summary per run: episodes, mean and best distance over the last third of the common time, first lap. Episodes
+    and distances count to the common time; the counters (minutes, steps, updates and their rate) are the run's."""
     if not runs:
-        raise DDPGError("give at least one train-ddpg run folder")
+        raise DDPGError("--runs is empty: give train-ddpg run folders, comma-separated")
     if names and len(names) != len(runs):
         raise DDPGError(f"{len(names)} names for {len(runs)} runs: give one name per run, or none")
     if not bin_min > 0:
-        raise DDPGError(f"the bin must be > 0 minutes, got {bin_min}")
+        raise DDPGError(f"--bin-minutes must be > 0, got {bin_min}")
     loaded = [read_episodes(run) for run in runs]
     tracks = {(s["env"]["track"], s["env"]["car"]) for s, _ in loaded}
     if len(tracks) > 1:
@@ -67,7 +68,7 @@ def compare_runs(runs: Sequence[str | os.PathLike[str]], names: Sequence[str] = 
         laps = np.array([r["laps"] for r in records])
         inside = t <= common_s
         t, distance, laps = t[inside], distance[inside], laps[inside]
-        which = np.digitize(t, edges_s) - 1
+        which = np.minimum(np.digitize(t, edges_s) - 1, len(edges_s) - 2)  # an episode ending at the common time
         per_bin = [distance[which == k] for k in range(len(edges_s) - 1)]
         last = t > (1 - LAST_SHARE) * common_s
         lapped = np.flatnonzero(laps >= 1)

@@ -182,6 +182,7 @@ def check_bounds(cfg: TrainDDPGConfig) -> None:
         "eval_seeds": cfg.eval_seeds >= 0, "eval_laps": cfg.eval_laps >= 1,
         "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
         "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "train_minutes": cfg.train_minutes >= 0,
+        "start_speed_share": 0 <= cfg.start_speed_share <= 1,
         "torch_threads": cfg.torch_threads >= 0, "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
     }  # fmt: skip
     for name, ok in checks.items():
