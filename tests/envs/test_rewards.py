@@ -1,7 +1,15 @@
 import numpy as np
 import pytest
 
-from vision_rl.envs.rewards import overtaking_reward, racing_reward, steering_change_penalty, wrapped_gap_m
+from vision_rl.envs.rewards import (
+    overtaking_reward,
+    racing_reward,
+    steering_change_penalty,
+    wall_penalty_speed_mps,
+    wrapped_gap_m,
+)
+
+LIMIT = np.pi / 6
 
 
 def test_racing_reward_is_progress_minus_wall_penalty_in_contact_only():
@@ -64,3 +72,44 @@ def test_env_charges_the_steering_change_between_commands_and_not_at_an_episode_
     changes = np.diff(np.concatenate([[start], commands])) / (np.pi / 6)
     np.testing.assert_allclose(base - charged, 2.0 * changes**2, rtol=1e-5, atol=1e-5)
     assert base[0] == pytest.approx(charged[0])  # the start command equals the placed wheel angle
+
+
+def test_wall_penalty_speed_end_is_the_step_end_and_impact_the_larger_of_start_and_end():
+    start = np.array([42.0, 20.0, 20.0])
+    end = np.array([24.0, 20.0, 22.0])
+    np.testing.assert_array_equal(wall_penalty_speed_mps(start, end, "end"), end)
+    np.testing.assert_array_equal(wall_penalty_speed_mps(start, end, "impact"), [42.0, 20.0, 22.0])
+    with pytest.raises(ValueError, match="'end' or 'impact'"):
+        wall_penalty_speed_mps(start, end, "start")
+
+
+def test_the_wall_brakes_a_car_that_enters_the_hairpin_flat_out_and_impact_charges_the_speed_that_hit():
+    """The exploit state policies learned on expressway (docs/results/state-expressway-hatchback-speed-scaled): at
+    154 km/h into the 32 m hairpin at 0.87 km with the throttle on, the outer wall takes the car to about 85 km/h
+    within two 0.1 s steps; ``end`` charges that step at the speed left, ``impact`` at the speed that hit."""
+    from vision_rl.envs.core import RacingConfig, RacingCore
+
+    def drive(at):
+        cfg = RacingConfig(track="expressway", n_groups=1, steer_action="rate_scaled", wall_penalty_speed=at,
+                           normalize=False)  # fmt: skip
+        core = RacingCore(cfg, seed=0)
+        core.reset_groups(np.array([0]))
+        core.world.reset(s_m=np.array([860.0]), lateral_m=np.array([-2.5]), speed_mps=np.array([42.8]), car_ids=[0])
+        core.steer_command_rad[:] = 0.0
+        speeds, rewards, walls = [42.8], [], []
+        for _ in range(30):
+            rewards.append(core.step(np.array([[-LIMIT, 0.97]]), autoreset=False)[1][0])
+            v = core.world.state.vehicle
+            speeds.append(float(np.hypot(v.vx_mps[0], v.vy_mps[0])))
+            walls.append(bool(core.world.state.wall_contact[0]))
+        return np.array(speeds), np.array(rewards), np.array(walls)
+
+    speeds, end_rewards, walls = drive("end")
+    _, impact_rewards, _ = drive("impact")
+    hit = int(np.argmax(walls))
+    assert walls[hit], "the car never reached the wall"
+    assert 3.6 * (speeds[hit] - speeds[hit + 2]) > 50.0  # the wall as a brake: measured 153 -> 91 km/h in 0.2 s
+    for k in (hit, hit + 1):  # each step charged at its start speed (the larger), not at what the wall left
+        charged_more = end_rewards[k] - impact_rewards[k]
+        assert charged_more == pytest.approx(0.005 * (speeds[k] ** 2 - speeds[k + 1] ** 2), rel=1e-6)
+    np.testing.assert_allclose(end_rewards[:hit], impact_rewards[:hit])  # no contact, no difference

@@ -189,6 +189,7 @@ def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeyp
         ({"frame_delay_s": 0.067}, "give --encoder"),
         ({"frame_delay_s": 2.0}, "--frame-delay-s 2.0"),
         ({"steer_action": "torque"}, "--steer-action must be one of angle, rate"),
+        ({"wall_penalty_speed": "start"}, "--wall-penalty-speed must be one of end, impact"),
     ],
 )
 def test_out_of_range_options_are_refused_before_anything_is_written(small_track, tmp_path, change, message, fault):

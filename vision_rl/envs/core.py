@@ -20,6 +20,7 @@ from vision_rl.envs.rewards import (
     overtaking_reward,
     racing_reward,
     steering_change_penalty,
+    wall_penalty_speed_mps,
     wrapped_gap_m,
 )
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE, Disruptor
@@ -45,6 +46,8 @@ STATS_GROUPS = 20
 
 #: How the first action entry steers (:func:`steering_command`).
 STEER_ACTIONS: tuple[str, ...] = ("angle", "rate", "speed_scaled", "rate_scaled")
+#: Speeds the wall penalty may square (see :func:`vision_rl.envs.rewards.wall_penalty_speed_mps`).
+WALL_PENALTY_SPEEDS: tuple[str, ...] = ("end", "impact")
 #: ``speed_scaled``: the command's range at speed v is this many times ``wheelbase * g / v^2``, the angle a
 #: neutral-steering car needs for 1 g. Chosen to cover the built-in AI at skill 1.0 on expressway and technical
 #: (hatchback, L = 2.566 m): its largest command was 0.072 rad at 40-45 m/s (the range at 42.5 m/s: 0.084 rad) and
@@ -110,6 +113,10 @@ class RacingConfig:
     """Episode length, s: the papers' 100 s trials (1,000 steps at 10 Hz); the end is a truncation."""
     wall_penalty_c_w: float = 0.005
     """c_w of the racing reward (overtaking paper, section IV-B: 0.005)."""
+    wall_penalty_speed: str = "end"
+    """Speed the wall penalty squares: ``end`` of the step (the papers) or ``impact``, the larger of the step's start
+    and end speeds, so a hit is charged at the speed that hit (:func:`vision_rl.envs.rewards.wall_penalty_speed_mps`;
+    not in the papers)."""
     frame_delay_s: float = 0.0
     """Vision: frames show the world this long before the state (the paper's 4 frames at 60 Hz: 0.067; 0: none);
     the dedicated features are not delayed."""
@@ -154,6 +161,10 @@ class RacingConfig:
             raise ValueError(f"scenario must be one of {tuple(SCENARIOS)}, got {self.scenario!r}")
         if self.steer_action not in STEER_ACTIONS:
             raise ValueError(f"steer_action must be one of {STEER_ACTIONS}, got {self.steer_action!r}")
+        if self.wall_penalty_speed not in WALL_PENALTY_SPEEDS:
+            raise ValueError(
+                f"wall_penalty_speed must be one of {WALL_PENALTY_SPEEDS}, got {self.wall_penalty_speed!r}"
+            )
         if self.n_groups < 1:
             raise ValueError(f"n_groups must be >= 1, got {self.n_groups}")
         if min(self.wall_penalty_c_w, self.steer_change_penalty_c_s, self.off_track_penalty_c_o) < 0:
@@ -331,7 +342,8 @@ class RacingCore:
         ego = self.ego_ids
         progress = self.track.progress_delta(s_prev, st.s_m[ego])
         speed = np.hypot(st.vehicle.vx_mps[ego], st.vehicle.vy_mps[ego])
-        reward = racing_reward(progress, st.wall_contact[ego], speed, cfg.wall_penalty_c_w)
+        wall_speed = wall_penalty_speed_mps(ego_speed, speed, cfg.wall_penalty_speed)
+        reward = racing_reward(progress, st.wall_contact[ego], wall_speed, cfg.wall_penalty_c_w)
         if cfg.off_track_penalty_c_o > 0:
             # The body's outer side, not its centre: on our tracks the band between the edge line and the wall is
             # at most 1 m wide, so a centre beyond the line leaves less than 0.2 m to the wall.

@@ -37,7 +37,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecMonitor
 
-from vision_rl.envs.core import STEER_ACTIONS, RacingConfig
+from vision_rl.envs.core import STEER_ACTIONS, WALL_PENALTY_SPEEDS, RacingConfig
 from vision_rl.envs.observations import ObsNormalizer
 from vision_rl.envs.observer import Observer
 from vision_rl.envs.vector import make_sb3_vec_env
@@ -142,6 +142,9 @@ class TrainPolicyConfig:
     """Training episode length, s (the papers' 100 s trials)."""
     wall_penalty_c_w: float = 0.005
     """c_w of the reward's wall penalty."""
+    wall_penalty_speed: str = "end"
+    """Speed the wall penalty squares: `end` of the step (the papers) or `impact`, the larger of the step's start and
+    end speeds (a hit charged at the speed that hit; not in the papers)."""
     steer_change_penalty_c_s: float = 0.0
     """c_s of the reward's steering-change penalty ``c_s * (change / limit)^2`` (0: the papers' reward)."""
     off_track_penalty_c_o: float = 0.0
@@ -342,7 +345,7 @@ class _Run:
                 wall_penalty_c_w=cfg.wall_penalty_c_w, image_hw_px=image_hw,
                 steer_change_penalty_c_s=cfg.steer_change_penalty_c_s, frame_delay_s=cfg.frame_delay_s,
                 steer_action=cfg.steer_action, terminate_on_wall=cfg.wall_ends_episode,
-                off_track_penalty_c_o=cfg.off_track_penalty_c_o,
+                off_track_penalty_c_o=cfg.off_track_penalty_c_o, wall_penalty_speed=cfg.wall_penalty_speed,
             )  # fmt: skip
             self.start_steps = 0
             self.train_time_before_s = 0.0
@@ -537,6 +540,10 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     parse_hidden_units(cfg.hidden_units)
     if cfg.steer_action not in STEER_ACTIONS:
         raise ValueError(f"--steer-action must be one of {', '.join(STEER_ACTIONS)}, got {cfg.steer_action!r}")
+    if cfg.wall_penalty_speed not in WALL_PENALTY_SPEEDS:
+        raise ValueError(
+            f"--wall-penalty-speed must be one of {', '.join(WALL_PENALTY_SPEEDS)}, got {cfg.wall_penalty_speed!r}"
+        )
     if cfg.frame_delay_s > 0 and not cfg.encoder:
         raise ValueError("--frame-delay-s delays the vision frames: give --encoder (the state observation has none)")
     if cfg.workers is not None or cfg.address:
