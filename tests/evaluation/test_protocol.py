@@ -48,6 +48,7 @@ def test_second_lap_is_scored_and_matches_the_hand_computed_lap(small_track):
         scored = seed["laps"][1]
         assert seed["lap_time_s"] == scored["lap_time_s"] == pytest.approx(expected_s, rel=0.01)
         assert scored["wall_contact_s"] == 0.0 and scored["off_track_s"] == 0.0 and seed["clean"]
+        assert scored["wall_hits"] == 0 and scored["fastest_wall_hit_kmh"] == 0.0
         assert scored["avg_speed_kmh"] == pytest.approx(3.6 * CRUISE_MPS, rel=0.01)
         assert scored["distance_m"] == pytest.approx(timing.track.length_m, rel=0.01)
     assert s["best_lap_time_s"] == min(x["lap_time_s"] for x in s["seeds"])
@@ -143,6 +144,10 @@ def test_wall_contact_of_a_car_scraping_the_left_wall_along_the_straight_matches
     assert lap.wall_contact_s == pytest.approx(expected_s, abs=STEP_S + 1e-9)  # within one control step
     assert lap.off_track_s >= lap.wall_contact_s - STEP_S  # against the wall the centre is on the shoulder band
     assert not timing.summary()["clean"]
+    # Each run of touching steps begins with a hit, at the 12 m/s the driver holds (a touch may lift for a step).
+    begins = int(touching[0]) + int(np.sum(touching[1:] & ~touching[:-1]))
+    assert 1 <= begins and abs(lap.wall_hits - begins) <= 1
+    assert lap.fastest_wall_hit_kmh == pytest.approx(3.6 * 12.0, abs=2.0)
 
 
 def test_the_disrupted_ai_leaves_the_line_and_recovers_without_spinning_reproducibly():

@@ -14,6 +14,12 @@ def _lap(seconds: float | None) -> str:
     return format_lap_time(seconds)
 
 
+def _hits(lap: dict[str, Any]) -> str:
+    """", N hits, the fastest at V km/h" for a lap with wall hits (records of before the count have none)."""
+    hits = lap.get("wall_hits", 0)
+    return f", {hits} hits, the fastest at {lap['fastest_wall_hit_kmh']:.0f} km/h" if hits else ""
+
+
 def format_timing(result: dict[str, Any]) -> list[str]:
     """Text lines of an evaluation record: the scored lap over seeds, then each seed's laps or its DNF."""
     driver = result["driver"]
@@ -27,8 +33,8 @@ def format_timing(result: dict[str, Any]) -> list[str]:
     ]
     for s in result["seeds"]:
         laps = "; ".join(
-            f"{_lap(lap['lap_time_s'])} (wall {lap['wall_contact_s']:.1f} s, off track {lap['off_track_s']:.1f} s, "
-            f"{lap['avg_speed_kmh']:.1f} km/h)"
+            f"{_lap(lap['lap_time_s'])} (wall {lap['wall_contact_s']:.1f} s{_hits(lap)}, off track "
+            f"{lap['off_track_s']:.1f} s, {lap['avg_speed_kmh']:.1f} km/h)"
             for lap in s["laps"]
         )
         status = "" if s["dnf_reason"] is None else f"; DNF: {s['dnf_reason']}"

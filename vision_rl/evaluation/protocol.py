@@ -17,8 +17,10 @@ Rules (:data:`PROTOCOL_VERSION` 1; the vision paper's Sec. 4, after Fuchs et al.
 - **Time limit**: 3 x the QSS limit lap time per lap (``time_limit_s`` overrides); laps not done by then are a DNF.
 - **Per lap**: lap time; wall-contact, car-contact and off-track seconds (off track: the car's centre beyond the
   painted edge line, on the kerb or shoulder band); average speed (centre-line length over lap time, km/h);
-  distance driven (the path length of the car's centre, m). Contact and distance are counted at the driver's
-  rate, so a lap's figures are exact to one driver step.
+  distance driven (the path length of the car's centre, m); wall hits (contacts that begin in the lap) and the
+  fastest of them (the car's speed at the start of the driver step in which the contact began, km/h: a car that
+  brakes on a wall shows here). Contact and distance are counted at the driver's rate, so a lap's figures are exact
+  to one driver step.
 - **Clean**: a scored lap with at most :data:`CLEAN_WALL_CONTACT_S` of wall contact.
 
 A driver (:class:`Driver`) is anything with ``control_dt_s``, ``reset(world, car_ids)`` and
@@ -132,6 +134,10 @@ class LapRecord:
     """Centre-line lap length over lap time."""
     distance_m: float
     """Path length driven by the car's centre."""
+    wall_hits: int = 0
+    """Wall contacts that began in the lap."""
+    fastest_wall_hit_kmh: float = 0.0
+    """Speed at the start of the driver step in which the lap's fastest-begun wall contact began (0: none), km/h."""
 
 
 @dataclass
@@ -270,24 +276,34 @@ def time_laps(
     end_time_s = np.zeros(n)
     off_track_s = np.zeros(n)
     distance_m = np.zeros(n)
-    # Cumulative (wall, car, off-track, distance) at each lap's end; a lap's figures are the differences.
-    marks: list[list[np.ndarray]] = [[np.zeros(4)] for _ in range(n)]
+    # Cumulative (wall, car, off-track, distance, wall hits) at each lap's end; a lap's figures are the differences.
+    marks: list[list[np.ndarray]] = [[np.zeros(5)] for _ in range(n)]
+    wall_hits = np.zeros(n)
+    fastest_hit_mps = np.zeros(n)  # of the lap under way
+    fastest_hit_per_lap_mps: list[list[float]] = [[] for _ in range(n)]
     stuck = StuckDetector(world.state.unwrapped_s_m, STEP_S, STUCK_RULE)
     rec: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "x", "y", "yaw", "v", "wall")}
     for _ in range(math.ceil(limit_s / STEP_S - 1e-9)):
         wall_step = np.zeros(n, dtype=bool)
         for _ in range(world_steps):
             action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(n, 2)
+            touching_before = world.state.wall_contact.copy()
+            speed_before_mps = np.hypot(world.state.vehicle.vx_mps, world.state.vehicle.vy_mps)
             events = world.step(action[:, 0], action[:, 1])
             st = world.state
             veh = st.vehicle
             wall_step |= st.wall_contact
+            hit = active & st.wall_contact & ~touching_before
+            wall_hits += hit
+            fastest_hit_mps = np.maximum(fastest_hit_mps, np.where(hit, speed_before_mps, 0.0))
             off_track_s += dt * (active & track.beyond_edge_line(st.s_m, st.lateral_m))
             distance_m += dt * active * np.hypot(veh.vx_mps, veh.vy_mps)
             for i in np.flatnonzero(events.lap_completed & active):
-                marks[i].append(
-                    np.array([st.wall_contact_time_s[i], st.car_contact_time_s[i], off_track_s[i], distance_m[i]])
-                )
+                marks[i].append(np.array(
+                    [st.wall_contact_time_s[i], st.car_contact_time_s[i], off_track_s[i], distance_m[i], wall_hits[i]]
+                ))  # fmt: skip
+                fastest_hit_per_lap_mps[i].append(float(fastest_hit_mps[i]))
+                fastest_hit_mps[i] = 0.0
         st = world.state
         if record:
             veh = st.vehicle
@@ -316,12 +332,13 @@ def time_laps(
     for i, seed in enumerate(seeds):
         lap_records = []
         for k, lap_time_s in enumerate(world.lap_times_s[i][: len(marks[i]) - 1][:laps]):
-            wall, car_s, off, dist = marks[i][k + 1] - marks[i][k]
+            wall, car_s, off, dist, hits = marks[i][k + 1] - marks[i][k]
             lap_records.append(
                 LapRecord(
                     lap_time_s=float(lap_time_s), wall_contact_s=float(wall), car_contact_s=float(car_s),
                     off_track_s=float(off), avg_speed_kmh=float(3.6 * track.length_m / lap_time_s),
-                    distance_m=float(dist),
+                    distance_m=float(dist), wall_hits=round(float(hits)),
+                    fastest_wall_hit_kmh=3.6 * fastest_hit_per_lap_mps[i][k],
                 )
             )  # fmt: skip
         runs.append(SeedRun(seed, lap_records, dnf[i], float(distance_m[i]), float(end_time_s[i])))

@@ -124,7 +124,8 @@ def run_experiment(
     record["per_seed"] = [
         {"seed": seed, "lap_time_s": e["best_lap_time_s"], "median_lap_time_s": e["median_lap_time_s"],
          "finished": f"{e['n_finished']}/{e['n_seeds']}", "clean": e["clean"],
-         "wall_contact_s": None if e["best_lap"] is None else e["best_lap"]["wall_contact_s"]}
+         **{key: None if e["best_lap"] is None else e["best_lap"].get(key)
+            for key in ("wall_contact_s", "wall_hits", "fastest_wall_hit_kmh")}}
         for seed, e in zip(seeds, evaluations, strict=True)
     ]  # fmt: skip
     ai = time_laps(BuiltinAI(), cfg.track, cfg.car, seeds=AI_SEEDS).summary()["best_lap_time_s"]
