@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vision_rl.envs.core import RacingConfig, RacingCore, steering_command
+from vision_rl.envs.core import RacingConfig, RacingCore, action_for_command, steering_command
 from vision_rl.phase2_rl.artifact import PolicyDriver
 from vision_rl.sim.vehicle import ACTION_STEER_LIMIT_RAD, get_preset
 
@@ -88,3 +88,39 @@ def test_a_full_range_swing_at_150_kmh_throws_the_car_into_the_wall_but_not_its_
     scaled_deg, scaled_wall_s = _worst_heading_error_deg("speed_scaled")
     assert angle_deg > 15.0 and angle_wall_s > 0.0  # measured: 23 deg, 0.9 s on the wall
     assert scaled_deg < 6.0 and scaled_wall_s == 0.0  # measured: 3.4 deg
+
+
+@pytest.mark.parametrize("steer_action", ["angle", "rate", "speed_scaled", "rate_scaled"])
+def test_action_for_command_asks_for_a_reachable_command_and_the_nearest_one_otherwise(steer_action):
+    prev = np.array([0.10, 0.10, -0.05, 0.0])
+    speed = np.array([20.0, 40.0, 10.0, 30.0])
+    reachable = steering_command(np.array([0.2, -0.3, 0.4, 0.0]), prev, steer_action, 0.12, speed, 2.5)
+    action = action_for_command(reachable, prev, steer_action, 0.12, speed, 2.5)
+    assert np.all(np.abs(action) <= LIMIT + 1e-12)
+    np.testing.assert_allclose(steering_command(action, prev, steer_action, 0.12, speed, 2.5), reachable, atol=1e-12)
+    # Full lock from straight ahead at 40 m/s: beyond the rate limit and the speed's range, so a full action.
+    far = action_for_command(np.full(4, LIMIT), np.zeros(4), steer_action, 0.12, np.full(4, 40.0), 2.5)
+    np.testing.assert_allclose(far, LIMIT)
+
+
+def test_a_guided_step_lets_the_ai_drive_and_returns_the_actions_that_ask_for_its_commands():
+    cfg = RacingConfig(track="expressway", n_groups=3, steer_action="rate_scaled", normalize=False)
+    core = RacingCore(cfg, seed=2)
+    core.reset_groups(np.arange(3))
+    rewards, walls = [], []
+    for _ in range(300):  # 30 s
+        previous = core.steer_command_rad.copy()
+        speed = np.hypot(core.world.state.vehicle.vx_mps, core.world.state.vehicle.vy_mps)[core.ego_ids]
+        _, reward, terminated, truncated, _, actions = core.guided_step(autoreset=False)
+        assert actions.shape == (3, 2) and np.all(np.abs(actions[:, 0]) <= LIMIT) and np.all(np.abs(actions[:, 1]) <= 1)
+        # Where the AI's command was reachable in one step, the action asks for exactly it.
+        asked = steering_command(actions[:, 0], previous, "rate_scaled", core.max_change_rad, speed,
+                                 core.car.wheelbase_m)  # fmt: skip
+        reachable = np.abs(actions[:, 0]) < LIMIT - 1e-9
+        np.testing.assert_allclose(asked[reachable], core.steer_command_rad[reachable], atol=1e-9)
+        rewards.append(reward)
+        walls.append(core.world.state.wall_contact[core.ego_ids])
+        assert not (terminated | truncated).any()
+    assert not np.any(walls)  # the AI at its default skill drives clean
+    assert np.mean(rewards) > 2.5  # about 30 m/s of progress along the line
+    assert np.any(np.array(rewards) > 0)

@@ -55,6 +55,12 @@ WALL_PENALTY_SPEEDS: tuple[str, ...] = ("end", "impact")
 SPEED_SCALED_STEER_G_MULTIPLE = 6.0
 
 
+def usable_steer_rad(speed_mps: np.ndarray, wheelbase_m: float) -> np.ndarray:
+    """The ``speed_scaled`` range at a speed: ``min(pi/6, k * wheelbase_m * g / speed^2)``, rad."""
+    speed_sq = np.maximum(np.square(np.asarray(speed_mps, dtype=np.float64)), 1e-6)
+    return np.minimum(ACTION_STEER_LIMIT_RAD, SPEED_SCALED_STEER_G_MULTIPLE * wheelbase_m * GRAVITY_MPS2 / speed_sq)
+
+
 def steering_command(
     action_steer: np.ndarray,
     previous_command_rad: np.ndarray,
@@ -85,12 +91,30 @@ def steering_command(
         return np.clip(action_steer, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
     if steer_action == "rate":
         return np.clip(previous_command_rad + share * max_change_rad, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
-    speed_sq = np.maximum(np.square(np.asarray(speed_mps, dtype=np.float64)), 1e-6)
-    one_g_rad = wheelbase_m * GRAVITY_MPS2 / speed_sq
-    usable_rad = np.minimum(ACTION_STEER_LIMIT_RAD, SPEED_SCALED_STEER_G_MULTIPLE * one_g_rad)
+    usable_rad = usable_steer_rad(speed_mps, wheelbase_m)
     if steer_action == "speed_scaled":
         return share * usable_rad
     return np.clip(previous_command_rad + share * max_change_rad, -usable_rad, usable_rad)
+
+
+def action_for_command(
+    command_rad: np.ndarray,
+    previous_command_rad: np.ndarray,
+    steer_action: str,
+    max_change_rad: float,
+    speed_mps: np.ndarray,
+    wheelbase_m: float,
+) -> np.ndarray:
+    """The action's first entry that asks :func:`steering_command` for ``command_rad`` (the nearest one where the
+    mode cannot reach it in one step: a change beyond the rate limit, an angle beyond the speed's range)."""
+    command_rad = np.asarray(command_rad, dtype=np.float64)
+    if steer_action == "angle":
+        return np.clip(command_rad, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
+    if steer_action in ("rate", "rate_scaled"):
+        share = (command_rad - previous_command_rad) / max_change_rad
+    else:
+        share = command_rad / usable_steer_rad(speed_mps, wheelbase_m)
+    return np.clip(share, -1.0, 1.0) * ACTION_STEER_LIMIT_RAD
 
 
 @dataclass(frozen=True)
@@ -333,10 +357,42 @@ class RacingCore:
         st = self.world.state
         s_prev = st.s_m[self.ego_ids].copy()
         ego_speed = np.hypot(st.vehicle.vx_mps[self.ego_ids], st.vehicle.vy_mps[self.ego_ids])
-        steer_rad = steering_command(actions[:, 0], self.steer_command_rad, cfg.steer_action,
-                                     self.car.max_steer_rate_radps * cfg.control_dt_s, ego_speed,
-                                     self.car.wheelbase_m)  # fmt: skip
+        steer_rad = steering_command(actions[:, 0], self.steer_command_rad, cfg.steer_action, self.max_change_rad,
+                                     ego_speed, self.car.wheelbase_m)  # fmt: skip
         events = self.advance(steer_rad, np.clip(actions[:, 1], -1.0, 1.0))
+        return self._after_step(s_prev, ego_speed, steer_rad, events, autoreset)
+
+    @property
+    def max_change_rad(self) -> float:
+        """The most the steering command may move in one control step under ``rate`` actions (the car's rate
+        limit), rad."""
+        return self.car.max_steer_rate_radps * self.config.control_dt_s
+
+    def guided_step(self, autoreset: bool) -> tuple:
+        """One control step in which the built-in AI drives the egos too, at its own rate and the egos' start skill
+        (clean laps): demonstrations for an off-policy learner (not in the papers).
+
+        Returns :meth:`step`'s five values and the actions (M, 2) of this environment's action space that ask for
+        what the AI did (:func:`action_for_command`): the steering command it ended the step with and its
+        throttle/brake averaged over the step. The AI changes its commands within the step, so replaying those
+        actions drives close to, not exactly along, its path."""
+        cfg = self.config
+        ego = self.ego_ids
+        st = self.world.state
+        s_prev = st.s_m[ego].copy()
+        ego_speed = np.hypot(st.vehicle.vx_mps[ego], st.vehicle.vy_mps[ego])
+        events = self.fleet.advance(self.world_steps)
+        steer_rad = np.clip(self.fleet.last_steer_rad[ego], -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
+        actions = np.column_stack([
+            action_for_command(steer_rad, self.steer_command_rad, cfg.steer_action, self.max_change_rad, ego_speed,
+                               self.car.wheelbase_m),
+            np.clip(self.fleet.mean_omega[ego], -1.0, 1.0),
+        ])  # fmt: skip
+        return (*self._after_step(s_prev, ego_speed, steer_rad, events, autoreset), actions)
+
+    def _after_step(self, s_prev: np.ndarray, ego_speed: np.ndarray, steer_rad: np.ndarray, events, autoreset: bool):
+        """Rewards, ends and observations of a control step the world has just advanced (see :meth:`step`)."""
+        cfg = self.config
         self.observer.remember(self.world.state)
         st = self.world.state
         ego = self.ego_ids

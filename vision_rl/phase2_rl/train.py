@@ -173,6 +173,9 @@ class TrainPolicyConfig:
     """Override the preset's discount per 0.1 s step (0: preset)."""
     hidden_units: str = ""
     """Override the preset's hidden layer widths of actor and critics, e.g. 128,128 (empty: preset)."""
+    guide_steps: int = 0
+    """Transitions of the built-in AI driving the cars (at the start skill) put in the replay buffer before the
+    first update: demonstrations of braking, which SAC does not find here (not in the papers; 0: none)."""
     n_step: int = 1
     """Rewards summed over N control steps before the critics bootstrap (Stable-Baselines3's n-step replay; 1: the
     papers' one-step targets)."""
@@ -398,8 +401,13 @@ class _Run:
         encoder_sha = self.encoder_sha256 if self.kind == "vision" else None
         self.fingerprint = policy_fingerprint(self.racing, self.kind, venv.observation_space.shape[0], encoder_sha)
         self.buffer_restored = 0
+        self.guided_transitions = 0
         if self.previous is not None:
             self._restore(model)
+        elif self.cfg.guide_steps > 0:
+            from vision_rl.phase2_rl.guide import add_guided_transitions
+
+            self.guided_transitions = add_guided_transitions(model, venv, self.cfg.guide_steps)
         model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
         self.eval_driver: PolicyDriver | None = None
         return model
@@ -532,6 +540,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "frame_delay_s": 0 <= cfg.frame_delay_s <= 1,
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
+        "guide_steps": cfg.guide_steps >= 0,
     }  # fmt: skip
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
@@ -598,6 +607,7 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
         "n_updates": int(getattr(model, "_n_updates", 0)),
         "train_time_s": round(run.train_time_s, 2),
         "interrupted": interrupted,
+        "guided_transitions": run.guided_transitions,
         "resumed_from_steps": run.start_steps if cfg.resume else None,
         "buffer_restored": run.buffer_restored if cfg.resume else None,
         "last_eval": run.last_eval,

@@ -103,6 +103,9 @@ class AIFleet:
         self.driver = AIDriver(world.car, line, profile, n, skill=skill, groups=world.model.groups)
         self.disruptor = Disruptor(n, disruption, seed=seed) if disruption is not None else None
         """Offsets added to the AI's commands (None: clean); a caller may swap it for a rollout."""
+        self.last_steer_rad, self.mean_omega = np.zeros(n), np.zeros(n)
+        """Every car's steering command at the last world step of the last stepped :meth:`advance` (rad) and its
+        throttle/brake command averaged over that advance."""
 
     @property
     def skill(self) -> np.ndarray:
@@ -135,16 +138,19 @@ class AIFleet:
             return world.step(steer, omega, world_steps)
         lap_completed, lap_time_s = np.zeros(n, dtype=bool), np.full(n, np.nan)
         wall_any, car_any = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        omega_sum = np.zeros(n)
         for _ in range(world_steps):
             steer, omega = self.driver.act(world.state)
             if self.disruptor is not None:
                 steer, omega = self.disruptor(steer, omega, world.model.config.control_dt_s)
             if held_ids is not None:
                 steer[held_ids], omega[held_ids] = held_steer_rad, held_omega
+            omega_sum += omega
             events = world.step(steer, omega)
             wall_any |= world.state.wall_contact
             car_any |= world.state.car_contact
             lap_completed |= events.lap_completed
             lap_time_s = np.where(events.lap_completed, events.lap_time_s, lap_time_s)
         world.state = world.state._replace(wall_contact=wall_any, car_contact=car_any)
+        self.last_steer_rad, self.mean_omega = steer, omega_sum / world_steps
         return StepEvents(lap_completed, lap_time_s)

@@ -1,0 +1,42 @@
+"""The built-in AI's transitions in SAC's replay buffer (--guide-steps)."""
+
+import numpy as np
+import pytest
+
+from tests.phase2_rl.conftest import tiny_train_config
+
+
+def test_guided_transitions_enter_the_buffer_as_the_learner_would_store_them(small_track):
+    import torch
+    from stable_baselines3 import SAC
+
+    from vision_rl.envs.core import RacingConfig
+    from vision_rl.envs.vector import make_sb3_vec_env
+    from vision_rl.phase2_rl.guide import add_guided_transitions
+
+    torch.set_num_threads(1)
+    venv = make_sb3_vec_env(RacingConfig(track=small_track, n_groups=4, steer_action="rate_scaled", episode_s=5.0),
+                            seed=0)  # fmt: skip
+    model = SAC("MlpPolicy", venv, buffer_size=1_000, device="cpu")
+    added = add_guided_transitions(model, venv, 250)
+    buffer = model.replay_buffer
+    rows = added // 4
+    assert added == 252 and buffer.pos == rows  # whole vector steps, 4 cars each
+    actions = buffer.actions[:rows]
+    assert np.all(np.abs(actions) <= 1.0) and actions[..., 1].max() > 0.3  # scaled to the policy's [-1, 1]; throttle
+    assert buffer.rewards[:rows].mean() > 0.5  # progress along the line
+    # 5 s episodes: each car ended one every 50 steps as a truncation (a time limit), not a terminal state.
+    ended = buffer.dones[:rows].astype(bool)
+    assert ended.sum() == 4 * (rows // 50) and buffer.timeouts[:rows][ended].all()
+    # An ended episode's next observation is its last one, not the next episode's first.
+    row = int(np.flatnonzero(ended[:, 0])[0])
+    assert not np.allclose(buffer.next_observations[row, 0], buffer.observations[row + 1, 0])
+
+
+def test_train_policy_fills_the_buffer_first_and_refuses_a_negative_count(small_track, tmp_path):
+    from vision_rl.phase2_rl.train import train_policy
+
+    result = train_policy(tiny_train_config(small_track, tmp_path / "run", guide_steps=100, eval_every_steps=0))
+    assert result["guided_transitions"] == 100 and result["num_timesteps"] >= 200
+    with pytest.raises(ValueError, match="--guide-steps -1"):
+        train_policy(tiny_train_config(small_track, tmp_path / "bad", guide_steps=-1))
