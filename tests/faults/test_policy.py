@@ -190,6 +190,8 @@ def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeyp
         ({"frame_delay_s": 2.0}, "--frame-delay-s 2.0"),
         ({"steer_action": "torque"}, "--steer-action must be one of angle, rate"),
         ({"wall_penalty_speed": "start"}, "--wall-penalty-speed must be one of end, impact"),
+        ({"guide_bc_weight": 1.0}, "give --guide-steps too"),
+        ({"guide_steps": 100, "guide_bc_weight": -1.0}, "--guide-bc-weight -1.0"),
     ],
 )
 def test_out_of_range_options_are_refused_before_anything_is_written(small_track, tmp_path, change, message, fault):

@@ -40,3 +40,34 @@ def test_train_policy_fills_the_buffer_first_and_refuses_a_negative_count(small_
     assert result["guided_transitions"] == 100 and result["num_timesteps"] >= 200
     with pytest.raises(ValueError, match="--guide-steps -1"):
         train_policy(tiny_train_config(small_track, tmp_path / "bad", guide_steps=-1))
+
+
+def test_the_cloning_step_pulls_the_actor_towards_the_ais_actions(small_track):
+    import torch
+
+    from vision_rl.envs.core import RacingConfig
+    from vision_rl.envs.vector import make_sb3_vec_env
+    from vision_rl.phase2_rl.guide import add_guided_transitions, guided_sac_class
+
+    torch.set_num_threads(1)
+    venv = make_sb3_vec_env(RacingConfig(track=small_track, n_groups=4, steer_action="rate_scaled"), seed=0)
+    model = guided_sac_class()("MlpPolicy", venv, buffer_size=1_000, learning_rate=1e-3, device="cpu", seed=0)
+    from stable_baselines3.common.logger import configure
+
+    model.set_logger(configure(None, [""]))
+    added = add_guided_transitions(model, venv, 400)
+    model.demo_rows = added // 4
+    buffer = model.replay_buffer
+    obs = torch.as_tensor(buffer.observations[: model.demo_rows].reshape(-1, buffer.obs_shape[0]))
+    target = torch.as_tensor(buffer.actions[: model.demo_rows].reshape(-1, 2))
+
+    def error() -> float:
+        with torch.no_grad():
+            return float(torch.mean((model.actor(obs, deterministic=True) - target) ** 2))
+
+    before = error()
+    model.train(gradient_steps=50, batch_size=64)  # SAC alone: the cloning weight is 0
+    without = error()
+    model.bc_weight = 1.0
+    model.train(gradient_steps=50, batch_size=64)
+    assert error() < 0.5 * min(before, without)

@@ -46,3 +46,41 @@ def add_guided_transitions(model, venv, n_transitions: int) -> int:
         obs = next_obs
         added += len(reward)
     return added
+
+
+def guided_sac_class():
+    """:class:`stable_baselines3.SAC` with a behaviour-cloning step on the guided transitions after each update
+    (imported on first use: SB3 imports torch).
+
+    SAC's critic values an action by what the current policy does after it, so the AI's braking in the buffer does
+    not make braking worth more to a policy that accelerates into the wall on the next step (the ``--guide-steps``
+    probes, docs/results/state-expressway-hatchback-clean). After each SAC update the actor takes one gradient step on
+    ``bc_weight * |mean action - the AI's action|^2`` over a batch of the first ``demo_rows`` buffer rows (where
+    :func:`add_guided_transitions` put them), as DDPG from demonstrations adds a cloning loss to its actor's."""
+    import torch
+    from stable_baselines3 import SAC
+
+    class GuidedSAC(SAC):
+        demo_rows: int = 0
+        """Buffer rows (vector steps) from the start that hold the AI's transitions."""
+        bc_weight: float = 0.0
+
+        def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+            super().train(gradient_steps, batch_size)
+            rows = min(self.demo_rows, self.replay_buffer.size())
+            if rows == 0 or self.bc_weight <= 0:
+                return
+            buffer = self.replay_buffer
+            for _ in range(gradient_steps):
+                # torch's generator, which SB3 seeds with the run's seed, so a run repeats.
+                row = torch.randint(0, rows, (batch_size,)).numpy()
+                env = torch.randint(0, buffer.n_envs, (batch_size,)).numpy()
+                obs = torch.as_tensor(buffer.observations[row, env], device=self.device)
+                target = torch.as_tensor(buffer.actions[row, env], device=self.device)
+                loss = self.bc_weight * torch.mean((self.actor(obs, deterministic=True) - target) ** 2)
+                self.actor.optimizer.zero_grad()
+                loss.backward()
+                self.actor.optimizer.step()
+            self.logger.record("train/bc_loss", loss.item())
+
+    return GuidedSAC

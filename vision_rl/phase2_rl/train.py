@@ -176,6 +176,9 @@ class TrainPolicyConfig:
     guide_steps: int = 0
     """Transitions of the built-in AI driving the cars (at the start skill) put in the replay buffer before the
     first update: demonstrations of braking, which SAC does not find here (not in the papers; 0: none)."""
+    guide_bc_weight: float = 0.0
+    """With --guide-steps: weight of a behaviour-cloning step of the actor on the AI's transitions after each SAC
+    update (not in the papers; 0: none)."""
     n_step: int = 1
     """Rewards summed over N control steps before the critics bootstrap (Stable-Baselines3's n-step replay; 1: the
     papers' one-step targets)."""
@@ -391,7 +394,10 @@ class _Run:
         env = VecMonitor(venv)
         self.env = env
         p = self.preset
-        model = SAC(
+        cloning = self._guide_bc_weight() > 0
+        if cloning:
+            from vision_rl.phase2_rl.guide import guided_sac_class
+        model = (guided_sac_class() if cloning else SAC)(
             "MlpPolicy", env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
             learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
             train_freq=(p.train_freq_steps, "step"), gradient_steps=p.gradient_steps,
@@ -408,9 +414,19 @@ class _Run:
             from vision_rl.phase2_rl.guide import add_guided_transitions
 
             self.guided_transitions = add_guided_transitions(model, venv, self.cfg.guide_steps)
+        if cloning and (self.previous is None or self.buffer_restored):
+            # The guided rows lead the buffer; a resumed run finds them there when its buffer was saved.
+            guided = self.guided_transitions or int(self.previous.train_config.get("guide_steps", 0))
+            model.demo_rows = -(-guided // self.racing.n_groups)
+            model.bc_weight = self._guide_bc_weight()
         model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
         self.eval_driver: PolicyDriver | None = None
         return model
+
+    def _guide_bc_weight(self) -> float:
+        """The run's cloning weight: a resumed run keeps the one it was started with."""
+        config = self.previous.train_config if self.previous is not None else dataclasses.asdict(self.cfg)
+        return float(config.get("guide_bc_weight", 0.0))
 
     def _restore(self, model: SAC) -> None:
         """Weights, optimisers and counters of the run, and its buffer when one was saved."""
@@ -540,7 +556,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "frame_delay_s": 0 <= cfg.frame_delay_s <= 1,
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
-        "guide_steps": cfg.guide_steps >= 0,
+        "guide_steps": cfg.guide_steps >= 0, "guide_bc_weight": cfg.guide_bc_weight >= 0,
     }  # fmt: skip
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
@@ -553,6 +569,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         raise ValueError(
             f"--wall-penalty-speed must be one of {', '.join(WALL_PENALTY_SPEEDS)}, got {cfg.wall_penalty_speed!r}"
         )
+    if cfg.guide_bc_weight > 0 and cfg.guide_steps == 0:
+        raise ValueError("--guide-bc-weight clones the AI's transitions: give --guide-steps too")
     if cfg.frame_delay_s > 0 and not cfg.encoder:
         raise ValueError("--frame-delay-s delays the vision frames: give --encoder (the state observation has none)")
     if cfg.workers is not None or cfg.address:
