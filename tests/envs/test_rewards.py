@@ -84,7 +84,7 @@ def test_wall_penalty_speed_end_is_the_step_end_and_impact_the_larger_of_start_a
 
 
 def test_the_wall_brakes_a_car_that_enters_the_hairpin_flat_out_and_impact_charges_the_speed_that_hit():
-    """The exploit state policies learned on expressway (docs/results/state-expressway-hatchback-speed-scaled): at
+    """The exploit state policies learned on expressway (docs/results/state-expressway-hatchback-clean): at
     154 km/h into the 32 m hairpin at 0.87 km with the throttle on, the outer wall takes the car to about 85 km/h
     within two 0.1 s steps; ``end`` charges that step at the speed left, ``impact`` at the speed that hit."""
     from vision_rl.envs.core import RacingConfig, RacingCore

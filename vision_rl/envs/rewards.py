@@ -23,9 +23,9 @@ def wall_penalty_speed_mps(speed_start_mps: np.ndarray, speed_end_mps: np.ndarra
     ``impact``, the larger of the step's start and end speeds.
 
     ``impact`` is not in the papers. A hit takes its speed away within the step, so ``end`` charges a car that
-    brakes on the wall at the speed the wall left it: state policies on the papers' reward learned to enter the
+    brakes on the wall at the speed the wall left it: state policies learned to enter the
     expressway's 32 m hairpin at 154 km/h with the throttle on and let the outer wall take them to 85 km/h in one
-    0.1 s step, charged as an 85 km/h touch (docs/results/state-expressway-hatchback-speed-scaled). ``impact``
+    0.1 s step, charged as an 85 km/h touch (docs/results/state-expressway-hatchback-clean). ``impact``
     charges the kinetic energy the car brought to the wall, which the papers name as the term's purpose ("proportional
     to the square of the car's speed", overtaking paper Sec. IV-B)."""
     if at == "end":
