@@ -71,3 +71,34 @@ def test_the_cloning_step_pulls_the_actor_towards_the_ais_actions(small_track):
     model.bc_weight = 1.0
     model.train(gradient_steps=50, batch_size=64)
     assert error() < 0.5 * min(before, without)
+
+
+def test_pretraining_fits_the_actor_to_the_ais_actions_before_sac_updates(small_track, tmp_path):
+    import torch
+
+    from vision_rl.phase2_rl import train as train_module
+
+    torch.set_num_threads(1)
+    fits = {}
+    build = train_module._Run.build
+
+    def measured_build(run):
+        model = build(run)
+        buffer, rows = model.replay_buffer, model.demo_rows
+        obs = torch.as_tensor(buffer.observations[:rows].reshape(-1, buffer.obs_shape[0]))
+        target = torch.as_tensor(buffer.actions[:rows].reshape(-1, 2))
+        with torch.no_grad():
+            fits[run.cfg.guide_pretrain_steps] = float(torch.mean((model.actor(obs, deterministic=True) - target) ** 2))
+        fits["variance"] = float(target.var(0).mean())
+        return model
+
+    train_module._Run.build = measured_build
+    try:
+        for steps in (0, 1_000):
+            cfg = tiny_train_config(small_track, tmp_path / f"run{steps}", steps=60, learning_starts=50,
+                                    guide_steps=400, guide_bc_weight=1e-9, guide_pretrain_steps=steps,
+                                    eval_every_steps=0)  # fmt: skip
+            train_module.train_policy(cfg)
+    finally:
+        train_module._Run.build = build
+    assert fits[1_000] < 0.1 * fits["variance"] < fits[0]

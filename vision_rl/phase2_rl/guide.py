@@ -67,8 +67,14 @@ def guided_sac_class():
 
         def train(self, gradient_steps: int, batch_size: int = 64) -> None:
             super().train(gradient_steps, batch_size)
+            if self.bc_weight > 0:
+                self.clone(gradient_steps, batch_size, self.bc_weight)
+
+        def clone(self, gradient_steps: int, batch_size: int, weight: float = 1.0) -> None:
+            """``gradient_steps`` actor steps on ``weight * |mean action - the AI's action|^2`` (none without guided
+            rows in the buffer)."""
             rows = min(self.demo_rows, self.replay_buffer.size())
-            if rows == 0 or self.bc_weight <= 0:
+            if rows == 0:
                 return
             buffer = self.replay_buffer
             for _ in range(gradient_steps):
@@ -77,7 +83,7 @@ def guided_sac_class():
                 env = torch.randint(0, buffer.n_envs, (batch_size,)).numpy()
                 obs = torch.as_tensor(buffer.observations[row, env], device=self.device)
                 target = torch.as_tensor(buffer.actions[row, env], device=self.device)
-                loss = self.bc_weight * torch.mean((self.actor(obs, deterministic=True) - target) ** 2)
+                loss = weight * torch.mean((self.actor(obs, deterministic=True) - target) ** 2)
                 self.actor.optimizer.zero_grad()
                 loss.backward()
                 self.actor.optimizer.step()

@@ -179,6 +179,9 @@ class TrainPolicyConfig:
     guide_bc_weight: float = 0.0
     """With --guide-steps: weight of a behaviour-cloning step of the actor on the AI's transitions after each SAC
     update (not in the papers; 0: none)."""
+    guide_pretrain_steps: int = 0
+    """With --guide-steps: behaviour-cloning steps of the actor on the AI's transitions before the first SAC update,
+    so that training starts from a policy that brakes (not in the papers; 0: none)."""
     n_step: int = 1
     """Rewards summed over N control steps before the critics bootstrap (Stable-Baselines3's n-step replay; 1: the
     papers' one-step targets)."""
@@ -394,7 +397,7 @@ class _Run:
         env = VecMonitor(venv)
         self.env = env
         p = self.preset
-        cloning = self._guide_bc_weight() > 0
+        cloning = self._guide_bc_weight() > 0 or (self.previous is None and self.cfg.guide_pretrain_steps > 0)
         if cloning:
             from vision_rl.phase2_rl.guide import guided_sac_class
         model = (guided_sac_class() if cloning else SAC)(
@@ -404,6 +407,7 @@ class _Run:
             policy_kwargs={"net_arch": list(p.hidden_units)}, seed=self.seed + self.start_steps,
             device=self.device, verbose=0, n_steps=self.cfg.n_step,
         )  # fmt: skip
+        model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
         encoder_sha = self.encoder_sha256 if self.kind == "vision" else None
         self.fingerprint = policy_fingerprint(self.racing, self.kind, venv.observation_space.shape[0], encoder_sha)
         self.buffer_restored = 0
@@ -419,7 +423,8 @@ class _Run:
             guided = self.guided_transitions or int(self.previous.train_config.get("guide_steps", 0))
             model.demo_rows = -(-guided // self.racing.n_groups)
             model.bc_weight = self._guide_bc_weight()
-        model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
+            if self.previous is None and self.cfg.guide_pretrain_steps > 0:
+                model.clone(self.cfg.guide_pretrain_steps, self.preset.batch_size)
         self.eval_driver: PolicyDriver | None = None
         return model
 
@@ -557,6 +562,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
         "guide_steps": cfg.guide_steps >= 0, "guide_bc_weight": cfg.guide_bc_weight >= 0,
+        "guide_pretrain_steps": cfg.guide_pretrain_steps >= 0,
     }  # fmt: skip
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
@@ -569,8 +575,10 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         raise ValueError(
             f"--wall-penalty-speed must be one of {', '.join(WALL_PENALTY_SPEEDS)}, got {cfg.wall_penalty_speed!r}"
         )
-    if cfg.guide_bc_weight > 0 and cfg.guide_steps == 0:
-        raise ValueError("--guide-bc-weight clones the AI's transitions: give --guide-steps too")
+    if (cfg.guide_bc_weight > 0 or cfg.guide_pretrain_steps > 0) and cfg.guide_steps == 0:
+        raise ValueError(
+            "--guide-bc-weight and --guide-pretrain-steps clone the AI's transitions: give --guide-steps too"
+        )
     if cfg.frame_delay_s > 0 and not cfg.encoder:
         raise ValueError("--frame-delay-s delays the vision frames: give --encoder (the state observation has none)")
     if cfg.workers is not None or cfg.address:
