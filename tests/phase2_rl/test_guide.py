@@ -25,9 +25,10 @@ def test_guided_transitions_enter_the_buffer_as_the_learner_would_store_them(sma
     actions = buffer.actions[:rows]
     assert np.all(np.abs(actions) <= 1.0) and actions[..., 1].max() > 0.3  # scaled to the policy's [-1, 1]; throttle
     assert buffer.rewards[:rows].mean() > 0.5  # progress along the line
-    # 5 s episodes: each car ended one every 50 steps as a truncation (a time limit), not a terminal state.
+    # 5 s episodes: each car ended one every 50 steps as a truncation (a time limit), not a terminal state, and the
+    # last guided step ends every car's episode (the learner starts its own).
     ended = buffer.dones[:rows].astype(bool)
-    assert ended.sum() == 4 * (rows // 50) and buffer.timeouts[:rows][ended].all()
+    assert ended.sum() == 4 * (rows // 50) + 4 and ended[-1].all() and buffer.timeouts[:rows][ended].all()
     # An ended episode's next observation is its last one, not the next episode's first.
     row = int(np.flatnonzero(ended[:, 0])[0])
     assert not np.allclose(buffer.next_observations[row, 0], buffer.observations[row + 1, 0])

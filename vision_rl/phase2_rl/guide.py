@@ -36,6 +36,10 @@ def add_guided_transitions(model, venv, n_transitions: int) -> int:
     while added < n_transitions:
         next_obs, reward, terminated, truncated, infos, actions = core.guided_step(autoreset=True)
         last_obs = _copy(next_obs)
+        # The learner resets the world after the last guided step: the guided episodes end there, cut short (so an
+        # n-step return does not run on into the learner's first episode).
+        if added + len(reward) >= n_transitions:
+            truncated = ~terminated
         buffer_infos = []
         for g, info in enumerate(infos):
             if "final_info" in info:
