@@ -58,7 +58,8 @@ SPEED_SCALED_STEER_G_MULTIPLE = 6.0
 def usable_steer_rad(speed_mps: np.ndarray, wheelbase_m: float) -> np.ndarray:
     """The ``speed_scaled`` range at a speed: ``min(pi/6, k * wheelbase_m * g / speed^2)``, rad."""
     speed_sq = np.maximum(np.square(np.asarray(speed_mps, dtype=np.float64)), 1e-6)
-    return np.minimum(ACTION_STEER_LIMIT_RAD, SPEED_SCALED_STEER_G_MULTIPLE * wheelbase_m * GRAVITY_MPS2 / speed_sq)
+    one_g_rad = wheelbase_m * GRAVITY_MPS2 / speed_sq  # in this order: trained policies' laps repeat bit for bit
+    return np.minimum(ACTION_STEER_LIMIT_RAD, SPEED_SCALED_STEER_G_MULTIPLE * one_g_rad)
 
 
 def steering_command(
