@@ -124,3 +124,14 @@ def test_a_guided_step_lets_the_ai_drive_and_returns_the_actions_that_ask_for_it
     assert not np.any(walls)  # the AI at its default skill drives clean
     assert np.mean(rewards) > 2.5  # about 30 m/s of progress along the line
     assert np.any(np.array(rewards) > 0)
+
+
+def test_the_speed_scaled_range_is_computed_in_its_recorded_order_of_operations():
+    # Trained policies' laps are chaotic in the last bit of the command: an algebraically equal reorder
+    # (k * L * g / v^2) moved a vision policy's protocol lap by 0.2 s, so the order is part of the contract.
+    from vision_rl.envs.core import SPEED_SCALED_STEER_G_MULTIPLE, usable_steer_rad
+    from vision_rl.sim.vehicle import GRAVITY_MPS2
+
+    speed = np.linspace(15.0, 45.0, 301)
+    expected = np.minimum(LIMIT, SPEED_SCALED_STEER_G_MULTIPLE * (2.566 * GRAVITY_MPS2 / speed**2))
+    assert np.array_equal(usable_steer_rad(speed, 2.566), expected)
