@@ -36,7 +36,17 @@ class RacingSB3VecEnv(VecEnv):
         self._actions = np.asarray(actions)
 
     def step_wait(self):
-        obs, reward, terminated, truncated, infos = self.core.step(self._actions, autoreset=True)
+        return self._sb3_step(*self.core.step(self._actions, autoreset=True))
+
+    def guided_step(self):
+        """:meth:`RacingCore.guided_step` (the built-in AI drives the egos) in the terms of :meth:`step_wait`:
+        (obs, rewards, dones, infos, the actions that ask for what the AI did)."""
+        *step, actions = self.core.guided_step(autoreset=True)
+        return (*self._sb3_step(*step), actions)
+
+    @staticmethod
+    def _sb3_step(obs, reward, terminated, truncated, infos):
+        """The core's step in SB3's terms: ``terminal_observation`` and ``TimeLimit.truncated`` in the infos."""
         out = []
         for g, info in enumerate(infos):
             if "final_info" in info:

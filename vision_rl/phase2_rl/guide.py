@@ -13,40 +13,28 @@ from __future__ import annotations
 import numpy as np
 
 
-def _copy(obs):
-    return {k: v.copy() for k, v in obs.items()} if isinstance(obs, dict) else obs.copy()
-
-
-def _put(obs, g: int, value) -> None:
-    if isinstance(obs, dict):
-        for k in obs:
-            obs[k][g] = value[k]
-    else:
-        obs[g] = value
-
-
 def add_guided_transitions(model, venv, n_transitions: int) -> int:
-    """Drive every ego of ``venv`` (a :class:`vision_rl.envs.sb3.RacingSB3VecEnv`) by the built-in AI and add at
-    least ``n_transitions`` of its transitions to ``model``'s replay buffer, as Stable-Baselines3's own collection
-    would add them (the true last observation of an ended episode, time limits marked as truncations). Returns how
-    many were added; ``venv`` is left mid-episode, so a learner resets it before collecting its own."""
-    core = venv.core
+    """Drive every ego of ``venv`` (a :class:`vision_rl.envs.sb3.RacingSB3VecEnv` with vector observations) by the
+    built-in AI and add at least ``n_transitions`` of its transitions to ``model``'s replay buffer, as
+    Stable-Baselines3's own collection would add them (the true last observation of an ended episode, time limits
+    marked as truncations). Returns how many were added; ``venv`` is left mid-episode, so a learner resets it before
+    collecting its own."""
     obs = venv.reset()
     added = 0
     while added < n_transitions:
-        next_obs, reward, terminated, truncated, infos, actions = core.guided_step(autoreset=True)
-        last_obs = _copy(next_obs)
-        # The learner resets the world after the last guided step: the guided episodes end there, cut short (so an
-        # n-step return does not run on into the learner's first episode).
-        if added + len(reward) >= n_transitions:
-            truncated = ~terminated
-        buffer_infos = []
+        next_obs, reward, dones, infos, actions = venv.guided_step()
+        last_obs = next_obs.copy()
         for g, info in enumerate(infos):
-            if "final_info" in info:
-                _put(last_obs, g, info["final_observation"])
-            buffer_infos.append({"TimeLimit.truncated": bool(truncated[g] and not terminated[g])})
+            if "terminal_observation" in info:
+                last_obs[g] = info["terminal_observation"]
+        if added + len(reward) >= n_transitions:
+            # The learner resets the world after this step: every guided episode ends here, cut short (so an n-step
+            # return does not run on into the learner's first episode).
+            infos = [{**info, "TimeLimit.truncated": True} if not done else info
+                     for info, done in zip(infos, dones, strict=True)]  # fmt: skip
+            dones = np.ones_like(dones)
         scaled = model.policy.scale_action(actions.astype(np.float32))
-        model.replay_buffer.add(obs, last_obs, scaled, reward, terminated | truncated, buffer_infos)
+        model.replay_buffer.add(obs, last_obs, scaled, reward, dones, infos)
         obs = next_obs
         added += len(reward)
     return added
