@@ -82,6 +82,7 @@ from vision_rl.phase2_rl.artifact import (
 )
 from vision_rl.phase2_rl.demos import OBS_DIM, OBSERVATION, Demos, load_demos_for, race_config
 from vision_rl.phase2_rl.dreamer import DreamerAgent, DreamerRecipe, SequenceReplay
+from vision_rl.phase2_rl.interrupts import learn_between_interrupts
 from vision_rl.phase2_rl.overtaking import BUDGETS
 from vision_rl.phase2_rl.persist import (
     ArtifactError,
@@ -764,8 +765,8 @@ def train_online(cfg: TrainBaselineConfig, progress: Progress | None = None) -> 
         if remaining > 0:
             if session.start_steps == 0:
                 session.save(model, buffer=False)  # the run folder holds a loadable policy from the start
-            model.learn(total_timesteps=remaining, callback=_OnlineLoop(session, progress), reset_num_timesteps=False,
-                        log_interval=None)  # fmt: skip
+            learn_between_interrupts(model, _OnlineLoop(session, progress), total_timesteps=remaining,
+                                     reset_num_timesteps=False, log_interval=None)  # fmt: skip
     except KeyboardInterrupt:
         interrupted = True
     wall_s = time.perf_counter() - t0

@@ -76,6 +76,7 @@ from vision_rl.phase2_rl.artifact import (
     racing_config_to_dict,
     resolve_policy_paths,
 )
+from vision_rl.phase2_rl.interrupts import learn_between_interrupts
 from vision_rl.phase2_rl.persist import (
     ArtifactError,
     load_buffer,
@@ -800,7 +801,8 @@ def _train_stages(cfg: TrainOvertakingConfig, cluster: Any, progress: Progress |
             if remaining > 0 and cluster is not None:
                 session.learn_with_samplers(model, loop, cluster)
             elif remaining > 0:
-                model.learn(total_timesteps=remaining, callback=loop, reset_num_timesteps=False, log_interval=4)
+                learn_between_interrupts(model, loop, total_timesteps=remaining, reset_num_timesteps=False,
+                                         log_interval=4)  # fmt: skip
         except KeyboardInterrupt:
             interrupted = True
         if interrupted:

@@ -55,6 +55,7 @@ from vision_rl.phase2_rl.artifact import (
     racing_config_to_dict,
     snapshot_sidecar,
 )
+from vision_rl.phase2_rl.interrupts import learn_between_interrupts
 from vision_rl.phase2_rl.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
 
 METRICS_NAME = "metrics.jsonl"
@@ -620,7 +621,8 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
             if remaining > 0 and cluster is not None:
                 sampling = _learn_with_samplers(run, model, loop, cluster)
             elif remaining > 0:
-                model.learn(total_timesteps=remaining, callback=loop, reset_num_timesteps=False, log_interval=4)
+                learn_between_interrupts(model, loop, total_timesteps=remaining, reset_num_timesteps=False,
+                                         log_interval=4)  # fmt: skip
         except KeyboardInterrupt:
             interrupted = True
         run.save(model, buffer=True, snapshot=not interrupted and remaining > 0)

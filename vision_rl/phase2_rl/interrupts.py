@@ -1,0 +1,77 @@
+"""Ctrl-C and SIGTERM stop a Stable-Baselines3 run between rollouts, never inside a step.
+
+SB3's off-policy loop counts a vector step (``num_timesteps``) before it stores the step's transitions, and calls
+the callback in between, where the trainers evaluate and save. An interrupt there saved a run whose counter was one
+vector step ahead of its replay buffer (seen: 1,490 steps counted, 1,488 transitions stored, with 2 cars).
+:func:`learn_between_interrupts` holds the first SIGINT or SIGTERM until the next rollout starts (the step stored,
+the updates done) and acts on it there as its handler would have; a second one acts at once. A signal whose
+handler is the system's (``SIG_DFL``, ``SIG_IGN``) is left alone: only what would have raised in Python waits."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class HeldSignal:
+    """A SIGINT or SIGTERM waiting for :meth:`release`; install with :meth:`installed`."""
+
+    def __init__(self) -> None:
+        self.pending: tuple[int, Any] | None = None
+        self._handlers: dict[int, Callable[[int, Any], Any]] = {}
+
+    def _hold(self, signum: int, frame: Any) -> None:
+        if self.pending is not None:  # the second signal: no more waiting
+            self.pending = None
+            self._handlers[signum](signum, frame)
+            return
+        self.pending = (signum, frame)
+
+    def release(self) -> None:
+        """Where the run is consistent: act on a held signal as its own handler would have (that may raise)."""
+        if self.pending is not None:
+            signum, frame = self.pending
+            self.pending = None
+            self._handlers[signum](signum, frame)
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[HeldSignal]:
+        """Hold the signals inside; on the way out, restore the handlers and act on one still held."""
+        if threading.current_thread() is threading.main_thread():  # signals reach only the main thread
+            for signum in _SIGNALS:
+                handler = signal.getsignal(signum)
+                if callable(handler):
+                    self._handlers[signum] = handler
+                    signal.signal(signum, self._hold)
+        try:
+            yield self
+        finally:
+            for signum, handler in self._handlers.items():
+                signal.signal(signum, handler)
+        self.release()
+
+
+class _ReleaseAtRolloutStart(BaseCallback):
+    def __init__(self, held: HeldSignal) -> None:
+        super().__init__()
+        self.held = held
+
+    def _on_rollout_start(self) -> None:
+        self.held.release()
+
+    def _on_step(self) -> bool:
+        return True
+
+
+def learn_between_interrupts(model: Any, callback: BaseCallback, **learn_kwargs: Any) -> Any:
+    """``model.learn(callback=callback, **learn_kwargs)`` with the first interrupt held to a rollout's start."""
+    held = HeldSignal()
+    with held.installed():
+        return model.learn(callback=CallbackList([callback, _ReleaseAtRolloutStart(held)]), **learn_kwargs)
