@@ -113,3 +113,42 @@ def test_the_wall_brakes_a_car_that_enters_the_hairpin_flat_out_and_impact_charg
         charged_more = end_rewards[k] - impact_rewards[k]
         assert charged_more == pytest.approx(0.005 * (speeds[k] ** 2 - speeds[k + 1] ** 2), rel=1e-6)
     np.testing.assert_allclose(end_rewards[:hit], impact_rewards[:hit])  # no contact, no difference
+
+
+def _hairpin_run(cut_s: float, omega: float, steps: int = 45):
+    """The hairpin entry of the test above: speeds, wall contact and the cut's steps left after each step."""
+    from vision_rl.envs.core import RacingConfig, RacingCore
+
+    cfg = RacingConfig(track="expressway", n_groups=1, steer_action="rate_scaled", wall_hit_throttle_cut_s=cut_s,
+                       normalize=False)  # fmt: skip
+    core = RacingCore(cfg, seed=0)
+    core.reset_groups(np.array([0]))
+    core.world.reset(s_m=np.array([860.0]), lateral_m=np.array([-2.5]), speed_mps=np.array([42.8]), car_ids=[0])
+    core.steer_command_rad[:] = 0.0
+    speeds, walls, left = [], [], []
+    for _ in range(steps):
+        core.step(np.array([[-LIMIT, omega]]), autoreset=False)
+        v = core.world.state.vehicle
+        speeds.append(float(np.hypot(v.vx_mps[0], v.vy_mps[0])))
+        walls.append(bool(core.world.state.wall_contact[0]))
+        left.append(int(core.throttle_cut_steps[0]))
+    return np.array(speeds), np.array(walls), np.array(left), core
+
+
+def test_a_wall_hit_cuts_the_throttle_for_the_set_time_and_leaves_the_brake():
+    free, walls, left_free, _ = _hairpin_run(0.0, 0.97)
+    cut, walls_cut, left, core = _hairpin_run(1.5, 0.97)
+    hit = int(np.argmax(walls))
+    assert walls[hit] and not walls[:hit].any()
+    np.testing.assert_array_equal(cut[: hit + 1], free[: hit + 1])  # the same up to the step that hits
+    assert left[hit] == 15 and not left[:hit].any() and not left_free.any()  # 1.5 s of 0.1 s steps
+    assert cut[hit + 1] < free[hit + 1]  # no throttle in the next step
+    begins = np.flatnonzero(walls_cut[1:] & ~walls_cut[:-1]) + 1  # a later contact that begins re-arms the cut
+    for k in range(hit + 1, len(left)):
+        assert left[k] == (15 if k in begins else max(left[k - 1] - 1, 0))
+    core.reset_groups(np.array([0]))
+    assert core.throttle_cut_steps[0] == 0 and not core.touching_wall[0]
+    braking, _, _, _ = _hairpin_run(0.0, -1.0)
+    braking_cut, _, left_braking, _ = _hairpin_run(1.5, -1.0)
+    assert left_braking.any()  # it hits the wall braking too
+    np.testing.assert_array_equal(braking_cut, braking)  # the brake is never cut

@@ -142,6 +142,11 @@ class RacingConfig:
     """Speed the wall penalty squares: ``end`` of the step (the papers) or ``impact``, the larger of the step's start
     and end speeds, so a hit is charged at the speed that hit (:func:`vision_rl.envs.rewards.wall_penalty_speed_mps`;
     not in the papers)."""
+    wall_hit_throttle_cut_s: float = 0.0
+    """After a control step in which the ego's wall contact begins, its throttle is held at zero (the brake still
+    works) for this long, s: a hit costs time, as GT Sport's wall-collision penalty slows a car down, where a reward
+    penalty alone left the wall a cheaper brake than the brakes (docs/results/state-expressway-hatchback-clean; not
+    in the papers; 0: off). The observation does not show the cut; the lap-time protocol never applies it."""
     frame_delay_s: float = 0.0
     """Vision: frames show the world this long before the state (the paper's 4 frames at 60 Hz: 0.067; 0: none);
     the dedicated features are not delayed."""
@@ -194,6 +199,8 @@ class RacingConfig:
             raise ValueError(f"n_groups must be >= 1, got {self.n_groups}")
         if min(self.wall_penalty_c_w, self.steer_change_penalty_c_s, self.off_track_penalty_c_o) < 0:
             raise ValueError("the reward's penalty weights (c_w, c_s, c_o) must be >= 0")
+        if self.wall_hit_throttle_cut_s < 0:
+            raise ValueError(f"wall_hit_throttle_cut_s must be >= 0, got {self.wall_hit_throttle_cut_s}")
         if self.episode_s < self.control_dt_s:
             raise ValueError("episode_s must cover at least one control step")
         ratio = self.control_dt_s / AI_CONTROL_DT_S
@@ -203,6 +210,11 @@ class RacingConfig:
     @property
     def opponents(self) -> int:
         return SCENARIOS[self.scenario][0]
+
+    @property
+    def throttle_cut_steps(self) -> int:
+        """Control steps of the throttle cut after a wall hit (``wall_hit_throttle_cut_s``, rounded)."""
+        return round(self.wall_hit_throttle_cut_s / self.control_dt_s)
 
     @property
     def max_episode_steps(self) -> int:
@@ -245,6 +257,9 @@ class RacingCore:
         self.steps = np.zeros(m, dtype=np.int64)
         self.progress_m = np.zeros(m)
         self.steer_command_rad = np.zeros(m)
+        self.touching_wall = np.zeros(m, dtype=bool)
+        self.throttle_cut_steps = np.zeros(m, dtype=np.int64)
+        """Control steps left of each ego's throttle cut after a wall hit (``wall_hit_throttle_cut_s``)."""
         self.start_gap_m = np.zeros((m, cfg.opponents))
         self.gap_m = np.zeros((m, cfg.opponents))
         self.stuck = StuckDetector(self.world.state.unwrapped_s_m[self.ego_ids], cfg.control_dt_s)
@@ -300,6 +315,8 @@ class RacingCore:
         self.progress_m[gids] = 0.0
         # An episode starts from the wheel angle the car was placed with, so a first command that keeps it is free.
         self.steer_command_rad[gids] = self.world.state.vehicle.steer_rad[self.ego_ids[gids]]
+        self.touching_wall[gids] = False
+        self.throttle_cut_steps[gids] = 0
         self.stuck.reset(gids, self.world.state.unwrapped_s_m[self.ego_ids])
         if k > 1:
             self.gap_m[gids] = self._gaps()[gids]
@@ -360,7 +377,9 @@ class RacingCore:
         ego_speed = np.hypot(st.vehicle.vx_mps[self.ego_ids], st.vehicle.vy_mps[self.ego_ids])
         steer_rad = steering_command(actions[:, 0], self.steer_command_rad, cfg.steer_action, self.max_change_rad,
                                      ego_speed, self.car.wheelbase_m)  # fmt: skip
-        events = self.advance(steer_rad, np.clip(actions[:, 1], -1.0, 1.0))
+        omega = np.clip(actions[:, 1], -1.0, 1.0)
+        omega = np.where(self.throttle_cut_steps > 0, np.minimum(omega, 0.0), omega)
+        events = self.advance(steer_rad, omega)
         return self._after_step(s_prev, ego_speed, steer_rad, events, autoreset)
 
     @property
@@ -419,6 +438,10 @@ class RacingCore:
                 cfg.overtake_gain_c_r, cfg.detection_range_c_d_m,
             )  # fmt: skip
             self.gap_m = gap_now
+        touching = st.wall_contact[ego]
+        cut = np.maximum(self.throttle_cut_steps - 1, 0)
+        self.throttle_cut_steps = np.where(touching & ~self.touching_wall, cfg.throttle_cut_steps, cut)
+        self.touching_wall = touching.copy()
         self.steps += 1
         self.progress_m += progress
         terminated = np.zeros(cfg.n_groups, dtype=bool)

@@ -150,6 +150,9 @@ class TrainPolicyConfig:
     """c_s of the reward's steering-change penalty ``c_s * (change / limit)^2`` (0: the papers' reward)."""
     off_track_penalty_c_o: float = 0.0
     """c_o of a penalty c_o |v|^2 per step ending with a wheel over the edge line (not in the papers; 0: none)."""
+    wall_hit_throttle_cut_s: float = 0.0
+    """After a wall hit, hold the throttle at zero this long, s: a hit costs time (GT Sport's wall-collision
+    penalty; not in the papers; 0: off; evaluations never apply it)."""
     wall_ends_episode: bool = False
     """End a training episode when the car touches a wall (a terminal step; not in the GT Sport papers)."""
     frame_delay_s: float = 0.0
@@ -356,6 +359,7 @@ class _Run:
                 steer_change_penalty_c_s=cfg.steer_change_penalty_c_s, frame_delay_s=cfg.frame_delay_s,
                 steer_action=cfg.steer_action, terminate_on_wall=cfg.wall_ends_episode,
                 off_track_penalty_c_o=cfg.off_track_penalty_c_o, wall_penalty_speed=cfg.wall_penalty_speed,
+                wall_hit_throttle_cut_s=cfg.wall_hit_throttle_cut_s,
             )  # fmt: skip
             self.start_steps = 0
             self.train_time_before_s = 0.0
@@ -559,6 +563,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "wall_penalty_c_w": cfg.wall_penalty_c_w >= 0,
         "steer_change_penalty_c_s": cfg.steer_change_penalty_c_s >= 0, "stats_steps": cfg.stats_steps >= 1,
         "off_track_penalty_c_o": cfg.off_track_penalty_c_o >= 0,
+        "wall_hit_throttle_cut_s": 0 <= cfg.wall_hit_throttle_cut_s <= 60,
         "frame_delay_s": 0 <= cfg.frame_delay_s <= 1,
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
