@@ -48,6 +48,7 @@ from vision_rl.phase2_rl.ddpg import (
     save_replay,
 )
 from vision_rl.phase2_rl.ddpg_sampling import episode_record
+from vision_rl.phase2_rl.interrupts import HeldSignal
 from vision_rl.phase2_rl.persist import ArtifactError, atomic_write, check_fingerprint
 from vision_rl.sim.ai_driver import DEFAULT_SKILL
 
@@ -372,6 +373,7 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
     def after_vector_step() -> None:
         """What follows every step of all cars, here or from a sampler: evaluation, checkpoints, progress."""
         nonlocal next_eval, next_ckpt, last_light
+        held.release()  # the step is counted and stored: an interrupt held since acts here
         if next_eval is not None and run.num_steps >= next_eval and cfg.eval_seeds > 0:
             run.evaluate(agent)
             next_eval += cfg.eval_every_steps
@@ -391,13 +393,15 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
         episodes_file.flush()
         run.episodes += 1
 
+    held = HeldSignal()
     try:
-        if workers:
-            sampling = _learn_with_samplers(run, agent, buffer, rng, restored > 0, learning_starts, cluster,
-                                            log_episode, after_vector_step)  # fmt: skip
-        else:
-            _learn_here(run, agent, buffer, rng, restored > 0, learning_starts, session_seed, log_episode,
-                        after_vector_step)  # fmt: skip
+        with held.installed():
+            if workers:
+                sampling = _learn_with_samplers(run, agent, buffer, rng, restored > 0, learning_starts, cluster,
+                                                log_episode, after_vector_step)  # fmt: skip
+            else:
+                _learn_here(run, agent, buffer, rng, restored > 0, learning_starts, session_seed, log_episode,
+                            after_vector_step)  # fmt: skip
         if cfg.eval_seeds > 0 and (run.last_eval is None or run.last_eval["num_steps"] != run.num_steps):
             run.evaluate(agent)
     except KeyboardInterrupt:
