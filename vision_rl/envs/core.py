@@ -23,7 +23,7 @@ from vision_rl.envs.rewards import (
     wall_penalty_speed_mps,
     wrapped_gap_m,
 )
-from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE, Disruptor
+from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE, AIDriver, Disruptor
 from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector
 from vision_rl.sim.track_library import load_track
@@ -252,6 +252,8 @@ class RacingCore:
         self.line, self.profile = line_and_profile(self.track, self.car)
         self.fleet = AIFleet(self.world, self.line, self.profile, skill=cfg.start_skill)
         self.unwrapped_at_reset = np.zeros(n_cars)
+        self.labeller: AIDriver | None = None
+        """The built-in AI that :meth:`ai_actions` asks (None until :meth:`label_with_ai`)."""
         self.seed(seed)
         m = cfg.n_groups
         self.steps = np.zeros(m, dtype=np.int64)
@@ -409,6 +411,28 @@ class RacingCore:
             np.clip(self.fleet.mean_omega[ego], -1.0, 1.0),
         ])  # fmt: skip
         return (*self._after_step(s_prev, ego_speed, steer_rad, events, autoreset), actions)
+
+    def label_with_ai(self, skill: float) -> None:
+        """Let :meth:`ai_actions` ask the built-in AI at ``skill``: a driver of its own, so the skills of the
+        opponents and of guided egos stay as they are."""
+        self.labeller = AIDriver(self.car, self.line, self.profile, self.world.n_cars, skill=skill,
+                                 groups=self.world.model.groups)  # fmt: skip
+
+    def ai_actions(self) -> np.ndarray:
+        """(M, 2) actions of this environment's action space that ask, for the egos as they are now, for the
+        commands the labeller's AI would give (it then corrects them within the step; held, they drive close to
+        its path): labels of the states a policy visits (not in the papers)."""
+        if self.labeller is None:
+            raise RuntimeError("ai_actions needs label_with_ai first")
+        steer, omega = self.labeller.act(self.world.state)
+        ego, st = self.ego_ids, self.world.state
+        speed = np.hypot(st.vehicle.vx_mps[ego], st.vehicle.vy_mps[ego])
+        command = np.clip(steer[ego], -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
+        return np.column_stack([
+            action_for_command(command, self.steer_command_rad, self.config.steer_action, self.max_change_rad, speed,
+                               self.car.wheelbase_m),
+            np.clip(omega[ego], -1.0, 1.0),
+        ])  # fmt: skip
 
     def _after_step(self, s_prev: np.ndarray, ego_speed: np.ndarray, steer_rad: np.ndarray, events, autoreset: bool):
         """Rewards, ends and observations of a control step the world has just advanced (see :meth:`step`)."""

@@ -36,7 +36,13 @@ class RacingSB3VecEnv(VecEnv):
         self._actions = np.asarray(actions)
 
     def step_wait(self):
-        return self._sb3_step(*self.core.step(self._actions, autoreset=True))
+        # The labels are of the states the actions were chosen in: asked before the step.
+        labels = self.core.ai_actions() if self.core.labeller is not None else None
+        out = self._sb3_step(*self.core.step(self._actions, autoreset=True))
+        if labels is not None:
+            for info, label in zip(out[3], labels, strict=True):
+                info["ai_action"] = label
+        return out
 
     def guided_step(self):
         """:meth:`RacingCore.guided_step` (the built-in AI drives the egos) in the terms of :meth:`step_wait`:

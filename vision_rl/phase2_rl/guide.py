@@ -12,6 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
+#: The labelling AI's skill: its fastest (2:08.655 on expressway, 1.6 % above the limit, clean), so that cloning it
+#: pulls towards braking where it must, not towards the default skill's 10 % margin.
+LABEL_SKILL = 1.0
+
 
 def add_guided_transitions(model, venv, n_transitions: int) -> int:
     """Drive every ego of ``venv`` (a :class:`vision_rl.envs.sb3.RacingSB3VecEnv` with vector observations) by the
@@ -56,29 +60,62 @@ def guided_sac_class():
         demo_rows: int = 0
         """Buffer rows (vector steps) from the start that hold the AI's transitions."""
         bc_weight: float = 0.0
+        label_weight: float = 0.0
+        """Weight of a cloning step on the AI's labels of the states the policy visits (0: none)."""
+        ai_labels: np.ndarray | None = None
+        """(buffer rows, envs, 2) the AI's actions, scaled as the buffer's, for each stored transition; NaN where
+        a row has none (see :func:`start_labels`)."""
 
         def train(self, gradient_steps: int, batch_size: int = 64) -> None:
             super().train(gradient_steps, batch_size)
             if self.bc_weight > 0:
                 self.clone(gradient_steps, batch_size, self.bc_weight)
+            if self.label_weight > 0:
+                self.clone(gradient_steps, batch_size, self.label_weight, labels=True)
 
-        def clone(self, gradient_steps: int, batch_size: int, weight: float = 1.0) -> None:
-            """``gradient_steps`` actor steps on ``weight * |mean action - the AI's action|^2`` (none without guided
-            rows in the buffer)."""
-            rows = min(self.demo_rows, self.replay_buffer.size())
-            if rows == 0:
-                return
+        def _store_transition(self, replay_buffer, buffer_action, new_obs, reward, dones, infos) -> None:
+            if self.ai_labels is not None:  # the row SB3 is about to write
+                none = np.full(2, np.nan)
+                labels = np.stack([info.get("ai_action", none) for info in infos])
+                self.ai_labels[replay_buffer.pos] = self.policy.scale_action(labels)
+            super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
+
+        def clone(self, gradient_steps: int, batch_size: int, weight: float = 1.0, labels: bool = False) -> None:
+            """``gradient_steps`` actor steps on ``weight * |mean action - the AI's action|^2`` over the guided rows
+            (none without them), or with ``labels`` over every row the AI labelled."""
             buffer = self.replay_buffer
+            rows = buffer.size() if labels else min(self.demo_rows, buffer.size())
+            if rows == 0 or (labels and self.ai_labels is None):
+                return
+            loss = None
             for _ in range(gradient_steps):
                 # torch's generator, which SB3 seeds with the run's seed, so a run repeats.
                 row = torch.randint(0, rows, (batch_size,)).numpy()
                 env = torch.randint(0, buffer.n_envs, (batch_size,)).numpy()
-                obs = torch.as_tensor(buffer.observations[row, env], device=self.device)
-                target = torch.as_tensor(buffer.actions[row, env], device=self.device)
+                actions = self.ai_labels[row, env] if labels else buffer.actions[row, env]
+                keep = np.isfinite(actions[:, 0])
+                if not keep.any():
+                    continue
+                obs = torch.as_tensor(buffer.observations[row[keep], env[keep]], device=self.device)
+                target = torch.as_tensor(actions[keep], device=self.device)
                 loss = weight * torch.mean((self.actor(obs, deterministic=True) - target) ** 2)
                 self.actor.optimizer.zero_grad()
                 loss.backward()
                 self.actor.optimizer.step()
-            self.logger.record("train/bc_loss", loss.item())
+            if loss is not None:
+                self.logger.record("train/label_loss" if labels else "train/bc_loss", loss.item())
 
     return GuidedSAC
+
+
+def start_labels(model, venv, weight: float, skill: float = LABEL_SKILL) -> None:
+    """From the next transition on, ``venv``'s built-in AI at ``skill`` labels every state the policy visits with
+    the action it would take there, the labels go beside the transitions into ``model`` (a ``GuidedSAC``), and the
+    actor takes a cloning step of ``weight`` on a batch of them after each SAC update: DAgger's labels (Ross et al.
+    2011, https://arxiv.org/abs/1011.0686) as a regulariser of the actor, on the policy's own states rather than
+    the AI's, so the critic sees where braking leads (not in the papers). Labels live in memory: a resumed run
+    labels only the transitions it collects."""
+    buffer = model.replay_buffer
+    model.ai_labels = np.full((buffer.buffer_size, buffer.n_envs, 2), np.nan, dtype=np.float32)
+    model.label_weight = weight
+    venv.core.label_with_ai(skill)

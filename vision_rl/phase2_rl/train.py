@@ -183,6 +183,10 @@ class TrainPolicyConfig:
     guide_bc_weight: float = 0.0
     """With --guide-steps: weight of a behaviour-cloning step of the actor on the AI's transitions after each SAC
     update (not in the papers; 0: none)."""
+    guide_label_weight: float = 0.0
+    """Weight of a cloning step of the actor, after each SAC update, towards the actions the built-in AI (skill
+    1.0) would take at the states the policy visits, labelled as they are collected (DAgger-style; not in the
+    papers; 0: off)."""
     guide_pretrain_steps: int = 0
     """With --guide-steps: behaviour-cloning steps of the actor on the AI's transitions before the first SAC update,
     so that training starts from a policy that brakes (not in the papers; 0: none)."""
@@ -402,7 +406,9 @@ class _Run:
         env = VecMonitor(venv)
         self.env = env
         p = self.preset
-        cloning = self._guide_bc_weight() > 0 or (self.previous is None and self.cfg.guide_pretrain_steps > 0)
+        label_weight = self._kept("guide_label_weight")
+        cloning = (self._kept("guide_bc_weight") > 0 or label_weight > 0
+                   or (self.previous is None and self.cfg.guide_pretrain_steps > 0))  # fmt: skip
         if cloning:
             from vision_rl.phase2_rl.guide import guided_sac_class
         model = (guided_sac_class() if cloning else SAC)(
@@ -425,18 +431,24 @@ class _Run:
             self.guided_transitions = add_guided_transitions(model, venv, self.cfg.guide_steps)
         if cloning and (self.previous is None or self.buffer_restored):
             # The guided rows lead the buffer; a resumed run finds them there when its buffer was saved.
-            guided = self.guided_transitions or int(self.previous.train_config.get("guide_steps", 0))
+            guided = self.guided_transitions or (
+                int(self.previous.train_config.get("guide_steps", 0)) if self.previous is not None else 0
+            )
             model.demo_rows = -(-guided // self.racing.n_groups)
-            model.bc_weight = self._guide_bc_weight()
+            model.bc_weight = self._kept("guide_bc_weight")
             if self.previous is None and self.cfg.guide_pretrain_steps > 0:
                 model.clone(self.cfg.guide_pretrain_steps, self.preset.batch_size)
+        if label_weight > 0:
+            from vision_rl.phase2_rl.guide import start_labels
+
+            start_labels(model, venv, label_weight)
         self.eval_driver: PolicyDriver | None = None
         return model
 
-    def _guide_bc_weight(self) -> float:
-        """The run's cloning weight: a resumed run keeps the one it was started with."""
+    def _kept(self, name: str) -> float:
+        """The run's value of a cloning weight: a resumed run keeps the one it was started with."""
         config = self.previous.train_config if self.previous is not None else dataclasses.asdict(self.cfg)
-        return float(config.get("guide_bc_weight", 0.0))
+        return float(config.get(name, 0.0))
 
     def _restore(self, model: SAC) -> None:
         """Weights, optimisers and counters of the run, and its buffer when one was saved."""
@@ -568,6 +580,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
         "guide_steps": cfg.guide_steps >= 0, "guide_bc_weight": cfg.guide_bc_weight >= 0,
+        "guide_label_weight": cfg.guide_label_weight >= 0,
         "guide_pretrain_steps": cfg.guide_pretrain_steps >= 0,
     }  # fmt: skip
     bad = [name for name, ok in checks.items() if not ok]
@@ -593,6 +606,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         if cfg.workers is None:
             raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
         check_workers(cfg.workers, cfg.max_staleness, cfg.version_every_updates)
+        if cfg.guide_label_weight > 0:
+            raise ValueError("--guide-label-weight labels the states this process steps: leave out --workers")
         if cfg.n_step > 1 and cfg.workers > 1:
             # The learner's buffer interleaves the samplers' vector steps, so a column is not one car's time line.
             raise ValueError(f"--n-step {cfg.n_step} needs one car's steps in a row: use --workers 1 or leave it out")
