@@ -83,29 +83,32 @@ def test_wall_penalty_speed_end_is_the_step_end_and_impact_the_larger_of_start_a
         wall_penalty_speed_mps(start, end, "start")
 
 
+def _into_the_hairpin(steps: int, omega: float = 0.97, **config):
+    """A car placed at 154 km/h before expressway's 32 m hairpin (0.87 km), full left lock asked each step: the
+    speeds (from the start's), rewards, wall contact and the throttle cut's steps left after each step."""
+    from vision_rl.envs.core import RacingConfig, RacingCore
+
+    core = RacingCore(RacingConfig(track="expressway", n_groups=1, steer_action="rate_scaled", normalize=False,
+                                   **config), seed=0)  # fmt: skip
+    core.reset_groups(np.array([0]))
+    core.world.reset(s_m=np.array([860.0]), lateral_m=np.array([-2.5]), speed_mps=np.array([42.8]), car_ids=[0])
+    core.steer_command_rad[:] = 0.0
+    speeds, rewards, walls, left = [42.8], [], [], []
+    for _ in range(steps):
+        rewards.append(core.step(np.array([[-LIMIT, omega]]), autoreset=False)[1][0])
+        v = core.world.state.vehicle
+        speeds.append(float(np.hypot(v.vx_mps[0], v.vy_mps[0])))
+        walls.append(bool(core.world.state.wall_contact[0]))
+        left.append(int(core.throttle_cut_steps[0]))
+    return np.array(speeds), np.array(rewards), np.array(walls), np.array(left), core
+
+
 def test_the_wall_brakes_a_car_that_enters_the_hairpin_flat_out_and_impact_charges_the_speed_that_hit():
     """The exploit state policies learned on expressway (docs/results/state-expressway-hatchback-clean): at
     154 km/h into the 32 m hairpin at 0.87 km with the throttle on, the outer wall takes the car to about 85 km/h
     within two 0.1 s steps; ``end`` charges that step at the speed left, ``impact`` at the speed that hit."""
-    from vision_rl.envs.core import RacingConfig, RacingCore
-
-    def drive(at):
-        cfg = RacingConfig(track="expressway", n_groups=1, steer_action="rate_scaled", wall_penalty_speed=at,
-                           normalize=False)  # fmt: skip
-        core = RacingCore(cfg, seed=0)
-        core.reset_groups(np.array([0]))
-        core.world.reset(s_m=np.array([860.0]), lateral_m=np.array([-2.5]), speed_mps=np.array([42.8]), car_ids=[0])
-        core.steer_command_rad[:] = 0.0
-        speeds, rewards, walls = [42.8], [], []
-        for _ in range(30):
-            rewards.append(core.step(np.array([[-LIMIT, 0.97]]), autoreset=False)[1][0])
-            v = core.world.state.vehicle
-            speeds.append(float(np.hypot(v.vx_mps[0], v.vy_mps[0])))
-            walls.append(bool(core.world.state.wall_contact[0]))
-        return np.array(speeds), np.array(rewards), np.array(walls)
-
-    speeds, end_rewards, walls = drive("end")
-    _, impact_rewards, _ = drive("impact")
+    speeds, end_rewards, walls, _, _ = _into_the_hairpin(30, wall_penalty_speed="end")
+    _, impact_rewards, _, _, _ = _into_the_hairpin(30, wall_penalty_speed="impact")
     hit = int(np.argmax(walls))
     assert walls[hit], "the car never reached the wall"
     assert 3.6 * (speeds[hit] - speeds[hit + 2]) > 50.0  # the wall as a brake: measured 153 -> 91 km/h in 0.2 s
@@ -115,29 +118,10 @@ def test_the_wall_brakes_a_car_that_enters_the_hairpin_flat_out_and_impact_charg
     np.testing.assert_allclose(end_rewards[:hit], impact_rewards[:hit])  # no contact, no difference
 
 
-def _hairpin_run(cut_s: float, omega: float, steps: int = 45):
-    """The hairpin entry of the test above: speeds, wall contact and the cut's steps left after each step."""
-    from vision_rl.envs.core import RacingConfig, RacingCore
-
-    cfg = RacingConfig(track="expressway", n_groups=1, steer_action="rate_scaled", wall_hit_throttle_cut_s=cut_s,
-                       normalize=False)  # fmt: skip
-    core = RacingCore(cfg, seed=0)
-    core.reset_groups(np.array([0]))
-    core.world.reset(s_m=np.array([860.0]), lateral_m=np.array([-2.5]), speed_mps=np.array([42.8]), car_ids=[0])
-    core.steer_command_rad[:] = 0.0
-    speeds, walls, left = [], [], []
-    for _ in range(steps):
-        core.step(np.array([[-LIMIT, omega]]), autoreset=False)
-        v = core.world.state.vehicle
-        speeds.append(float(np.hypot(v.vx_mps[0], v.vy_mps[0])))
-        walls.append(bool(core.world.state.wall_contact[0]))
-        left.append(int(core.throttle_cut_steps[0]))
-    return np.array(speeds), np.array(walls), np.array(left), core
-
-
 def test_a_wall_hit_cuts_the_throttle_for_the_set_time_and_leaves_the_brake():
-    free, walls, left_free, _ = _hairpin_run(0.0, 0.97)
-    cut, walls_cut, left, core = _hairpin_run(1.5, 0.97)
+    free, _, walls, left_free, _ = _into_the_hairpin(45)
+    cut, _, walls_cut, left, core = _into_the_hairpin(45, wall_hit_throttle_cut_s=1.5)
+    free, cut = free[1:], cut[1:]  # the speed after each step
     hit = int(np.argmax(walls))
     assert walls[hit] and not walls[:hit].any()
     np.testing.assert_array_equal(cut[: hit + 1], free[: hit + 1])  # the same up to the step that hits
@@ -148,7 +132,7 @@ def test_a_wall_hit_cuts_the_throttle_for_the_set_time_and_leaves_the_brake():
         assert left[k] == (15 if k in begins else max(left[k - 1] - 1, 0))
     core.reset_groups(np.array([0]))
     assert core.throttle_cut_steps[0] == 0 and not core.touching_wall[0]
-    braking, _, _, _ = _hairpin_run(0.0, -1.0)
-    braking_cut, _, left_braking, _ = _hairpin_run(1.5, -1.0)
+    braking, _, _, _, _ = _into_the_hairpin(45, omega=-1.0)
+    braking_cut, _, _, left_braking, _ = _into_the_hairpin(45, omega=-1.0, wall_hit_throttle_cut_s=1.5)
     assert left_braking.any()  # it hits the wall braking too
     np.testing.assert_array_equal(braking_cut, braking)  # the brake is never cut
