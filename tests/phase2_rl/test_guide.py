@@ -148,8 +148,8 @@ def test_label_cloning_stores_a_label_per_transition_and_pulls_the_actor_to_them
     start_labels(model, venv, weight=1.0)
     model.learn(total_timesteps=240)  # random actions only (learning starts later): 60 vector steps, 5 s episodes
     rows = model.replay_buffer.size()
-    labels = model.ai_labels[:rows]
-    assert rows == 60 and np.isfinite(labels).all() and np.isnan(model.ai_labels[rows:]).all()
+    labels = model.replay_buffer.ai_labels[:rows]
+    assert rows == 60 and np.isfinite(labels).all() and np.isnan(model.replay_buffer.ai_labels[rows:]).all()
     assert np.abs(labels).max() <= 1.0 and labels[..., 1].mean() > 0.3  # scaled; the AI mostly drives on
     # Each label is the AI's answer to the state the transition starts from, not the one it ends in: a fresh
     # environment put in the first stored state answers with the first stored label.
@@ -170,11 +170,48 @@ def test_label_cloning_stores_a_label_per_transition_and_pulls_the_actor_to_them
     assert error() < 0.5 * before
 
 
+def test_the_labels_are_saved_and_restored_with_the_buffer(small_track, tmp_path):
+    from stable_baselines3.common.buffers import ReplayBuffer
+
+    from vision_rl.envs.core import RacingConfig
+    from vision_rl.envs.vector import make_sb3_vec_env
+    from vision_rl.phase2_rl.persist import load_buffer, save_buffer
+
+    venv = make_sb3_vec_env(RacingConfig(track=small_track, n_groups=2), seed=0)
+
+    def fresh(labelled: bool) -> ReplayBuffer:
+        buffer = ReplayBuffer(40, venv.observation_space, venv.action_space, n_envs=2)
+        if labelled:
+            buffer.ai_labels = np.full((buffer.buffer_size, 2, 2), np.nan, dtype=np.float32)
+        return buffer
+
+    saved = fresh(True)
+    rng = np.random.default_rng(0)
+    for _ in range(7):
+        saved.ai_labels[saved.pos] = rng.uniform(-1, 1, (2, 2))
+        obs = rng.normal(size=(2, 38)).astype(np.float32)
+        saved.add(obs, obs, rng.uniform(-1, 1, (2, 2)), np.ones(2), np.zeros(2), [{}, {}])
+    save_buffer(saved, tmp_path / "labelled.npz", {"run": 1})
+    save_buffer(fresh(False), tmp_path / "plain.npz", {"run": 1})
+    restored = fresh(True)
+    assert load_buffer(restored, tmp_path / "labelled.npz", {"run": 1}) == 7
+    np.testing.assert_array_equal(restored.ai_labels, saved.ai_labels)
+    unlabelled = fresh(True)  # a run that starts labelling on a buffer saved without labels: none for the old rows
+    load_buffer(unlabelled, tmp_path / "plain.npz", {"run": 1})
+    assert np.isnan(unlabelled.ai_labels).all()
+
+
 def test_label_cloning_trains_and_refuses_samplers(small_track, tmp_path):
+    from vision_rl.phase2_rl.artifact import BUFFER_NAME
     from vision_rl.phase2_rl.train import train_policy
 
     result = train_policy(tiny_train_config(small_track, tmp_path / "run", guide_label_weight=10.0,
                                             eval_every_steps=0))  # fmt: skip
     assert result["num_timesteps"] >= 200
+    with np.load(tmp_path / "run" / BUFFER_NAME) as saved:  # every transition labelled, and saved with them
+        assert np.isfinite(saved["ai_labels"]).all() and len(saved["ai_labels"]) == 100
+    resumed = train_policy(tiny_train_config(small_track, tmp_path / "run", steps=260, resume=True,
+                                             eval_every_steps=0))  # fmt: skip
+    assert resumed["buffer_restored"] == 100 and resumed["num_timesteps"] >= 260
     with pytest.raises(ValueError, match="leave out --workers"):
         train_policy(tiny_train_config(small_track, tmp_path / "bad", guide_label_weight=1.0, workers=1))

@@ -64,9 +64,6 @@ def guided_sac_class():
         bc_weight: float = 0.0
         label_weight: float = 0.0
         """Weight of a cloning step on the AI's labels of the states the policy visits (0: none)."""
-        ai_labels: np.ndarray | None = None
-        """(buffer rows, envs, 2) the AI's actions, scaled as the buffer's, for each stored transition; NaN where
-        a row has none (see :func:`start_labels`)."""
 
         def train(self, gradient_steps: int, batch_size: int = 64) -> None:
             super().train(gradient_steps, batch_size)
@@ -76,10 +73,10 @@ def guided_sac_class():
                 self.clone(gradient_steps, batch_size, self.label_weight, labels=True)
 
         def _store_transition(self, replay_buffer, buffer_action, new_obs, reward, dones, infos) -> None:
-            if self.ai_labels is not None:  # the row SB3 is about to write
+            if getattr(replay_buffer, "ai_labels", None) is not None:  # the row SB3 is about to write
                 none = np.full(2, np.nan)
                 labels = np.stack([info.get("ai_action", none) for info in infos])
-                self.ai_labels[replay_buffer.pos] = self.policy.scale_action(labels)
+                replay_buffer.ai_labels[replay_buffer.pos] = self.policy.scale_action(labels)
             super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
 
         def clone(self, gradient_steps: int, batch_size: int, weight: float = 1.0, labels: bool = False) -> None:
@@ -87,14 +84,14 @@ def guided_sac_class():
             (none without them), or with ``labels`` over every row the AI labelled."""
             buffer = self.replay_buffer
             rows = buffer.size() if labels else min(self.demo_rows, buffer.size())
-            if rows == 0 or (labels and self.ai_labels is None):
+            if rows == 0 or (labels and getattr(buffer, "ai_labels", None) is None):
                 return
             loss = None
             for _ in range(gradient_steps):
                 # torch's generator, which SB3 seeds with the run's seed, so a run repeats.
                 row = torch.randint(0, rows, (batch_size,)).numpy()
                 env = torch.randint(0, buffer.n_envs, (batch_size,)).numpy()
-                actions = self.ai_labels[row, env] if labels else buffer.actions[row, env]
+                actions = buffer.ai_labels[row, env] if labels else buffer.actions[row, env]
                 keep = np.isfinite(actions[:, 0])
                 if not keep.any():
                     continue
@@ -115,9 +112,9 @@ def start_labels(model, venv, weight: float, skill: float = LABEL_SKILL) -> None
     the action it would take there, the labels go beside the transitions into ``model`` (a ``GuidedSAC``), and the
     actor takes a cloning step of ``weight`` on a batch of them after each SAC update: DAgger's labels (Ross et al.
     2011, https://arxiv.org/abs/1011.0686) as a regulariser of the actor, on the policy's own states rather than
-    the AI's, so the critic sees where braking leads (not in the papers). Labels live in memory: a resumed run
-    labels only the transitions it collects."""
+    the AI's, so the critic sees where braking leads (not in the papers). The labels are an array of the buffer,
+    ``ai_labels`` (rows, envs, 2), NaN where a row has none, saved and restored with it."""
     buffer = model.replay_buffer
-    model.ai_labels = np.full((buffer.buffer_size, buffer.n_envs, 2), np.nan, dtype=np.float32)
+    buffer.ai_labels = np.full((buffer.buffer_size, buffer.n_envs, 2), np.nan, dtype=np.float32)
     model.label_weight = weight
     venv.core.label_with_ai(skill)

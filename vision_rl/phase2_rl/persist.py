@@ -36,6 +36,10 @@ BUFFER_FORMAT = "vision_rl.replay_buffer"
 FORMAT_VERSION = 1
 #: The arrays of an SB3 ReplayBuffer that a buffer file keeps, each (capacity, n_envs, ...).
 BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+#: Arrays a buffer carries only in some runs: the built-in AI's labels of each transition (``--guide-label-weight``,
+#: :func:`vision_rl.phase2_rl.guide.start_labels`). Saved when the buffer has them; a file without them leaves
+#: them NaN (no label).
+OPTIONAL_BUFFER_ARRAYS = ("ai_labels",)
 
 
 class ArtifactError(ValueError):
@@ -226,13 +230,17 @@ def save_buffer(buffer: ReplayBuffer, path: str | os.PathLike[str], fingerprint:
     meta = {"format": BUFFER_FORMAT, "format_version": FORMAT_VERSION, "fingerprint": dict(fingerprint),
             "pos": int(buffer.pos), "full": bool(buffer.full), "capacity": int(buffer.buffer_size),
             "n_envs": int(buffer.n_envs)}  # fmt: skip
-    arrays = {name: getattr(buffer, name)[:n] for name in BUFFER_ARRAYS}
+    arrays = {name: getattr(buffer, name)[:n] for name in _buffer_arrays(buffer)}
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
             np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
 
     return atomic_write(path, write)
+
+
+def _buffer_arrays(buffer: ReplayBuffer) -> tuple[str, ...]:
+    return BUFFER_ARRAYS + tuple(name for name in OPTIONAL_BUFFER_ARRAYS if getattr(buffer, name, None) is not None)
 
 
 def load_buffer(buffer: ReplayBuffer, path: str | os.PathLike[str], fingerprint: Mapping[str, Any]) -> int:
@@ -245,7 +253,7 @@ def load_buffer(buffer: ReplayBuffer, path: str | os.PathLike[str], fingerprint:
             if meta.get("format") != BUFFER_FORMAT or int(meta.get("format_version", 0)) != FORMAT_VERSION:
                 raise ArtifactError(f"{path}: not a vision_rl replay-buffer file of format {FORMAT_VERSION}")
             check_fingerprint(meta["fingerprint"], fingerprint, str(path))
-            arrays = {name: data[name] for name in BUFFER_ARRAYS}
+            arrays = {name: data[name] for name in _buffer_arrays(buffer) if name in BUFFER_ARRAYS or name in data}
     except ArtifactError:
         raise
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:

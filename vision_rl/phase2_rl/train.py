@@ -423,6 +423,10 @@ class _Run:
         self.fingerprint = policy_fingerprint(self.racing, self.kind, venv.observation_space.shape[0], encoder_sha)
         self.buffer_restored = 0
         self.guided_transitions = 0
+        if label_weight > 0:  # before a restore, which fills the labels' array too
+            from vision_rl.phase2_rl.guide import start_labels
+
+            start_labels(model, venv, label_weight)
         if self.previous is not None:
             self._restore(model)
         elif self.cfg.guide_steps > 0:
@@ -438,10 +442,6 @@ class _Run:
             model.bc_weight = self._kept("guide_bc_weight")
             if self.previous is None and self.cfg.guide_pretrain_steps > 0:
                 model.clone(self.cfg.guide_pretrain_steps, self.preset.batch_size)
-        if label_weight > 0:
-            from vision_rl.phase2_rl.guide import start_labels
-
-            start_labels(model, venv, label_weight)
         self.eval_driver: PolicyDriver | None = None
         return model
 
