@@ -30,6 +30,15 @@ class _SignalAt(BaseCallback):
         return True
 
 
+@pytest.fixture(autouse=True)
+def python_sigint():
+    """SIGINT raising KeyboardInterrupt, as in a terminal (a background job of a non-interactive shell, as CI
+    may be, starts with SIGINT ignored)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 def _sac() -> SAC:
     env = make_vec_env(lambda: gym.make("Pendulum-v1"), n_envs=2, seed=0)
     return SAC("MlpPolicy", env, learning_starts=10, batch_size=8, train_freq=(4, "step"), gradient_steps=1,
