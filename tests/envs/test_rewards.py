@@ -99,7 +99,7 @@ def _into_the_hairpin(steps: int, omega: float = 0.97, **config):
         v = core.world.state.vehicle
         speeds.append(float(np.hypot(v.vx_mps[0], v.vy_mps[0])))
         walls.append(bool(core.world.state.wall_contact[0]))
-        left.append(int(core.throttle_cut_steps[0]))
+        left.append(int(core.throttle_cut_left[0]))
     return np.array(speeds), np.array(rewards), np.array(walls), np.array(left), core
 
 
@@ -131,7 +131,7 @@ def test_a_wall_hit_cuts_the_throttle_for_the_set_time_and_leaves_the_brake():
     for k in range(hit + 1, len(left)):
         assert left[k] == (15 if k in begins else max(left[k - 1] - 1, 0))
     core.reset_groups(np.array([0]))
-    assert core.throttle_cut_steps[0] == 0 and not core.touching_wall[0]
+    assert core.throttle_cut_left[0] == 0 and not core.touching_wall[0]
     braking, _, _, _, _ = _into_the_hairpin(45, omega=-1.0)
     braking_cut, _, _, left_braking, _ = _into_the_hairpin(45, omega=-1.0, wall_hit_throttle_cut_s=1.5)
     assert left_braking.any()  # it hits the wall braking too

@@ -260,7 +260,7 @@ class RacingCore:
         self.progress_m = np.zeros(m)
         self.steer_command_rad = np.zeros(m)
         self.touching_wall = np.zeros(m, dtype=bool)
-        self.throttle_cut_steps = np.zeros(m, dtype=np.int64)
+        self.throttle_cut_left = np.zeros(m, dtype=np.int64)
         """Control steps left of each ego's throttle cut after a wall hit (``wall_hit_throttle_cut_s``)."""
         self.start_gap_m = np.zeros((m, cfg.opponents))
         self.gap_m = np.zeros((m, cfg.opponents))
@@ -318,7 +318,7 @@ class RacingCore:
         # An episode starts from the wheel angle the car was placed with, so a first command that keeps it is free.
         self.steer_command_rad[gids] = self.world.state.vehicle.steer_rad[self.ego_ids[gids]]
         self.touching_wall[gids] = False
-        self.throttle_cut_steps[gids] = 0
+        self.throttle_cut_left[gids] = 0
         self.stuck.reset(gids, self.world.state.unwrapped_s_m[self.ego_ids])
         if k > 1:
             self.gap_m[gids] = self._gaps()[gids]
@@ -380,7 +380,7 @@ class RacingCore:
         steer_rad = steering_command(actions[:, 0], self.steer_command_rad, cfg.steer_action, self.max_change_rad,
                                      ego_speed, self.car.wheelbase_m)  # fmt: skip
         omega = np.clip(actions[:, 1], -1.0, 1.0)
-        omega = np.where(self.throttle_cut_steps > 0, np.minimum(omega, 0.0), omega)
+        omega = np.where(self.throttle_cut_left > 0, np.minimum(omega, 0.0), omega)
         events = self.advance(steer_rad, omega)
         return self._after_step(s_prev, ego_speed, steer_rad, events, autoreset)
 
@@ -398,18 +398,13 @@ class RacingCore:
         what the AI did (:func:`action_for_command`): the steering command it ended the step with and its
         throttle/brake averaged over the step. The AI changes its commands within the step, so replaying those
         actions drives close to, not exactly along, its path."""
-        cfg = self.config
         ego = self.ego_ids
         st = self.world.state
         s_prev = st.s_m[ego].copy()
         ego_speed = np.hypot(st.vehicle.vx_mps[ego], st.vehicle.vy_mps[ego])
         events = self.fleet.advance(self.world_steps)
         steer_rad = np.clip(self.fleet.last_steer_rad[ego], -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
-        actions = np.column_stack([
-            action_for_command(steer_rad, self.steer_command_rad, cfg.steer_action, self.max_change_rad, ego_speed,
-                               self.car.wheelbase_m),
-            np.clip(self.fleet.mean_omega[ego], -1.0, 1.0),
-        ])  # fmt: skip
+        actions = self._actions_asking_for(steer_rad, self.fleet.mean_omega[ego], ego_speed)
         return (*self._after_step(s_prev, ego_speed, steer_rad, events, autoreset), actions)
 
     def label_with_ai(self, skill: float) -> None:
@@ -426,13 +421,15 @@ class RacingCore:
             raise RuntimeError("ai_actions needs label_with_ai first")
         steer, omega = self.labeller.act(self.world.state)
         ego, st = self.ego_ids, self.world.state
-        speed = np.hypot(st.vehicle.vx_mps[ego], st.vehicle.vy_mps[ego])
         command = np.clip(steer[ego], -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
-        return np.column_stack([
-            action_for_command(command, self.steer_command_rad, self.config.steer_action, self.max_change_rad, speed,
-                               self.car.wheelbase_m),
-            np.clip(omega[ego], -1.0, 1.0),
-        ])  # fmt: skip
+        return self._actions_asking_for(command, omega[ego], np.hypot(st.vehicle.vx_mps[ego], st.vehicle.vy_mps[ego]))
+
+    def _actions_asking_for(self, command_rad: np.ndarray, omega: np.ndarray, speed_mps: np.ndarray) -> np.ndarray:
+        """(M, 2) actions that ask :meth:`step` for the egos' steering commands ``command_rad`` and throttle/brake
+        ``omega`` (see :func:`action_for_command`)."""
+        steer = action_for_command(command_rad, self.steer_command_rad, self.config.steer_action, self.max_change_rad,
+                                   speed_mps, self.car.wheelbase_m)  # fmt: skip
+        return np.column_stack([steer, np.clip(omega, -1.0, 1.0)])
 
     def _after_step(self, s_prev: np.ndarray, ego_speed: np.ndarray, steer_rad: np.ndarray, events, autoreset: bool):
         """Rewards, ends and observations of a control step the world has just advanced (see :meth:`step`)."""
@@ -463,8 +460,8 @@ class RacingCore:
             )  # fmt: skip
             self.gap_m = gap_now
         touching = st.wall_contact[ego]
-        cut = np.maximum(self.throttle_cut_steps - 1, 0)
-        self.throttle_cut_steps = np.where(touching & ~self.touching_wall, cfg.throttle_cut_steps, cut)
+        cut = np.maximum(self.throttle_cut_left - 1, 0)
+        self.throttle_cut_left = np.where(touching & ~self.touching_wall, cfg.throttle_cut_steps, cut)
         self.touching_wall = touching.copy()
         self.steps += 1
         self.progress_m += progress
