@@ -215,3 +215,37 @@ def test_label_cloning_trains_and_refuses_samplers(small_track, tmp_path):
     assert resumed["buffer_restored"] == 100 and resumed["num_timesteps"] >= 260
     with pytest.raises(ValueError, match="leave out --workers"):
         train_policy(tiny_train_config(small_track, tmp_path / "bad", guide_label_weight=1.0, workers=1))
+
+
+def test_the_labels_weight_fades_to_zero_before_the_last_step(small_track):
+    from stable_baselines3.common.logger import configure
+
+    from vision_rl.envs.core import RacingConfig
+    from vision_rl.envs.vector import make_sb3_vec_env
+    from vision_rl.phase2_rl.guide import guided_sac_class, start_labels
+
+    venv = make_sb3_vec_env(RacingConfig(track=small_track, n_groups=2, steer_action="rate_scaled"), seed=0)
+    model = guided_sac_class()("MlpPolicy", venv, buffer_size=200, learning_starts=1_000, device="cpu", seed=0)
+    model.set_logger(configure(None, [""]))
+    start_labels(model, venv, weight=30.0, fade_steps=100, end_steps=300)
+    model.learn(total_timesteps=40)  # labelled rows to clone from
+    weights = []
+    model.clone = lambda steps, batch, weight=1.0, labels=False: weights.append((weight, labels))
+    for step in (0, 200, 250, 290, 300, 400):
+        model.num_timesteps = step
+        model.train(gradient_steps=1, batch_size=8)
+    # Full weight until 100 steps before the end, then linear: 15 at half way, 3 at 10 steps left, no step after.
+    assert [w for w, labels in weights if labels] == pytest.approx([30.0, 30.0, 15.0, 3.0])
+    start_labels(model, venv, weight=30.0)  # no fade: the weight stays
+    model.num_timesteps = 10**9
+    assert model.label_weight_now() == 30.0
+
+
+def test_a_fade_without_labels_is_refused(small_track, tmp_path):
+    from vision_rl.phase2_rl.train import train_policy
+
+    with pytest.raises(ValueError, match="give --guide-label-weight"):
+        train_policy(tiny_train_config(small_track, tmp_path / "run", guide_label_fade_steps=100))
+    with pytest.raises(ValueError, match="--guide-label-fade-steps -1 is out of range"):
+        train_policy(tiny_train_config(small_track, tmp_path / "run", guide_label_weight=1.0,
+                                       guide_label_fade_steps=-1))  # fmt: skip

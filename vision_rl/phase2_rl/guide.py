@@ -64,13 +64,26 @@ def guided_sac_class():
         bc_weight: float = 0.0
         label_weight: float = 0.0
         """Weight of a cloning step on the AI's labels of the states the policy visits (0: none)."""
+        label_fade_steps: int = 0
+        """Environment steps before ``label_end_steps`` over which the labels' weight falls linearly to 0 (0: none)."""
+        label_end_steps: int = 0
+
+        def label_weight_now(self) -> float:
+            """The labels' weight at this step: ``label_weight``, faded towards the end when asked."""
+            if self.label_fade_steps <= 0:
+                return self.label_weight
+            left = (self.label_end_steps - self.num_timesteps) / self.label_fade_steps
+            return self.label_weight * min(1.0, max(0.0, left))
 
         def train(self, gradient_steps: int, batch_size: int = 64) -> None:
             super().train(gradient_steps, batch_size)
             if self.bc_weight > 0:
                 self.clone(gradient_steps, batch_size, self.bc_weight)
-            if self.label_weight > 0:
-                self.clone(gradient_steps, batch_size, self.label_weight, labels=True)
+            label_weight = self.label_weight_now()
+            if label_weight > 0:
+                self.clone(gradient_steps, batch_size, label_weight, labels=True)
+            if self.label_fade_steps > 0:
+                self.logger.record("train/label_weight", label_weight)
 
         def _store_transition(self, replay_buffer, buffer_action, new_obs, reward, dones, infos) -> None:
             if getattr(replay_buffer, "ai_labels", None) is not None:  # the row SB3 is about to write
@@ -107,14 +120,18 @@ def guided_sac_class():
     return GuidedSAC
 
 
-def start_labels(model, venv, weight: float, skill: float = LABEL_SKILL) -> None:
+def start_labels(model, venv, weight: float, skill: float = LABEL_SKILL, fade_steps: int = 0,
+                 end_steps: int = 0) -> None:
     """From the next transition on, ``venv``'s built-in AI at ``skill`` labels every state the policy visits with
     the action it would take there, the labels go beside the transitions into ``model`` (a ``GuidedSAC``), and the
     actor takes a cloning step of ``weight`` on a batch of them after each SAC update: DAgger's labels (Ross et al.
     2011, https://arxiv.org/abs/1011.0686) as a regulariser of the actor, on the policy's own states rather than
     the AI's, so the critic sees where braking leads (not in the papers). The labels are an array of the buffer,
-    ``ai_labels`` (rows, envs, 2), NaN where a row has none, saved and restored with it."""
+    ``ai_labels`` (rows, envs, 2), NaN where a row has none, saved and restored with it. With ``fade_steps`` the
+    weight falls linearly to 0 over the ``fade_steps`` environment steps before ``end_steps``, so that SAC alone
+    refines the lap the labels taught to brake on."""
     buffer = model.replay_buffer
     buffer.ai_labels = np.full((buffer.buffer_size, buffer.n_envs, 2), np.nan, dtype=np.float32)
     model.label_weight = weight
+    model.label_fade_steps, model.label_end_steps = fade_steps, end_steps
     venv.core.label_with_ai(skill)

@@ -187,6 +187,9 @@ class TrainPolicyConfig:
     """Weight of a cloning step of the actor, after each SAC update, towards the actions the built-in AI (skill
     1.0) would take at the states the policy visits, labelled as they are collected (DAgger-style; not in the
     papers; 0: off)."""
+    guide_label_fade_steps: int = 0
+    """With --guide-label-weight: over the last N environment steps before --steps the labels' weight falls
+    linearly to zero, so SAC alone refines the lap (not in the papers; 0: the weight stays)."""
     guide_pretrain_steps: int = 0
     """With --guide-steps: behaviour-cloning steps of the actor on the AI's transitions before the first SAC update,
     so that training starts from a policy that brakes (not in the papers; 0: none)."""
@@ -426,7 +429,8 @@ class _Run:
         if label_weight > 0:  # before a restore, which fills the labels' array too
             from vision_rl.phase2_rl.guide import start_labels
 
-            start_labels(model, venv, label_weight)
+            start_labels(model, venv, label_weight, fade_steps=int(self._kept("guide_label_fade_steps")),
+                         end_steps=self.cfg.steps)
         if self.previous is not None:
             self._restore(model)
         elif self.cfg.guide_steps > 0:
@@ -580,7 +584,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
         "guide_steps": cfg.guide_steps >= 0, "guide_bc_weight": cfg.guide_bc_weight >= 0,
-        "guide_label_weight": cfg.guide_label_weight >= 0,
+        "guide_label_weight": cfg.guide_label_weight >= 0, "guide_label_fade_steps": cfg.guide_label_fade_steps >= 0,
         "guide_pretrain_steps": cfg.guide_pretrain_steps >= 0,
     }  # fmt: skip
     bad = [name for name, ok in checks.items() if not ok]
@@ -598,6 +602,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         raise ValueError(
             "--guide-bc-weight and --guide-pretrain-steps clone the AI's transitions: give --guide-steps too"
         )
+    if cfg.guide_label_fade_steps > 0 and cfg.guide_label_weight == 0:
+        raise ValueError("--guide-label-fade-steps fades the labels' weight: give --guide-label-weight too")
     if cfg.frame_delay_s > 0 and not cfg.encoder:
         raise ValueError("--frame-delay-s delays the vision frames: give --encoder (the state observation has none)")
     if cfg.workers is not None or cfg.address:
