@@ -77,3 +77,9 @@ def test_evaluate_sections_say_when_no_lap_finished_and_refuse_bad_options(state
     for bad in ({"sections_m": -1.0}, {"sections_m": 50.0, "reference_skill": 0.0}):
         with pytest.raises(ValueError, match="--sections-m must be >= 0"):
             evaluate_policy(out, write=False, **bad)
+
+
+def test_encoder_error_is_refused_for_a_state_policy(state_run):
+    out, _ = state_run
+    with pytest.raises(ValueError, match="this policy observes the state"):
+        evaluate_policy(out, write=False, encoder_error=True)

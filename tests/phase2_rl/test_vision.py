@@ -63,6 +63,14 @@ def test_vision_policy_records_its_encoder_and_refuses_another(small_track, tiny
         evaluate_policy(out, encoder=str(enc_b))
     with pytest.raises(PolicyError, match="trained with encoder sha256"):
         train_policy(tiny_train_config(small_track, out, encoder=str(enc_b), resume=True, steps=160))
-    ev = evaluate_policy(out, encoder=str(enc_a), seeds=1, time_limit_s=5.0)
+    ev = evaluate_policy(out, encoder=str(enc_a), seeds=1, time_limit_s=5.0, encoder_error=True)
     assert ev["driver"]["observation"] == "vision" and ev["driver"]["encoder_sha256"] == spec.encoder["sha256"]
     assert ev["seeds"][0]["distance_m"] != 0.0
+    # No lap in 5 s: the encoder's error over the whole run's 50 steps, and over the built-in AI's scored lap.
+    errors = ev["encoder_error"]
+    assert errors["policy"]["all"]["frames"] == 50 and errors["built_in_ai"]["all"]["frames"] > 50
+    assert errors["built_in_ai"]["wall_contact"]["frames"] == 0 and np.isfinite(errors["policy"]["all"]["heading"])
+    from vision_rl.commands.evaluate import format_timing
+
+    text = format_timing(ev)
+    assert "all: 50 / " in text[2] and text[3].startswith("  edge_rays (m): all ")

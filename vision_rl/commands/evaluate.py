@@ -52,6 +52,16 @@ def format_timing(result: dict[str, Any]) -> list[str]:
             lines.append(f"  {r['start_m']:6.0f}  {r['time_s']:6.2f}  {r['reference_time_s']:5.2f}  "
                          f"{r['loss_s']:+6.2f}  {r['min_speed_kmh']:5.0f} ({r['reference_min_speed_kmh']:3.0f})  "
                          f"{r['wall_contact_s']:6.1f}")  # fmt: skip
+    errors = result.get("encoder_error")
+    if errors is not None:
+        policy, ai = errors["policy"], errors["built_in_ai"]
+        subsets = ("all", "near_wall", "wall_contact")
+        lines.append(f"encoder error (mean absolute), the best lap / the built-in AI's at skill {ai['skill']:g}: "
+                     + ", ".join(f"{k}: {policy[k]['frames']} / {ai[k]['frames']} frames" for k in subsets))
+        for name, unit in policy["units"].items():
+            cells = (" / ".join("-" if d[k][name] is None else f"{d[k][name]:.3f}" for d in (policy, ai))
+                     for k in subsets)  # fmt: skip
+            lines.append(f"  {name} ({unit}): " + ", ".join(f"{k} {c}" for k, c in zip(subsets, cells, strict=True)))
     for key in ("plot", "video", "evaluation_json", "reward_plot"):
         if result.get(key):
             lines.append(f"{key}: {result[key]}")
@@ -91,6 +101,9 @@ class EvaluateOptions:
     """Cut the best scored lap into sections this long and compare it with the built-in AI's (0: off)."""
     reference_skill: float = 1.0
     """With --sections-m: the built-in AI's skill on the same starts (1.0: its fastest)."""
+    encoder_error: bool = False
+    """Vision: the encoder's error on the 27 targets along the best lap, beside the built-in AI's lap (default
+    skill, same start): how well Phase 1 sees where the policy drives."""
     json: bool = False
     """Print the result as JSON."""
 
@@ -108,7 +121,7 @@ def run_evaluate(opts: EvaluateOptions) -> int:
         opts.policy, laps=opts.laps, seeds=opts.seeds, seed=opts.seed, encoder=opts.encoder,
         time_limit_s=opts.time_limit_s, video=opts.video, plot=opts.plot, name=opts.name, device=opts.device,
         write=opts.write, encoder_runtime=opts.encoder_runtime, sections_m=opts.sections_m,
-        reference_skill=opts.reference_skill,
+        reference_skill=opts.reference_skill, encoder_error=opts.encoder_error,
     )  # fmt: skip
     emit(result, opts.json, format_timing)
     return 0

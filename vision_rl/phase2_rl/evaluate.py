@@ -10,12 +10,14 @@ import os
 from pathlib import Path
 from typing import Any
 
+from vision_rl.evaluation.encoder_error import encoder_error_on_lap
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.outputs import check_video_dependencies, format_lap_time, plot_trajectory, write_video
 from vision_rl.evaluation.protocol import BuiltinAI, LapTiming, time_laps
 from vision_rl.evaluation.sections import compare_sections, lap_sections
 from vision_rl.phase2_rl.artifact import MODEL_NAME, LoadedPolicy, load_policy
 from vision_rl.phase2_rl.persist import atomic_write
+from vision_rl.sim.ai_driver import DEFAULT_SKILL
 
 
 def evaluation_path(weights: Path) -> Path:
@@ -47,11 +49,14 @@ def evaluate_policy(
     encoder_runtime: str = "auto",
     sections_m: float = 0.0,
     reference_skill: float = 1.0,
+    encoder_error: bool = False,
 ) -> dict[str, Any]:
     """Run the protocol for a policy (path or loaded) on the track and car it was trained on; returns the record
     and, with ``write``, stores it as ``evaluation.json`` beside the policy for the leaderboard. ``sections_m`` > 0
     adds ``sections``: the best scored lap against the built-in AI's at ``reference_skill``, section by section
-    (:mod:`vision_rl.evaluation.sections`)."""
+    (:mod:`vision_rl.evaluation.sections`). ``encoder_error`` (vision) adds ``encoder_error``: the encoder's error on
+    the 27 targets along the best scored lap and along the built-in AI's lap from the same start
+    (:mod:`vision_rl.evaluation.encoder_error`)."""
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds}")
     if sections_m < 0 or not 0.0 < reference_skill <= 1.0:
@@ -60,11 +65,13 @@ def evaluate_policy(
     if video:
         check_video_dependencies()
     loaded = policy if isinstance(policy, LoadedPolicy) else load_policy(policy, encoder, device, encoder_runtime)
+    if encoder_error and loaded.encoder is None:
+        raise ValueError("--encoder-error measures a vision policy's encoder: this policy observes the state")
     config = loaded.config
     driver = loaded.driver()
     try:
         timing = time_laps(driver, config.track, config.car, range(seed, seed + seeds), laps, time_limit_s,
-                           record=bool(plot or video or sections_m))  # fmt: skip
+                           record=bool(plot or video or sections_m or encoder_error))  # fmt: skip
     finally:
         driver.close()
     result = evaluation_record(timing, driver.identity, name or default_policy_name(loaded.weights_path))
@@ -75,11 +82,22 @@ def evaluate_policy(
     result["video"] = str(write_video(timing, best, video, config.image_hw_px)) if video else None
     if sections_m > 0:
         result["sections"] = _sections(timing, best, sections_m, reference_skill)
+    if encoder_error:
+        result["encoder_error"] = _encoder_error(timing, best, loaded)
     if write:
         out = evaluation_path(loaded.weights_path)
         atomic_write(out, lambda tmp: tmp.write_text(json.dumps(result, indent=2)))
         result["evaluation_json"] = str(out)
     return result
+
+
+def _encoder_error(timing: LapTiming, best: int, loaded: LoadedPolicy) -> dict[str, Any]:
+    hw = loaded.config.image_hw_px
+    ai = time_laps(BuiltinAI(), timing.track, timing.car, [timing.runs[best].seed], timing.laps, record=True)
+    return {
+        "policy": encoder_error_on_lap(timing, best, loaded.encoder, hw),
+        "built_in_ai": {"skill": DEFAULT_SKILL, **encoder_error_on_lap(ai, 0, loaded.encoder, hw)},
+    }
 
 
 def _sections(timing: LapTiming, best: int, section_m: float, reference_skill: float) -> dict[str, Any]:
