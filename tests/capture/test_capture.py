@@ -5,7 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from vision_rl.capture.h5format import open_capture
+from tests.evaluation.test_protocol import CentreLineFollower
+from vision_rl.capture.h5format import CaptureFormatError, open_capture
 from vision_rl.capture.sim_capture import CaptureConfig, capture_sim, physics_step_for
 from vision_rl.sim import sensors
 from vision_rl.sim.track_library import load_track
@@ -146,3 +147,39 @@ def test_pose_log_errors_name_the_problem(tmp_path):
     bad.write_text("time_s,x_m,y_m,yaw_rad\n0,0,0,0\n0,1,1,0\n")
     with pytest.raises(ValueError, match="increase"):
         read_pose_log(bad)
+
+
+class _Follower(CentreLineFollower):
+    """A protocol driver holding 2 m left of the centre line, with the identity a policy driver has."""
+
+    identity = {"driver": "follower", "lateral_m": 2.0}
+
+    def __init__(self) -> None:
+        super().__init__(target_lateral=lambda s: 2.0 + 0.0 * s)
+        self.resets = 0
+
+    def reset(self, world, car_ids):
+        super().reset(world, car_ids)
+        self.resets += 1
+
+
+def test_a_driver_drives_the_capture_and_the_file_names_it(gl_available, circle_csv, tmp_path):
+    driver = _Follower()
+    cfg = _config(circle_csv, tmp_path / "driven.h5", laps=1, disrupt_ai=False)
+    result = capture_sim(cfg, driver=driver)
+    assert result["complete"] and driver.resets == 1
+    with open_capture(cfg.out) as f:
+        np.testing.assert_allclose(np.diff(f.time_s[f.car_id == 0]), 0.1, atol=1e-9)  # its 10 Hz, a frame a step
+        offset = f.targets[:, list(f.target_names).index("centre_line_offset")]
+        settled = f.time_s > f.time_s.min() + 5.0  # the follower's lateral feedback has pulled it over by then
+        assert np.abs(offset[settled] - 2.0).max() < 0.3  # where the follower drives, not the AI's line
+        assert f.attrs["driver"] == _Follower.identity and f.attrs["fingerprint"]["driver"] == _Follower.identity
+    # A file a driver began is not resumed by the AI (nor the other way round): its frames would not belong together.
+    partial = _config(circle_csv, tmp_path / "partial.h5", laps=1, disrupt_ai=False, max_frames=4)
+    capture_sim(partial, driver=_Follower())
+    with pytest.raises(CaptureFormatError, match="driver"):
+        capture_sim(dataclasses.replace(partial, resume=True))
+    with pytest.raises(ValueError, match="--no-disrupt"):
+        capture_sim(_config(circle_csv, tmp_path / "d.h5"), driver=_Follower())
+    with pytest.raises(ValueError, match=r"--fps 7: the driver acts every 0\.1 s"):
+        capture_sim(_config(circle_csv, tmp_path / "f.h5", fps=7, disrupt_ai=False), driver=_Follower())

@@ -32,3 +32,18 @@ def test_a_small_capture_through_the_command(gl_available, tmp_path, capsys):
     assert result["complete"] and result["frames_in_file"] > 0
     with open_capture(out) as f:
         assert f.image_hw_px == (48, 64) and not f.attrs["disrupted"]
+
+
+def test_a_policy_drives_a_capture_through_the_command(gl_available, state_run, small_track, tmp_path):
+    run, _ = state_run
+    out = tmp_path / "policy.h5"
+    argv = ["capture", "--out", str(out), "--track", small_track, "--policy", str(run), "--laps", "1", "--cars", "2",
+            "--fps", "10", "--max-frames", "20", "--image-hw-px", "48", "64", "--no-disrupt", "--json"]  # fmt: skip
+    assert main(argv) == 0
+    with open_capture(out) as f:
+        assert f.n_frames == 20 and f.attrs["driver"]["driver"] == "policy"
+        assert f.attrs["driver"]["policy_sha256"] == json.loads((run / "policy.json").read_text())["weights_sha256"]
+    with pytest.raises(ValueError, match=f"drives {small_track} with the hatchback: give --track"):
+        run_capture(CaptureOptions(out=str(tmp_path / "x.h5"), policy=str(run), disrupt_ai=False))
+    with pytest.raises(ValueError, match="leave out --workers"):
+        run_capture(CaptureOptions(out=str(tmp_path / "y.json"), policy=str(run), workers=2))

@@ -6,7 +6,6 @@ import json
 
 import pytest
 
-from tests.phase2_rl.conftest import small_track, state_run  # noqa: F401  (fixtures)
 from vision_rl.commands.drive import DriveOptions, run_drive
 from vision_rl.commands.evaluate import EvaluateOptions, LeaderboardOptions, run_evaluate, run_leaderboard
 from vision_rl.commands.options import parse_config
@@ -22,7 +21,7 @@ def test_options_parse():
     assert parse_config(LeaderboardOptions, ["--track", "technical"]).runs == "runs"
 
 
-def test_evaluate_and_leaderboard_print(state_run, small_track, capsys):  # noqa: F811
+def test_evaluate_and_leaderboard_print(state_run, small_track, capsys):
     out, _ = state_run
     opts = parse_config(EvaluateOptions, ["--policy", str(out), "--seeds", "1", "--time-limit-s", "10", "--no-write"])
     assert run_evaluate(opts) == 0
@@ -35,7 +34,7 @@ def test_evaluate_and_leaderboard_print(state_run, small_track, capsys):  # noqa
     assert [r["kind"] for r in rows] == ["ai"]  # the tiny policy was evaluated without writing
 
 
-def test_drive_runs_the_protocol_and_refuses_other_drivers(small_track, capsys, tmp_path):  # noqa: F811
+def test_drive_runs_the_protocol_and_refuses_other_drivers(small_track, capsys, tmp_path):
     assert run_drive(DriveOptions(track=small_track, seeds=1, laps=1, plot=str(tmp_path / "ai.png"), json=True)) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["protocol"]["version"] == 1 and result["n_finished"] == 1

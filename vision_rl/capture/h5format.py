@@ -80,10 +80,12 @@ _CHECKSUMMED_SINCE = 2
 REQUIRED_ATTRS: tuple[str, ...] = ("track_name", "track_geometry_hash", "car_preset", "renderer_settings", "seed")
 
 #: What the frames were made from, in the order a difference is reported: the attributes of the file's
-#: ``fingerprint`` (those the file has; a video capture has no ``cars`` or ``disrupted``).
+#: ``fingerprint`` (those the file has; a video capture has no ``cars`` or ``disrupted``, one the AI drove no
+#: ``driver``).
 FINGERPRINT_KEYS: tuple[str, ...] = (
     "source", "track_name", "track_geometry_hash", "car_preset", "cars", "fps", "disrupted", "seed",
     "image_height", "image_width", "renderer_settings", "target_names", "dedicated_names", "package_version",
+    "driver",
 )  # fmt: skip
 
 #: Fingerprint fields a resumed file must share with the writer reopening it, or the frames would not belong

@@ -6,6 +6,9 @@ Two frame sources play the part of the vision paper's HDMI grabber (section 4.1)
   so they are ghosts to each other and every frame shows the bare track), disrupted by uniform random offsets held
   for random durations ("the built-in AI with uniform random disruptions"); every car's driver's view is rendered
   at the capture rate and the targets are computed at the same instant.
+  With a ``driver`` (a trained policy, as the lap-time protocol's drivers act), that driver drives every car instead
+  of the AI, undisrupted: Phase 1 frames of the states Phase 2's policy visits, which the AI's laps do not show
+  (``evaluate --encoder-error`` measures the difference).
 - a grabber or a recorded video (:func:`vision_rl.capture.video_source.capture_video`): frames from
   ``cv2.VideoCapture`` paired by timestamp with a telemetry log, the targets computed from the track geometry.
 
@@ -29,7 +32,7 @@ from vision_rl.capture.h5format import CaptureWriter, open_capture
 from vision_rl.sim import sensors
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, DisruptionParams
 from vision_rl.sim.driving import line_and_profile
-from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector
+from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector, place_on_line
 from vision_rl.sim.track import Track
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import get_preset
@@ -147,7 +150,10 @@ def physics_step_for(fps: float) -> tuple[float, float, int]:
     return control_dt / math.ceil(control_dt / 0.01 - 1e-9), control_dt, steps_per_frame
 
 
-def capture_attrs(track: Track, cfg: CaptureConfig, renderer_settings: dict, source: str) -> dict:
+def capture_attrs(
+    track: Track, cfg: CaptureConfig, renderer_settings: dict, source: str, driver: dict | None = None
+) -> dict:
+    """The file's attributes; ``driver``: who drove when not the built-in AI (a policy's identity)."""
     return {
         "track_name": track.name,
         "track_geometry_hash": track.geometry_hash,
@@ -159,10 +165,13 @@ def capture_attrs(track: Track, cfg: CaptureConfig, renderer_settings: dict, sou
         "disrupted": bool(cfg.disrupt_ai),
         "requested_laps": cfg.laps,
         **({"cars": int(cfg.cars)} if source == "sim" else {}),
+        **({"driver": driver} if driver is not None else {}),
     }
 
 
-def open_writer(path: Path, track: Track, cfg: CaptureConfig, renderer_settings: dict, source: str) -> CaptureWriter:
+def open_writer(
+    path: Path, track: Track, cfg: CaptureConfig, renderer_settings: dict, source: str, driver: dict | None = None
+) -> CaptureWriter:
     return CaptureWriter(
         path,
         image_hw_px=cfg.image_hw_px,
@@ -170,7 +179,7 @@ def open_writer(path: Path, track: Track, cfg: CaptureConfig, renderer_settings:
         target_units=sensors.TARGET_UNITS,
         dedicated_names=sensors.DEDICATED_NAMES,
         dedicated_units=sensors.DEDICATED_UNITS,
-        attrs=capture_attrs(track, cfg, renderer_settings, source),
+        attrs=capture_attrs(track, cfg, renderer_settings, source, driver),
         resume=cfg.resume,
         force=cfg.force,
         compression=cfg.compression,
@@ -189,27 +198,49 @@ def _done_so_far(path: Path) -> tuple[int, np.ndarray, float]:
         return f.n_frames, next_lap, float(f.time_s.max())
 
 
-def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None = None) -> dict:
+def driver_steps_per_frame(fps: float, control_dt_s: float) -> int:
+    """Control steps of a driver acting every ``control_dt_s`` between two frames at ``fps``."""
+    steps = round(1.0 / (fps * control_dt_s))
+    if steps < 1 or abs(steps * control_dt_s * fps - 1.0) > 1e-9:
+        raise ValueError(
+            f"--fps {fps:g}: the driver acts every {control_dt_s:g} s, so frames must come a whole number of its "
+            f"steps apart ({1.0 / control_dt_s:g} fps or a whole fraction of it)"
+        )
+    return steps
+
+
+def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None = None, driver=None) -> dict:
     """Drive, render and record until ``cfg.laps`` laps (over all cars) are in the file; returns a summary.
 
-    ``progress(laps_done, frames)`` is called after every written batch (the command's progress bar).
+    ``progress(laps_done, frames)`` is called after every written batch (the command's progress bar). ``driver``
+    (``control_dt_s``, ``reset(world, car_ids)``, ``act(state)`` and ``identity``, as the lap-time protocol's
+    drivers): drives every car instead of the AI, which then only places the cars (at the start and after a stuck
+    car); ``cfg.disrupt_ai`` must be off.
     """
     from vision_rl.render import RenderConfig, Renderer
 
     path = Path(cfg.out)
     track = load_track(cfg.track)
     car = get_preset(cfg.car)
-    physics_dt, control_dt, steps_per_frame = physics_step_for(cfg.fps)
+    if driver is None:
+        physics_dt, control_dt, steps_per_frame = physics_step_for(cfg.fps)
+        world_config = WorldConfig(physics_dt_s=physics_dt, control_dt_s=control_dt)
+    else:
+        if cfg.disrupt_ai:
+            raise ValueError("a capture driven by a policy is not disrupted: give --no-disrupt")
+        control_dt, steps_per_frame = driver.control_dt_s, driver_steps_per_frame(cfg.fps, driver.control_dt_s)
+        world_config = WorldConfig(control_dt_s=control_dt)  # as in the policy's training and the protocol
+    identity = None if driver is None else dict(driver.identity)
     n = cfg.cars
     render_cfg = RenderConfig(width_px=cfg.width, height_px=cfg.height, max_views=n)
     renderer_settings = {**asdict(render_cfg), "camera": asdict(render_cfg.camera)}
-    writer = open_writer(path, track, cfg, renderer_settings, "sim")
+    writer = open_writer(path, track, cfg, renderer_settings, "sim", identity)
     frames_before, lap_offset, t_before = (0, np.zeros(0, dtype=np.int64), 0.0)
     if cfg.resume and writer.n_frames:
         writer.close()
         frames_before, lap_offset, t_before = _done_so_far(path)
         t_before += steps_per_frame * control_dt  # the first new frame comes one frame after the last kept one
-        writer = open_writer(path, track, cfg, renderer_settings, "sim")
+        writer = open_writer(path, track, cfg, renderer_settings, "sim", identity)
     # Lap bookkeeping per car: the lap index of its frames (never reused: a lap cut by an interruption or a
     # stuck-reset is not continued) and the number of whole laps recorded.
     lap_index_base = np.pad(lap_offset, (0, max(0, n - len(lap_offset))))[:n]
@@ -218,13 +249,21 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
 
     # A resumed run restarts the world from a state derived from the seed and the frames already kept.
     rng = np.random.default_rng([cfg.seed, frames_before])
-    world = World(track, car, n_cars=n, config=WorldConfig(physics_dt_s=physics_dt, control_dt_s=control_dt))
+    world = World(track, car, n_cars=n, config=world_config)
     line, profile = line_and_profile(track, car)
     disruption = DisruptionParams() if cfg.disrupt_ai else None
     skill = disruption.skill if disruption is not None else DEFAULT_SKILL
-    fleet = AIFleet(world, line, profile, skill=skill, disruption=disruption, seed=int(rng.integers(2**31)))
+    fleet_seed = int(rng.integers(2**31))
+    if driver is None:
+        fleet = AIFleet(world, line, profile, skill=skill, disruption=disruption, seed=fleet_seed)
+        place = fleet.place
+    else:  # the AI only places the cars on its line, at its speed
+        def place(ids: np.ndarray, s_m: np.ndarray, speed_share: float = 1.0) -> None:
+            place_on_line(world, line, profile, ids, s_m, speed_share * skill)
     s0 = np.mod(rng.uniform(0, track.length_m) + np.arange(n) * track.length_m / n, track.length_m)
-    fleet.place(np.arange(n), s0)
+    place(np.arange(n), s0)
+    if driver is not None:
+        driver.reset(world, np.arange(n))
     start_u = world.state.unwrapped_s_m.copy()
     caster = sensors.WallRayCaster(track)
     # The disrupted AI may end up facing a wall: the project's stuck rule, checked every frame.
@@ -260,7 +299,12 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
                 if progress is not None:
                     progress(laps_done - laps_before, frames)
                 frame_step += 1
-                fleet.advance(steps_per_frame)
+                if driver is None:
+                    fleet.advance(steps_per_frame)
+                else:
+                    for _ in range(steps_per_frame):
+                        action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(n, 2)
+                        world.step(action[:, 0], action[:, 1])
                 stuck = stuck_detector.update(world.state.unwrapped_s_m)
                 if len(stuck):
                     # Capture wants frames, not a race: a stuck car goes back on the racing line a little ahead,
@@ -268,10 +312,12 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
                     done_now = np.floor((world.state.unwrapped_s_m[stuck] - start_u[stuck]) / track.length_m)
                     lap_count_base[stuck] += done_now.astype(np.int64)
                     lap_index_base[stuck] += done_now.astype(np.int64) + 1
-                    fleet.place(stuck, world.state.s_m[stuck] + 5.0, speed_share=0.5)
+                    place(stuck, world.state.s_m[stuck] + 5.0, speed_share=0.5)
                     start_u[stuck] = world.state.unwrapped_s_m[stuck]
                     stuck_detector.reset(stuck, world.state.unwrapped_s_m)
                     resets += len(stuck)
+                    if driver is not None:  # its steering memory and frame history start again from the new poses
+                        driver.reset(world, np.arange(n))
     except KeyboardInterrupt:
         interrupted = True
     finally:

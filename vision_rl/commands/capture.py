@@ -39,6 +39,9 @@ class CaptureOptions(CaptureConfig):
     """Video source: telemetry CSV (time_s, x_m, y_m, yaw_rad, ...)."""
     frame_delay: int = 0
     """Video source: frames the video lags the telemetry (paper: 4)."""
+    policy: str = ""
+    """Drive the cars with this trained policy (a train-policy run folder or its policy.pt) instead of the built-in
+    AI: frames of the states Phase 2 visits. With --no-disrupt, at 10 fps or a whole fraction of it."""
     workers: int | None = None
     """Capture N shards at once as Ray tasks of one CPU each, --out being their manifest PATH.json (none: one
     process, no Ray)."""
@@ -87,6 +90,8 @@ def run_capture(opts: CaptureOptions) -> int:
 
     if not opts.out:
         raise ValueError("--out PATH.h5 is required")
+    if opts.policy and (opts.workers is not None or opts.source != "sim"):
+        raise ValueError("--policy drives a simulator capture in this process: leave out --workers and --source")
     if opts.workers is not None and opts.source != "sim":
         raise ValueError("--workers shards a simulator capture; a --source video:... capture runs in one process")
     if opts.source.startswith("video:"):
@@ -107,20 +112,38 @@ def run_capture(opts: CaptureOptions) -> int:
         return _run_sharded(opts)
     if opts.address:
         raise ValueError("--address names the Ray cluster of a sharded capture: give --workers N too")
+    driver = _policy_driver(opts) if opts.policy else None
     stop = _StopRequest()
-    with progress_bar(opts.laps, "lap", "capture") as bar, stop.installed():
+    try:
+        with progress_bar(opts.laps, "lap", "capture") as bar, stop.installed():
 
-        def progress(laps: int, frames: int) -> None:
-            show(bar, laps, frames=frames)
-            stop.check()
+            def progress(laps: int, frames: int) -> None:
+                show(bar, laps, frames=frames)
+                stop.check()
 
-        result = capture_sim(opts, progress)
+            result = capture_sim(opts, progress, driver)
+    finally:
+        if driver is not None:
+            driver.close()
     if result["interrupted"]:
         result["note"] = f"interrupted: {result['frames_in_file']} frames kept; run again with --resume to continue"
     emit(result, opts.json)
     if not result["interrupted"]:
         return 0
     return 143 if stop.signal == signal.SIGTERM else 130
+
+
+def _policy_driver(opts: CaptureOptions):
+    """The policy of ``--policy`` as a driver, refused on another track or car than it was trained on."""
+    from vision_rl.phase2_rl.artifact import load_policy
+    from vision_rl.sim.track_library import load_track
+
+    loaded = load_policy(opts.policy)
+    trained = loaded.config
+    if load_track(opts.track).geometry_hash != load_track(trained.track).geometry_hash or opts.car != trained.car:
+        raise ValueError(f"--policy {opts.policy} drives {trained.track} with the {trained.car}: give --track "
+                         f"{trained.track} --car {trained.car}")  # fmt: skip
+    return loaded.driver()
 
 
 def _run_sharded(opts: CaptureOptions) -> int:

@@ -115,9 +115,7 @@ class AIFleet:
     def place(self, car_ids: np.ndarray, s_m: np.ndarray, speed_share: float = 1.0) -> None:
         """Put cars on the racing line at ``s_m``, rolling at ``speed_share`` x their skill's speed there."""
         car_ids = np.asarray(car_ids, dtype=np.int64)
-        s = np.asarray(s_m, dtype=np.float64)
-        speed = speed_share * self.skill[car_ids] * self.profile.speed_at(self.line.line_s_at(s))
-        self.world.reset(s_m=s, lateral_m=self.line.lateral_at(s), speed_mps=speed, car_ids=car_ids)
+        place_on_line(self.world, self.line, self.profile, car_ids, s_m, speed_share * self.skill[car_ids])
 
     def advance(
         self,
@@ -154,3 +152,11 @@ class AIFleet:
         world.state = world.state._replace(wall_contact=wall_any, car_contact=car_any)
         self.last_steer_rad, self.mean_omega = steer, omega_sum / world_steps
         return StepEvents(lap_completed, lap_time_s)
+
+
+def place_on_line(world: World, line, profile, car_ids: np.ndarray, s_m: np.ndarray, speed_share) -> None:
+    """Put cars ``car_ids`` on the racing line at ``s_m``, rolling at ``speed_share`` (per car or one) x the limit
+    speed profile there."""
+    s = np.asarray(s_m, dtype=np.float64)
+    speed = np.asarray(speed_share) * profile.speed_at(line.line_s_at(s))
+    world.reset(s_m=s, lateral_m=line.lateral_at(s), speed_mps=speed, car_ids=np.asarray(car_ids, dtype=np.int64))
