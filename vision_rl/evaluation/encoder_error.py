@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from vision_rl.evaluation.outputs import driver_views
 from vision_rl.evaluation.protocol import LapTiming
 from vision_rl.sim import sensors
 
@@ -38,8 +39,6 @@ def lap_frames_and_targets(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Driver's-view frames (T, H, W, 3) uint8, true targets (T, 27) and wall contact (T,) of seed ``run``'s
     scored lap (its whole run when it scored none), one per recorded protocol step."""
-    from vision_rl.render import RenderConfig, Renderer
-
     if timing.x_m.size == 0:
         raise ValueError("the timing holds no poses: run the protocol with record=True")
     start_s, end_s = timing.scored_window_s(run)
@@ -48,15 +47,9 @@ def lap_frames_and_targets(
     track = timing.track
     proj = track.project(np.stack([x, y], axis=1))
     targets = sensors.environment_targets(track, sensors.WallRayCaster(track), x, y, yaw, proj.s_m, proj.lateral_m)
-    height, width = image_hw_px
-    frames = np.empty((len(steps), height, width, 3), dtype=np.uint8)
-    config = RenderConfig(width_px=width, height_px=height, max_views=BATCH_FRAMES)
-    with Renderer(track, config, car_length_m=timing.car.length_m, car_width_m=timing.car.width_m) as renderer:
-        for first in range(0, len(steps), BATCH_FRAMES):
-            batch = slice(first, first + BATCH_FRAMES)
-            n = len(x[batch])
-            # Each pose is a car of its own group, so it sees the bare track as the driver saw it.
-            frames[batch] = renderer.render(x[batch], y[batch], yaw[batch], groups=np.arange(n))
+    frames = np.empty((len(steps), *image_hw_px, 3), dtype=np.uint8)
+    for first, views in driver_views(timing, run, steps, image_hw_px, BATCH_FRAMES):
+        frames[first : first + len(views)] = views
     return frames, targets, timing.wall_contact[steps, run]
 
 

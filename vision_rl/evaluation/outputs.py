@@ -84,6 +84,21 @@ def check_video_dependencies() -> None:
         ) from exc
 
 
+def driver_views(timing: LapTiming, index: int, steps: np.ndarray, image_hw_px: tuple[int, int], batch: int = 20):
+    """Seed ``index``'s driver's view at the recorded ``steps`` (indices into ``timing.time_s``), rendered
+    ``batch`` poses a pass: yields (position in ``steps`` of the first view, uint8 views (k, H, W, 3))."""
+    from vision_rl.render import RenderConfig, Renderer
+
+    height, width = image_hw_px
+    config = RenderConfig(width_px=width, height_px=height, max_views=batch)
+    with Renderer(timing.track, config, car_length_m=timing.car.length_m, car_width_m=timing.car.width_m) as renderer:
+        for first in range(0, len(steps), batch):
+            rows = steps[first : first + batch]
+            # Each pose is its own group, so the views of one pass do not see each other's cars.
+            yield first, renderer.render(timing.x_m[rows, index], timing.y_m[rows, index], timing.yaw_rad[rows, index],
+                                         groups=np.arange(len(rows)))  # fmt: skip
+
+
 def write_video(
     timing: LapTiming,
     index: int,
@@ -94,8 +109,6 @@ def write_video(
     """An mp4 of seed ``index``'s driver's view over the whole run, with a small track map (top right) and the
     speed and lap clock (bottom left). Frames come from the offscreen renderer, 20 poses per render pass."""
     from PIL import Image, ImageDraw
-
-    from vision_rl.render import RenderConfig, Renderer
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -115,34 +128,23 @@ def write_video(
     ImageDraw.Draw(base_map).line(outline, fill=(255, 255, 255, 230), width=2)
     lap_starts = np.cumsum([0.0, *(lap.lap_time_s for lap in timing.runs[index].laps)])
     writer = _video_writer(path, fps=1.0 / STEP_S)
-    batch = 20
-    renderer = Renderer(
-        track, RenderConfig(width_px=width, height_px=height, max_views=batch),
-        car_length_m=timing.car.length_m, car_width_m=timing.car.width_m,
-    )  # fmt: skip
     try:
-        for begin in range(0, len(timing.time_s), batch):
-            sl = slice(begin, min(begin + batch, len(timing.time_s)))
-            k = sl.stop - sl.start
-            # Each pose is its own group, so the views of one pass do not see each other's cars.
-            frames = renderer.render(
-                timing.x_m[sl, index], timing.y_m[sl, index], timing.yaw_rad[sl, index], groups=np.arange(k)
-            )
-            for j in range(k):
-                t = float(timing.time_s[sl.start + j])
-                image = Image.fromarray(frames[j]).convert("RGBA")
+        for first, frames in driver_views(timing, index, np.arange(len(timing.time_s)), image_hw_px):
+            for j, frame in enumerate(frames):
+                step = first + j
+                t = float(timing.time_s[step])
+                image = Image.fromarray(frame).convert("RGBA")
                 overlay = base_map.copy()
-                cx, cy = to_map(np.array([timing.x_m[sl.start + j, index], timing.y_m[sl.start + j, index]]))
+                cx, cy = to_map(np.array([timing.x_m[step, index], timing.y_m[step, index]]))
                 ImageDraw.Draw(overlay).ellipse((cx - 3, cy - 3, cx + 3, cy + 3), fill=(255, 40, 40, 255))
                 image.alpha_composite(overlay, (width - map_size_px - 4, 4))
                 lap = int(np.searchsorted(lap_starts, t, side="right"))
                 clock = t - lap_starts[min(lap, len(lap_starts)) - 1]
-                text = f"{timing.speed_mps[sl.start + j, index] * 3.6:5.0f} km/h  lap {lap}  {format_lap_time(clock)}"
+                text = f"{timing.speed_mps[step, index] * 3.6:5.0f} km/h  lap {lap}  {format_lap_time(clock)}"
                 draw = ImageDraw.Draw(image)
                 draw.rectangle((2, height - 16, 8 + 6 * len(text), height - 2), fill=(0, 0, 0, 140))
                 draw.text((5, height - 15), text, fill=(255, 255, 255, 255))
                 writer.append_data(np.asarray(image.convert("RGB")))
     finally:
-        renderer.close()
         writer.close()
     return path
