@@ -253,7 +253,7 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
     line, profile = line_and_profile(track, car)
     disruption = DisruptionParams() if cfg.disrupt_ai else None
     skill = disruption.skill if disruption is not None else DEFAULT_SKILL
-    fleet_seed = int(rng.integers(2**31))
+    fleet_seed = int(rng.integers(2**31))  # drawn with a driver too, so the start points do not depend on who drives
     if driver is None:
         fleet = AIFleet(world, line, profile, skill=skill, disruption=disruption, seed=fleet_seed)
         place = fleet.place
