@@ -191,6 +191,8 @@ def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeyp
         ({"steer_action": "torque"}, "--steer-action must be one of angle, rate"),
         ({"wall_penalty_speed": "start"}, "--wall-penalty-speed must be one of end, impact"),
         ({"wall_hit_throttle_cut_s": -1.0}, "--wall-hit-throttle-cut-s -1.0"),
+        ({"pedal_full_at": 0.0}, "--pedal-full-at 0.0"),
+        ({"pedal_full_at": 1.5}, "--pedal-full-at 1.5"),
         ({"guide_bc_weight": 1.0}, "give --guide-steps too"),
         ({"guide_pretrain_steps": 10}, "give --guide-steps too"),
         ({"guide_steps": 100, "guide_bc_weight": -1.0}, "--guide-bc-weight -1.0"),

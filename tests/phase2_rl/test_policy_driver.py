@@ -42,8 +42,7 @@ def test_a_driver_for_a_config_observes_and_steers_as_that_environment():
     # Regression: train-policy's periodic evaluation once built its driver without the frame delay and the steering
     # action of the run's environment, so its learning curves timed another policy than the one saved.
     cfg = RacingConfig(track="technical", observation="vision", image_hw_px=(24, 40), control_dt_s=0.2,
-                       frame_delay_s=0.1, steer_action="speed_scaled")  # fmt: skip
+                       frame_delay_s=0.1, steer_action="speed_scaled", pedal_full_at=0.9)  # fmt: skip
     driver = PolicyDriver.for_config(lambda obs: obs, "vision", None, _MeanColour(), cfg)
-    assert (driver.image_hw_px, driver.control_dt_s, driver.frame_delay_s, driver.steer_action) == (
-        (24, 40), 0.2, 0.1, "speed_scaled"
-    )
+    assert (driver.image_hw_px, driver.control_dt_s, driver.frame_delay_s, driver.steer_action,
+            driver.pedal_full_at) == ((24, 40), 0.2, 0.1, "speed_scaled", 0.9)  # fmt: skip

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from vision_rl.envs.core import RacingConfig, steering_command
+from vision_rl.envs.core import RacingConfig, pedal_command, steering_command
 from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
 from vision_rl.envs.observer import Observer
 from vision_rl.envs.racing_env import action_space
@@ -258,6 +258,8 @@ class PolicyDriver:
         frame_delay_s: vision: how far its frames lag the state, s (as in training).
         steer_action: how its first action entry steers (as in training; see
             :func:`vision_rl.envs.core.steering_command`).
+        pedal_full_at: where its second entry reaches full throttle or brake (as in training; see
+            :func:`vision_rl.envs.core.pedal_command`).
         identity: who it is, for the record (policy path, hashes, training steps).
     """
 
@@ -272,9 +274,10 @@ class PolicyDriver:
         identity: dict[str, Any] | None = None,
         frame_delay_s: float = 0.0,
         steer_action: str = "angle",
+        pedal_full_at: float = 1.0,
     ) -> None:
         self.predict = predict
-        self.steer_action = steer_action
+        self.steer_action, self.pedal_full_at = steer_action, pedal_full_at
         self.kind, self.normalizer, self.encoder = kind, normalizer, encoder
         self.image_hw_px = image_hw_px
         self.control_dt_s = control_dt_s
@@ -288,9 +291,9 @@ class PolicyDriver:
         identity: dict[str, Any] | None = None,
     ) -> PolicyDriver:  # fmt: skip
         """A driver that observes and steers as the environment ``config`` did in training (frame size, control
-        step, frame delay, steering action)."""
+        step, frame delay, steering and pedal actions)."""
         return cls(predict, kind, normalizer, encoder, config.image_hw_px, config.control_dt_s, identity,
-                   config.frame_delay_s, config.steer_action)  # fmt: skip
+                   config.frame_delay_s, config.steer_action, config.pedal_full_at)  # fmt: skip
 
     def reset(self, world: World, car_ids: np.ndarray) -> None:
         if self.observer is not None:
@@ -314,6 +317,7 @@ class PolicyDriver:
         action[:, 0] = self.steer_command_rad = steering_command(
             action[:, 0], self.steer_command_rad, self.steer_action, self.max_steer_change_rad, speed, self.wheelbase_m
         )
+        action[:, 1] = pedal_command(action[:, 1], self.pedal_full_at)
         return action
 
     def close(self) -> None:

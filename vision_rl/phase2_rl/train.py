@@ -161,6 +161,9 @@ class TrainPolicyConfig:
     """`angle`: the action is the steering command (the papers); `rate`: a change of it, up to the car's steering
     rate limit per step; `speed_scaled`: a share of the angles usable at the car's speed; `rate_scaled`: `rate`
     within that share (none in the papers)."""
+    pedal_full_at: float = 1.0
+    """The action's throttle/brake entry at which the pedal reaches full travel (1: the papers' linear map; below 1
+    the deterministic policy can hold the throttle open; not in the papers)."""
     stats_steps: int = 50
     """Vision: control steps of the feature-statistics rollout."""
     learning_rate: float = 0.0
@@ -366,7 +369,7 @@ class _Run:
                 steer_change_penalty_c_s=cfg.steer_change_penalty_c_s, frame_delay_s=cfg.frame_delay_s,
                 steer_action=cfg.steer_action, terminate_on_wall=cfg.wall_ends_episode,
                 off_track_penalty_c_o=cfg.off_track_penalty_c_o, wall_penalty_speed=cfg.wall_penalty_speed,
-                wall_hit_throttle_cut_s=cfg.wall_hit_throttle_cut_s,
+                wall_hit_throttle_cut_s=cfg.wall_hit_throttle_cut_s, pedal_full_at=cfg.pedal_full_at,
             )  # fmt: skip
             self.start_steps = 0
             self.train_time_before_s = 0.0
@@ -580,7 +583,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "steer_change_penalty_c_s": cfg.steer_change_penalty_c_s >= 0, "stats_steps": cfg.stats_steps >= 1,
         "off_track_penalty_c_o": cfg.off_track_penalty_c_o >= 0,
         "wall_hit_throttle_cut_s": 0 <= cfg.wall_hit_throttle_cut_s <= 60,
-        "frame_delay_s": 0 <= cfg.frame_delay_s <= 1,
+        "frame_delay_s": 0 <= cfg.frame_delay_s <= 1, "pedal_full_at": 0 < cfg.pedal_full_at <= 1,
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
         "guide_steps": cfg.guide_steps >= 0, "guide_bc_weight": cfg.guide_bc_weight >= 0,
