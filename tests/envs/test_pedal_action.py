@@ -1,5 +1,5 @@
 """The pedal map: hand-computed commands, the AI's labels asking for its own pedal, the environment and a protocol
-driver accelerating alike."""
+driver accelerating (and steering, with a speed-scaled steering step) alike."""
 
 import numpy as np
 import pytest
@@ -47,21 +47,22 @@ def test_an_entry_beyond_the_full_travel_point_accelerates_as_full_throttle_does
     assert _speed_after(1.0, 0.93)[0] < full[0] - 0.1
 
 
-def test_a_policy_drives_the_protocol_with_the_pedal_map_it_trained_with():
-    cfg = RacingConfig(track="technical", n_groups=2, pedal_full_at=0.8, normalize=False)
+def test_a_policy_drives_the_protocol_with_the_pedal_map_and_steering_steps_it_trained_with():
+    cfg = RacingConfig(track="technical", n_groups=2, pedal_full_at=0.8, steer_action="rate_scaled",
+                       steer_change_share_of_range=0.5, normalize=False)  # fmt: skip
     trained = RacingCore(cfg, seed=2)
     trained.reset_groups(np.arange(2))
     replayed = RacingCore(RacingConfig(track="technical", n_groups=2, normalize=False), seed=2)
     replayed.reset_groups(np.arange(2))
     rng = np.random.default_rng(0)
-    actions = np.stack([np.zeros((20, 2)), rng.uniform(-1.0, 1.0, (20, 2))], axis=-1)  # (steps, cars, 2)
+    actions = np.stack([rng.uniform(-0.5, 0.5, (20, 2)), rng.uniform(-1.0, 1.0, (20, 2))], axis=-1)  # (steps, cars, 2)
     queue = list(actions)
     driver = PolicyDriver.for_config(lambda obs: queue.pop(0), "state", None, None, cfg)
     driver.reset(replayed.world, replayed.ego_ids)
     for a in actions:
         trained.step(a, autoreset=False)
         replayed.step(driver.act(replayed.world.state), autoreset=False)  # omega itself on the papers' map
-    for name in ("x_m", "y_m", "vx_mps", "omega"):
+    for name in ("x_m", "y_m", "vx_mps", "steer_rad", "omega"):
         np.testing.assert_array_equal(getattr(replayed.world.state.vehicle, name),
                                       getattr(trained.world.state.vehicle, name))  # fmt: skip
     assert np.abs(trained.world.state.vehicle.omega).max() > 0.0  # the pedals did move

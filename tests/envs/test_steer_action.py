@@ -29,6 +29,30 @@ def test_steering_command_by_hand():
     np.testing.assert_allclose(rate_scaled, [147.09975 / 3600, 0.04, LIMIT, -0.32])
 
 
+def test_a_rate_scaled_step_limited_to_a_share_of_the_usable_range_by_hand():
+    prev = np.zeros(3)
+    speed = np.array([60.0, 10.0, 60.0])
+    action = np.array([LIMIT, LIMIT, -LIMIT / 2])
+    # at 60 m/s the usable angle is 147.09975 / 3600 = 0.04086 rad: a full action moves half of it, 0.02043 rad,
+    # not the rate limit's 0.12; at 10 m/s half of pi/6 exceeds the rate limit, which rules
+    usable = 147.09975 / 3600
+    limited = steering_command(action, prev, "rate_scaled", 0.12, speed, 2.5, change_share_of_range=0.5)
+    np.testing.assert_allclose(limited, [usable / 2, 0.12, -usable / 4])
+    np.testing.assert_array_equal(steering_command(action, prev, "rate_scaled", 0.12, speed, 2.5, 0.0),
+                                  steering_command(action, prev, "rate_scaled", 0.12, speed, 2.5))  # fmt: skip
+    asked = action_for_command(limited, prev, "rate_scaled", 0.12, speed, 2.5, change_share_of_range=0.5)
+    np.testing.assert_allclose(asked, action)
+    beyond = action_for_command(np.full(3, usable), prev, "rate_scaled", 0.12, np.full(3, 60.0), 2.5, 0.5)
+    np.testing.assert_allclose(beyond, LIMIT)  # twice the step away: the nearest, a full action
+
+
+@pytest.mark.parametrize(("changes", "message"), [({"steer_action": "rate"}, "limits rate_scaled steering"),
+                                                  ({"steer_change_share_of_range": -0.5}, "must be >= 0")])
+def test_a_steering_step_share_without_rate_scaled_or_negative_is_refused(changes, message):
+    with pytest.raises(ValueError, match=message):
+        RacingConfig(**{"steer_action": "rate_scaled", "steer_change_share_of_range": 0.5, **changes})
+
+
 def test_a_bad_steer_action_is_refused():
     with pytest.raises(ValueError, match="steer_action must be one of"):
         RacingConfig(steer_action="torque")

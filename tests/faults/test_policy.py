@@ -193,6 +193,7 @@ def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeyp
         ({"wall_hit_throttle_cut_s": -1.0}, "--wall-hit-throttle-cut-s -1.0"),
         ({"pedal_full_at": 0.0}, "--pedal-full-at 0.0"),
         ({"pedal_full_at": 1.5}, "--pedal-full-at 1.5"),
+        ({"steer_change_share_of_range": 0.5}, "give --steer-action rate_scaled"),
         ({"guide_bc_weight": 1.0}, "give --guide-steps too"),
         ({"guide_pretrain_steps": 10}, "give --guide-steps too"),
         ({"guide_steps": 100, "guide_bc_weight": -1.0}, "--guide-bc-weight -1.0"),

@@ -69,6 +69,7 @@ def steering_command(
     max_change_rad: float,
     speed_mps: np.ndarray | None = None,
     wheelbase_m: float = 0.0,
+    change_share_of_range: float = 0.0,
 ) -> np.ndarray:
     """The steering command (rad) an action's first entry gives; every mode clips it to +-pi/6.
 
@@ -84,7 +85,9 @@ def steering_command(
       where the built-in AI never uses more than 0.07: one exploration step or one swing of a bang-bang policy
       then spins the car.
     - ``rate_scaled``: ``rate`` with the command clipped to the ``speed_scaled`` range: the wheel's angle stays
-      observable and the wheel never leaves the angles usable at the car's speed.
+      observable and the wheel never leaves the angles usable at the car's speed. With ``change_share_of_range``
+      > 0, one step moves the command by at most that share of the usable angle where that is less than
+      ``max_change_rad`` (:func:`rate_step_rad`).
     """
     action_steer = np.asarray(action_steer, dtype=np.float64)
     share = np.clip(action_steer / ACTION_STEER_LIMIT_RAD, -1.0, 1.0)
@@ -95,7 +98,16 @@ def steering_command(
     usable_rad = usable_steer_rad(speed_mps, wheelbase_m)
     if steer_action == "speed_scaled":
         return share * usable_rad
-    return np.clip(previous_command_rad + share * max_change_rad, -usable_rad, usable_rad)
+    step_rad = rate_step_rad(max_change_rad, usable_rad, change_share_of_range)
+    return np.clip(previous_command_rad + share * step_rad, -usable_rad, usable_rad)
+
+
+def rate_step_rad(max_change_rad: float, usable_rad: np.ndarray, change_share_of_range: float) -> np.ndarray | float:
+    """The most a ``rate_scaled`` command moves in one step, rad: the car's rate limit over the step or, with
+    ``change_share_of_range`` > 0, that share of the angle usable at the car's speed where it is less."""
+    if change_share_of_range <= 0:
+        return max_change_rad
+    return np.minimum(max_change_rad, change_share_of_range * usable_rad)
 
 
 def action_for_command(
@@ -105,14 +117,18 @@ def action_for_command(
     max_change_rad: float,
     speed_mps: np.ndarray,
     wheelbase_m: float,
+    change_share_of_range: float = 0.0,
 ) -> np.ndarray:
     """The action's first entry that asks :func:`steering_command` for ``command_rad`` (the nearest one where the
     mode cannot reach it in one step: a change beyond the rate limit, an angle beyond the speed's range)."""
     command_rad = np.asarray(command_rad, dtype=np.float64)
     if steer_action == "angle":
         return np.clip(command_rad, -ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD)
-    if steer_action in ("rate", "rate_scaled"):
+    if steer_action == "rate":
         share = (command_rad - previous_command_rad) / max_change_rad
+    elif steer_action == "rate_scaled":
+        usable_rad = usable_steer_rad(speed_mps, wheelbase_m)
+        share = (command_rad - previous_command_rad) / rate_step_rad(max_change_rad, usable_rad, change_share_of_range)
     else:
         share = command_rad / usable_steer_rad(speed_mps, wheelbase_m)
     return np.clip(share, -1.0, 1.0) * ACTION_STEER_LIMIT_RAD
@@ -175,6 +191,13 @@ class RacingConfig:
     command, up to what the car's steering rate limit moves the wheel in one control step; ``speed_scaled``: a share
     of the angles a car can use at its speed; ``rate_scaled``: ``rate`` within that range (see :func:`steering_command`;
     none in the papers)."""
+    steer_change_share_of_range: float = 0.0
+    """``rate_scaled``: the most one control step may move the steering command, as a share of the angle usable at
+    the car's speed, where that is less than the car's rate limit (:func:`rate_step_rad`; 0: the rate limit alone;
+    not in the papers). At 157 km/h the hatchback may use +-0.077 rad and its rate limit moves the wheel 0.15 rad in
+    a 0.1 s step, so one full action crosses the whole range: the clean state policies swing between its ends
+    every 0.3 s on the straights (+-0.09 rad at 145 km/h) and, on some seeds, into the wall of the 157 km/h
+    chicane. With 0.5 a full action there moves the wheel a quarter of the range."""
     pedal_full_at: float = 1.0
     """The action's second entry at which throttle (or, negative, the brake) reaches full travel: omega =
     ``entry / pedal_full_at``, clipped (:func:`pedal_command`; 1: the papers' linear map). A tanh-squashed SAC
@@ -218,6 +241,10 @@ class RacingConfig:
             raise ValueError(f"n_groups must be >= 1, got {self.n_groups}")
         if min(self.wall_penalty_c_w, self.steer_change_penalty_c_s, self.off_track_penalty_c_o) < 0:
             raise ValueError("the reward's penalty weights (c_w, c_s, c_o) must be >= 0")
+        if self.steer_change_share_of_range < 0:
+            raise ValueError(f"steer_change_share_of_range must be >= 0, got {self.steer_change_share_of_range}")
+        if self.steer_change_share_of_range > 0 and self.steer_action != "rate_scaled":
+            raise ValueError("steer_change_share_of_range limits rate_scaled steering: use steer_action='rate_scaled'")
         if not 0 < self.pedal_full_at <= 1:
             raise ValueError(f"pedal_full_at must be within (0, 1], got {self.pedal_full_at}")
         if self.wall_hit_throttle_cut_s < 0:
@@ -399,7 +426,7 @@ class RacingCore:
         s_prev = st.s_m[self.ego_ids].copy()
         ego_speed = np.hypot(st.vehicle.vx_mps[self.ego_ids], st.vehicle.vy_mps[self.ego_ids])
         steer_rad = steering_command(actions[:, 0], self.steer_command_rad, cfg.steer_action, self.max_change_rad,
-                                     ego_speed, self.car.wheelbase_m)  # fmt: skip
+                                     ego_speed, self.car.wheelbase_m, cfg.steer_change_share_of_range)  # fmt: skip
         omega = pedal_command(actions[:, 1], cfg.pedal_full_at)
         omega = np.where(self.throttle_cut_left > 0, np.minimum(omega, 0.0), omega)
         events = self.advance(steer_rad, omega)
@@ -448,9 +475,10 @@ class RacingCore:
     def _actions_asking_for(self, command_rad: np.ndarray, omega: np.ndarray, speed_mps: np.ndarray) -> np.ndarray:
         """(M, 2) actions that ask :meth:`step` for the egos' steering commands ``command_rad`` and throttle/brake
         ``omega`` (see :func:`action_for_command`)."""
-        steer = action_for_command(command_rad, self.steer_command_rad, self.config.steer_action, self.max_change_rad,
-                                   speed_mps, self.car.wheelbase_m)  # fmt: skip
-        return np.column_stack([steer, action_for_pedal(omega, self.config.pedal_full_at)])
+        cfg = self.config
+        steer = action_for_command(command_rad, self.steer_command_rad, cfg.steer_action, self.max_change_rad,
+                                   speed_mps, self.car.wheelbase_m, cfg.steer_change_share_of_range)  # fmt: skip
+        return np.column_stack([steer, action_for_pedal(omega, cfg.pedal_full_at)])
 
     def _after_step(self, s_prev: np.ndarray, ego_speed: np.ndarray, steer_rad: np.ndarray, events, autoreset: bool):
         """Rewards, ends and observations of a control step the world has just advanced (see :meth:`step`)."""

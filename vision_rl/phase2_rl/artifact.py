@@ -258,6 +258,8 @@ class PolicyDriver:
         frame_delay_s: vision: how far its frames lag the state, s (as in training).
         steer_action: how its first action entry steers (as in training; see
             :func:`vision_rl.envs.core.steering_command`).
+        steer_change_share_of_range: ``rate_scaled``: the most a step moves the command, as a share of the usable
+            angle (as in training; see :func:`vision_rl.envs.core.rate_step_rad`).
         pedal_full_at: where its second entry reaches full throttle or brake (as in training; see
             :func:`vision_rl.envs.core.pedal_command`).
         identity: who it is, for the record (policy path, hashes, training steps).
@@ -275,9 +277,11 @@ class PolicyDriver:
         frame_delay_s: float = 0.0,
         steer_action: str = "angle",
         pedal_full_at: float = 1.0,
+        steer_change_share_of_range: float = 0.0,
     ) -> None:
         self.predict = predict
         self.steer_action, self.pedal_full_at = steer_action, pedal_full_at
+        self.steer_change_share_of_range = steer_change_share_of_range
         self.kind, self.normalizer, self.encoder = kind, normalizer, encoder
         self.image_hw_px = image_hw_px
         self.control_dt_s = control_dt_s
@@ -293,7 +297,8 @@ class PolicyDriver:
         """A driver that observes and steers as the environment ``config`` did in training (frame size, control
         step, frame delay, steering and pedal actions)."""
         return cls(predict, kind, normalizer, encoder, config.image_hw_px, config.control_dt_s, identity,
-                   config.frame_delay_s, config.steer_action, config.pedal_full_at)  # fmt: skip
+                   config.frame_delay_s, config.steer_action, config.pedal_full_at,
+                   config.steer_change_share_of_range)  # fmt: skip
 
     def reset(self, world: World, car_ids: np.ndarray) -> None:
         if self.observer is not None:
@@ -315,7 +320,8 @@ class PolicyDriver:
         action = action.reshape(len(self.car_ids), 2).copy()
         speed = np.hypot(state.vehicle.vx_mps[self.car_ids], state.vehicle.vy_mps[self.car_ids])
         action[:, 0] = self.steer_command_rad = steering_command(
-            action[:, 0], self.steer_command_rad, self.steer_action, self.max_steer_change_rad, speed, self.wheelbase_m
+            action[:, 0], self.steer_command_rad, self.steer_action, self.max_steer_change_rad, speed, self.wheelbase_m,
+            self.steer_change_share_of_range,
         )
         action[:, 1] = pedal_command(action[:, 1], self.pedal_full_at)
         return action

@@ -833,7 +833,8 @@ class DreamerDriver(PolicyDriver):
 
     def __init__(self, agent: DreamerAgent, config: RacingConfig, normalizer, identity: dict[str, Any]) -> None:
         super().__init__(self._predict, OBSERVATION, normalizer, None, config.image_hw_px, config.control_dt_s,
-                         identity, config.frame_delay_s, config.steer_action, config.pedal_full_at)  # fmt: skip
+                         identity, config.frame_delay_s, config.steer_action, config.pedal_full_at,
+                         config.steer_change_share_of_range)  # fmt: skip
         self.agent = agent
 
     def reset(self, world, car_ids: np.ndarray) -> None:

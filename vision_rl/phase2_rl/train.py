@@ -161,6 +161,9 @@ class TrainPolicyConfig:
     """`angle`: the action is the steering command (the papers); `rate`: a change of it, up to the car's steering
     rate limit per step; `speed_scaled`: a share of the angles usable at the car's speed; `rate_scaled`: `rate`
     within that share (none in the papers)."""
+    steer_change_share_of_range: float = 0.0
+    """`rate_scaled`: the most a step moves the steering command, as a share of the angle usable at the car's speed,
+    where less than the rate limit (0: the rate limit alone; not in the papers)."""
     pedal_full_at: float = 1.0
     """The action's throttle/brake entry at which the pedal reaches full travel (1: the papers' linear map; below 1
     the deterministic policy can hold the throttle open; not in the papers)."""
@@ -370,6 +373,7 @@ class _Run:
                 steer_action=cfg.steer_action, terminate_on_wall=cfg.wall_ends_episode,
                 off_track_penalty_c_o=cfg.off_track_penalty_c_o, wall_penalty_speed=cfg.wall_penalty_speed,
                 wall_hit_throttle_cut_s=cfg.wall_hit_throttle_cut_s, pedal_full_at=cfg.pedal_full_at,
+                steer_change_share_of_range=cfg.steer_change_share_of_range,
             )  # fmt: skip
             self.start_steps = 0
             self.train_time_before_s = 0.0
@@ -584,6 +588,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "off_track_penalty_c_o": cfg.off_track_penalty_c_o >= 0,
         "wall_hit_throttle_cut_s": 0 <= cfg.wall_hit_throttle_cut_s <= 60,
         "frame_delay_s": 0 <= cfg.frame_delay_s <= 1, "pedal_full_at": 0 < cfg.pedal_full_at <= 1,
+        "steer_change_share_of_range": cfg.steer_change_share_of_range >= 0,
         "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
         "guide_steps": cfg.guide_steps >= 0, "guide_bc_weight": cfg.guide_bc_weight >= 0,
@@ -597,6 +602,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     parse_hidden_units(cfg.hidden_units)
     if cfg.steer_action not in STEER_ACTIONS:
         raise ValueError(f"--steer-action must be one of {', '.join(STEER_ACTIONS)}, got {cfg.steer_action!r}")
+    if cfg.steer_change_share_of_range > 0 and cfg.steer_action != "rate_scaled":
+        raise ValueError("--steer-change-share-of-range limits rate_scaled steering: give --steer-action rate_scaled")
     if cfg.wall_penalty_speed not in WALL_PENALTY_SPEEDS:
         raise ValueError(
             f"--wall-penalty-speed must be one of {', '.join(WALL_PENALTY_SPEEDS)}, got {cfg.wall_penalty_speed!r}"
