@@ -94,6 +94,14 @@ def test_an_experiment_resumes_only_unfinished_seeds_and_refuses_another_recipe(
     assert row["lap_time_mean_s"] == again["summary"]["lap_time_mean_s"]
 
 
+def test_an_experiment_without_periodic_evaluations_ends_with_its_summary_and_no_curves(small_track, tmp_path):
+    # Regression: it trained every seed, then stopped on the first seed's missing metrics.jsonl.
+    cfg = tiny_train_config(small_track, tmp_path / "unused", steps=120, eval_every_steps=0, checkpoint_every_steps=0)
+    result = run_experiment(cfg, (0,), tmp_path / "exp", eval_seeds=2, name="tiny")
+    assert result["summary"]["n_training_seeds"] == 1 and "learning_curves" not in result
+    assert not (tmp_path / "exp" / "learning_curves.json").exists()
+
+
 def test_curves_over_seeds_and_the_time_to_beat_the_ai(tmp_path):
     from vision_rl.phase2_rl.experiment import EPOCH_STEPS, compare_learning_curves, summarise_curves, time_to_beat
 

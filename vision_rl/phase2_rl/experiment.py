@@ -128,8 +128,9 @@ def run_experiment(
             for key in ("wall_contact_s", "wall_hits", "fastest_wall_hit_kmh")}}
         for seed, e in zip(seeds, evaluations, strict=True)
     ]  # fmt: skip
-    ai = time_laps(BuiltinAI(), cfg.track, cfg.car, seeds=AI_SEEDS).summary()["best_lap_time_s"]
-    record["learning_curves"] = write_learning_curves(root, seeds, evaluations[0]["limit_lap_time_s"], ai)
+    if cfg.eval_every_steps > 0:  # without periodic evaluations the runs have no curve to draw
+        ai = time_laps(BuiltinAI(), cfg.track, cfg.car, seeds=AI_SEEDS).summary()["best_lap_time_s"]
+        record["learning_curves"] = write_learning_curves(root, seeds, evaluations[0]["limit_lap_time_s"], ai)
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
     return {**record, "experiment_json": str(path)}
 
