@@ -79,6 +79,24 @@ def test_evaluate_sections_say_when_no_lap_finished_and_refuse_bad_options(state
             evaluate_policy(out, write=False, **bad)
 
 
+def test_evaluate_sections_print_how_the_best_lap_drives_at_speed_beside_the_ai(state_run):
+    from vision_rl.commands.evaluate import format_timing
+
+    out, _ = state_run
+    result = evaluate_policy(out, laps=1, seeds=1, time_limit_s=3.0, write=False)
+    row = {"start_m": 0.0, "time_s": 3.5, "reference_time_s": 3.4, "loss_s": 0.1, "min_speed_kmh": 96.0,
+           "reference_min_speed_kmh": 99.0, "wall_contact_s": 0.0}  # fmt: skip
+    controls = {"fast_above_kmh": 127.7, "steps": 600, "full_throttle_share": 0.002, "range_end_share": 0.16,
+                "steer_sign_change_share": 0.36}  # fmt: skip
+    reference = {**controls, "full_throttle_share": 0.87, "range_end_share": 0.0, "steer_sign_change_share": 0.03}
+    result["sections"] = {"section_m": 100.0, "reference": {"skill": 1.0, "lap_time_s": 128.655}, "rows": [row],
+                          "controls": {"lap": controls, "reference": reference}}  # fmt: skip
+    assert format_timing(result)[-1] == (
+        "above 128 km/h (the best lap / the AI's): full throttle 0% / 87% of the steps, the wheel at the end of its "
+        "usable angle 16% / 0%, changing side 36% / 3%"
+    )
+
+
 def test_encoder_error_is_refused_for_a_state_policy(state_run):
     out, _ = state_run
     with pytest.raises(ValueError, match="this policy observes the state"):

@@ -52,6 +52,13 @@ def format_timing(result: dict[str, Any]) -> list[str]:
             lines.append(f"  {r['start_m']:6.0f}  {r['time_s']:6.2f}  {r['reference_time_s']:5.2f}  "
                          f"{r['loss_s']:+6.2f}  {r['min_speed_kmh']:5.0f} ({r['reference_min_speed_kmh']:3.0f})  "
                          f"{r['wall_contact_s']:6.1f}")  # fmt: skip
+        lap, ai = sections["controls"]["lap"], sections["controls"]["reference"]
+        if lap["steps"] and ai["steps"]:
+            lines.append(f"above {lap['fast_above_kmh']:.0f} km/h (the best lap / the AI's): full throttle "
+                         f"{lap['full_throttle_share']:.0%} / {ai['full_throttle_share']:.0%} of the steps, the "
+                         f"wheel at the end of its usable angle {lap['range_end_share']:.0%} / "
+                         f"{ai['range_end_share']:.0%}, changing side {lap['steer_sign_change_share']:.0%} / "
+                         f"{ai['steer_sign_change_share']:.0%}")  # fmt: skip
     errors = result.get("encoder_error")
     if errors is not None:
         policy, ai = errors["policy"], errors["built_in_ai"]

@@ -171,6 +171,10 @@ class LapTiming:
     yaw_rad: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     speed_mps: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     wall_contact: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
+    steer_rad: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    """The front wheels' angle at the end of each recorded step, rad (after the steering's lag)."""
+    omega: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    """The pedal at the end of each recorded step, -1 (full brake) to 1 (full throttle), after its lag."""
 
     def scored(self, i: int) -> LapRecord | None:
         """Seed i's scored lap (the last of ``laps``), or None if it did not complete it."""
@@ -282,7 +286,7 @@ def time_laps(
     fastest_hit_mps = np.zeros(n)  # of the lap under way
     fastest_hit_per_lap_mps: list[list[float]] = [[] for _ in range(n)]
     stuck = StuckDetector(world.state.unwrapped_s_m, STEP_S, STUCK_RULE)
-    rec: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "x", "y", "yaw", "v", "wall")}
+    rec: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "x", "y", "yaw", "v", "wall", "steer", "omega")}
     for _ in range(math.ceil(limit_s / STEP_S - 1e-9)):
         wall_step = np.zeros(n, dtype=bool)
         for _ in range(world_steps):
@@ -313,6 +317,8 @@ def time_laps(
             rec["yaw"].append(veh.yaw_rad.copy())
             rec["v"].append(np.hypot(veh.vx_mps, veh.vy_mps))
             rec["wall"].append(wall_step)
+            rec["steer"].append(veh.steer_rad.copy())
+            rec["omega"].append(veh.omega.copy())
         finished = active & (st.laps_completed >= laps)
         end_time_s[finished] = st.time_s[finished]
         active &= ~finished
@@ -347,4 +353,5 @@ def time_laps(
         timing.time_s = np.asarray(rec["t"])
         timing.x_m, timing.y_m, timing.yaw_rad = (np.stack(rec[k]) for k in ("x", "y", "yaw"))
         timing.speed_mps, timing.wall_contact = np.stack(rec["v"]), np.stack(rec["wall"])
+        timing.steer_rad, timing.omega = np.stack(rec["steer"]), np.stack(rec["omega"])
     return timing

@@ -10,6 +10,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from vision_rl.evaluation.controls import lap_controls
 from vision_rl.evaluation.encoder_error import encoder_error_on_lap
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.outputs import check_video_dependencies, format_lap_time, plot_trajectory, write_video
@@ -102,7 +103,7 @@ def _encoder_error(timing: LapTiming, best: int, loaded: LoadedPolicy) -> dict[s
 
 def _sections(timing: LapTiming, best: int, section_m: float, reference_skill: float) -> dict[str, Any]:
     reference: dict[str, Any] = {"driver": "built-in AI", "skill": reference_skill, "lap_time_s": None}
-    rows = None
+    rows = controls = None
     if timing.scored(best) is not None:
         ai = time_laps(BuiltinAI(skill=reference_skill), timing.track, timing.car,
                        [run.seed for run in timing.runs], timing.laps, record=True)  # fmt: skip
@@ -111,4 +112,5 @@ def _sections(timing: LapTiming, best: int, section_m: float, reference_skill: f
             raise ValueError(f"the built-in AI at skill {reference_skill:g} finished no lap: no reference")
         reference["lap_time_s"] = ai.scored(ai_best).lap_time_s
         rows = compare_sections(lap_sections(timing, best, section_m), lap_sections(ai, ai_best, section_m))
-    return {"section_m": section_m, "reference": reference, "rows": rows}
+        controls = {"lap": lap_controls(timing, best), "reference": lap_controls(ai, ai_best)}
+    return {"section_m": section_m, "reference": reference, "rows": rows, "controls": controls}
