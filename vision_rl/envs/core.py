@@ -194,10 +194,11 @@ class RacingConfig:
     steer_change_share_of_range: float = 0.0
     """``rate_scaled``: the most one control step may move the steering command, as a share of the angle usable at
     the car's speed, where that is less than the car's rate limit (:func:`rate_step_rad`; 0: the rate limit alone;
-    not in the papers). At 157 km/h the hatchback may use +-0.077 rad and its rate limit moves the wheel 0.15 rad in
-    a 0.1 s step, so one full action crosses the whole range: the clean state policies swing between its ends
+    not in the papers). At 157 km/h the hatchback may use +-0.080 rad and its rate limit moves the wheel 0.12 rad in
+    a 0.1 s step, so one full action crosses most of the range: the clean state policies swing between its ends
     every 0.3 s on the straights (+-0.09 rad at 145 km/h) and, on some seeds, into the wall of the 157 km/h
-    chicane. With 0.5 a full action there moves the wheel a quarter of the range."""
+    chicane. With 0.5 a full action there moves the wheel a quarter of the range (docs/results/
+    state-expressway-hatchback-clean)."""
     pedal_full_at: float = 1.0
     """The action's second entry at which throttle (or, negative, the brake) reaches full travel: omega =
     ``entry / pedal_full_at``, clipped (:func:`pedal_command`; 1: the papers' linear map). A tanh-squashed SAC
