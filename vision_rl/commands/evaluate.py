@@ -105,7 +105,8 @@ class EvaluateOptions:
     encoder_runtime: str = "auto"
     """Vision: auto (ONNX Runtime on a CPU when installed, 2-6x faster than torch here), torch or onnxruntime."""
     sections_m: float = 0.0
-    """Cut the best scored lap into sections this long and compare it with the built-in AI's (0: off)."""
+    """Cut the best scored lap into sections this long and compare it with the built-in AI's, and say how each drives
+    where a steering-rate step exceeds the usable angle: full throttle, the wheel at its range's ends (0: off)."""
     reference_skill: float = 1.0
     """With --sections-m: the built-in AI's skill on the same starts (1.0: its fastest)."""
     encoder_error: bool = False
