@@ -168,6 +168,11 @@ def test_observation_normalisation_is_cached_and_reused(tmp_path, monkeypatch):
     files[0].write_text("{not json")
     third = RacingCore(RacingConfig(track=TRACK), seed=0).observer.normalizer
     np.testing.assert_allclose(third.offset, first.offset)
+    # Computed first by an environment of 0.04 s steps, the statistics are those of the 0.1 s one.
+    files[0].unlink()
+    finer = RacingCore(RacingConfig(track=TRACK, control_dt_s=0.04), seed=0).observer.normalizer
+    np.testing.assert_array_equal(finer.offset, first.offset)
+    np.testing.assert_array_equal(finer.scale, first.scale)
 
 
 @pytest.mark.parametrize("env_id", ["vision_rl/TimeTrial-v1", "vision_rl/Overtaking-v1"])

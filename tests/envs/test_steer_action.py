@@ -69,17 +69,20 @@ def test_the_env_adds_the_asked_change_to_the_last_command():
                                    start + k * per_step * np.array([1.0, -0.25]))  # fmt: skip
 
 
-@pytest.mark.parametrize("steer_action", ["rate", "speed_scaled", "rate_scaled"])
-def test_a_policy_drives_the_protocol_as_it_drove_its_environment(steer_action):
-    cfg = RacingConfig(track="technical", n_groups=2, steer_action=steer_action, normalize=False)
+@pytest.mark.parametrize(("steer_action", "control_dt_s"), [("rate", 0.1), ("speed_scaled", 0.1),
+                                                           ("rate_scaled", 0.1), ("rate_scaled", 0.04)])
+def test_a_policy_drives_the_protocol_as_it_drove_its_environment(steer_action, control_dt_s):
+    cfg = RacingConfig(track="technical", n_groups=2, steer_action=steer_action, normalize=False,
+                       control_dt_s=control_dt_s)  # fmt: skip
     trained = RacingCore(cfg, seed=2)
     trained.reset_groups(np.arange(2))
-    replayed = RacingCore(RacingConfig(track="technical", n_groups=2, normalize=False), seed=2)
+    replayed = RacingCore(RacingConfig(track="technical", n_groups=2, normalize=False, control_dt_s=control_dt_s),
+                          seed=2)  # fmt: skip
     replayed.reset_groups(np.arange(2))
     rng = np.random.default_rng(0)
     actions = np.column_stack([rng.uniform(-LIMIT, LIMIT, (12, 2)).ravel(), np.full(24, 0.6)]).reshape(12, 2, 2)
     queue = list(actions)
-    driver = PolicyDriver(lambda obs: queue.pop(0), "state", None, steer_action=steer_action)
+    driver = PolicyDriver(lambda obs: queue.pop(0), "state", None, control_dt_s=control_dt_s, steer_action=steer_action)
     driver.reset(replayed.world, replayed.ego_ids)
     for a in actions:
         trained.step(a, autoreset=False)

@@ -114,10 +114,10 @@ def test_time_limit_is_a_dnf_and_bad_arguments_are_refused(small_track):
     timing = time_laps(CentreLineFollower(speed_mps=5.0), small_track, "hatchback", seeds=[0], time_limit_s=20.0)
     assert timing.runs[0].dnf_reason.startswith("time limit")
     assert timing.runs[0].time_s == pytest.approx(20.0, abs=0.11)
-    with pytest.raises(ValueError, match="whole fraction"):
-        slow = CentreLineFollower()
-        slow.control_dt_s = 0.3
-        time_laps(slow, small_track, "hatchback", seeds=[0])
+    with pytest.raises(ValueError, match="whole fraction of it or a whole multiple"):
+        odd = CentreLineFollower()
+        odd.control_dt_s = 0.03  # neither divides the 0.1 s step nor is a number of 0.02 s ticks
+        time_laps(odd, small_track, "hatchback", seeds=[0])
     with pytest.raises(ValueError, match="seeds must differ"):
         time_laps(CentreLineFollower(), small_track, "hatchback", seeds=[1, 1])
     with pytest.raises(ValueError, match="laps"):
@@ -172,3 +172,34 @@ def test_the_disrupted_ai_leaves_the_line_and_recovers_without_spinning_reproduc
     assert again.summary()["seeds"] == s["seeds"]
     other = time_laps(BuiltinAI(disruption=DisruptionParams(), seed=1), "technical", "hatchback", seeds=(0, 1), laps=1)
     assert other.summary()["seeds"] != s["seeds"]
+
+
+class HeldTwice:
+    """A 0.02 s driver that asks ``inner`` on every other tick and repeats its command in between."""
+
+    control_dt_s = 0.02
+
+    def __init__(self, inner) -> None:
+        self.inner, self.ticks, self.command = inner, 0, None
+
+    def reset(self, world, car_ids):
+        self.inner.reset(world, car_ids)
+
+    def act(self, state):
+        if self.ticks % 2 == 0:
+            self.command = self.inner.act(state)
+        self.ticks += 1
+        return self.command
+
+
+def test_a_driver_acting_every_004_s_is_asked_every_other_tick_and_its_command_held(small_track):
+    slow = CentreLineFollower()
+    slow.control_dt_s = 0.04  # not a whole fraction of the 0.1 s step: the world ticks at 0.02 s
+    timed = time_laps(slow, small_track, "hatchback", seeds=[0, 1], laps=1, record=True)
+    by_hand = HeldTwice(CentreLineFollower())
+    held = time_laps(by_hand, small_track, "hatchback", seeds=[0, 1], laps=1, record=True)
+    assert [r.laps[0].lap_time_s for r in timed.runs] == [r.laps[0].lap_time_s for r in held.runs]
+    np.testing.assert_array_equal(timed.x_m, held.x_m)
+    np.testing.assert_array_equal(timed.steer_rad, held.steer_rad)
+    # one command per 0.04 s of the run (the 0.02 s driver was asked twice as often)
+    assert len(slow.seen) == len(by_hand.inner.seen) == pytest.approx(timed.runs[0].time_s / 0.04, abs=3)

@@ -103,7 +103,7 @@ def test_an_experiment_without_periodic_evaluations_ends_with_its_summary_and_no
 
 
 def test_curves_over_seeds_and_the_time_to_beat_the_ai(tmp_path):
-    from vision_rl.phase2_rl.experiment import EPOCH_STEPS, compare_learning_curves, summarise_curves, time_to_beat
+    from vision_rl.phase2_rl.experiment import compare_learning_curves, summarise_curves, time_to_beat
 
     per_seed = {"0": {"num_timesteps": [100, 200, 300], "train_time_s": [10.0, 20.0, 30.0],
                       "lap_time_s": [None, 140.0, 130.0]},
@@ -113,12 +113,19 @@ def test_curves_over_seeds_and_the_time_to_beat_the_ai(tmp_path):
     assert curves["seeds_finished"] == ["0/2", "1/2", "2/2"] and curves["mean_lap_time_s"] == [None, 140.0, 131.0]
     assert curves["std_lap_time_s"][2] == pytest.approx(np.sqrt(2.0)) and curves["mean_train_time_s"][2] == 32.0
     # At 200 steps one seed's 140 s beats 141 s, but the other did not finish: the first full beat is at 300.
-    assert time_to_beat(curves, 141.0) == {"num_timesteps": 300, "epochs": 300 / EPOCH_STEPS, "train_time_s": 32.0}
+    # the paper's epoch is 20 trials of 100 s: 20,000 steps of 0.1 s
+    assert time_to_beat(curves, 141.0) == {"num_timesteps": 300, "epochs": pytest.approx(300 / 20_000),
+                                           "train_time_s": 32.0}
+    # of 0.04 s steps it takes 50,000
+    assert summarise_curves(per_seed, control_dt_s=0.04)["epochs"] == pytest.approx([0.002, 0.004, 0.006])
     assert time_to_beat(curves, 130.0) is None
     path = tmp_path / "a.json"
     path.write_text(json.dumps({"per_seed": per_seed}))
-    result = compare_learning_curves([path, path], ["a", "b"], 120.0, 141.0, tmp_path / "fig")
+    finer = tmp_path / "b.json"
+    finer.write_text(json.dumps({"per_seed": per_seed, "control_dt_s": 0.04}))
+    result = compare_learning_curves([path, finer], ["a", "b"], 120.0, 141.0, tmp_path / "fig")
     assert result["series"][1]["time_to_beat_ai"]["num_timesteps"] == 300
+    assert [series["epochs"][0] for series in result["series"]] == pytest.approx([0.005, 0.002])
     assert (tmp_path / "fig" / "compare.png").stat().st_size > 1000
     with pytest.raises(ValueError, match="2 names for 1 curve files"):
         compare_learning_curves([path], ["a", "b"], 120.0, 141.0, tmp_path / "fig")

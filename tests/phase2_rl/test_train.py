@@ -196,3 +196,30 @@ def test_read_metrics_drops_the_evaluations_a_resume_replaced(tmp_path):
     assert [(r["num_timesteps"], r["lap_time_s"]) for r in records] == [(100, 99.0), (200, 98.0), (300, 97.0),
                                                                         (400, 96.0)]  # fmt: skip
     assert [r.get("event") for r in read_metrics(path, events=True)] == [None, None, "sampler_lost", None, None]
+
+
+def test_a_finer_control_step_keeps_the_discount_per_second_and_is_timed_at_its_own_rate(small_track, tmp_path):
+    from vision_rl.phase2_rl.train import _Run, gamma_per_step
+
+    assert gamma_per_step(0.99, 0.1) == 0.99
+    assert gamma_per_step(0.99, 0.04) == pytest.approx(0.995988, abs=1e-6)  # 0.99 ** 0.4: one 0.1 s is 2.5 steps
+    assert gamma_per_step(0.99, 0.04) ** 5 == pytest.approx(0.99**2)
+    run = _Run(tiny_train_config(small_track, tmp_path / "dt04", control_dt_s=0.04, episode_s=4.0))
+    model = run.build()
+    try:
+        assert model.gamma == pytest.approx(0.99**0.4) and run.racing.control_dt_s == 0.04
+        assert run.racing.max_episode_steps == 100  # 4 s of 0.04 s steps
+    finally:
+        run.close()
+    out = tmp_path / "dt04-trained"
+    train_policy(tiny_train_config(small_track, out, control_dt_s=0.04, steps=100, eval_every_steps=100))
+    spec = PolicySpec.read(out / "policy.json")
+    assert spec.config.control_dt_s == 0.04 and load_policy(out).driver().control_dt_s == 0.04
+
+
+@pytest.mark.parametrize("dt", [0.05, 0.03, 0.0, 1.5])
+def test_a_control_step_off_the_simulators_grid_is_refused_before_anything_is_written(small_track, tmp_path, dt):
+    out = tmp_path / "bad"
+    with pytest.raises(ValueError, match="control-dt-s"):
+        train_policy(tiny_train_config(small_track, out, control_dt_s=dt))
+    assert not out.exists()

@@ -3,8 +3,10 @@
 Rules (:data:`PROTOCOL_VERSION` 1; the vision paper's Sec. 4, after Fuchs et al.):
 
 - **Rate**: the protocol advances in steps of :data:`STEP_S` = 0.1 s, the policies' 10 Hz. A driver acts every
-  ``driver.control_dt_s``, a whole fraction of the step: a policy every 0.1 s, the built-in AI every 0.02 s (its
-  50 Hz controller). Physics runs in 0.01 s substeps either way, so the rate changes nobody's physics.
+  ``driver.control_dt_s``, a whole fraction of the step (a policy every 0.1 s, the built-in AI every 0.02 s, its
+  50 Hz controller) or a whole multiple of the AI's 0.02 s (a 0.04 s policy: the world ticks at 0.02 s and the
+  command is held over two ticks, as in its training environment). Physics runs in 0.01 s substeps either way, so
+  the rate changes nobody's physics.
 - **Start**: rolling, the same for every driver. Seed k's car is placed on the start/finish line (s = 0) on the
   car's racing line, heading along the centre line, at the built-in AI's default-skill speed there (0.92 x the QSS
   limit profile), jittered by seed: lateral offset uniform in +-0.25 m, speed in +-2 %
@@ -19,8 +21,8 @@ Rules (:data:`PROTOCOL_VERSION` 1; the vision paper's Sec. 4, after Fuchs et al.
   painted edge line, on the kerb or shoulder band); average speed (centre-line length over lap time, km/h);
   distance driven (the path length of the car's centre, m); wall hits (contacts that begin in the lap) and the
   fastest of them (the car's speed at the start of the driver step in which the contact began, km/h: a car that
-  brakes on a wall shows here). Contact and distance are counted at the driver's rate, so a lap's figures are exact
-  to one driver step.
+  brakes on a wall shows here). Contact and distance are counted at the world's tick, so a lap's figures are exact
+  to one tick.
 - **Clean**: a scored lap with at most :data:`CLEAN_WALL_CONTACT_S` of wall contact.
 
 A driver (:class:`Driver`) is anything with ``control_dt_s``, ``reset(world, car_ids)`` and
@@ -241,6 +243,21 @@ def _start(track: Track, car: VehicleParams, seeds: Sequence[int]) -> tuple[np.n
     return lateral, speed, profile.lap_time_s
 
 
+def world_tick_s(control_dt_s: float) -> tuple[float, int]:
+    """The protocol world's tick for a driver acting every ``control_dt_s`` seconds and how many ticks it holds a
+    command: the driver's own step where that divides :data:`STEP_S`, else the AI's 0.02 s (see the rules)."""
+    per_step = round(STEP_S / control_dt_s)
+    if per_step >= 1 and abs(per_step * control_dt_s - STEP_S) < 1e-9:
+        return control_dt_s, 1
+    held = round(control_dt_s / AI_CONTROL_DT_S)
+    if held >= 1 and abs(held * AI_CONTROL_DT_S - control_dt_s) < 1e-9:
+        return AI_CONTROL_DT_S, held
+    raise ValueError(
+        f"a driver must act every {STEP_S} s, a whole fraction of it or a whole multiple of {AI_CONTROL_DT_S} s, "
+        f"not {control_dt_s}"
+    )
+
+
 def time_laps(
     driver: Driver,
     track: Track | str,
@@ -264,10 +281,8 @@ def time_laps(
         raise ValueError(f"seeds must differ, got {seeds}")
     if laps < 1:
         raise ValueError(f"laps must be >= 1, got {laps}")
-    world_steps = round(STEP_S / driver.control_dt_s)
-    if world_steps < 1 or abs(world_steps * driver.control_dt_s - STEP_S) > 1e-9:
-        raise ValueError(f"a driver must act every {STEP_S} s or a whole fraction of it, not {driver.control_dt_s}")
-    dt = driver.control_dt_s
+    dt, act_every = world_tick_s(driver.control_dt_s)
+    world_steps = round(STEP_S / dt)
     world = World(track, car, n_cars=n, groups=np.arange(n), config=WorldConfig(control_dt_s=dt))
     lateral, speed, limit_lap_s = _start(track, car, seeds)
     world.reset(s_m=np.zeros(n), lateral_m=lateral, speed_mps=speed)
@@ -287,10 +302,13 @@ def time_laps(
     fastest_hit_per_lap_mps: list[list[float]] = [[] for _ in range(n)]
     stuck = StuckDetector(world.state.unwrapped_s_m, STEP_S, STUCK_RULE)
     rec: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "x", "y", "yaw", "v", "wall", "steer", "omega")}
+    ticks = 0
     for _ in range(math.ceil(limit_s / STEP_S - 1e-9)):
         wall_step = np.zeros(n, dtype=bool)
         for _ in range(world_steps):
-            action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(n, 2)
+            if ticks % act_every == 0:
+                action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(n, 2)
+            ticks += 1
             touching_before = world.state.wall_contact.copy()
             speed_before_mps = np.hypot(world.state.vehicle.vx_mps, world.state.vehicle.vy_mps)
             events = world.step(action[:, 0], action[:, 1])

@@ -130,16 +130,22 @@ def run_experiment(
     ]  # fmt: skip
     if cfg.eval_every_steps > 0:  # without periodic evaluations the runs have no curve to draw
         ai = time_laps(BuiltinAI(), cfg.track, cfg.car, seeds=AI_SEEDS).summary()["best_lap_time_s"]
-        record["learning_curves"] = write_learning_curves(root, seeds, evaluations[0]["limit_lap_time_s"], ai)
+        record["learning_curves"] = write_learning_curves(root, seeds, evaluations[0]["limit_lap_time_s"], ai,
+                                                          cfg.control_dt_s)
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
     return {**record, "experiment_json": str(path)}
 
 
-#: The vision paper's epoch (Fig. 3 right): 20 trials of 100 s at 10 Hz, 20,000 environment steps.
-EPOCH_STEPS = 20_000
+#: The vision paper's epoch (Fig. 3 right): 20 trials of 100 s, car-seconds (20,000 environment steps at 10 Hz).
+EPOCH_CAR_S = 2000.0
 
 
-def learning_curves(root: str | os.PathLike[str], seeds: tuple[int, ...]) -> dict[str, Any]:
+def epochs_per_step(control_dt_s: float) -> float:
+    """The paper's epochs in one environment step of ``control_dt_s`` seconds."""
+    return control_dt_s / EPOCH_CAR_S
+
+
+def learning_curves(root: str | os.PathLike[str], seeds: tuple[int, ...], control_dt_s: float = 0.1) -> dict[str, Any]:
     """The periodic evaluations of every seed's run (``metrics.jsonl``: the protocol's lap against environment
     steps and training seconds) and their summary over the seeds (:func:`summarise_curves`)."""
     per_seed = {}
@@ -150,15 +156,16 @@ def learning_curves(root: str | os.PathLike[str], seeds: tuple[int, ...]) -> dic
             "train_time_s": [r["train_time_s"] for r in records],
             "lap_time_s": [r["lap_time_s"] for r in records],
         }
-    return {"per_seed": per_seed, **summarise_curves(per_seed)}
+    return {"per_seed": per_seed, **summarise_curves(per_seed, control_dt_s)}
 
 
-def summarise_curves(per_seed: dict[str, dict[str, list]]) -> dict[str, Any]:
-    """At each evaluated step: epochs (:data:`EPOCH_STEPS`), mean and standard deviation of the lap over the seeds
-    that finished it, how many did, and the seeds' mean training time (s)."""
+def summarise_curves(per_seed: dict[str, dict[str, list]], control_dt_s: float = 0.1) -> dict[str, Any]:
+    """At each evaluated step: epochs (:data:`EPOCH_CAR_S`; steps of ``control_dt_s``), mean and standard deviation
+    of the lap over the seeds that finished it, how many did, and the seeds' mean training time (s)."""
     steps = sorted({n for c in per_seed.values() for n in c["num_timesteps"]})
-    out: dict[str, list] = {"num_timesteps": steps, "epochs": [n / EPOCH_STEPS for n in steps], "mean_lap_time_s": [],
-                            "std_lap_time_s": [], "seeds_finished": [], "mean_train_time_s": []}  # fmt: skip
+    out: dict[str, Any] = {"control_dt_s": control_dt_s, "num_timesteps": steps,
+                           "epochs": [n * epochs_per_step(control_dt_s) for n in steps], "mean_lap_time_s": [],
+                           "std_lap_time_s": [], "seeds_finished": [], "mean_train_time_s": []}  # fmt: skip
     for n in steps:
         at = [(c["lap_time_s"][i], c["train_time_s"][i]) for c in per_seed.values()
               for i in [c["num_timesteps"].index(n)] if n in c["num_timesteps"]]  # fmt: skip
@@ -220,7 +227,9 @@ def plot_learning_curves(
         if ai_lap_time_s is not None:
             ax.axhline(ai_lap_time_s, color="k", ls=":", lw=1, label="built-in AI, default skill")
     axes[0].set_xlabel("environment steps (transitions over all cars)")
-    top = axes[0].secondary_xaxis("top", functions=(lambda n: n / EPOCH_STEPS, lambda e: e * EPOCH_STEPS))
+    # The epochs of the first series' control step (curves written before it was recorded: 0.1 s).
+    per_step = epochs_per_step(series[0][1].get("control_dt_s", 0.1)) if series else epochs_per_step(0.1)
+    top = axes[0].secondary_xaxis("top", functions=(lambda n: n * per_step, lambda e: e / per_step))
     top.set_xlabel("the paper's epochs (20 trials of 100 s)")
     axes[1].set_xlabel("training time (min; evaluations excluded)")
     axes[0].set_ylabel("protocol lap 2, s (missing: no seed finished)")
@@ -235,12 +244,13 @@ def plot_learning_curves(
 
 
 def write_learning_curves(
-    root: str | os.PathLike[str], seeds: tuple[int, ...], limit_lap_time_s: float, ai_lap_time_s: float | None = None
+    root: str | os.PathLike[str], seeds: tuple[int, ...], limit_lap_time_s: float, ai_lap_time_s: float | None = None,
+    control_dt_s: float = 0.1,
 ) -> dict:
     """:func:`learning_curves` as ``learning_curves.json`` (with the limit, the AI's lap and when the mean beat it)
     and ``learning_curves.png`` in the experiment folder."""
     root = Path(root)
-    curves = learning_curves(root, seeds)
+    curves = learning_curves(root, seeds, control_dt_s)
     curves.update(limit_lap_time_s=limit_lap_time_s, ai_lap_time_s=ai_lap_time_s,
                   time_to_beat_ai=None if ai_lap_time_s is None else time_to_beat(curves, ai_lap_time_s))  # fmt: skip
     png = root / "learning_curves.png"
@@ -261,10 +271,11 @@ def compare_learning_curves(
     series = []
     for name, file in zip(names, files, strict=True):
         try:
-            per_seed = json.loads(Path(file).read_text())["per_seed"]
-        except (OSError, ValueError, KeyError) as exc:
+            data = json.loads(Path(file).read_text())
+            per_seed = data["per_seed"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{file}: not a learning_curves.json of an experiment ({exc})") from None
-        curves = {"per_seed": per_seed, **summarise_curves(per_seed)}
+        curves = {"per_seed": per_seed, **summarise_curves(per_seed, data.get("control_dt_s", 0.1))}
         curves["time_to_beat_ai"] = time_to_beat(curves, ai_lap_time_s)
         series.append((name, curves))
     out = Path(out)

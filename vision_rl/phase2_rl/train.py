@@ -57,6 +57,7 @@ from vision_rl.phase2_rl.artifact import (
 )
 from vision_rl.phase2_rl.interrupts import learn_between_interrupts
 from vision_rl.phase2_rl.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
+from vision_rl.sim.fleet import AI_CONTROL_DT_S
 
 METRICS_NAME = "metrics.jsonl"
 MAX_CARS = 1000
@@ -141,6 +142,9 @@ class TrainPolicyConfig:
     """Save the replay buffer with step checkpoints and on Ctrl-C (for --resume)."""
     episode_s: float = 100.0
     """Training episode length, s (the papers' 100 s trials)."""
+    control_dt_s: float = 0.1
+    """Control step, s: a whole multiple of the simulator's 0.02 s (the papers' 10 Hz: 0.1). --gamma stays a
+    discount per 0.1 s; --n-step counts control steps; c_w, c_s and c_o weigh a step (not in the papers)."""
     wall_penalty_c_w: float = 0.005
     """c_w of the reward's wall penalty."""
     wall_penalty_speed: str = "end"
@@ -246,6 +250,12 @@ def resolve_preset(cfg: Any) -> SACPreset:
         "hidden_units": hidden or None,
     }
     return dataclasses.replace(preset, **{k: v for k, v in overrides.items() if v is not None})
+
+
+def gamma_per_step(gamma_per_tenth_s: float, control_dt_s: float) -> float:
+    """The discount of one control step of ``control_dt_s`` seconds, given the discount per 0.1 s (the presets'
+    and --gamma's unit), so that a finer control step keeps the horizon in seconds."""
+    return gamma_per_tenth_s ** (control_dt_s / 0.1)
 
 
 def default_out(cfg: TrainPolicyConfig) -> Path:
@@ -373,7 +383,7 @@ class _Run:
                 steer_action=cfg.steer_action, terminate_on_wall=cfg.wall_ends_episode,
                 off_track_penalty_c_o=cfg.off_track_penalty_c_o, wall_penalty_speed=cfg.wall_penalty_speed,
                 wall_hit_throttle_cut_s=cfg.wall_hit_throttle_cut_s, pedal_full_at=cfg.pedal_full_at,
-                steer_change_share_of_range=cfg.steer_change_share_of_range,
+                steer_change_share_of_range=cfg.steer_change_share_of_range, control_dt_s=cfg.control_dt_s,
             )  # fmt: skip
             self.start_steps = 0
             self.train_time_before_s = 0.0
@@ -423,7 +433,8 @@ class _Run:
             from vision_rl.phase2_rl.guide import guided_sac_class
         model = (guided_sac_class() if cloning else SAC)(
             "MlpPolicy", env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
-            learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
+            learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau,
+            gamma=gamma_per_step(p.gamma, self.racing.control_dt_s),
             train_freq=(p.train_freq_steps, "step"), gradient_steps=p.gradient_steps,
             policy_kwargs={"net_arch": list(p.hidden_units)}, seed=self.seed + self.start_steps,
             device=self.device, verbose=0, n_steps=self.cfg.n_step,
@@ -582,7 +593,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "cars": cfg.cars >= 1, "steps": cfg.steps >= 1, "eval_every_steps": cfg.eval_every_steps >= 0,
         "eval_seeds": cfg.eval_seeds >= 1 or cfg.eval_every_steps == 0, "eval_laps": cfg.eval_laps >= 1,
         "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "episode_s": cfg.episode_s > 0,
+        "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "episode_s": cfg.episode_s >= cfg.control_dt_s,
+        "control_dt_s": 0 < cfg.control_dt_s <= 1,
         "wall_penalty_c_w": cfg.wall_penalty_c_w >= 0,
         "steer_change_penalty_c_s": cfg.steer_change_penalty_c_s >= 0, "stats_steps": cfg.stats_steps >= 1,
         "off_track_penalty_c_o": cfg.off_track_penalty_c_o >= 0,
@@ -600,6 +612,9 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         name = bad[0]
         raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
     parse_hidden_units(cfg.hidden_units)
+    if abs(cfg.control_dt_s / AI_CONTROL_DT_S - round(cfg.control_dt_s / AI_CONTROL_DT_S)) > 1e-9:
+        raise ValueError(f"--control-dt-s {cfg.control_dt_s} is not a whole multiple of the simulator's "
+                         f"{AI_CONTROL_DT_S} s step, e.g. 0.04 (25 Hz) or 0.1 (10 Hz)")
     if cfg.steer_action not in STEER_ACTIONS:
         raise ValueError(f"--steer-action must be one of {', '.join(STEER_ACTIONS)}, got {cfg.steer_action!r}")
     if cfg.steer_change_share_of_range > 0 and cfg.steer_action != "rate_scaled":
