@@ -7,7 +7,7 @@ import pytest
 
 from tests.phase2_rl.conftest import STADIUM
 from vision_rl.evaluation.leaderboard import leaderboard
-from vision_rl.evaluation.protocol import STEP_S, BuiltinAI, time_laps
+from vision_rl.evaluation.protocol import STEP_S, BuiltinAI, time_laps, world_tick_s
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver
 from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.fleet import STUCK_RULE
@@ -201,5 +201,47 @@ def test_a_driver_acting_every_004_s_is_asked_every_other_tick_and_its_command_h
     assert [r.laps[0].lap_time_s for r in timed.runs] == [r.laps[0].lap_time_s for r in held.runs]
     np.testing.assert_array_equal(timed.x_m, held.x_m)
     np.testing.assert_array_equal(timed.steer_rad, held.steer_rad)
-    # one command per 0.04 s of the run (the 0.02 s driver was asked twice as often)
-    assert len(slow.seen) == len(by_hand.inner.seen) == pytest.approx(timed.runs[0].time_s / 0.04, abs=3)
+    # one command per 0.04 s of the run, which lasts as long as its slowest seed
+    assert len(slow.seen) == len(by_hand.inner.seen) == pytest.approx(max(r.time_s for r in timed.runs) / 0.04, abs=2)
+
+
+def test_world_ticks_for_each_driver_step():
+    assert world_tick_s(0.1) == (0.1, 1) and world_tick_s(0.02) == (0.02, 1) and world_tick_s(0.05) == (0.05, 1)
+    assert world_tick_s(0.04) == (0.02, 2) and world_tick_s(0.06) == (0.02, 3) and world_tick_s(0.2) == (0.02, 10)
+    for dt in (0.03, 0.0, -0.1):
+        with pytest.raises(ValueError, match="whole multiple"):
+            world_tick_s(dt)
+
+
+class WeavingAtTheWall(CentreLineFollower):
+    """At 0.04 s: weaves towards the left wall and back, so its contact starts and ends within held commands."""
+
+    control_dt_s = 0.04
+
+    def __init__(self) -> None:
+        super().__init__(target_lateral=lambda s: 4.6 + 1.6 * np.sin(s / 6.0), speed_mps=12.0)
+        self.walls_seen: list[np.ndarray] = []
+
+    def act(self, state):
+        self.walls_seen.append(state.wall_contact.copy())
+        return super().act(state)
+
+
+def test_a_driver_holding_its_command_sees_the_wall_contact_of_every_tick_since_it_last_acted(small_track, monkeypatch):
+    import vision_rl.evaluation.protocol as protocol
+
+    ticks: list[np.ndarray] = []
+
+    class TickRecordingWorld(protocol.World):
+        def step(self, *args, **kwargs):
+            events = super().step(*args, **kwargs)
+            ticks.append(self.state.wall_contact.copy())
+            return events
+
+    monkeypatch.setattr(protocol, "World", TickRecordingWorld)
+    driver = WeavingAtTheWall()
+    time_laps(driver, small_track, "hatchback", seeds=[0], laps=1, time_limit_s=30.0)
+    seen = np.array(driver.walls_seen[1:])[:, 0]  # each ask after the first: the two ticks before it
+    pairs = np.array(ticks[: 2 * len(seen)]).reshape(len(seen), 2)
+    np.testing.assert_array_equal(seen, pairs.any(axis=1))
+    assert (pairs[:, 0] & ~pairs[:, 1]).any()  # contacts that ended within a held command were seen, not lost

@@ -572,7 +572,8 @@ def _statistics_sample(config: RacingConfig) -> np.ndarray:
     """Raw observations for the cached normalisation of ``config``'s track, car and observation kind, always from
     :data:`STATS_GROUPS` groups: the statistics (and so the normalised observations) must not depend on which
     environment happened to compute them first (so they are sampled at the default 0.1 s control step too)."""
-    pinned = dataclasses.replace(config, n_groups=STATS_GROUPS, normalize=False, control_dt_s=STATS_CONTROL_DT_S)
+    pinned = dataclasses.replace(config, n_groups=STATS_GROUPS, normalize=False, control_dt_s=STATS_CONTROL_DT_S,
+                                 episode_s=max(config.episode_s, STATS_CONTROL_DT_S))  # fmt: skip
     core = RacingCore(pinned)
     try:
         return core.sample_raw_observations(core.observer)

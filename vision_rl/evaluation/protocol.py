@@ -20,9 +20,9 @@ Rules (:data:`PROTOCOL_VERSION` 1; the vision paper's Sec. 4, after Fuchs et al.
 - **Per lap**: lap time; wall-contact, car-contact and off-track seconds (off track: the car's centre beyond the
   painted edge line, on the kerb or shoulder band); average speed (centre-line length over lap time, km/h);
   distance driven (the path length of the car's centre, m); wall hits (contacts that begin in the lap) and the
-  fastest of them (the car's speed at the start of the driver step in which the contact began, km/h: a car that
-  brakes on a wall shows here). Contact and distance are counted at the world's tick, so a lap's figures are exact
-  to one tick.
+  fastest of them (the car's speed at the start of the world tick in which the contact began, km/h: a car that
+  brakes on a wall shows here). Contact, hits and distance are counted at the world's tick (the driver's step, or
+  0.02 s for a driver whose step does not divide 0.1 s), so a lap's figures are exact to one tick.
 - **Clean**: a scored lap with at most :data:`CLEAN_WALL_CONTACT_S` of wall contact.
 
 A driver (:class:`Driver`) is anything with ``control_dt_s``, ``reset(world, car_ids)`` and
@@ -79,7 +79,7 @@ class Driver(Protocol):
     """Drives a batch of cars of one world."""
 
     control_dt_s: float
-    """How often :meth:`act` is called, s: a whole fraction of :data:`STEP_S`."""
+    """How often :meth:`act` is called, s: a whole fraction of :data:`STEP_S` or a whole number of 0.02 s."""
 
     def reset(self, world: World, car_ids: np.ndarray) -> None:
         """A new run: the driver drives cars ``car_ids`` of ``world`` (all its cars, in the protocol)."""
@@ -246,7 +246,7 @@ def _start(track: Track, car: VehicleParams, seeds: Sequence[int]) -> tuple[np.n
 def world_tick_s(control_dt_s: float) -> tuple[float, int]:
     """The protocol world's tick for a driver acting every ``control_dt_s`` seconds and how many ticks it holds a
     command: the driver's own step where that divides :data:`STEP_S`, else the AI's 0.02 s (see the rules)."""
-    per_step = round(STEP_S / control_dt_s)
+    per_step = round(STEP_S / control_dt_s) if control_dt_s > 0 else 0
     if per_step >= 1 and abs(per_step * control_dt_s - STEP_S) < 1e-9:
         return control_dt_s, 1
     held = round(control_dt_s / AI_CONTROL_DT_S)
@@ -303,11 +303,18 @@ def time_laps(
     stuck = StuckDetector(world.state.unwrapped_s_m, STEP_S, STUCK_RULE)
     rec: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "x", "y", "yaw", "v", "wall", "steer", "omega")}
     ticks = 0
+    # A driver holding its command over several ticks sees the contacts of all of them, as its training environment
+    # shows them over a control step (vision_rl.sim.fleet.AIFleet.advance).
+    wall_since_ask, car_since_ask = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
     for _ in range(math.ceil(limit_s / STEP_S - 1e-9)):
         wall_step = np.zeros(n, dtype=bool)
         for _ in range(world_steps):
             if ticks % act_every == 0:
-                action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(n, 2)
+                seen = world.state
+                if act_every > 1:
+                    seen = seen._replace(wall_contact=wall_since_ask, car_contact=car_since_ask)
+                    wall_since_ask, car_since_ask = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+                action = np.asarray(driver.act(seen), dtype=np.float64).reshape(n, 2)
             ticks += 1
             touching_before = world.state.wall_contact.copy()
             speed_before_mps = np.hypot(world.state.vehicle.vx_mps, world.state.vehicle.vy_mps)
@@ -315,6 +322,8 @@ def time_laps(
             st = world.state
             veh = st.vehicle
             wall_step |= st.wall_contact
+            wall_since_ask |= st.wall_contact
+            car_since_ask |= st.car_contact
             hit = active & st.wall_contact & ~touching_before
             wall_hits += hit
             fastest_hit_mps = np.maximum(fastest_hit_mps, np.where(hit, speed_before_mps, 0.0))

@@ -78,7 +78,7 @@ class SACPreset:
     learning_rate: float
     """Adam step size of actor, critics and entropy coefficient."""
     gamma: float
-    """Discount per 0.1 s control step."""
+    """Discount per 0.1 s (SAC's per-step discount is :func:`gamma_per_step` of it)."""
     tau: float
     """Polyak factor of the target critics."""
     train_freq_steps: int
