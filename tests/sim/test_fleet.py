@@ -3,7 +3,7 @@ import pytest
 
 from vision_rl.sim.ai_driver import DisruptionParams
 from vision_rl.sim.driving import line_and_profile
-from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector, StuckRule
+from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector, StuckRule, ai_ticks
 from vision_rl.sim.vehicle import get_preset
 from vision_rl.sim.world import World, WorldConfig
 
@@ -61,3 +61,8 @@ def test_disrupted_fleets_are_reproducible(stadium):
         fleet.advance(200)
         ends.append(world.state.vehicle.x_m.copy())
     np.testing.assert_array_equal(ends[0], ends[1])
+
+
+def test_ai_ticks_of_a_control_step():
+    assert [ai_ticks(dt) for dt in (0.02, 0.04, 0.1, 0.3)] == [1, 2, 5, 15]
+    assert [ai_ticks(dt) for dt in (0.05, 0.03, 0.01, 0.0)] == [None, None, None, None]

@@ -25,7 +25,7 @@ from vision_rl.envs.rewards import (
 )
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE, AIDriver, Disruptor
 from vision_rl.sim.driving import line_and_profile
-from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector
+from vision_rl.sim.fleet import AI_CONTROL_DT_S, AIFleet, StuckDetector, ai_ticks
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import ACTION_STEER_LIMIT_RAD, GRAVITY_MPS2, get_preset
 from vision_rl.sim.world import StepEvents, World, WorldConfig
@@ -254,8 +254,7 @@ class RacingConfig:
             raise ValueError(f"wall_hit_throttle_cut_s must be >= 0, got {self.wall_hit_throttle_cut_s}")
         if self.episode_s < self.control_dt_s:
             raise ValueError("episode_s must cover at least one control step")
-        ratio = self.control_dt_s / AI_CONTROL_DT_S
-        if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9:
+        if ai_ticks(self.control_dt_s) is None:
             raise ValueError(f"control_dt_s must be a whole multiple of the AI's {AI_CONTROL_DT_S} s")
 
     @property
@@ -298,7 +297,7 @@ class RacingCore:
         n_cars = cfg.n_groups * self.group_size
         self.ego_ids = np.arange(cfg.n_groups) * self.group_size
         self.groups = np.repeat(np.arange(cfg.n_groups), self.group_size)
-        self.world_steps = round(cfg.control_dt_s / AI_CONTROL_DT_S)
+        self.world_steps = ai_ticks(cfg.control_dt_s)
         self.world = World(self.track, self.car, n_cars, self.groups, WorldConfig(control_dt_s=AI_CONTROL_DT_S))
         self.line, self.profile = line_and_profile(self.track, self.car)
         self.fleet = AIFleet(self.world, self.line, self.profile, skill=cfg.start_skill)

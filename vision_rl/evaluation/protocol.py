@@ -40,7 +40,7 @@ import numpy as np
 
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver, DisruptionParams, Disruptor
 from vision_rl.sim.driving import line_and_profile
-from vision_rl.sim.fleet import AI_CONTROL_DT_S, STUCK_RULE, StuckDetector
+from vision_rl.sim.fleet import AI_CONTROL_DT_S, STUCK_RULE, StuckDetector, ai_ticks
 from vision_rl.sim.track import Track
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import VehicleParams, get_preset
@@ -249,8 +249,8 @@ def world_tick_s(control_dt_s: float) -> tuple[float, int]:
     per_step = round(STEP_S / control_dt_s) if control_dt_s > 0 else 0
     if per_step >= 1 and abs(per_step * control_dt_s - STEP_S) < 1e-9:
         return control_dt_s, 1
-    held = round(control_dt_s / AI_CONTROL_DT_S)
-    if held >= 1 and abs(held * AI_CONTROL_DT_S - control_dt_s) < 1e-9:
+    held = ai_ticks(control_dt_s)
+    if held is not None:
         return AI_CONTROL_DT_S, held
     raise ValueError(
         f"a driver must act every {STEP_S} s, a whole fraction of it or a whole multiple of {AI_CONTROL_DT_S} s, "

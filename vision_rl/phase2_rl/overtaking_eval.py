@@ -40,7 +40,7 @@ from vision_rl.phase2_rl.overtaking import learning_curve, load_overtaking_polic
 from vision_rl.phase2_rl.persist import atomic_write
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE
 from vision_rl.sim.driving import line_and_profile
-from vision_rl.sim.fleet import AI_CONTROL_DT_S, STUCK_RULE, AIFleet, StuckDetector
+from vision_rl.sim.fleet import AI_CONTROL_DT_S, STUCK_RULE, AIFleet, StuckDetector, ai_ticks
 from vision_rl.sim.track import Track
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import VehicleParams, get_preset
@@ -118,8 +118,8 @@ def run_setting(
     track = track if isinstance(track, Track) else load_track(track)
     car = car if isinstance(car, VehicleParams) else get_preset(car)
     limit_s = time_limit_s if time_limit_s > 0 else DEFAULT_TIME_LIMIT_S[setting]
-    every = round(driver.control_dt_s / AI_CONTROL_DT_S)
-    if every < 1 or abs(every * AI_CONTROL_DT_S - driver.control_dt_s) > 1e-9:
+    every = ai_ticks(driver.control_dt_s)
+    if every is None:
         raise SettingError(f"a driver must act every {AI_CONTROL_DT_S} s or a whole multiple of it")
     k = OPPONENTS + 1
     n = runs * k

@@ -57,7 +57,7 @@ from vision_rl.phase2_rl.artifact import (
 )
 from vision_rl.phase2_rl.interrupts import learn_between_interrupts
 from vision_rl.phase2_rl.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
-from vision_rl.sim.fleet import AI_CONTROL_DT_S
+from vision_rl.sim.fleet import AI_CONTROL_DT_S, ai_ticks
 
 METRICS_NAME = "metrics.jsonl"
 MAX_CARS = 1000
@@ -612,7 +612,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         name = bad[0]
         raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
     parse_hidden_units(cfg.hidden_units)
-    if abs(cfg.control_dt_s / AI_CONTROL_DT_S - round(cfg.control_dt_s / AI_CONTROL_DT_S)) > 1e-9:
+    if ai_ticks(cfg.control_dt_s) is None:
         raise ValueError(f"--control-dt-s {cfg.control_dt_s} is not a whole multiple of the simulator's "
                          f"{AI_CONTROL_DT_S} s step, e.g. 0.04 (25 Hz) or 0.1 (10 Hz)")
     if cfg.steer_action not in STEER_ACTIONS:

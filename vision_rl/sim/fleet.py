@@ -25,6 +25,13 @@ from vision_rl.sim.world import StepEvents, World
 AI_CONTROL_DT_S = 0.02
 
 
+def ai_ticks(control_dt_s: float) -> int | None:
+    """How many of the AI's :data:`AI_CONTROL_DT_S` ticks make a step of ``control_dt_s`` seconds; None when the step
+    is not a whole number (at least one) of them."""
+    ticks = round(control_dt_s / AI_CONTROL_DT_S)
+    return ticks if ticks >= 1 and abs(ticks * AI_CONTROL_DT_S - control_dt_s) < 1e-9 else None
+
+
 @dataclass(frozen=True)
 class StuckRule:
     """A car is stuck when it made less than ``min_progress_m`` of signed track progress over the last
