@@ -44,6 +44,13 @@ def test_bad_seed_lists_are_refused(text):
     assert parse_seeds("2, 0,1") == (2, 0, 1)
 
 
+@pytest.mark.parametrize("change", [{"control_dt_s": 0.03}, {"steps": 0}, {"pedal_full_at": 2.0}])
+def test_a_bad_option_is_refused_before_the_experiment_folder_is_written(small_track, tmp_path, change):
+    with pytest.raises(ValueError, match="--"):
+        run_experiment(tiny_train_config(small_track, tmp_path / "unused", **change), (0,), tmp_path / "exp")
+    assert not (tmp_path / "exp").exists()
+
+
 def test_the_same_training_seed_gives_the_same_transitions(small_track, tmp_path):
     runs = {}
     for name, seed in (("a", 0), ("b", 0), ("c", 1)):

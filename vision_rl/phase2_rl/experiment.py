@@ -25,7 +25,14 @@ from vision_rl.phase1_repr.checkpoint import checkpoint_sha256
 from vision_rl.phase2_rl.artifact import SIDECAR_NAME, PolicySpec
 from vision_rl.phase2_rl.evaluate import evaluate_policy
 from vision_rl.phase2_rl.persist import atomic_write
-from vision_rl.phase2_rl.train import METRICS_NAME, Progress, TrainPolicyConfig, read_metrics, train_policy
+from vision_rl.phase2_rl.train import (
+    METRICS_NAME,
+    Progress,
+    TrainPolicyConfig,
+    check_bounds,
+    read_metrics,
+    train_policy,
+)
 
 EXPERIMENT_NAME = "experiment.json"
 #: Options that may differ between sessions of one experiment (they change where and how, not what is trained).
@@ -86,6 +93,7 @@ def run_experiment(
     record. ``progress(index, n_seeds, seed)`` is called as each seed starts."""
     if eval_seeds < 1:
         raise ValueError(f"--eval-seeds must be >= 1, got {eval_seeds}")
+    check_bounds(cfg)  # a bad option is refused before the experiment folder is written
     root = Path(out) if out else default_experiment_out(cfg)
     plan = _plan(cfg)
     path = root / EXPERIMENT_NAME
