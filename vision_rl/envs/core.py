@@ -42,8 +42,6 @@ SCENARIOS: dict[str, tuple[int, float]] = {
 STATS_SEED = 12345
 #: Groups of the world whose disrupted-AI drive gives the normalisation statistics (the papers' 20 cars).
 STATS_GROUPS = 20
-#: The control step the statistics are sampled at, whatever the environment's own.
-STATS_CONTROL_DT_S = 0.1
 
 
 #: How the first action entry steers (:func:`steering_command`).
@@ -570,9 +568,10 @@ def _take(obs, g: int):
 def _statistics_sample(config: RacingConfig) -> np.ndarray:
     """Raw observations for the cached normalisation of ``config``'s track, car and observation kind, always from
     :data:`STATS_GROUPS` groups: the statistics (and so the normalised observations) must not depend on which
-    environment happened to compute them first (so they are sampled at the default 0.1 s control step too)."""
-    pinned = dataclasses.replace(config, n_groups=STATS_GROUPS, normalize=False, control_dt_s=STATS_CONTROL_DT_S,
-                                 episode_s=max(config.episode_s, STATS_CONTROL_DT_S))  # fmt: skip
+    environment happened to compute them first (so they are sampled at the default control step too)."""
+    dt = RacingConfig.control_dt_s
+    pinned = dataclasses.replace(config, n_groups=STATS_GROUPS, normalize=False, control_dt_s=dt,
+                                 episode_s=max(config.episode_s, dt))  # fmt: skip
     core = RacingCore(pinned)
     try:
         return core.sample_raw_observations(core.observer)
