@@ -130,7 +130,20 @@ def test_curves_over_seeds_and_the_time_to_beat_the_ai(tmp_path):
     path.write_text(json.dumps({"per_seed": per_seed}))
     finer = tmp_path / "b.json"
     finer.write_text(json.dumps({"per_seed": per_seed, "control_dt_s": 0.04}))
-    result = compare_learning_curves([path, finer], ["a", "b"], 120.0, 141.0, tmp_path / "fig")
+    import matplotlib.axes
+
+    drawn = []
+    plot = matplotlib.axes.Axes.plot
+
+    def recorded(ax, x, *args, **kwargs):
+        drawn.append(list(x))
+        return plot(ax, x, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(matplotlib.axes.Axes, "plot", recorded)
+        result = compare_learning_curves([path, finer], ["a", "b"], 120.0, 141.0, tmp_path / "fig")
+    # control steps of 0.1 and 0.04 s: the steps are not comparable, so both means are drawn against epochs
+    assert drawn[0] == pytest.approx([0.005, 0.01, 0.015]) and drawn[2] == pytest.approx([0.002, 0.004, 0.006])
     assert result["series"][1]["time_to_beat_ai"]["num_timesteps"] == 300
     assert [series["epochs"][0] for series in result["series"]] == pytest.approx([0.005, 0.002])
     assert (tmp_path / "fig" / "compare.png").stat().st_size > 1000

@@ -205,12 +205,15 @@ def plot_learning_curves(
 ) -> None:
     """Lap against environment steps (the paper's epochs on the top axis) and against training minutes: each
     series' mean over its seeds with a +-1 std band (``seeds_drawn``: each seed's own line too), the limit and the
-    built-in AI's lap; the legend says when each mean beats the AI."""
+    built-in AI's lap; the legend says when each mean beats the AI. Series of different control steps are drawn
+    against the paper's epochs instead (equal simulated time; their steps are not comparable)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    control_dts_s = {curves["control_dt_s"] for _, curves in series}
+    by_steps = len(control_dts_s) <= 1
     fig, axes = plt.subplots(1, 2, figsize=(12, 5), sharey=True)
     for k, (label, curves) in enumerate(series):
         color = f"C{k}"
@@ -220,25 +223,30 @@ def plot_learning_curves(
         when = "" if ai_lap_time_s is None else (" (never beats the AI)" if beat is None else
                 f" (beats the AI at {beat['num_timesteps'] / 1000:.0f}k steps, {beat['train_time_s'] / 60:.0f} min)")
         n_seeds = len(curves["per_seed"])
-        for ax, x in zip(axes, (np.array(curves["num_timesteps"]), np.array(curves["mean_train_time_s"]) / 60),
-                         strict=True):  # fmt: skip
+        first = np.array(curves["num_timesteps"] if by_steps else curves["epochs"])
+        for ax, x in zip(axes, (first, np.array(curves["mean_train_time_s"]) / 60), strict=True):
             ax.plot(x, mean, "-", color=color, lw=2, label=f"{label}: mean of {n_seeds} seeds{when}")
             ax.fill_between(x, mean - std, mean + std, color=color, alpha=0.2)
         if seeds_drawn:
             for j, (seed, c) in enumerate(curves["per_seed"].items()):
                 y = [np.nan if t is None else t for t in c["lap_time_s"]]
                 style = dict(marker="osv^D"[j % 5], lw=0.7, ms=3, alpha=0.6, color=color)
-                axes[0].plot(c["num_timesteps"], y, label=f"seed {seed}", **style)
+                steps = np.array(c["num_timesteps"])
+                x = steps if by_steps else steps * epochs_per_step(curves["control_dt_s"])
+                axes[0].plot(x, y, label=f"seed {seed}", **style)
                 axes[1].plot(np.array(c["train_time_s"]) / 60, y, **style)
     for ax in axes:
         ax.axhline(limit_lap_time_s, color="grey", ls="--", lw=1, label="physical limit (QSS)")
         if ai_lap_time_s is not None:
             ax.axhline(ai_lap_time_s, color="k", ls=":", lw=1, label="built-in AI, default skill")
-    axes[0].set_xlabel("environment steps (transitions over all cars)")
-    # The epochs of the first series' control step (curves written before it was recorded: 0.1 s).
-    per_step = epochs_per_step(series[0][1].get("control_dt_s", 0.1)) if series else epochs_per_step(0.1)
-    top = axes[0].secondary_xaxis("top", functions=(lambda n: n * per_step, lambda e: e / per_step))
-    top.set_xlabel("the paper's epochs (20 trials of 100 s)")
+    epochs_label = "the paper's epochs (20 trials of 100 s)"
+    if by_steps:
+        axes[0].set_xlabel("environment steps (transitions over all cars)")
+        per_step = epochs_per_step(min(control_dts_s, default=0.1))
+        top = axes[0].secondary_xaxis("top", functions=(lambda n: n * per_step, lambda e: e / per_step))
+        top.set_xlabel(epochs_label)
+    else:
+        axes[0].set_xlabel(epochs_label)
     axes[1].set_xlabel("training time (min; evaluations excluded)")
     axes[0].set_ylabel("protocol lap 2, s (missing: no seed finished)")
     # Below the axes, so that the legend never hides a curve or a tick label.
