@@ -41,7 +41,8 @@ class CaptureOptions(CaptureConfig):
     """Video source: frames the video lags the telemetry (paper: 4)."""
     policy: str = ""
     """Drive the cars with this trained policy (a train-policy run folder or its policy.pt) instead of the built-in
-    AI: frames of the states Phase 2 visits. With --no-disrupt, at 10 fps or a whole fraction of it."""
+    AI: frames of the states Phase 2 visits. With --no-disrupt, at the policy's control rate or a whole fraction of
+    it (a 0.1 s policy: 10 fps, 5 fps, ...; a 0.04 s one: 25, 12.5, ...)."""
     workers: int | None = None
     """Capture N shards at once as Ray tasks of one CPU each, --out being their manifest PATH.json (none: one
     process, no Ray)."""
