@@ -5,6 +5,7 @@ ones continue where they stopped)."""
 from __future__ import annotations
 
 import json
+import tempfile
 
 import gymnasium as gym
 import numpy as np
@@ -153,11 +154,13 @@ def test_each_algorithm_writes_a_run_folder_that_loads(tiny_runs, small_track):
     assert "discriminator" in gail and "discriminator_optimizer" in gail
 
 
-def test_an_online_run_continues_where_it_stopped(tiny_runs, small_track, small_demos):
+def test_an_online_run_continues_where_it_stopped(tiny_runs, small_track, small_demos, tmp_path, monkeypatch):
     root, results = tiny_runs
     demos, _ = small_demos
     assert results["td3"]["num_timesteps"] == 300
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     more = train_baseline(tiny_baseline_config(small_track, demos, root / "td3", algo="td3", steps=500))
+    assert not list(tmp_path.glob("SB3-*"))  # SB3's default logger leaves one empty folder per learn()
     assert more["num_timesteps"] == 500 and more["session"]["steps"] == 200
     assert more["buffer_restored"] == 300  # the saved replay buffer came back (per car x 2 cars)
     model_state = torch.load(root / "td3" / "policy.pt", weights_only=True)

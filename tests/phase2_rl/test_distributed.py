@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import tempfile
 
 import numpy as np
 import pytest
@@ -158,8 +159,11 @@ def test_ctrl_c_with_workers_saves_and_resume_restarts_the_samplers(ray_local, s
     assert single["num_timesteps"] == 340 and single["sampling"] is None
 
 
-def test_bench_sampling_reports_the_learner_against_its_standalone_rate(ray_local, small_track):
+def test_bench_sampling_reports_the_learner_against_its_standalone_rate(ray_local, small_track, tmp_path,
+                                                                        monkeypatch):  # fmt: skip
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     result = bench_sampling(1, 1.0, 0, cars=2, track=small_track, prefill_transitions=400)
+    assert not list(tmp_path.glob("SB3-*"))  # no empty SB3 logger folder left behind
     assert result["workers"] == 1 and result["standalone_updates_per_s"] > 0 and result["learner_updates_per_s"] > 0
     assert result["learner_share_of_standalone"] == pytest.approx(
         result["learner_updates_per_s"] / result["standalone_updates_per_s"], rel=1e-2

@@ -57,6 +57,7 @@ import torch
 from stable_baselines3 import SAC, TD3
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecMonitor
 from torch import nn
@@ -673,6 +674,8 @@ class _OnlineSession:
             model = SAC("MlpPolicy", self.env, replay_buffer_class=GAILReplayBuffer, **common)
         else:
             model = SAC("MlpPolicy", self.env, **common)
+        # SB3's default logger makes an empty SB3-<date> folder in the temporary directory on every learn().
+        model.set_logger(Logger(folder=None, output_formats=[]))
         if cfg.algo == "gail":
             assert self.demos is not None
             scaled = model.policy.scale_action(self.demos.expert_actions.astype(np.float64))

@@ -776,7 +776,7 @@ def bench_sampling(
     preset's start steps) fill the replay buffer first, untimed."""
     import torch
     from stable_baselines3 import SAC
-    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.logger import Logger
 
     from vision_rl.envs.core import RacingConfig
     from vision_rl.envs.vector import make_sb3_vec_env
@@ -794,7 +794,7 @@ def bench_sampling(
         gamma=BENCH_SAC["gamma"], policy_kwargs={"net_arch": list(BENCH_SAC["hidden_units"])}, seed=seed,
         device="cpu", verbose=0,
     )  # fmt: skip
-    model.set_logger(configure(None, [""]))
+    model.set_logger(Logger(folder=None, output_formats=[]))  # configure(None) leaves an empty SB3-<date> folder
     # Random transitions from a local world, untimed, so that the standalone updates sample a real buffer.
     rng = np.random.default_rng(seed)
     low, high = venv.action_space.low, venv.action_space.high
