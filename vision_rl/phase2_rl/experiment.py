@@ -223,7 +223,8 @@ def plot_learning_curves(
         when = "" if ai_lap_time_s is None else (" (never beats the AI)" if beat is None else
                 f" (beats the AI at {beat['num_timesteps'] / 1000:.0f}k steps, {beat['train_time_s'] / 60:.0f} min)")
         n_seeds = len(curves["per_seed"])
-        first = np.array(curves["num_timesteps"] if by_steps else curves["epochs"])
+        scale = 1.0 if by_steps else epochs_per_step(curves["control_dt_s"])  # steps or epochs on the first axes
+        first = np.array(curves["num_timesteps"]) * scale
         for ax, x in zip(axes, (first, np.array(curves["mean_train_time_s"]) / 60), strict=True):
             ax.plot(x, mean, "-", color=color, lw=2, label=f"{label}: mean of {n_seeds} seeds{when}")
             ax.fill_between(x, mean - std, mean + std, color=color, alpha=0.2)
@@ -231,9 +232,7 @@ def plot_learning_curves(
             for j, (seed, c) in enumerate(curves["per_seed"].items()):
                 y = [np.nan if t is None else t for t in c["lap_time_s"]]
                 style = dict(marker="osv^D"[j % 5], lw=0.7, ms=3, alpha=0.6, color=color)
-                steps = np.array(c["num_timesteps"])
-                x = steps if by_steps else steps * epochs_per_step(curves["control_dt_s"])
-                axes[0].plot(x, y, label=f"seed {seed}", **style)
+                axes[0].plot(np.array(c["num_timesteps"]) * scale, y, label=f"seed {seed}", **style)
                 axes[1].plot(np.array(c["train_time_s"]) / 60, y, **style)
     for ax in axes:
         ax.axhline(limit_lap_time_s, color="grey", ls="--", lw=1, label="physical limit (QSS)")
