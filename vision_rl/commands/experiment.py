@@ -83,8 +83,9 @@ def run_experiment_command(opts: ExperimentOptions) -> int:
 @dataclass(frozen=True)
 class CurvesOptions:
     """Experiments' learning curves on one figure (the vision paper's Fig. 3 right): the protocol lap against
-    environment steps (and the paper's epochs) and training minutes, the mean over each experiment's seeds with its
-    spread, the physical limit, the built-in AI, and when each mean first beats the AI."""
+    environment steps (and the paper's epochs; the epochs alone when the experiments' control steps differ) and
+    training minutes, the mean over each experiment's seeds with its spread, the physical limit, the built-in AI,
+    and when each mean first beats the AI."""
 
     files: str = ""
     """Comma-separated learning_curves.json of experiments (EXPERIMENT/learning_curves.json)."""
