@@ -1,4 +1,4 @@
-"""`bench-latency`: --json emits its keys, the text names the budget."""
+"""`bench-latency` and `bench train-repr`: --json emits their keys, the text names the budget and the frame size."""
 
 import json
 
@@ -24,3 +24,17 @@ def test_text_output_prints_the_budget_beside(capsys) -> None:
     run_bench_latency(BenchLatencyOptions(image_hw_px=(64, 96), runs=3, warmup=0, batch_size=2, variants=False))
     text = capsys.readouterr().out
     assert "p50" in text and "budget: 8 ms" in text and "frames 96x64" in text
+
+
+def test_bench_train_repr_prints_a_row_per_batch_and_precision(capsys) -> None:
+    from vision_rl.commands.main import main
+
+    argv = ["bench", "train-repr", "--image-hw-px", "32", "48", "--batch-sizes", "2,3", "--precisions", "fp32",
+            "--steps", "1", "--repeats", "1", "--warmup", "0", "--threads", "1"]  # fmt: skip
+    assert main([*argv, "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    assert [(r["batch_size"], r["precision"]) for r in rows] == [(2, "fp32"), (3, "fp32")]
+    assert main(argv) == 0
+    assert "frames 48x32" in capsys.readouterr().out
+    assert main([*argv[:5], "--batch-sizes", "64,x"]) == 2
+    assert capsys.readouterr().err.strip().endswith("--batch-sizes '64,x': whole numbers, comma-separated")

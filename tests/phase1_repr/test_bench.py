@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from tests.phase1_repr.test_checkpoint import write
-from vision_rl.phase1_repr.bench import BenchLatencyConfig, bench_latency
+from vision_rl.phase1_repr.bench import BenchLatencyConfig, BenchTrainStepConfig, bench_latency, bench_train_step
 
 
 def test_checkpoint_sets_the_frame_size(tmp_path: Path) -> None:
@@ -46,3 +46,28 @@ def test_backbone_option_builds_that_encoder() -> None:
     s2d = bench_latency(dataclasses.replace(cfg, backbone="s2d"))
     mobilenet = bench_latency(cfg)
     assert "mobilenet_v3_small" in mobilenet["encoder"] and mobilenet["parameters"] > s2d["parameters"]
+
+
+def test_the_training_step_bench_trains_and_times_each_batch_and_precision() -> None:
+    cfg = BenchTrainStepConfig(image_hw_px=(32, 48), batch_sizes=(2, 4), precisions=("fp32", "bf16"), steps=2,
+                               repeats=2, warmup=3, threads=1)  # fmt: skip
+    result = bench_train_step(cfg)
+    rows = result["rows"]
+    assert result["input_hw_px"] == [32, 48] and result["device"] == "cpu"
+    assert [(r["batch_size"], r["precision"]) for r in rows] == [(2, "fp32"), (2, "bf16"), (4, "fp32"), (4, "bf16")]
+    for r in rows:
+        assert r["frames_per_s"] == pytest.approx(r["batch_size"] / (r["step_ms"] / 1e3))
+        lo, hi = r["frames_per_s_spread"]
+        assert lo <= r["frames_per_s"] <= hi
+        # Eight steps on one fixed batch: a step that trains (not a forward pass alone) lowers its loss.
+        assert r["loss_last"] < 0.9 * r["loss_first"], r
+
+
+@pytest.mark.parametrize(
+    "change,words",
+    [({"batch_sizes": (0,)}, "batch size"), ({"batch_sizes": ()}, "batch size"), ({"steps": 0}, "steps"),
+     ({"precisions": ("fp8",)}, "precision fp8: choose from fp32, bf16")],
+)
+def test_the_training_step_bench_refuses_bad_settings(change, words) -> None:
+    with pytest.raises(ValueError, match=words):
+        bench_train_step(dataclasses.replace(BenchTrainStepConfig(image_hw_px=(32, 48)), **change))

@@ -42,6 +42,10 @@ COMMANDS: dict[str, Command] = {
     "bench env": Command("environment throughput", f"{_C}.bench", "BenchEnvOptions", "run_bench_env"),
     "bench ddpg": Command("DDPG updates/s per variant and layout", f"{_C}.bench", "BenchDDPGOptions", "run_bench_ddpg"),
     "bench render": Command("renderer and capture throughput", f"{_C}.bench", "BenchRenderOptions", "run_bench_render"),
+    "bench train-repr": Command(
+        "Phase-1 training step, frames/s per batch and precision", f"{_C}.bench", "BenchTrainReprOptions",
+        "run_bench_train_repr",
+    ),
     "bench scaling": Command(
         "capture, Phase-1 training and sampling, 1 vs 2 workers", f"{_C}.bench_scaling", "BenchScalingOptions",
         "run_bench_scaling",

@@ -8,6 +8,7 @@ installed, torch otherwise); ``variants`` times the others side by side.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from collections.abc import Callable
@@ -193,3 +194,100 @@ def _cpu_name() -> str:
         pass
     return f"{os.cpu_count()} logical CPUs"
 
+
+
+@dataclass(frozen=True)
+class BenchTrainStepConfig:
+    """Time Phase 1's training step (train-repr's augmentation, network, loss and AdamW) on random frames already on
+    the device, for each batch size and precision: the ceiling a data pipeline has to feed."""
+
+    device: str = "cpu"
+    """cpu or cuda."""
+    image_hw_px: tuple[int, int] = (280, 470)
+    """Frame height and width, px (the paper's game screen: 280 x 470)."""
+    batch_sizes: tuple[int, ...] = (64, 256)
+    """Frames per step (train-repr's default batch is 64)."""
+    precisions: tuple[str, ...] = ("fp32", "bf16")
+    """fp32, or bf16 (torch.autocast; the weights and optimiser stay fp32)."""
+    steps: int = 20
+    """Steps per timed repeat."""
+    repeats: int = 5
+    """Timed repeats; the median is the figure, the extremes the spread."""
+    warmup: int = 10
+    """Untimed steps first."""
+    threads: int = 0
+    """torch CPU threads (0: leave torch's default)."""
+
+
+PRECISIONS = ("fp32", "bf16")
+
+
+def bench_train_step(cfg: BenchTrainStepConfig) -> dict[str, Any]:
+    """One row per (batch size, precision): step time and frames/s (median of ``repeats``, with their spread), and
+    the loss on the fixed batch before and after, which falls when the step trains."""
+    if min(cfg.steps, cfg.repeats) < 1 or cfg.warmup < 0 or not cfg.batch_sizes or min(cfg.batch_sizes) < 1:
+        raise ValueError("steps, repeats and every batch size must be >= 1, warmup >= 0")
+    unknown = [p for p in cfg.precisions if p not in PRECISIONS]
+    if unknown or not cfg.precisions:
+        raise ValueError(f"precision {', '.join(unknown) or '(none)'}: choose from {', '.join(PRECISIONS)}")
+    if cfg.device.startswith("cuda") and not torch.cuda.is_available():
+        raise RuntimeError("--device cuda: torch sees no CUDA device here")
+    if cfg.threads > 0:
+        torch.set_num_threads(cfg.threads)
+    device = torch.device(cfg.device)
+    h, w = cfg.image_hw_px
+    rows = [_time_train_step(cfg, device, batch_size, precision) for batch_size in cfg.batch_sizes
+            for precision in cfg.precisions]  # fmt: skip
+    return {
+        "device": str(device),
+        "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else _cpu_name(),
+        "threads": torch.get_num_threads(),
+        "input_hw_px": [h, w],
+        "torch_version": torch.__version__,
+        "rows": rows,
+    }
+
+
+def _time_train_step(cfg: BenchTrainStepConfig, device: torch.device, batch_size: int, precision: str) -> dict:
+    from vision_rl.datasets.augment import FrameAugmentation
+    from vision_rl.phase1_repr.train import ReprModule
+
+    h, w = cfg.image_hw_px
+    n_targets = EncoderConfig().n_targets
+    torch.manual_seed(0)
+    module = ReprModule(
+        encoder_config=EncoderConfig(input_height_px=h, input_width_px=w).to_dict(),
+        target_names=[f"t{k}" for k in range(n_targets)], target_units=["1"] * n_targets,
+        target_mean=[0.0] * n_targets, target_std=[1.0] * n_targets,
+        augmentation=dataclasses.asdict(FrameAugmentation()),
+    ).to(device).train()  # fmt: skip
+    optimiser = torch.optim.AdamW(module.parameters(), lr=module.hparams.lr, weight_decay=module.hparams.weight_decay)
+    images = torch.randint(0, 256, (batch_size, h, w, 3), dtype=torch.uint8, device=device)
+    targets = torch.randn(batch_size, n_targets, device=device)
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+
+    def step() -> torch.Tensor:
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16"):
+            loss = module.loss(module.predict_standardised(images, augment=True).float(), targets)
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        optimiser.step()
+        return loss.detach()  # no host sync per step: the GPU queues the steps as training does
+
+    loss_first = float(step())
+    for _ in range(cfg.warmup):
+        step()
+    sync()
+    times = []
+    for _ in range(cfg.repeats):
+        t0 = time.perf_counter()
+        for _ in range(cfg.steps):
+            loss = step()
+        sync()
+        times.append((time.perf_counter() - t0) / cfg.steps)
+    step_s = float(np.median(times))
+    return {
+        "batch_size": batch_size, "precision": precision, "step_ms": 1e3 * step_s, "frames_per_s": batch_size / step_s,
+        "frames_per_s_spread": [batch_size / max(times), batch_size / min(times)],
+        "loss_first": loss_first, "loss_last": float(loss),
+    }  # fmt: skip
