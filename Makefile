@@ -27,8 +27,9 @@ experiment: setup
 	$(BIN)/vision-rl experiment --seeds 0,1,2 --steps 1000000 --control-dt-s 0.04 --steer-action rate_scaled \
 		--n-step 8 --guide-label-weight 30 --wall-hit-throttle-cut-s 3.0 --pedal-full-at 0.9 --wall-penalty-c-w 0.002
 
+# Two test processes: most tests use one core, and those on the shared Ray cluster run in one of them.
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadgroup
 
 # The fault-injection suite alone, regenerating its table of outcomes in docs/faults.md.
 faults: setup

@@ -45,6 +45,14 @@ def gl_available() -> None:
         pytest.skip(reason)
 
 
+def pytest_collection_modifyitems(config, items):
+    """Under ``pytest -n`` (``make test``), every test on the shared local Ray cluster goes to one worker process
+    (``--dist loadgroup``): one cluster, started once, and never two of them on the same cores."""
+    for item in items:
+        if "ray_local" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.xdist_group("ray"))
+
+
 def pytest_addoption(parser):
     parser.addoption(
         "--fault-table",
