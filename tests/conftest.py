@@ -45,6 +45,12 @@ def gl_available() -> None:
         pytest.skip(reason)
 
 
+def pytest_configure(config):
+    if config.getoption("--fault-table") and getattr(config.option, "numprocesses", None):
+        # Each worker process would write its own share of the outcomes over the others'.
+        raise pytest.UsageError("--fault-table collects the outcomes in one process: run it without -n (make faults)")
+
+
 def pytest_collection_modifyitems(config, items):
     """Under ``pytest -n`` (``make test``), every test on the shared local Ray cluster goes to one worker process
     (``--dist loadgroup``): one cluster, started once, and never two of them on the same cores."""
