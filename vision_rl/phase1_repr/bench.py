@@ -4,6 +4,8 @@ Each timed call starts from a uint8 numpy frame (N, H, W, 3), as the renderer or
 with phi_rep on the host side (CUDA is synchronised), so conversion, normalisation and transfer are included. The
 headline figures (``p50_ms``...) time the path Phase 2 runs (``--runtime auto``: ONNX Runtime on a CPU where it is
 installed, torch otherwise); ``variants`` times the others side by side.
+
+`bench train-repr` (:func:`bench_train_step`): Phase 1's training step in frames/s, on frames already on the device.
 """
 
 from __future__ import annotations
@@ -193,7 +195,6 @@ def _cpu_name() -> str:
     except OSError:
         pass
     return f"{os.cpu_count()} logical CPUs"
-
 
 
 @dataclass(frozen=True)
