@@ -73,7 +73,7 @@ def test_unknown_command_fails_with_the_listing(capsys):
 def test_a_group_word_lists_only_its_commands(capsys):
     assert main(["bench", "--help"]) == 0
     out = capsys.readouterr().out
-    assert "bench render" in out and "train-repr" not in out
+    assert "bench render" in out and "bench train-repr" in out and "train-policy" not in out
     assert main(["bench"]) == 2
     assert main(["bench", "fly"]) == 2
     assert "unknown command 'bench fly'" in capsys.readouterr().err
