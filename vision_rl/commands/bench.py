@@ -1,7 +1,7 @@
-"""`vision-rl bench sim | env | render | ddpg | train-repr`: throughput of the simulator, the environments, the
-renderer, DDPG and Phase 1's training step.
+"""`vision-rl bench sim | env | render | ddpg`: throughput of the simulator, the environments, the renderer and DDPG.
 
-`vision-rl bench scaling` (1 and 2 workers side by side) is in :mod:`vision_rl.commands.bench_scaling`.
+`vision-rl bench scaling` (1 and 2 workers side by side) is in :mod:`vision_rl.commands.bench_scaling`, `bench
+train-repr` in :mod:`vision_rl.commands.bench_train_repr`.
 """
 
 from __future__ import annotations
@@ -146,55 +146,4 @@ def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
         ]
 
     emit({"torch_threads": opts.torch_threads, "rows": rows}, opts.json, text)
-    return 0
-
-
-@dataclass(frozen=True)
-class BenchTrainReprOptions:
-    """Measure Phase 1's training step (train-repr's augmentation, network, loss and AdamW) on random frames already
-    on the device, per batch size and precision: frames/s, the ceiling a data pipeline has to feed."""
-
-    device: str = "cpu"
-    """cpu or cuda."""
-    image_hw_px: tuple[int, int] = (280, 470)
-    """Frame height and width, px (the paper's game screen: 280 x 470)."""
-    batch_sizes: str = "64,256"
-    """Frames per step, comma-separated (train-repr's default batch is 64)."""
-    precisions: str = "fp32,bf16"
-    """Comma-separated: fp32, bf16 (torch.autocast; the weights and optimiser stay fp32)."""
-    steps: int = 20
-    """Steps per timed repeat."""
-    repeats: int = 5
-    """Timed repeats; the median is the figure, the extremes the spread."""
-    warmup: int = 10
-    """Untimed steps first."""
-    threads: int = 0
-    """torch CPU threads (0: leave torch's default)."""
-    json: bool = False
-    """Print the figures as JSON."""
-
-
-def run_bench_train_repr(opts: BenchTrainReprOptions) -> int:
-    from vision_rl.phase1_repr.bench import BenchTrainStepConfig, bench_train_step
-
-    try:
-        batch_sizes = tuple(int(v) for v in opts.batch_sizes.split(",") if v.strip())
-    except ValueError:
-        raise ValueError(f"--batch-sizes {opts.batch_sizes!r}: whole numbers, comma-separated") from None
-    precisions = tuple(v.strip() for v in opts.precisions.split(",") if v.strip())
-    config = BenchTrainStepConfig(opts.device, opts.image_hw_px, batch_sizes, precisions, opts.steps, opts.repeats,
-                                  opts.warmup, opts.threads)  # fmt: skip
-
-    def text(result):
-        h, w = result["input_hw_px"]
-        head = f"Phase 1 training step, frames {w}x{h}, {result['device']} ({result['device_name']}), " \
-               f"{result['threads']} threads"  # fmt: skip
-        return [head] + [
-            f"  batch {r['batch_size']:>4} {r['precision']}: {r['step_ms']:8.2f} ms/step  {r['frames_per_s']:9.0f} "
-            f"frames/s ({r['frames_per_s_spread'][0]:.0f}-{r['frames_per_s_spread'][1]:.0f})  "
-            f"loss {r['loss_first']:.3f} -> {r['loss_last']:.3f}"
-            for r in result["rows"]
-        ]
-
-    emit(bench_train_step(config), opts.json, text)
     return 0

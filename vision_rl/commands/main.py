@@ -43,7 +43,7 @@ COMMANDS: dict[str, Command] = {
     "bench ddpg": Command("DDPG updates/s per variant and layout", f"{_C}.bench", "BenchDDPGOptions", "run_bench_ddpg"),
     "bench render": Command("renderer and capture throughput", f"{_C}.bench", "BenchRenderOptions", "run_bench_render"),
     "bench train-repr": Command(
-        "Phase-1 training step, frames/s per batch and precision", f"{_C}.bench", "BenchTrainReprOptions",
+        "Phase-1 training step, frames/s per batch and precision", f"{_C}.bench_train_repr", "BenchTrainReprOptions",
         "run_bench_train_repr",
     ),
     "bench scaling": Command(

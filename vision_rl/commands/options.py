@@ -4,8 +4,8 @@ A field's help is its attribute docstring, the string literal right after it in 
 :mod:`ast` from the source of the class and of its dataclass bases, so a library config needs nothing from this
 package); ``metadata={"help": ...}`` is the fallback. Bools become ``--x/--no-x``; a config may name extra switches
 that set a bool to False in a ``negative_switches`` class attribute (``{"disrupt_ai": "--no-disrupt"}``; the older
-``metadata={"negative": ...}`` works too). Field types: int, float, str, bool and ``tuple[int, int]`` (two values
-after the option, e.g. ``--image-hw-px 140 236``).
+``metadata={"negative": ...}`` works too). Field types: int, float, str, bool, ``tuple[int, int]`` (two values
+after the option, e.g. ``--image-hw-px 140 236``) and ``tuple[int, ...]`` / ``tuple[str, ...]`` (one or more).
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ import textwrap
 from typing import Any
 
 _SCALARS = {"int": int, "float": float, "str": str}
-_TUPLES = {"tuple[int, int]": (int, 2), "tuple[float, float]": (float, 2)}
+_TUPLES = {"tuple[int, int]": (int, 2), "tuple[float, float]": (float, 2), "tuple[int, ...]": (int, "+"),
+           "tuple[str, ...]": (str, "+")}  # fmt: skip
 
 
 def field_docs(config_cls: type) -> dict[str, str]:
@@ -83,7 +84,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_cls: type) -> N
                 flag, type=item, nargs=n, metavar=metavar, default=default, help=f"{help_text} (default: {shown})"
             )
         else:
-            raise TypeError(f"{config_cls.__name__}.{f.name}: options must be int, float, str, bool or a pair")
+            raise TypeError(f"{config_cls.__name__}.{f.name}: options must be int, float, str, bool or a tuple")
 
 
 def config_from_args(config_cls: type, args: argparse.Namespace) -> Any:
