@@ -253,3 +253,34 @@ def test_a_killed_train_policy_resumes_from_what_it_saved(small_track, tmp_path,
     how = ("the light checkpoint (weights, optimisers, counters) of the last interval survives and --resume "
            "continues" if sig == signal.SIGKILL else "saves weights and buffer, exits 130, --resume continues")
     fault.recovered(f"{name} to train-policy mid-run", how)
+
+
+def _experiment_process(track: str, out: Path, steps: int) -> subprocess.Popen:
+    argv = [sys.executable, "-m", "vision_rl.commands.main", "experiment", "--seeds", "0,1", "--seeds-at-once", "2",
+            "--track", track, "--out", str(out), "--cars", "2", "--steps", str(steps), "--learning-starts", "50",
+            "--batch-size", "32", "--buffer-size", "10000", "--eval-every-steps", "0", "--eval-seeds", "1",
+            "--checkpoint-every-steps", "0", "--checkpoint-every-min", "0.005", "--device", "cpu",
+            "--no-progress"]  # fmt: skip
+    return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def test_a_stopped_experiment_saves_every_seed_running_side_by_side_and_resumes(small_track, tmp_path, fault):
+    out = tmp_path / "exp"
+    process = _experiment_process(small_track, out, 1_500)
+    saved = [_wait_for_checkpoint(process, out / f"seed-{seed}" / "policy.json", 120) for seed in (0, 1)]
+    os.kill(process.pid, signal.SIGTERM)
+    stdout, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert "interrupted" in stdout
+    for seed, steps in zip((0, 1), saved, strict=True):
+        spec = PolicySpec.read(out / f"seed-{seed}" / "policy.json")
+        assert steps <= spec.num_timesteps < 1_500
+        assert (out / f"seed-{seed}" / "replay_buffer.npz").is_file()  # saved on the stop, for the resume
+    resumed = _experiment_process(small_track, out, 1_500)
+    _, stderr = resumed.communicate(timeout=300)
+    assert resumed.returncode == 0, stderr
+    record = json.loads((out / "experiment.json").read_text())
+    assert [r["seed"] for r in record["per_seed"]] == [0, 1]
+    assert all(PolicySpec.read(out / f"seed-{s}" / "policy.json").num_timesteps == 1_500 for s in (0, 1))
+    fault.recovered("SIGTERM to experiment --seeds-at-once 2 mid-run",
+                    "each seed's process saves its run, exit 130; the same command resumes both")  # fmt: skip

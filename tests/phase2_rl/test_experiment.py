@@ -152,3 +152,28 @@ def test_curves_over_seeds_and_the_time_to_beat_the_ai(tmp_path):
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(ValueError, match=r"not a learning_curves\.json"):
         compare_learning_curves([tmp_path / "bad.json"], ["a"], 120.0, 141.0, tmp_path / "fig")
+
+
+def test_seeds_side_by_side_learn_what_they_learn_one_after_another(small_track, tmp_path):
+    cfg = tiny_train_config(small_track, tmp_path / "unused", steps=120, eval_every_steps=0, checkpoint_every_steps=0)
+    steps_seen = []
+    alone = run_experiment(cfg, (0, 1), tmp_path / "alone", eval_seeds=1, name="tiny")
+    together = run_experiment(cfg, (0, 1), tmp_path / "together", eval_seeds=1, name="tiny", seeds_at_once=2,
+                              progress=lambda done, total: steps_seen.append((done, total)))  # fmt: skip
+    assert together["seeds_at_once"] == 2 and steps_seen[-1] == (240, 240)
+    assert together["per_seed"] == alone["per_seed"]
+    for seed in (0, 1):
+        with np.load(tmp_path / "alone" / f"seed-{seed}" / "replay_buffer.npz") as a, \
+                np.load(tmp_path / "together" / f"seed-{seed}" / "replay_buffer.npz") as b:  # fmt: skip
+            for key in ("observations", "actions", "rewards"):
+                np.testing.assert_array_equal(a[key], b[key])
+
+
+def test_a_seed_that_fails_in_its_process_is_named(small_track, tmp_path):
+    encoder = tmp_path / "ckpt.pt"
+    encoder.write_bytes(b"not a checkpoint")  # hashed by the experiment, refused by the seed's training
+    cfg = tiny_train_config(small_track, tmp_path / "unused", steps=120, eval_every_steps=0, encoder=str(encoder))
+    with pytest.raises(ValueError, match="training seed [01]: "):
+        run_experiment(cfg, (0, 1), tmp_path / "exp", eval_seeds=1, seeds_at_once=2)
+    with pytest.raises(ValueError, match="--seeds-at-once must be >= 1"):
+        run_experiment(cfg, (0, 1), tmp_path / "exp", seeds_at_once=0)

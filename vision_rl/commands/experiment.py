@@ -16,6 +16,9 @@ class ExperimentOptions(TrainPolicyConfig):
 
     seeds: str = "0,1,2"
     """Training seeds, comma-separated (each trains its own policy)."""
+    seeds_at_once: int = 1
+    """Seeds trained side by side, each in its own process (about one core each with the cpu preset; 1: one after
+    another)."""
     out: str = ""
     """Experiment folder (default runs/experiment/<kind>-<track>-<car>); one train-policy run per seed inside."""
     seed: int = 0
@@ -61,15 +64,8 @@ def run_experiment_command(opts: ExperimentOptions) -> int:
     previous = interrupt_on_sigterm()
     try:
         with progress_bar(opts.steps * len(seeds), "step", "experiment", enabled=opts.progress) as bar:
-            done = {"seeds": 0}
-
-            def seed_started(index: int, n: int, seed: int) -> None:
-                done["seeds"] = index
-
-            def step(steps: int, total: int, last_eval: dict[str, Any] | None) -> None:
-                show(bar, done["seeds"] * opts.steps + steps, opts.steps * len(seeds))
-
-            result = run_experiment(train, seeds, opts.out, opts.eval_seeds, opts.name, seed_started, step)
+            result = run_experiment(train, seeds, opts.out, opts.eval_seeds, opts.name,
+                                    lambda done, total: show(bar, done, total), opts.seeds_at_once)  # fmt: skip
     except KeyboardInterrupt:
         emit({"interrupted": True, "resume": "run the same command again"}, opts.json,
              lambda r: ["interrupted: the finished seeds and the current run are saved; run the same command again"])

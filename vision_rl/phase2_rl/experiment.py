@@ -6,13 +6,22 @@ recipe; then the summary and one row per seed) and one train-policy run folder p
 ``evaluation.json``. A killed experiment resumes the unfinished seeds only: a seed whose policy reached the steps
 and was evaluated is kept, a seed with a saved run is resumed, the others start. An existing folder made for
 another track, car, observation, encoder, step count or recipe is refused, naming the field.
+
+``seeds_at_once`` > 1 trains that many seeds side by side, each in its own process: one train-policy run uses about
+one core (one torch thread with the cpu preset), so on a machine with idle cores the seeds share them instead of
+waiting their turn. A seed's result does not depend on which process trained it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
+import multiprocessing
 import os
+import queue
+import signal
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -80,19 +89,26 @@ def _seed_is_done(run: Path, steps: int) -> bool:
     return spec.num_timesteps >= steps and (run / "evaluation.json").is_file()
 
 
+#: ``progress(steps_done, steps_total)``: environment steps over all of an experiment's seeds.
+ExperimentProgress = Callable[[int, int], None]
+
+
 def run_experiment(
     cfg: TrainPolicyConfig,
     seeds: tuple[int, ...],
     out: str | os.PathLike[str] = "",
     eval_seeds: int = 3,
     name: str = "",
-    progress: Callable[[int, int, int], None] | None = None,
-    train_progress: Progress | None = None,
+    progress: ExperimentProgress | None = None,
+    seeds_at_once: int = 1,
 ) -> dict[str, Any]:
-    """Train and evaluate ``cfg`` once per training seed (resuming what a killed run left); returns the experiment
-    record. ``progress(index, n_seeds, seed)`` is called as each seed starts."""
+    """Train and evaluate ``cfg`` once per training seed (resuming what a killed run left), ``seeds_at_once`` of
+    them side by side in their own processes; returns the experiment record. A KeyboardInterrupt (or a seed's
+    process stopped from outside) saves every running seed and is raised."""
     if eval_seeds < 1:
         raise ValueError(f"--eval-seeds must be >= 1, got {eval_seeds}")
+    if seeds_at_once < 1:
+        raise ValueError(f"--seeds-at-once must be >= 1, got {seeds_at_once}")
     check_bounds(cfg)  # a bad option is refused before the experiment folder is written
     root = Path(out) if out else default_experiment_out(cfg)
     plan = _plan(cfg)
@@ -113,21 +129,25 @@ def run_experiment(
                 raise ValueError(f"{root} holds an experiment made for another {key}: use another --out")
     root.mkdir(parents=True, exist_ok=True)
     name = name or root.name
-    record: dict[str, Any] = {"format": EXPERIMENT_FORMAT, "name": name, **plan, "seeds": list(seeds)}
+    record: dict[str, Any] = {"format": EXPERIMENT_FORMAT, "name": name, **plan, "seeds": list(seeds),
+                              "seeds_at_once": seeds_at_once}  # fmt: skip
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
-    evaluations = []
-    for index, seed in enumerate(seeds):
+    steps_done = {seed: cfg.steps if _seed_is_done(root / f"seed-{seed}", cfg.steps) else 0 for seed in seeds}
+    todo = [seed for seed in seeds if steps_done[seed] < cfg.steps]
+
+    def seed_steps(seed: int, steps: int) -> None:
+        steps_done[seed] = steps
         if progress is not None:
-            progress(index, len(seeds), seed)
-        run = root / f"seed-{seed}"
-        if not _seed_is_done(run, cfg.steps):
-            resume = (run / SIDECAR_NAME).is_file()
-            result = train_policy(dataclasses.replace(cfg, seed=seed, out=str(run), resume=resume, force=False),
-                                  train_progress)  # fmt: skip
-            if result["interrupted"]:
+            progress(sum(steps_done.values()), cfg.steps * len(seeds))
+
+    job = _SeedJob(cfg, root, eval_seeds, name)
+    if seeds_at_once == 1 or len(todo) <= 1:
+        for seed in todo:
+            if job.run(seed, lambda steps, total, last_eval, seed=seed: seed_steps(seed, steps)):
                 raise KeyboardInterrupt
-            evaluate_policy(run, seeds=eval_seeds, name=f"{name}/seed-{seed}", encoder=cfg.encoder)
-        evaluations.append(json.loads((run / "evaluation.json").read_text()))
+    else:
+        _run_side_by_side(job, todo, seeds_at_once, seed_steps)
+    evaluations = [json.loads((root / f"seed-{seed}" / "evaluation.json").read_text()) for seed in seeds]
     record["summary"] = aggregate_seeds(evaluations)
     record["per_seed"] = [
         {"seed": seed, "lap_time_s": e["best_lap_time_s"], "median_lap_time_s": e["median_lap_time_s"],
@@ -142,6 +162,102 @@ def run_experiment(
                                                           cfg.control_dt_s)
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
     return {**record, "experiment_json": str(path)}
+
+
+@dataclasses.dataclass(frozen=True)
+class _SeedJob:
+    """One seed's work: train (or resume) its run, then time its policy with the protocol."""
+
+    cfg: TrainPolicyConfig
+    root: Path
+    eval_seeds: int
+    name: str
+
+    def run(self, seed: int, progress: Progress | None = None) -> bool:
+        """Train and evaluate ``seed``; True when training was interrupted (the run saved, not evaluated)."""
+        run = self.root / f"seed-{seed}"
+        resume = (run / SIDECAR_NAME).is_file()
+        result = train_policy(dataclasses.replace(self.cfg, seed=seed, out=str(run), resume=resume, force=False),
+                              progress)  # fmt: skip
+        if result["interrupted"]:
+            return True
+        evaluate_policy(run, seeds=self.eval_seeds, name=f"{self.name}/seed-{seed}", encoder=self.cfg.encoder)
+        return False
+
+
+#: Seconds between a seed process's progress messages.
+_PROGRESS_EVERY_S = 1.0
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def _seed_process(job: _SeedJob, seed: int, messages: Any) -> None:
+    """A seed's own process: its steps as it trains, then ``done`` (interrupted or not) or ``error``."""
+    # Ctrl-C reaches the whole process group; the parent decides and stops each seed with SIGTERM, which saves the
+    # run at its next rollout (a second signal at once would stop it in the middle of saving).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    last_s = 0.0
+
+    def report(steps: int, total: int, last_eval: Any) -> None:
+        nonlocal last_s
+        if time.monotonic() - last_s >= _PROGRESS_EVERY_S:
+            last_s = time.monotonic()
+            messages.put(("steps", seed, steps))
+
+    try:
+        messages.put(("done", seed, job.run(seed, report)))
+    except KeyboardInterrupt:  # stopped during the evaluation: the trained run is kept, evaluated on resume
+        messages.put(("done", seed, True))
+    except Exception as exc:  # the parent raises it, naming the seed
+        messages.put(("error", seed, (isinstance(exc, ValueError), str(exc))))
+
+
+def _run_side_by_side(
+    job: _SeedJob, todo: list[int], seeds_at_once: int, seed_steps: Callable[[int, int], None]
+) -> None:
+    """Run ``todo``'s seeds, ``seeds_at_once`` processes at a time; an interrupt or a seed's failure stops (and so
+    saves) the others before it is raised."""
+    context = multiprocessing.get_context("spawn")  # no fork of a process that holds torch's threads
+    messages = context.Queue()
+    waiting, running = list(todo), {}
+    try:
+        while waiting or running:
+            while waiting and len(running) < seeds_at_once:
+                seed = waiting.pop(0)
+                running[seed] = context.Process(target=_seed_process, args=(job, seed, messages),
+                                                name=f"experiment-seed-{seed}")  # fmt: skip
+                running[seed].start()
+            try:
+                kind, seed, value = messages.get(timeout=1.0)
+            except queue.Empty:
+                for seed, process in running.items():
+                    if process.exitcode not in (None, 0):
+                        raise RuntimeError(f"training seed {seed}'s process ended with exit code {process.exitcode} "
+                                           "before it reported; run the experiment again to resume it") from None
+                continue
+            if kind == "steps":
+                seed_steps(seed, value)
+                continue
+            running.pop(seed).join()
+            if kind == "error":
+                bad_input, text = value
+                raise (ValueError if bad_input else RuntimeError)(f"training seed {seed}: {text}")
+            if value:
+                raise KeyboardInterrupt
+            seed_steps(seed, job.cfg.steps)
+    finally:
+        for process in running.values():
+            if process.is_alive():
+                process.terminate()  # SIGTERM: the seed saves at its next rollout and stops
+        for process in running.values():
+            while process.is_alive():  # read what it still sends, or a full pipe would keep it from exiting
+                process.join(timeout=0.5)
+                with contextlib.suppress(queue.Empty):
+                    while True:
+                        messages.get_nowait()
 
 
 #: The vision paper's epoch (Fig. 3 right): 20 trials of 100 s, car-seconds (20,000 environment steps at 10 Hz).
