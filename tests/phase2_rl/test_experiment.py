@@ -173,7 +173,7 @@ def test_a_seed_that_fails_in_its_process_is_named(small_track, tmp_path):
     encoder = tmp_path / "ckpt.pt"
     encoder.write_bytes(b"not a checkpoint")  # hashed by the experiment, refused by the seed's training
     cfg = tiny_train_config(small_track, tmp_path / "unused", steps=120, eval_every_steps=0, encoder=str(encoder))
-    with pytest.raises(ValueError, match="training seed [01]: "):
+    with pytest.raises(ValueError, match=r"training seed [01]: "):
         run_experiment(cfg, (0, 1), tmp_path / "exp", eval_seeds=1, seeds_at_once=2)
     with pytest.raises(ValueError, match="--seeds-at-once must be >= 1"):
         run_experiment(cfg, (0, 1), tmp_path / "exp", seeds_at_once=0)

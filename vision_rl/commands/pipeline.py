@@ -14,12 +14,13 @@ trained again), so an interrupted pipeline continues where it stopped.
 
 from __future__ import annotations
 
+import multiprocessing
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vision_rl.commands.output import emit
+from vision_rl.commands.output import emit, interrupt_on_sigterm, restore_sigterm
 
 
 @dataclass(frozen=True)
@@ -161,14 +162,61 @@ def _capture(opts: PipelineOptions, sizes: PipelineSizes, name: str, laps: int, 
             resume = True
         except CaptureFormatError:
             pass
-    capture_sim(
+    captured = capture_sim(
         CaptureConfig(
             out=str(out), track=opts.track, car=opts.car, laps=laps, disrupt_ai=disrupt, cars=sizes.capture_cars,
             fps=sizes.capture_fps, image_hw_px=opts.image_hw_px if all(opts.image_hw_px) else sizes.image_hw_px,
             seed=opts.seed + (0 if disrupt else 1), resume=resume, force=not resume,
         )
     )  # fmt: skip
+    if captured["interrupted"]:  # what it captured is kept, and the next pipeline resumes it
+        raise KeyboardInterrupt
     return out
+
+
+def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car: str, runs: str, seed: int,
+                  device: str) -> dict[str, Any]:  # fmt: skip
+    """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time it by the protocol."""
+    from vision_rl.phase2_rl.evaluate import evaluate_policy
+    from vision_rl.phase2_rl.train import TrainPolicyConfig, train_policy
+
+    vision = kind == "vision"
+    t0 = time.perf_counter()
+    out = Path(runs) / "policy" / f"pipeline-{kind}"
+    trained = train_policy(
+        TrainPolicyConfig(
+            encoder=encoder, track=track, car=car, cars=sizes.vision_cars if vision else sizes.state_cars,
+            steps=sizes.vision_steps if vision else sizes.state_steps, preset=sizes.sac_preset, out=str(out),
+            seed=seed, force=True, eval_every_steps=sizes.eval_every_steps, checkpoint_every_steps=0,
+            save_buffer=False, stats_steps=sizes.stats_steps,
+            learning_starts=sizes.vision_learning_starts if vision else sizes.state_learning_starts,
+            gradient_steps=sizes.vision_gradient_steps if vision else 0, batch_size=sizes.batch_size,
+            buffer_size=sizes.buffer_size, device=device, steer_action=sizes.steer_action,
+        )
+    )  # fmt: skip
+    if trained["interrupted"]:
+        raise KeyboardInterrupt
+    t1 = time.perf_counter()
+    evaluation = evaluate_policy(
+        out,
+        seeds=sizes.vision_eval_seeds if vision else sizes.state_eval_seeds,
+        time_limit_s=sizes.vision_eval_time_limit_s if vision else sizes.state_eval_time_limit_s,
+        name=f"pipeline-{kind}",
+        device="cpu",
+    )
+    return {
+        "policy": trained["policy"],
+        "num_timesteps": trained["num_timesteps"],
+        "train_time_s": trained["train_time_s"],
+        "best_lap_time_s": evaluation["best_lap_time_s"],
+        "median_lap_time_s": evaluation["median_lap_time_s"],
+        "n_finished": evaluation["n_finished"],
+        "n_seeds": evaluation["n_seeds"],
+        "clean": evaluation["clean"],
+        "distance_m": max(s["distance_m"] for s in evaluation["seeds"]),
+        "evaluation_json": evaluation.get("evaluation_json"),
+        "wall_time_s": {"train": round(t1 - t0, 1), "evaluate": round(time.perf_counter() - t1, 1)},
+    }
 
 
 def pipeline_phase2(
@@ -182,60 +230,24 @@ def pipeline_phase2(
     seed: int = 0,
     device: str = "auto",
 ) -> dict[str, Any]:
-    """Train (state, then vision if ``encoder``), evaluate, leaderboard; returns a summary dict.
+    """Train and evaluate the state policy and, with an ``encoder``, the vision policy; the leaderboard; returns a
+    summary dict. Runs go to ``runs/policy/pipeline-<kind>`` (replaced if present).
 
-    Runs go to ``runs/policy/pipeline-<kind>`` (replaced if present)."""
+    With an encoder the state policy trains in a second process beside the vision one: vision sampling keeps about
+    1.2 of 2 cores busy (its frames render and embed in the learner's process), and a state run needs about one."""
     from vision_rl.evaluation.leaderboard import leaderboard
-    from vision_rl.phase2_rl.evaluate import evaluate_policy
-    from vision_rl.phase2_rl.train import TrainPolicyConfig, train_policy
 
     summary: dict[str, Any] = {"mode": mode, "track": track, "car": car}
-    kinds = [("state", "", sizes.state_steps, sizes.state_cars, sizes.state_learning_starts, 0,
-              sizes.state_eval_seeds, sizes.state_eval_time_limit_s)]  # fmt: skip
+    stage = (sizes, track, car, runs, seed, device)
     if encoder:
-        kinds.append(
-            (
-                "vision",
-                encoder,
-                sizes.vision_steps,
-                sizes.vision_cars,
-                sizes.vision_learning_starts,
-                sizes.vision_gradient_steps,
-                sizes.vision_eval_seeds,
-                sizes.vision_eval_time_limit_s,
-            )
-        )
+        # Leaving the pool stops its process (SIGTERM): an interrupted pipeline leaves no state run training alone.
+        with multiprocessing.get_context("spawn").Pool(1) as pool:
+            state = pool.apply_async(_policy_stage, ("state", "", *stage))
+            vision = _policy_stage("vision", encoder, *stage)
+            summary["state"], summary["vision"] = state.get(), vision
     else:
+        summary["state"] = _policy_stage("state", "", *stage)
         summary["vision"] = {"skipped": "no encoder checkpoint given"}
-    for kind, enc, steps, cars, learning_starts, gradient_steps, eval_seeds, time_limit_s in kinds:
-        t0 = time.perf_counter()
-        out = Path(runs) / "policy" / f"pipeline-{kind}"
-        trained = train_policy(
-            TrainPolicyConfig(
-                encoder=enc, track=track, car=car, cars=cars, steps=steps, preset=sizes.sac_preset, out=str(out),
-                seed=seed, force=True, eval_every_steps=sizes.eval_every_steps, checkpoint_every_steps=0,
-                save_buffer=False, stats_steps=sizes.stats_steps, learning_starts=learning_starts,
-                gradient_steps=gradient_steps, batch_size=sizes.batch_size, buffer_size=sizes.buffer_size,
-                device=device, steer_action=sizes.steer_action,
-            )
-        )  # fmt: skip
-        t1 = time.perf_counter()
-        evaluation = evaluate_policy(
-            out, seeds=eval_seeds, time_limit_s=time_limit_s, name=f"pipeline-{kind}", device="cpu"
-        )
-        summary[kind] = {
-            "policy": trained["policy"],
-            "num_timesteps": trained["num_timesteps"],
-            "train_time_s": trained["train_time_s"],
-            "best_lap_time_s": evaluation["best_lap_time_s"],
-            "median_lap_time_s": evaluation["median_lap_time_s"],
-            "n_finished": evaluation["n_finished"],
-            "n_seeds": evaluation["n_seeds"],
-            "clean": evaluation["clean"],
-            "distance_m": max(s["distance_m"] for s in evaluation["seeds"]),
-            "evaluation_json": evaluation.get("evaluation_json"),
-            "wall_time_s": {"train": round(t1 - t0, 1), "evaluate": round(time.perf_counter() - t1, 1)},
-        }
     t0 = time.perf_counter()
     table = leaderboard(track, car, runs)
     summary["leaderboard"] = table
@@ -313,5 +325,15 @@ def format_pipeline(summary: dict[str, Any]) -> list[str]:
 
 
 def run_pipeline(opts: PipelineOptions) -> int:
-    emit(run_pipeline_stages(opts), opts.json, format_pipeline)
+    previous = interrupt_on_sigterm()
+    try:
+        summary = run_pipeline_stages(opts)
+    except KeyboardInterrupt:
+        emit({"interrupted": True, "resume": "run the same command again"}, opts.json,
+             lambda r: ["interrupted: the finished stages are kept (a policy trains again); run the same command "
+                        "again"])  # fmt: skip
+        return 130
+    finally:
+        restore_sigterm(previous)
+    emit(summary, opts.json, format_pipeline)
     return 0
