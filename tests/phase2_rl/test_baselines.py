@@ -159,13 +159,16 @@ def test_an_online_run_continues_where_it_stopped(tiny_runs, small_track, small_
     demos, _ = small_demos
     assert results["td3"]["num_timesteps"] == 300
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
-    more = train_baseline(tiny_baseline_config(small_track, demos, root / "td3", algo="td3", steps=500))
+    more = train_baseline(tiny_baseline_config(small_track, demos, root / "td3", algo="td3", steps=400))
     assert not list(tmp_path.glob("SB3-*"))  # SB3's default logger leaves one empty folder per learn()
-    assert more["num_timesteps"] == 500 and more["session"]["steps"] == 200
+    assert more["num_timesteps"] == 400 and more["session"]["steps"] == 100
     assert more["buffer_restored"] == 300  # the saved replay buffer came back (per car x 2 cars)
     model_state = torch.load(root / "td3" / "policy.pt", weights_only=True)
-    assert model_state["counters"]["num_timesteps"] == 500
-    again = train_baseline(tiny_baseline_config(small_track, demos, root / "td3", algo="td3", steps=500))
+    assert model_state["counters"]["num_timesteps"] == 400
+    # The evaluation at the last step timed the saved weights, after SB3's last update.
+    last = [json.loads(line) for line in (root / "td3" / "metrics.jsonl").read_text().splitlines()][-1]
+    assert last["num_timesteps"] == 400 and last["n_updates"] == model_state["counters"]["n_updates"]
+    again = train_baseline(tiny_baseline_config(small_track, demos, root / "td3", algo="td3", steps=400))
     assert again["trained_now"] is False
 
 

@@ -39,6 +39,11 @@ def test_train_writes_a_policy_that_evaluate_loads(state_run, small_track):
     metrics = read_metrics(out / "metrics.jsonl")
     assert [m["num_timesteps"] for m in metrics] == [100, 200]
     assert all(m["distance_m"] != 0.0 for m in metrics)
+    # The last point of the curve timed the saved weights, not those of one update before (SB3 updates once more
+    # after the rollout that reaches the last step).
+    assert metrics[-1]["n_updates"] == result["n_updates"]
+    again = evaluate_policy(out, laps=1, seeds=1, write=False)
+    assert again["seeds"][0]["distance_m"] == metrics[-1]["distance_m"]
 
     policy = load_policy(out)
     assert policy.spec.num_timesteps == 200 and policy.weights_path == out / "policy.pt"

@@ -619,7 +619,8 @@ class _OnlineLoop(BaseCallback):
         if self.next_disc is not None and n >= self.next_disc:
             session.gail.update(self.model.replay_buffer)
             self.next_disc = next_multiple(n, session.cfg.gail_disc_every_steps)
-        if self.next_eval is not None and n >= self.next_eval:
+        # As train-policy's loop: the evaluation at the last step waits for SB3's last update (evaluate_held_back).
+        if self._eval_due() and n < session.end_steps:
             session.evaluate(self.model)
             self.next_eval = next_multiple(n, session.cfg.eval_every_steps)
         if self.progress is not None:
@@ -628,6 +629,14 @@ class _OnlineLoop(BaseCallback):
         if kind is not None:
             session.save(self.model, buffer=kind == "full")
         return True
+
+    def _eval_due(self) -> bool:
+        return self.next_eval is not None and self.num_timesteps >= self.next_eval
+
+    def evaluate_held_back(self) -> None:
+        """After training: the evaluation due at the last step, of the weights that are saved."""
+        if self._eval_due():
+            self.session.evaluate(self.model)
 
 
 class _OnlineSession:
@@ -768,8 +777,10 @@ def train_online(cfg: TrainBaselineConfig, progress: Progress | None = None) -> 
         if remaining > 0:
             if session.start_steps == 0:
                 session.save(model, buffer=False)  # the run folder holds a loadable policy from the start
-            learn_between_interrupts(model, _OnlineLoop(session, progress), total_timesteps=remaining,
-                                     reset_num_timesteps=False, log_interval=None)  # fmt: skip
+            loop = _OnlineLoop(session, progress)
+            learn_between_interrupts(model, loop, total_timesteps=remaining, reset_num_timesteps=False,
+                                     log_interval=None)  # fmt: skip
+            loop.evaluate_held_back()
     except KeyboardInterrupt:
         interrupted = True
     wall_s = time.perf_counter() - t0

@@ -288,9 +288,15 @@ class _TrainingLoop(BaseCallback):
         self.next_eval = next_multiple(run.start_steps, cfg.eval_every_steps)
         self.saves = SaveClock(run.start_steps, cfg.checkpoint_every_steps, cfg.checkpoint_every_min)
 
+    def _eval_due(self) -> bool:
+        return self.next_eval is not None and self.num_timesteps >= self.next_eval
+
     def _on_step(self) -> bool:
         n = self.num_timesteps
-        if self.next_eval is not None and n >= self.next_eval:
+        # SB3 updates once more after the rollout that reaches the last step: that evaluation waits for the end of
+        # training, so the curve's last point times the weights that are saved (it timed those of one update
+        # before, and a knife-edge corner could finish another start in the final evaluation).
+        if self._eval_due() and n < self.run.cfg.steps:
             self.run.evaluate(self.model)
             self.next_eval = next_multiple(n, self.run.cfg.eval_every_steps)
         if self.progress is not None:
@@ -299,6 +305,11 @@ class _TrainingLoop(BaseCallback):
         if kind is not None:
             self.run.save(self.model, buffer=kind == "full", snapshot=kind == "full")
         return True
+
+    def evaluate_held_back(self) -> None:
+        """After training: the evaluation due at the last step (held back by :meth:`_on_step`)."""
+        if self._eval_due():
+            self.run.evaluate(self.model)
 
 
 def next_multiple(n: int, every: int) -> int | None:
@@ -674,6 +685,7 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
             elif remaining > 0:
                 learn_between_interrupts(model, loop, total_timesteps=remaining, reset_num_timesteps=False,
                                          log_interval=4)  # fmt: skip
+            loop.evaluate_held_back()
         except KeyboardInterrupt:
             interrupted = True
         run.save(model, buffer=True, snapshot=not interrupted and remaining > 0)
