@@ -3,13 +3,13 @@
 1. capture: disrupted built-in AI laps (training frames) and clean laps (the evaluation set, as the paper's
    "undisturbed driving");
 2. train-repr: the space2depth encoder on those frames, best checkpoint on the clean laps;
-3. Phase 2: train-policy on the state, then on the frozen encoder's embedding; the papers' evaluation of both; the
-   leaderboard.
+3. Phase 2: train-policy on the frozen encoder's embedding and, in a second process beside it, on the state; the
+   papers' evaluation of both; the leaderboard.
 
-``--quick`` shrinks every stage to finish in about 20 minutes on 2 CPU cores; without it the paper-scale recipe
-runs (50 disrupted laps at 60 fps, 50 epochs, millions of SAC steps: days on a CPU). ``--tiny`` is for tests.
-Each stage's outputs stay under ``--runs`` and a stage whose output is complete is not redone (the policies are
-trained again), so an interrupted pipeline continues where it stopped.
+``--quick`` shrinks every stage to finish in 15-30 minutes on 2 CPU cores (by the machine's day); without it the
+paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs, millions of SAC steps: days on a CPU). ``--tiny``
+is for tests. Each stage's outputs stay under ``--runs`` and a stage whose output is complete is not redone (the
+policies are trained again), so an interrupted pipeline continues where it stopped.
 """
 
 from __future__ import annotations
@@ -127,7 +127,7 @@ class PipelineOptions:
     """The whole two-phase job: capture, train-repr, train-policy (state and vision), evaluate, leaderboard."""
 
     quick: bool = False
-    """Small sizes that finish in about 20 minutes on 2 CPU cores."""
+    """Small sizes: 15-30 minutes on 2 CPU cores, by the machine's day (the target is 20)."""
     tiny: bool = False
     """Minimal sizes, for tests (seconds; results mean nothing)."""
     track: str = "expressway"
