@@ -36,6 +36,8 @@ def _study(small_track, tmp_path, trials, space=("learning_rate", "steer_action"
 def test_a_tiny_study_scores_its_trials_and_resumes(small_track, tmp_path):
     first = _study(small_track, tmp_path, 2)
     assert [t["state"] for t in first["trials"]] == ["COMPLETE", "COMPLETE"]
+    # the evaluation at the last step (after training's last update) is reported too
+    assert [t["last_reported_step"] for t in first["trials"]] == [200, 200]
     for t in first["trials"]:
         low, high = SEARCH_SPACE["learning_rate"].values
         assert low <= t["params"]["learning_rate"] <= high and t["params"]["steer_action"] in SEARCH_SPACE[

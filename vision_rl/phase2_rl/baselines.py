@@ -634,9 +634,11 @@ class _OnlineLoop(BaseCallback):
         return self.next_eval is not None and self.num_timesteps >= self.next_eval
 
     def evaluate_held_back(self) -> None:
-        """After training: the evaluation due at the last step, of the weights that are saved."""
+        """After training: the evaluation due at the last step, of the weights that are saved, and its progress."""
         if self._eval_due():
             self.session.evaluate(self.model)
+            if self.progress is not None:
+                self.progress("step", self.num_timesteps, self.session.end_steps, self.session.last_eval)
 
 
 class _OnlineSession:

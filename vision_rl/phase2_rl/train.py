@@ -307,9 +307,12 @@ class _TrainingLoop(BaseCallback):
         return True
 
     def evaluate_held_back(self) -> None:
-        """After training: the evaluation due at the last step (held back by :meth:`_on_step`)."""
+        """After training: the evaluation due at the last step (held back by :meth:`_on_step`), then its progress
+        call, as :meth:`_on_step` makes after an evaluation (``vision-rl tune`` reports the evaluations from it)."""
         if self._eval_due():
             self.run.evaluate(self.model)
+            if self.progress is not None:
+                self.progress(self.num_timesteps, self.run.cfg.steps, self.run.last_eval)
 
 
 def next_multiple(n: int, every: int) -> int | None:
