@@ -144,6 +144,23 @@ def test_presets_and_overrides():
                                                                                                   1_000_000)
 
 
+def test_the_learning_rate_falls_linearly_to_its_final_value_over_the_run(small_track, state_run, tmp_path):
+    from vision_rl.phase2_rl.persist import read_agent
+
+    def actor_lr(path) -> float:
+        return read_agent(path)["optimizers"]["actor"]["param_groups"][0]["lr"]
+
+    out = tmp_path / "decay"
+    train_policy(tiny_train_config(small_track, out, learning_rate=1e-3, learning_rate_final=1e-4))
+    assert PolicySpec.read(out / "policy.json").sac["learning_rate_final"] == 1e-4
+    # Halfway (the checkpoint at 100 of 200 steps, saved after the update at 98 or 100): 1e-3 - 0.9e-3 * 0.5.
+    assert actor_lr(out / "checkpoints" / "policy_100.pt") == pytest.approx(5.5e-4, rel=0.02)
+    assert actor_lr(out / "policy.pt") == pytest.approx(1e-4)
+    assert actor_lr(state_run[0] / "policy.pt") == pytest.approx(1e-3)  # the default: constant
+    with pytest.raises(ValueError, match="--learning-rate-final -1"):
+        train_policy(tiny_train_config(small_track, tmp_path / "bad", learning_rate_final=-1))
+
+
 def test_sigterm_saves_like_ctrl_c(small_track, tmp_path, monkeypatch, capsys):
     import os
     import signal

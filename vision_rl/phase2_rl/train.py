@@ -35,6 +35,7 @@ import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
+from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecMonitor
 
 from vision_rl.envs.core import STEER_ACTIONS, WALL_PENALTY_SPEEDS, RacingConfig
@@ -87,6 +88,15 @@ class SACPreset:
     """Gradient updates per training phase."""
     torch_threads: int
     """torch intra-op threads (0: leave torch's default)."""
+    learning_rate_final: float = 0.0
+    """Adam step size at the run's last step, reached linearly from ``learning_rate`` (0: constant)."""
+
+    def learning_rate_schedule(self) -> float | LinearSchedule:
+        """SB3's ``learning_rate``: constant, or falling linearly over the run (SB3's progress, which a resumed run
+        keeps: it learns up to the same total of steps)."""
+        if self.learning_rate_final <= 0:
+            return self.learning_rate
+        return LinearSchedule(self.learning_rate, self.learning_rate_final, end_fraction=1.0)
 
 
 PRESETS: dict[str, SACPreset] = {
@@ -175,6 +185,8 @@ class TrainPolicyConfig:
     """Vision: control steps of the feature-statistics rollout."""
     learning_rate: float = 0.0
     """Override the preset's learning rate (0: preset)."""
+    learning_rate_final: float = 0.0
+    """Let the learning rate fall linearly to this by the run's last step (0: constant; not in the papers)."""
     batch_size: int = 0
     """Override the preset's batch size (0: preset)."""
     buffer_size: int = 0
@@ -234,14 +246,15 @@ def parse_hidden_units(text: str) -> tuple[int, ...]:
 
 def resolve_preset(cfg: Any) -> SACPreset:
     """The preset ``cfg.preset`` with ``cfg``'s overrides (learning_rate, batch_size, buffer_size, learning_starts,
-    gradient_steps, and where the config has them gamma and hidden_units; 0, -1 or empty: the preset's); any
-    trainer's config with those fields."""
+    gradient_steps, and where the config has them gamma, hidden_units and learning_rate_final; 0, -1 or empty: the
+    preset's); any trainer's config with those fields."""
     if cfg.preset not in PRESETS:
         raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
     preset = PRESETS[cfg.preset]
     gamma, hidden = getattr(cfg, "gamma", 0.0), parse_hidden_units(getattr(cfg, "hidden_units", ""))
     overrides = {
         "learning_rate": cfg.learning_rate if cfg.learning_rate > 0 else None,
+        "learning_rate_final": getattr(cfg, "learning_rate_final", 0.0) or None,
         "batch_size": cfg.batch_size if cfg.batch_size > 0 else None,
         "buffer_size": cfg.buffer_size if cfg.buffer_size > 0 else None,
         "learning_starts": cfg.learning_starts if cfg.learning_starts >= 0 else None,
@@ -446,7 +459,7 @@ class _Run:
         if cloning:
             from vision_rl.phase2_rl.guide import guided_sac_class
         model = (guided_sac_class() if cloning else SAC)(
-            "MlpPolicy", env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
+            "MlpPolicy", env, learning_rate=p.learning_rate_schedule(), buffer_size=p.buffer_size,
             learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau,
             gamma=gamma_per_step(p.gamma, self.racing.control_dt_s),
             train_freq=(p.train_freq_steps, "step"), gradient_steps=p.gradient_steps,
@@ -615,7 +628,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "wall_hit_throttle_cut_s": 0 <= cfg.wall_hit_throttle_cut_s <= 60,
         "frame_delay_s": 0 <= cfg.frame_delay_s <= 1, "pedal_full_at": 0 < cfg.pedal_full_at <= 1,
         "steer_change_share_of_range": cfg.steer_change_share_of_range >= 0,
-        "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
+        "learning_rate": cfg.learning_rate >= 0, "learning_rate_final": cfg.learning_rate_final >= 0,
+        "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
         "guide_steps": cfg.guide_steps >= 0, "guide_bc_weight": cfg.guide_bc_weight >= 0,
         "guide_label_weight": cfg.guide_label_weight >= 0, "guide_label_fade_steps": cfg.guide_label_fade_steps >= 0,
