@@ -161,6 +161,23 @@ def test_the_learning_rate_falls_linearly_to_its_final_value_over_the_run(small_
         train_policy(tiny_train_config(small_track, tmp_path / "bad", learning_rate_final=-1))
 
 
+def test_the_entropy_target_is_sacs_and_a_resumed_run_keeps_its_own(small_track, state_run, tmp_path):
+    from vision_rl.phase2_rl.train import _Run
+
+    assert PolicySpec.read(state_run[0] / "policy.json").sac["target_entropy"] == 0.0  # SB3's auto: -2
+    out = tmp_path / "low"
+    train_policy(tiny_train_config(small_track, out, steps=100, target_entropy=-6.0))
+    for cfg in (tiny_train_config(small_track, out, steps=200, resume=True),  # the run's -6, not the default's
+                tiny_train_config(small_track, tmp_path / "auto", steps=100)):
+        run = _Run(cfg)
+        try:
+            assert run.build().target_entropy == (-6.0 if cfg.resume else -2.0)
+        finally:
+            run.close()
+    with pytest.raises(ValueError, match="--target-entropy 1"):
+        train_policy(tiny_train_config(small_track, tmp_path / "bad", target_entropy=1.0))
+
+
 def test_sigterm_saves_like_ctrl_c(small_track, tmp_path, monkeypatch, capsys):
     import os
     import signal

@@ -90,6 +90,9 @@ class SACPreset:
     """torch intra-op threads (0: leave torch's default)."""
     learning_rate_final: float = 0.0
     """Adam step size at the run's last step, reached linearly from ``learning_rate`` (0: constant)."""
+    target_entropy: float = 0.0
+    """Entropy the policy is held at by the learned coefficient, nats (0: SB3's ``auto``, minus the action's
+    dimensions)."""
 
     def learning_rate_schedule(self) -> float | LinearSchedule:
         """SB3's ``learning_rate``: constant, or falling linearly over the run (SB3's progress, which a resumed run
@@ -187,6 +190,9 @@ class TrainPolicyConfig:
     """Override the preset's learning rate (0: preset)."""
     learning_rate_final: float = 0.0
     """Let the learning rate fall linearly to this by the run's last step (0: constant; not in the papers)."""
+    target_entropy: float = 0.0
+    """SAC's entropy target, nats (0: SB3's, -2 for the 2 action dimensions; lower: a less random policy in
+    training)."""
     batch_size: int = 0
     """Override the preset's batch size (0: preset)."""
     buffer_size: int = 0
@@ -246,8 +252,8 @@ def parse_hidden_units(text: str) -> tuple[int, ...]:
 
 def resolve_preset(cfg: Any) -> SACPreset:
     """The preset ``cfg.preset`` with ``cfg``'s overrides (learning_rate, batch_size, buffer_size, learning_starts,
-    gradient_steps, and where the config has them gamma, hidden_units and learning_rate_final; 0, -1 or empty: the
-    preset's); any trainer's config with those fields."""
+    gradient_steps, and where the config has them gamma, hidden_units, learning_rate_final and target_entropy; 0, -1
+    or empty: the preset's); any trainer's config with those fields."""
     if cfg.preset not in PRESETS:
         raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
     preset = PRESETS[cfg.preset]
@@ -255,6 +261,7 @@ def resolve_preset(cfg: Any) -> SACPreset:
     overrides = {
         "learning_rate": cfg.learning_rate if cfg.learning_rate > 0 else None,
         "learning_rate_final": getattr(cfg, "learning_rate_final", 0.0) or None,
+        "target_entropy": getattr(cfg, "target_entropy", 0.0) or None,
         "batch_size": cfg.batch_size if cfg.batch_size > 0 else None,
         "buffer_size": cfg.buffer_size if cfg.buffer_size > 0 else None,
         "learning_starts": cfg.learning_starts if cfg.learning_starts >= 0 else None,
@@ -464,7 +471,7 @@ class _Run:
             gamma=gamma_per_step(p.gamma, self.racing.control_dt_s),
             train_freq=(p.train_freq_steps, "step"), gradient_steps=p.gradient_steps,
             policy_kwargs={"net_arch": list(p.hidden_units)}, seed=self.seed + self.start_steps,
-            device=self.device, verbose=0, n_steps=self.cfg.n_step,
+            target_entropy=p.target_entropy or "auto", device=self.device, verbose=0, n_steps=self.cfg.n_step,
         )  # fmt: skip
         model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
         encoder_sha = self.encoder_sha256 if self.kind == "vision" else None
@@ -629,6 +636,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "frame_delay_s": 0 <= cfg.frame_delay_s <= 1, "pedal_full_at": 0 < cfg.pedal_full_at <= 1,
         "steer_change_share_of_range": cfg.steer_change_share_of_range >= 0,
         "learning_rate": cfg.learning_rate >= 0, "learning_rate_final": cfg.learning_rate_final >= 0,
+        "target_entropy": cfg.target_entropy <= 0,
         "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
         "guide_steps": cfg.guide_steps >= 0, "guide_bc_weight": cfg.guide_bc_weight >= 0,
