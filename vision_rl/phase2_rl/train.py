@@ -95,8 +95,8 @@ class SACPreset:
     dimensions)."""
 
     def learning_rate_schedule(self) -> float | LinearSchedule:
-        """SB3's ``learning_rate``: constant, or falling linearly over the run (SB3's progress, which a resumed run
-        keeps: it learns up to the same total of steps)."""
+        """SB3's ``learning_rate``: constant, or falling linearly to the run's last step (by SB3's progress, so a
+        run resumed to more steps spreads what is left of the fall over its new total)."""
         if self.learning_rate_final <= 0:
             return self.learning_rate
         return LinearSchedule(self.learning_rate, self.learning_rate_final, end_fraction=1.0)
