@@ -3,10 +3,21 @@ whole job from capture to leaderboard."""
 
 from __future__ import annotations
 
+import dataclasses
+import sys
+
 import pytest
 
 from tests.conftest import renderer_available
-from vision_rl.commands.pipeline import SIZES, PipelineOptions, format_pipeline, pipeline_phase2, run_pipeline_stages
+from vision_rl.commands.pipeline import (
+    SIZES,
+    PipelineOptions,
+    format_phase2,
+    format_pipeline,
+    pipeline_phase2,
+    run_pipeline_stages,
+    sampler_processes,
+)
 
 
 def test_pipeline_tiny(small_track, tiny_encoders, tmp_path):
@@ -22,6 +33,27 @@ def test_pipeline_tiny(small_track, tiny_encoders, tmp_path):
         assert summary["vision"]["num_timesteps"] == 120 and "pipeline-vision" in names
     else:
         assert "skipped" in summary["vision"]
+
+
+def test_pipeline_vision_policy_samples_in_a_sampler_process(ray_local, small_track, tiny_encoders, tmp_path):
+    reason = renderer_available()
+    if reason:
+        pytest.skip(reason)
+    sizes = dataclasses.replace(SIZES["tiny"], vision_workers=1)
+    summary = pipeline_phase2(str(tiny_encoders[0]), sizes, mode="tiny", track=small_track,
+                              runs=str(tmp_path / "runs"), device="cpu")  # fmt: skip
+    vision, state = summary["vision"], summary["state"]
+    assert vision["num_timesteps"] == 120 and vision["n_seeds"] == 1
+    assert vision["sampling"]["workers"] == 1 and vision["sampling"]["samplers_alive"] == 1
+    assert vision["sampling"]["transitions"] >= 120 and vision["sampling"]["updates"] > 0
+    assert state["sampling"] is None  # the state policy samples in its own process
+    assert "pipeline-vision" in [r["name"] for r in summary["leaderboard"]["rows"]]
+    assert ", 1 sampler process; lap 2 best" in "\n".join(format_phase2(summary))
+
+
+def test_without_ray_the_vision_policy_samples_in_the_learners_process(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray now raises ImportError
+    assert sampler_processes(SIZES["quick"]) == 0
 
 
 def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path):

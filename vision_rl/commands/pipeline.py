@@ -61,6 +61,9 @@ class PipelineSizes:
     """Random-action steps before the vision policy's first update (-1: the preset's)."""
     vision_gradient_steps: int
     """Updates per vector step of the vision policy (0: the preset's)."""
+    vision_workers: int
+    """Sampler processes of the vision policy's training (``train-policy --workers``; 0: it samples in the
+    learner's process). A sampler renders and embeds the frames while the learner updates."""
     batch_size: int
     """SAC batch size (0: the preset's)."""
     buffer_size: int
@@ -84,8 +87,8 @@ SIZES: dict[str, PipelineSizes] = {
     "tiny": PipelineSizes(
         train_laps=1, eval_laps=1, capture_cars=2, capture_fps=5, image_hw_px=(64, 96), repr_epochs=1,
         repr_max_steps=3, sac_preset="cpu", steer_action="rate_scaled", state_steps=200, vision_steps=120,
-        state_cars=2, vision_cars=2,
-        state_learning_starts=50, vision_learning_starts=40, vision_gradient_steps=0, batch_size=32,
+        state_cars=2, vision_cars=2, state_learning_starts=50, vision_learning_starts=40, vision_gradient_steps=0,
+        vision_workers=0, batch_size=32,
         buffer_size=5_000, eval_every_steps=100, state_eval_seeds=1, vision_eval_seeds=1, stats_steps=5,
         state_eval_time_limit_s=30.0, vision_eval_time_limit_s=30.0,
     ),
@@ -104,9 +107,8 @@ SIZES: dict[str, PipelineSizes] = {
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
         repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=200_000,
-        state_cars=20,
-        vision_cars=10, state_learning_starts=-1, vision_learning_starts=5_000, vision_gradient_steps=0,
-        batch_size=0, buffer_size=0, eval_every_steps=50_000, state_eval_seeds=3, vision_eval_seeds=3,
+        state_cars=20, vision_cars=10, state_learning_starts=-1, vision_learning_starts=5_000, vision_gradient_steps=0,
+        vision_workers=1, batch_size=0, buffer_size=0, eval_every_steps=50_000, state_eval_seeds=3, vision_eval_seeds=3,
         stats_steps=50, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=400.0,
     ),
     # The paper's scale: 50 disrupted laps at 60 fps and 470 x 280, 50 encoder epochs; SAC for 400 epochs of 20
@@ -114,10 +116,9 @@ SIZES: dict[str, PipelineSizes] = {
     "full": PipelineSizes(
         train_laps=50, eval_laps=5, capture_cars=4, capture_fps=60, image_hw_px=(280, 470), repr_epochs=50,
         repr_max_steps=-1, sac_preset="paper", steer_action="angle", state_steps=8_000_000, vision_steps=8_000_000,
-        state_cars=20,
-        vision_cars=20, state_learning_starts=-1, vision_learning_starts=-1, vision_gradient_steps=0,
-        batch_size=0, buffer_size=0, eval_every_steps=200_000, state_eval_seeds=3, vision_eval_seeds=3,
-        stats_steps=100, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=0.0,
+        state_cars=20, vision_cars=20, state_learning_starts=-1, vision_learning_starts=-1, vision_gradient_steps=0,
+        vision_workers=1, batch_size=0, buffer_size=0, eval_every_steps=200_000, state_eval_seeds=3,
+        vision_eval_seeds=3, stats_steps=100, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=0.0,
     ),
 }  # fmt: skip
 
@@ -174,6 +175,16 @@ def _capture(opts: PipelineOptions, sizes: PipelineSizes, name: str, laps: int, 
     return out
 
 
+def sampler_processes(sizes: PipelineSizes) -> int:
+    """The vision policy's sampler processes: the mode's, or 0 (sampling in the learner's process) without Ray, the
+    `ray` extra that the README's set-up installs."""
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        return 0
+    return sizes.vision_workers
+
+
 def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car: str, runs: str, seed: int,
                   device: str) -> dict[str, Any]:  # fmt: skip
     """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time it by the protocol."""
@@ -181,6 +192,7 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
     from vision_rl.phase2_rl.train import TrainPolicyConfig, train_policy
 
     vision = kind == "vision"
+    workers = sampler_processes(sizes) if vision else 0
     t0 = time.perf_counter()
     out = Path(runs) / "policy" / f"pipeline-{kind}"
     trained = train_policy(
@@ -191,7 +203,7 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
             save_buffer=False, stats_steps=sizes.stats_steps,
             learning_starts=sizes.vision_learning_starts if vision else sizes.state_learning_starts,
             gradient_steps=sizes.vision_gradient_steps if vision else 0, batch_size=sizes.batch_size,
-            buffer_size=sizes.buffer_size, device=device, steer_action=sizes.steer_action,
+            buffer_size=sizes.buffer_size, device=device, steer_action=sizes.steer_action, workers=workers or None,
         )
     )  # fmt: skip
     if trained["interrupted"]:
@@ -208,6 +220,7 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
         "policy": trained["policy"],
         "num_timesteps": trained["num_timesteps"],
         "train_time_s": trained["train_time_s"],
+        "sampling": trained["sampling"],
         "best_lap_time_s": evaluation["best_lap_time_s"],
         "median_lap_time_s": evaluation["median_lap_time_s"],
         "n_finished": evaluation["n_finished"],
@@ -297,8 +310,10 @@ def format_phase2(summary: dict[str, Any]) -> list[str]:
         if "skipped" in r:
             lines.append(f"  {kind}: skipped ({r['skipped']})")
         elif r:
+            workers = (r.get("sampling") or {}).get("workers", 0)
+            sampled = f", {workers} sampler process{'es' * (workers > 1)}" if workers else ""
             lines.append(
-                f"  {kind}: {r['num_timesteps']} steps in {r['wall_time_s']['train']:.0f} s; lap 2 best "
+                f"  {kind}: {r['num_timesteps']} steps in {r['wall_time_s']['train']:.0f} s{sampled}; lap 2 best "
                 f"{format_lap_time(r['best_lap_time_s'])} ({r['n_finished']}/{r['n_seeds']} seeds finished, "
                 f"{r['distance_m']:.0f} m driven at most); {r['policy']}"
             )
