@@ -12,6 +12,7 @@ from tests.conftest import renderer_available
 from vision_rl.commands.pipeline import (
     SIZES,
     PipelineOptions,
+    _captured,
     format_phase2,
     format_pipeline,
     pipeline_phase2,
@@ -77,3 +78,9 @@ def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path):
     # (tiny stops after 3 optimiser steps, before a validation epoch)
     assert "frames, no epoch scored" in text and "pipeline-vision" in text and "done in" in text
     assert "kept the existing encoder" in "\n".join(format_pipeline(again))
+
+
+def test_a_missing_or_unreadable_capture_is_captured_from_the_start(tmp_path):
+    assert _captured(tmp_path / "train.h5") == "none"
+    (tmp_path / "train.h5").write_bytes(b"not an HDF5 file")
+    assert _captured(tmp_path / "train.h5") == "none"

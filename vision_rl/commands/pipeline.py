@@ -1,10 +1,10 @@
 """`vision-rl pipeline`: the whole two-phase job of the vision paper on one track and car.
 
-1. capture: disrupted built-in AI laps (training frames) and clean laps (the evaluation set, as the paper's
-   "undisturbed driving");
+1. capture: disrupted built-in AI laps (training frames) and, in a second process beside them, clean laps (the
+   evaluation set, as the paper's "undisturbed driving");
 2. train-repr: the space2depth encoder on those frames, best checkpoint on the clean laps;
-3. Phase 2: train-policy on the frozen encoder's embedding and, in a second process beside it, on the state; the
-   papers' evaluation of both; the leaderboard.
+3. Phase 2: train-policy on the frozen encoder's embedding (its frames rendered in a sampler process) and, in a
+   second process beside it, on the state; the papers' evaluation of both; the leaderboard.
 
 ``--quick`` shrinks every stage to finish in 15-30 minutes on 2 CPU cores (by the machine's day); without it the
 paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs, millions of SAC steps: days on a CPU). ``--tiny``
@@ -15,6 +15,7 @@ policies are trained again), so an interrupted pipeline continues where it stopp
 from __future__ import annotations
 
 import multiprocessing
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -106,8 +107,8 @@ SIZES: dict[str, PipelineSizes] = {
     # alone and 2:18.6 (6 of 9) with the papers' angle; vision: docs/results/vision-expressway-hatchback.
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=8,
-        repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=160_000,
-        state_cars=20, vision_cars=8, state_learning_starts=-1, vision_learning_starts=5_000, vision_gradient_steps=0,
+        repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=200_000,
+        state_cars=20, vision_cars=10, state_learning_starts=-1, vision_learning_starts=5_000, vision_gradient_steps=0,
         vision_workers=1, batch_size=0, buffer_size=0, eval_every_steps=50_000, state_eval_seeds=3, vision_eval_seeds=3,
         stats_steps=50, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=400.0,
     ),
@@ -266,15 +267,18 @@ def pipeline_phase2(
     """Train and evaluate the state policy and, with an ``encoder``, the vision policy; the leaderboard; returns a
     summary dict. Runs go to ``runs/policy/pipeline-<kind>`` (replaced if present).
 
-    With an encoder the state policy trains in a second process beside the vision one: vision sampling keeps about
-    1.2 of 2 cores busy (its frames render and embed in the learner's process), and a state run needs about one."""
+    With an encoder the state policy trains in a second process beside the vision one, whose frames render and
+    embed in ``sizes.vision_workers`` sampler processes while its learner updates: together they keep the cores busy
+    (the state run needs about one core, the vision learner and its sampler about one each)."""
     from vision_rl.evaluation.leaderboard import leaderboard
 
     summary: dict[str, Any] = {"mode": mode, "track": track, "car": car}
     stage = (sizes, track, car, runs, seed, device)
     if encoder:
         # Leaving the pool stops its process (SIGTERM): an interrupted pipeline leaves no state run training alone.
-        with multiprocessing.get_context("spawn").Pool(1) as pool:
+        # The vision policy is the long pole: the state run, at the lowest priority, takes what its learner and
+        # sampler leave of the cores (each waits for the other at times).
+        with multiprocessing.get_context("spawn").Pool(1, initializer=os.nice, initargs=(19,)) as pool:
             state = pool.apply_async(_policy_stage, ("state", "", *stage))
             vision = _policy_stage("vision", encoder, *stage)
             summary["state"], summary["vision"] = state.get(), vision

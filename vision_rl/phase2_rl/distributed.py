@@ -125,6 +125,10 @@ def connect(address: str, workers: int) -> Cluster:
             if address:
                 ray.init(address=address, **kwargs)
             else:
+                # Ray starts its workers at nice 15, where anything else on the machine takes a sampler's core
+                # first (the pipeline's state policy beside a vision run left its sampler half a core, the learner
+                # waiting); the samplers are this run's own work, at the learner's priority unless the caller says.
+                os.environ.setdefault("RAY_worker_niceness", "0")
                 ray.init(num_cpus=os.cpu_count() or 1, **kwargs)
         except (ConnectionError, RuntimeError, ValueError) as exc:
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
