@@ -46,6 +46,8 @@ def test_a_stopped_pipeline_leaves_no_policy_training_alone(small_track, tiny_en
         time.sleep(0.1)
     children = _children(process.pid)
     assert children, "the state policy trains in a second process"
+    niceness = [int(open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[16]) for pid in children]
+    assert min(19, os.nice(0) + 19) in niceness, "the state policy trains at the lowest priority"
     os.kill(process.pid, signal.SIGTERM)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 130, stderr

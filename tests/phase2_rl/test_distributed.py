@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import subprocess
+import sys
 import tempfile
 
 import numpy as np
@@ -232,3 +235,21 @@ def test_train_overtaking_refuses_bad_sampling_options_before_writing(small_trac
         with pytest.raises(ValueError, match=message):
             train_overtaking(tiny_overtaking_config(small_track, tmp_path / "run", **change))
         assert not (tmp_path / "run").exists()
+
+
+_NICENESS = """
+import os, ray
+from vision_rl.phase2_rl.distributed import connect
+cluster = connect("", 1)
+print(ray.get(ray.remote(num_cpus=1)(lambda: os.nice(0)).remote()))
+cluster.close()
+"""
+
+
+def test_a_local_cluster_runs_its_samplers_at_the_learners_priority():
+    """Ray's default is nice 15, where anything else on the machine takes a sampler's core first."""
+    pytest.importorskip("ray", reason="Ray is not installed: pip install 'vision_rl[ray]'")
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_worker_niceness", "RAY_ADDRESS")}
+    done = subprocess.run([sys.executable, "-c", _NICENESS], capture_output=True, text=True, timeout=180, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert int(done.stdout.split()[-1]) == os.nice(0)
