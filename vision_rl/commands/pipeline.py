@@ -120,7 +120,8 @@ SIZES: dict[str, PipelineSizes] = {
         stats_steps=50, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=400.0,
     ),
     # The paper's scale: 50 disrupted laps at 60 fps and 470 x 280, 50 encoder epochs; SAC for 400 epochs of 20
-    # trials of 100 s (vision paper, section 4, Figure 3) = 8M steps.
+    # trials of 100 s (vision paper, section 4, Figure 3) = 8M steps. The vision frames render in a sampler process
+    # as in quick (not timed at this scale).
     "full": PipelineSizes(
         train_laps=50, eval_laps=5, capture_cars=4, capture_fps=60, image_hw_px=(280, 470), repr_epochs=50,
         repr_max_steps=-1, sac_preset="paper", steer_action="angle", state_steps=8_000_000, vision_steps=8_000_000,
