@@ -105,13 +105,9 @@ SIZES: dict[str, PipelineSizes] = {
     # Steering: a change of the command within the range usable at the car's speed (rate_scaled). Over 3 training
     # seeds of 400k state steps it lapped in 2:11.5 (9 of 9 starts) against 2:15.1 with the speed-scaled range
     # alone and 2:18.6 (6 of 9) with the papers' angle; vision: docs/results/vision-expressway-hatchback.
-    # On 2026-11-26, a day this machine ran about 2x slower than its fastest, fresh clones one after another: the
-    # whole job took 28.3 min in one process per policy, 22.9 with the vision frames rendered in a sampler process
-    # (vision SAC 797 s against 1,116 s; lap 2:15.6 against 2:15.0, 3/3 both), 20.0 with the clean laps captured
-    # beside the disrupted ones (44 s against 71), 8 encoder epochs (378 s against 458; R^2 0.953-0.996 against
-    # 0.961-0.997) and 160k vision steps of 8 cars (the same 20k updates); but that vision policy finished 1 of 3
-    # starts (2:18.7), and on the 8-epoch encoder with 200k steps of 10 cars 0 of 3 (20.6 min): the encoder keeps
-    # its 10 epochs and the vision stage 200k steps of 10 cars.
+    # The vision sampler process and the captures side by side: 28.3 -> 21.6 min on a slow day (README, "How the
+    # stages now share the 2 cores"). 8 encoder epochs instead of 10 left vision policies that finished 1 and 0 of
+    # 3 starts there, so the encoder keeps its 10 epochs and the vision stage 200k steps of 10 cars.
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
         repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=200_000,
@@ -207,9 +203,11 @@ def _capture_or_none(opts: PipelineOptions, sizes: PipelineSizes, name: str, lap
 def sampler_processes(sizes: PipelineSizes) -> int:
     """The vision policy's sampler processes: the mode's, or 0 (sampling in the learner's process) without Ray, the
     `ray` extra that the README's set-up installs."""
+    from vision_rl.phase2_rl.distributed import DistributedError, import_ray
+
     try:
-        import ray  # noqa: F401
-    except ImportError:
+        import_ray()
+    except DistributedError:
         return 0
     return sizes.vision_workers
 
