@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
 
 import pytest
 
@@ -35,6 +37,19 @@ def renderer_available() -> str:
         return ""
     except Exception as exc:  # no EGL library, no driver, no moderngl
         return f"vision_rl.render cannot make an EGL context here: {exc}"
+
+
+def kill_and_read(process: subprocess.Popen) -> str:
+    """Kill a test's subprocess and, when it was started with ``start_new_session=True``, every process it started;
+    its stderr. A child left running holds the pipes open, and reading them would wait for it for ever."""
+    try:
+        os.killpg(process.pid, signal.SIGKILL)  # its session's process group
+    except ProcessLookupError:  # not a group's leader
+        process.kill()
+    try:
+        return process.communicate(timeout=30)[1]
+    except subprocess.TimeoutExpired:
+        return "(no output: a process it started holds its pipes open)"
 
 
 @pytest.fixture(scope="session")

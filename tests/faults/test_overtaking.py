@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import kill_and_read
 from tests.phase2_rl.test_overtaking import tiny_overtaking_config
 from vision_rl.phase2_rl.artifact import PolicyError
 from vision_rl.phase2_rl.overtaking import (
@@ -108,7 +109,7 @@ def test_a_killed_stage_resumes_from_its_checkpoint(small_track, tmp_path, fault
         except (PolicyError, OSError):
             steps = 0
         time.sleep(0.05)
-    assert steps >= 200, process.communicate()
+    assert steps >= 200, kill_and_read(process)
     os.kill(process.pid, signal.SIGKILL)
     process.communicate(timeout=60)
     assert json.loads((out / "stage1" / "stage.json").read_text())["status"] == "running"

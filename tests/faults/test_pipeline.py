@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from tests.conftest import renderer_available
+from tests.conftest import kill_and_read, renderer_available
 
 _SCRIPT = """
 import dataclasses, sys
@@ -30,30 +30,42 @@ def _children(pid: int) -> set[int]:
     return {int(p) for p in found}
 
 
+def _niceness(pid: int) -> int | None:
+    try:
+        return int(open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[16])
+    except (OSError, IndexError, ValueError):  # ended meanwhile
+        return None
+
+
 def test_a_stopped_pipeline_leaves_no_policy_training_alone(small_track, tiny_encoders, tmp_path, fault):
     reason = renderer_available()
     if reason:
         pytest.skip(reason)
     runs = tmp_path / "runs"
     process = subprocess.Popen([sys.executable, "-c", _SCRIPT, str(tiny_encoders[0]), small_track, str(runs)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
-    deadline = time.monotonic() + 120
-    folders = [runs / "policy" / f"pipeline-{kind}" / "metrics.jsonl" for kind in ("state", "vision")]
-    while not all(f.exists() for f in folders):  # both policies train (their first evaluations are written)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               start_new_session=True)  # fmt: skip
+    # The vision policy trains (its first evaluation is written) and the state policy's process runs at the lowest
+    # priority: on a busy machine that process may take minutes to get as far, so the test does not wait for it.
+    lowest = min(19, os.nice(0) + 19)
+    deadline = time.monotonic() + 240
+    while True:
+        children = {pid for pid in _children(process.pid) if _niceness(pid) == lowest}
+        if children and (runs / "policy" / "pipeline-vision" / "metrics.jsonl").exists():
+            break
         if process.poll() is not None or time.monotonic() > deadline:
-            process.kill()
-            raise AssertionError(f"the policies did not both start training: {process.communicate()}")
+            stderr = kill_and_read(process)
+            raise AssertionError(f"no vision training beside a state process at nice {lowest}: {stderr}")
         time.sleep(0.1)
-    children = _children(process.pid)
-    assert children, "the state policy trains in a second process"
-    niceness = [int(open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[16]) for pid in children]
-    assert min(19, os.nice(0) + 19) in niceness, "the state policy trains at the lowest priority"
     os.kill(process.pid, signal.SIGTERM)
-    _, stderr = process.communicate(timeout=60)
+    try:
+        _, stderr = process.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        raise AssertionError(f"the pipeline did not stop within 60 s of SIGTERM: {kill_and_read(process)}") from None
     assert process.returncode == 130, stderr
     time.sleep(0.5)
     alive = {pid for pid in children if os.path.exists(f"/proc/{pid}") and "zombie" not in
              open(f"/proc/{pid}/status").read()}  # fmt: skip
     assert not alive, f"left running: {alive}"
     fault.recovered("SIGTERM to pipeline while state and vision policies train",
-                    "both stop (the state policy's process with the pool), exit 130; capture and encoder are kept")
+                    "both stop (the state policy's process with the pipeline), exit 130; capture and encoder are kept")

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests.conftest import kill_and_read
 from tests.phase2_rl.conftest import tiny_train_config
 from vision_rl.phase2_rl.artifact import PolicyError, PolicySpec, convert_sb3_run, load_policy
 from vision_rl.phase2_rl.persist import ArtifactWriteError, file_sha256
@@ -230,7 +231,7 @@ def _wait_for_checkpoint(process: subprocess.Popen, spec: Path, at_least_steps: 
         if steps >= at_least_steps:
             return steps
         time.sleep(0.05)
-    raise AssertionError(f"no checkpoint of {at_least_steps} steps: {process.communicate()}")
+    raise AssertionError(f"no checkpoint of {at_least_steps} steps: {kill_and_read(process)}")
 
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])

@@ -4,6 +4,7 @@ whole job from capture to leaderboard."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 
 import pytest
@@ -13,6 +14,7 @@ from vision_rl.commands.pipeline import (
     SIZES,
     PipelineOptions,
     _captured,
+    _in_second_process,
     format_phase2,
     format_pipeline,
     pipeline_phase2,
@@ -84,3 +86,12 @@ def test_a_missing_or_unreadable_capture_is_captured_from_the_start(tmp_path):
     assert _captured(tmp_path / "train.h5") == "none"
     (tmp_path / "train.h5").write_bytes(b"not an HDF5 file")
     assert _captured(tmp_path / "train.h5") == "none"
+
+
+def test_a_second_process_returns_its_result_raises_its_error_and_never_waits_for_a_dead_one():
+    with _in_second_process(divmod, 7, 2) as result:
+        assert result() == (3, 1)
+    with _in_second_process(int, "seven") as result, pytest.raises(ValueError, match="seven"):
+        result()
+    with _in_second_process(os._exit, 3) as result, pytest.raises(RuntimeError, match="exit code 3 and no result"):
+        result()  # killed, out of memory: a pool would wait for its result for ever

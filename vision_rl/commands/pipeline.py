@@ -14,9 +14,11 @@ policies are trained again), so an interrupted pipeline continues where it stopp
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -191,13 +193,43 @@ def _capture(opts: PipelineOptions, sizes: PipelineSizes, name: str, laps: int, 
     return out
 
 
-def _capture_or_none(opts: PipelineOptions, sizes: PipelineSizes, name: str, laps: int, disrupt: bool) -> Path | None:
-    """:func:`_capture` in a pool's process: None when interrupted (a KeyboardInterrupt would end the pool's worker
-    without a result, and the pipeline would wait for it)."""
+def _send_result(send: Any, niceness: int, fn: Callable[..., Any], args: tuple) -> None:
+    os.nice(niceness)
     try:
-        return _capture(opts, sizes, name, laps, disrupt)
-    except KeyboardInterrupt:
-        return None
+        send.send((True, fn(*args)))
+    except BaseException as exc:  # an interrupt too: the parent raises what its stage raised
+        send.send((False, exc))
+
+
+@contextlib.contextmanager
+def _in_second_process(fn: Callable[..., Any], *args: Any, niceness: int = 0) -> Iterator[Callable[[], Any]]:
+    """``fn(*args)`` in a spawned process at ``niceness``; yields a function that waits for its result and returns
+    it, raises what it raised, or raises RuntimeError when the process ended without one (killed, out of memory):
+    a pool would wait for that result for ever. Leaving the block stops the process (SIGTERM), so an interrupted
+    pipeline leaves nothing running."""
+    context = multiprocessing.get_context("spawn")  # no fork of a process that holds torch's threads
+    receive, send = context.Pipe(duplex=False)
+    process = context.Process(target=_send_result, args=(send, niceness, fn, args), daemon=True)
+    process.start()
+    send.close()
+
+    def result() -> Any:
+        try:
+            ok, value = receive.recv()
+        except EOFError:
+            process.join()
+            raise RuntimeError(f"the pipeline's second process ({fn.__name__}) ended with exit code "
+                               f"{process.exitcode} and no result") from None  # fmt: skip
+        if not ok:
+            raise value
+        return value
+
+    try:
+        yield result
+    finally:
+        process.terminate()
+        process.join()
+        receive.close()
 
 
 def sampler_processes(sizes: PipelineSizes) -> int:
@@ -281,13 +313,11 @@ def pipeline_phase2(
     summary: dict[str, Any] = {"mode": mode, "track": track, "car": car}
     stage = (sizes, track, car, runs, seed, device)
     if encoder:
-        # Leaving the pool stops its process (SIGTERM): an interrupted pipeline leaves no state run training alone.
         # The vision policy is the long pole: the state run, at the lowest priority, takes what its learner and
         # sampler leave of the cores (each waits for the other at times).
-        with multiprocessing.get_context("spawn").Pool(1, initializer=os.nice, initargs=(19,)) as pool:
-            state = pool.apply_async(_policy_stage, ("state", "", *stage))
+        with _in_second_process(_policy_stage, "state", "", *stage, niceness=19) as state:
             vision = _policy_stage("vision", encoder, *stage)
-            summary["state"], summary["vision"] = state.get(), vision
+            summary["state"], summary["vision"] = state(), vision
     else:
         summary["state"] = _policy_stage("state", "", *stage)
         summary["vision"] = {"skipped": "no encoder checkpoint given"}
@@ -306,17 +336,14 @@ def run_pipeline_stages(opts: PipelineOptions) -> dict[str, Any]:
     summary: dict[str, Any] = {"mode": opts.mode, "track": opts.track, "car": opts.car}
     t_start = t0 = time.perf_counter()
     # A capture keeps about 1.2 cores busy: the clean laps are captured in a second process beside the disrupted
-    # ones. Leaving the pool stops its process (SIGTERM); what it captured is resumed by the next pipeline.
+    # ones; what a stopped one captured is resumed by the next pipeline.
     if _captured(_capture_path(opts, "eval")) == "complete":
         eval_h5 = _capture_path(opts, "eval")
         train_h5 = _capture(opts, sizes, "train", sizes.train_laps, disrupt=True)
     else:
-        with multiprocessing.get_context("spawn").Pool(1) as pool:
-            clean = pool.apply_async(_capture_or_none, (opts, sizes, "eval", sizes.eval_laps, False))
+        with _in_second_process(_capture, opts, sizes, "eval", sizes.eval_laps, False) as clean:
             train_h5 = _capture(opts, sizes, "train", sizes.train_laps, disrupt=True)
-            eval_h5 = clean.get()
-        if eval_h5 is None:
-            raise KeyboardInterrupt
+            eval_h5 = clean()
     summary["capture"] = {"train": str(train_h5), "eval": str(eval_h5), "seconds": time.perf_counter() - t0}
 
     t0 = time.perf_counter()
