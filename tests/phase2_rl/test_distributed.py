@@ -14,6 +14,7 @@ import tempfile
 import numpy as np
 import pytest
 
+from tests.conftest import kill_and_read
 from tests.phase2_rl.conftest import tiny_train_config
 from vision_rl.phase2_rl.artifact import PolicySpec, load_policy
 from vision_rl.phase2_rl.distributed import BENCH_SAC, Pacer, Pacing, bench_sampling, worker_seed
@@ -250,6 +251,11 @@ def test_a_local_cluster_runs_its_samplers_at_the_learners_priority():
     """Ray's default is nice 15, where anything else on the machine takes a sampler's core first."""
     pytest.importorskip("ray", reason="Ray is not installed: pip install 'vision_rl[ray]'")
     env = {k: v for k, v in os.environ.items() if k not in ("RAY_worker_niceness", "RAY_ADDRESS")}
-    done = subprocess.run([sys.executable, "-c", _NICENESS], capture_output=True, text=True, timeout=180, env=env)
-    assert done.returncode == 0, done.stderr[-2000:]
-    assert int(done.stdout.split()[-1]) == os.nice(0)
+    process = subprocess.Popen([sys.executable, "-c", _NICENESS], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, env=env, start_new_session=True)  # fmt: skip
+    try:
+        stdout, stderr = process.communicate(timeout=180)
+    except subprocess.TimeoutExpired:  # the cluster's processes too: they hold the pipes
+        raise AssertionError(f"no answer within 180 s: {kill_and_read(process)[-2000:]}") from None
+    assert process.returncode == 0, stderr[-2000:]
+    assert int(stdout.split()[-1]) == os.nice(0)
