@@ -6,7 +6,7 @@
 3. Phase 2: train-policy on the frozen encoder's embedding (its frames rendered in a sampler process) and, in a
    second process beside it, on the state; the papers' evaluation of both; the leaderboard.
 
-``--quick`` shrinks every stage to finish in about 20 minutes on 2 CPU cores (21.6 on a slow day); without it the
+``--quick`` shrinks every stage to finish in 13-22 minutes on 2 CPU cores, by the machine's day; without it the
 paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs, millions of SAC steps: days on a CPU). ``--tiny``
 is for tests. Each stage's outputs stay under ``--runs`` and a stage whose output is complete is not redone (the
 policies are trained again), so an interrupted pipeline continues where it stopped.
@@ -135,7 +135,7 @@ class PipelineOptions:
     """The whole two-phase job: capture, train-repr, train-policy (state and vision), evaluate, leaderboard."""
 
     quick: bool = False
-    """Small sizes: about 20 minutes on 2 CPU cores (21.6 on a slow day; the target is 20)."""
+    """Small sizes: 13-22 minutes on 2 CPU cores, by the machine's speed of the day (the target is 20)."""
     tiny: bool = False
     """Minimal sizes, for tests (seconds; results mean nothing)."""
     track: str = "expressway"
