@@ -28,7 +28,7 @@ experiment: setup
 	$(BIN)/vision-rl experiment --seeds 0,1,2 --seeds-at-once 3 --steps 1000000 --control-dt-s 0.04 \
 		--steer-action rate_scaled \
 		--n-step 8 --guide-label-weight 30 --wall-hit-throttle-cut-s 3.0 --pedal-full-at 0.9 --wall-penalty-c-w 0.002 \
-		--target-entropy -4 --learning-rate-final 1e-4
+		--target-entropy -4 --learning-rate-final 1e-4 --select-starts 3
 
 # Two test processes: most tests use one core, and those on the shared Ray cluster run in one of them.
 test: setup

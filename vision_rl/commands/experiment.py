@@ -40,18 +40,28 @@ class ExperimentOptions(TrainPolicyConfig):
 def format_experiment(result: dict[str, Any]) -> list[str]:
     from vision_rl.evaluation.outputs import format_lap_time
 
+    def block(title: str, s: dict[str, Any], per_seed: list[dict[str, Any]]) -> list[str]:
+        spread = "" if s["lap_time_std_s"] is None else f" +- {s['lap_time_std_s']:.2f} s"
+        lines = [f"  {title}: lap 2 mean {format_lap_time(s['lap_time_mean_s'])}{spread} over "
+                 f"{s['n_training_seeds_finished']} seeds that finished; best {format_lap_time(s['best_lap_time_s'])};"
+                 f" starts finished {s['finished']}"]  # fmt: skip
+        for r in per_seed:
+            wall = "-" if r["wall_contact_s"] is None else f"{r['wall_contact_s']:.2f} s"
+            kept = ""
+            if "kept_at_steps" in r:
+                kept = ", no held-out evaluation clean: last weights" if r["kept_at_steps"] is None else \
+                    f", kept at {r['kept_at_steps']} steps"
+            lines.append(f"    seed {r['seed']}: {format_lap_time(r['lap_time_s'])} ({r['finished']} finished, "
+                         f"wall contact {wall}{kept})")  # fmt: skip
+        return lines
+
     s = result["summary"]
-    spread = "" if s["lap_time_std_s"] is None else f" +- {s['lap_time_std_s']:.2f} s"
-    lines = [
-        f"{result['name']}: {s['n_training_seeds']} training seeds of {result['observation']} SAC, "
-        f"{result['steps']} steps each, on {result['track']} / {result['car']}",
-        f"  lap 2 mean {format_lap_time(s['lap_time_mean_s'])}{spread} over {s['n_training_seeds_finished']} "
-        f"seeds that finished; best {format_lap_time(s['best_lap_time_s'])}; starts finished {s['finished']}",
-    ]
-    for r in result["per_seed"]:
-        wall = "-" if r["wall_contact_s"] is None else f"{r['wall_contact_s']:.2f} s"
-        lines.append(f"  seed {r['seed']}: {format_lap_time(r['lap_time_s'])} ({r['finished']} finished, wall contact "
-                     f"{wall})")  # fmt: skip
+    lines = [f"{result['name']}: {s['n_training_seeds']} training seeds of {result['observation']} SAC, "
+             f"{result['steps']} steps each, on {result['track']} / {result['car']}"]  # fmt: skip
+    lines += block("last weights", s, result["per_seed"])
+    if result.get("selected"):
+        chosen = result["selected"]
+        lines += block("weights chosen by the held-out starts", chosen["summary"], chosen["per_seed"])
     lines.append(f"  record: {result['experiment_json']}")
     return lines
 

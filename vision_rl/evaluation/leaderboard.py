@@ -144,18 +144,23 @@ def leaderboard(track: str = "expressway", car: str = "hatchback", runs: str = "
     experiments = [e for e in find_experiments(runs) if e["summary"]["protocol_version"] == PROTOCOL_VERSION]
     inside = [Path(e["experiment_json"]).parent for e in experiments]
     for record in records:
-        if Path(record["evaluation_json"]).parent.parent in inside:
-            continue  # one training seed of an experiment: the experiment's row stands for it
+        path = Path(record["evaluation_json"])
+        if any(path.is_relative_to(f) and path.relative_to(f).parts[0].startswith("seed-") for f in inside):
+            continue  # a training seed of an experiment (its last or its selected weights): the experiment's rows
         if record["track_geometry_hash"] == ai.track.geometry_hash and record["car"] == ai.car.name:
             driver = record["driver"]
             kind = "human" if driver.get("driver") == "human" else f"policy ({driver.get('observation', '?')})"
             rows.append({**row(record, kind),
                          "evaluation_json": record["evaluation_json"]})  # fmt: skip
     for e in experiments:
-        summary = e["summary"]
-        if summary["track_geometry_hash"] == ai.track.geometry_hash and summary["car"] == ai.car.name:
+        # The weights chosen by held-out starts get a row of their own, beside the last weights'.
+        for summary, chosen in ((e["summary"], ""), ((e.get("selected") or {}).get("summary"), ", selected")):
+            ours = summary is not None and (summary["track_geometry_hash"], summary["car"]) == (
+                ai.track.geometry_hash, ai.car.name)
+            if not ours:
+                continue
             rows.append({
-                "name": f"{e['name']} ({summary['n_training_seeds']} seeds)",
+                "name": f"{e['name']} ({summary['n_training_seeds']} seeds{chosen})",
                 "kind": f"experiment ({e['observation']})",
                 "lap_time_s": summary["best_lap_time_s"],
                 "median_lap_time_s": None,

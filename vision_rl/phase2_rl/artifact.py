@@ -122,6 +122,9 @@ class PolicySpec:
     train_time_s: float = 0.0
     """Wall-clock training time over all sessions of the run, s."""
     train_config: dict[str, Any] = dataclasses.field(default_factory=dict)
+    selection: dict[str, Any] | None = None
+    """For weights kept by ``--select-starts``: the held-out start seeds, laps, and the mean scored lap (s) that
+    chose them; None for a run's last weights."""
 
     def __post_init__(self) -> None:
         if self.observation not in POLICY_KINDS:

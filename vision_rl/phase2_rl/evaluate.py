@@ -20,10 +20,13 @@ from vision_rl.phase2_rl.artifact import MODEL_NAME, LoadedPolicy, load_policy
 from vision_rl.phase2_rl.persist import atomic_write
 from vision_rl.sim.ai_driver import DEFAULT_SKILL
 
+#: A run's evaluation record, beside its ``policy.pt``.
+EVALUATION_NAME = "evaluation.json"
+
 
 def evaluation_path(weights: Path) -> Path:
     """``evaluation.json`` beside a run's ``policy.pt``; ``<stem>.evaluation.json`` beside a snapshot."""
-    name = "evaluation.json" if weights.name == MODEL_NAME else f"{weights.stem}.evaluation.json"
+    name = EVALUATION_NAME if weights.name == MODEL_NAME else f"{weights.stem}.evaluation.json"
     return weights.parent / name
 
 

@@ -7,6 +7,11 @@ recipe; then the summary and one row per seed) and one train-policy run folder p
 and was evaluated is kept, a seed with a saved run is resumed, the others start. An existing folder made for
 another track, car, observation, encoder, step count or recipe is refused, naming the field.
 
+With ``select_starts`` (:mod:`vision_rl.phase2_rl.train`), each seed's run also keeps the weights its held-out
+starts chose, in ``seed-<k>/best/``; they are timed by the same protocol and summarised apart (``selected``), beside
+the last weights, never instead of them. A seed that never finished its held-out starts clean has no such weights:
+its last weights stand for it there, and its row says so.
+
 ``seeds_at_once`` > 1 trains that many seeds side by side, each in its own process: one train-policy run uses about
 one core (one torch thread with the cpu preset), so on a machine with idle cores the seeds share them instead of
 waiting their turn. A seed's result does not depend on which process trained it.
@@ -32,9 +37,10 @@ from vision_rl.evaluation.leaderboard import AI_SEEDS, EXPERIMENT_FORMAT, aggreg
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.phase1_repr.checkpoint import checkpoint_sha256
 from vision_rl.phase2_rl.artifact import SIDECAR_NAME, PolicySpec
-from vision_rl.phase2_rl.evaluate import evaluate_policy
+from vision_rl.phase2_rl.evaluate import EVALUATION_NAME, evaluate_policy
 from vision_rl.phase2_rl.persist import atomic_write
 from vision_rl.phase2_rl.train import (
+    BEST_DIR,
     METRICS_NAME,
     Progress,
     TrainPolicyConfig,
@@ -86,7 +92,35 @@ def _seed_is_done(run: Path, steps: int) -> bool:
         spec = PolicySpec.read(run / SIDECAR_NAME)
     except (ValueError, OSError):
         return False
-    return spec.num_timesteps >= steps and (run / "evaluation.json").is_file()
+    best = run / BEST_DIR
+    evaluated = (run / EVALUATION_NAME).is_file() and (
+        not (best / SIDECAR_NAME).is_file() or (best / EVALUATION_NAME).is_file()
+    )
+    return spec.num_timesteps >= steps and evaluated
+
+
+def _seed_rows(seeds: Sequence[int], evaluations: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [
+        {"seed": seed, "lap_time_s": e["best_lap_time_s"], "median_lap_time_s": e["median_lap_time_s"],
+         "finished": f"{e['n_finished']}/{e['n_seeds']}", "clean": e["clean"],
+         **{key: None if e["best_lap"] is None else e["best_lap"].get(key)
+            for key in ("wall_contact_s", "wall_hits", "fastest_wall_hit_kmh")}}
+        for seed, e in zip(seeds, evaluations, strict=True)
+    ]  # fmt: skip
+
+
+def _selected(root: Path, seeds: Sequence[int], last: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The summary of the weights the held-out starts chose, the last weights standing in for a seed without."""
+    evaluations, kept_at = [], []
+    for seed, final in zip(seeds, last, strict=True):
+        best = root / f"seed-{seed}" / BEST_DIR
+        kept = (best / SIDECAR_NAME).is_file()
+        evaluations.append(json.loads((best / EVALUATION_NAME).read_text()) if kept else final)
+        kept_at.append(PolicySpec.read(best / SIDECAR_NAME).num_timesteps if kept else None)
+    rows = _seed_rows(seeds, evaluations)
+    for row, steps in zip(rows, kept_at, strict=True):
+        row["kept_at_steps"] = steps  # None: no evaluation finished the held-out starts clean; the last weights
+    return {"summary": aggregate_seeds(evaluations), "per_seed": rows}
 
 
 #: ``progress(steps_done, steps_total)``: environment steps over all of an experiment's seeds.
@@ -147,15 +181,11 @@ def run_experiment(
                 raise KeyboardInterrupt
     else:
         _run_side_by_side(job, todo, seeds_at_once, seed_steps)
-    evaluations = [json.loads((root / f"seed-{seed}" / "evaluation.json").read_text()) for seed in seeds]
+    evaluations = [json.loads((root / f"seed-{seed}" / EVALUATION_NAME).read_text()) for seed in seeds]
     record["summary"] = aggregate_seeds(evaluations)
-    record["per_seed"] = [
-        {"seed": seed, "lap_time_s": e["best_lap_time_s"], "median_lap_time_s": e["median_lap_time_s"],
-         "finished": f"{e['n_finished']}/{e['n_seeds']}", "clean": e["clean"],
-         **{key: None if e["best_lap"] is None else e["best_lap"].get(key)
-            for key in ("wall_contact_s", "wall_hits", "fastest_wall_hit_kmh")}}
-        for seed, e in zip(seeds, evaluations, strict=True)
-    ]  # fmt: skip
+    record["per_seed"] = _seed_rows(seeds, evaluations)
+    if cfg.select_starts:
+        record["selected"] = _selected(root, seeds, evaluations)
     if cfg.eval_every_steps > 0:  # without periodic evaluations the runs have no curve to draw
         ai = time_laps(BuiltinAI(), cfg.track, cfg.car, seeds=AI_SEEDS).summary()["best_lap_time_s"]
         record["learning_curves"] = write_learning_curves(root, seeds, evaluations[0]["limit_lap_time_s"], ai,
@@ -182,6 +212,9 @@ class _SeedJob:
         if result["interrupted"]:
             return True
         evaluate_policy(run, seeds=self.eval_seeds, name=f"{self.name}/seed-{seed}", encoder=self.cfg.encoder)
+        if (run / BEST_DIR / SIDECAR_NAME).is_file():
+            evaluate_policy(run / BEST_DIR, seeds=self.eval_seeds, name=f"{self.name}/seed-{seed}/selected",
+                            encoder=self.cfg.encoder)  # fmt: skip
         return False
 
 

@@ -7,6 +7,12 @@ A run folder holds ``policy.pt`` + ``policy.json`` (the artifact), ``replay_buff
 policy against environment steps and training time) and TensorBoard logs in ``tensorboard/``. No file is pickled
 (:mod:`vision_rl.phase2_rl.persist`).
 
+``--select-starts N`` also times the policy at each periodic evaluation from N held-out starts
+(:data:`SELECT_SEED_BASE` on; the protocol's are 0, 1, 2) and keeps the weights with the fastest mean scored lap
+over them, every start finished clean, as a second artifact in ``best/`` (Stable-Baselines3's EvalCallback keeps its
+``best_model`` the same way). The held-out starts choose the weights without looking at the laps the protocol then
+scores them on.
+
 What survives a kill: the weights, optimiser states and counters are saved every ``checkpoint_every_min`` minutes
 of wall-clock time (a light checkpoint) and at every ``checkpoint_every_steps`` with the replay buffer and a
 snapshot; Ctrl-C (and SIGTERM, which the command maps to it) saves all of it and exits cleanly. ``--resume``
@@ -42,7 +48,7 @@ from vision_rl.envs.core import STEER_ACTIONS, WALL_PENALTY_SPEEDS, RacingConfig
 from vision_rl.envs.observations import ObsNormalizer
 from vision_rl.envs.observer import Observer
 from vision_rl.envs.vector import make_sb3_vec_env
-from vision_rl.evaluation.protocol import time_laps
+from vision_rl.evaluation.protocol import CLEAN_WALL_CONTACT_S, time_laps
 from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
 from vision_rl.phase2_rl.artifact import (
     BUFFER_NAME,
@@ -147,6 +153,9 @@ class TrainPolicyConfig:
     """Start seeds of the periodic evaluation."""
     eval_laps: int = 2
     """Laps of the periodic evaluation (the last is scored)."""
+    select_starts: int = 0
+    """Held-out start seeds (100, 101, ...) timed at each periodic evaluation; N >= 1 keeps the weights with the
+    fastest mean scored lap over them, every start finished clean, in best/ (0: off)."""
     checkpoint_every_steps: int = 200_000
     """Save weights, buffer and a snapshot every N steps (0: off)."""
     checkpoint_every_min: float = 10.0
@@ -293,6 +302,12 @@ def torch_device(name: str) -> str:
     return name
 
 
+#: Sub-folder of a run that holds the weights chosen by ``select_starts``.
+BEST_DIR = "best"
+#: The first held-out start seed: apart from the protocol's (0, 1, 2, ...), so that the choice of weights does not
+#: look at the starts they are scored from.
+SELECT_SEED_BASE = 100
+
 #: ``progress(num_timesteps, total_steps, last_evaluation_or_None)``, called as training goes.
 Progress = Callable[[int, int, "dict[str, Any] | None"], None]
 
@@ -426,6 +441,10 @@ class _Run:
             torch.set_num_threads(self.preset.torch_threads)
         self.session_start = time.perf_counter()
         self.last_eval: dict[str, Any] | None = None
+        # A resumed run goes on from the weights it kept (a kill may have rolled it back before them: they stay).
+        best = self.out / BEST_DIR / SIDECAR_NAME
+        selection = PolicySpec.read(best).selection if self.previous is not None and best.is_file() else None
+        self.best_mean_lap_s: float | None = selection["mean_lap_time_s"] if selection else None
 
     # ------------------------------------------------------------------ set-up
     def build(self) -> SAC:
@@ -527,6 +546,7 @@ class _Run:
     def evaluate(self, model: SAC) -> dict[str, Any]:
         """The protocol (cfg.eval_laps laps, last scored) with the current deterministic policy, logged."""
         cfg = self.cfg
+        train_time_s = self.train_time_s
         t0 = time.perf_counter()
         if self.eval_driver is None:
             self.eval_driver = PolicyDriver.for_config(
@@ -535,12 +555,10 @@ class _Run:
             )
         timing = time_laps(self.eval_driver, self.racing.track, self.racing.car, range(cfg.eval_seeds), cfg.eval_laps)
         summary = timing.summary()
-        eval_time = time.perf_counter() - t0
-        self.session_start += eval_time  # evaluation time is not training time
         episodes = list(model.ep_info_buffer or [])
         record = {
             "num_timesteps": int(model.num_timesteps),
-            "train_time_s": round(self.train_time_s, 2),
+            "train_time_s": round(train_time_s, 2),
             "n_updates": int(getattr(model, "_n_updates", 0)),
             "lap_time_s": summary["best_lap_time_s"],
             "lap_times_s": [[lap["lap_time_s"] for lap in s["laps"]] for s in summary["seeds"]],
@@ -556,8 +574,13 @@ class _Run:
                 np.mean([lap["wall_contact_s"] for s in summary["seeds"] for lap in s["laps"]] or [np.nan])
             ),
             "ep_rew_mean": float(np.mean([e["r"] for e in episodes])) if episodes else None,
-            "eval_time_s": round(eval_time, 2),
         }
+        starts = int(self._kept("select_starts"))
+        if starts:
+            record["selection"] = self._select(model, starts)
+        eval_time = time.perf_counter() - t0
+        self.session_start += eval_time  # evaluation time is not training time
+        record["eval_time_s"] = round(eval_time, 2)
         with open(self.out / METRICS_NAME, "a") as f:
             f.write(json.dumps(record) + "\n")
         logger = model.logger
@@ -599,14 +622,35 @@ class _Run:
             train_config=self.previous.train_config if self.previous is not None else dataclasses.asdict(self.cfg),
         )
 
+    def _select(self, model: SAC, starts: int) -> dict[str, Any]:
+        """Time the held-out starts; keep the weights in best/ when every start finished clean and their mean scored
+        lap is the fastest so far."""
+        seeds = list(range(SELECT_SEED_BASE, SELECT_SEED_BASE + starts))
+        assert self.eval_driver is not None
+        summary = time_laps(self.eval_driver, self.racing.track, self.racing.car, seeds, self.cfg.eval_laps).summary()
+        clean = all(s["clean"] for s in summary["seeds"])
+        mean_lap_s = float(np.mean([s["lap_time_s"] for s in summary["seeds"]])) if clean else None
+        kept = mean_lap_s is not None and (self.best_mean_lap_s is None or mean_lap_s < self.best_mean_lap_s)
+        if kept:
+            self.best_mean_lap_s = mean_lap_s
+            self._write_policy(model, self.out / BEST_DIR, selection={
+                "start_seeds": seeds, "laps": self.cfg.eval_laps, "mean_lap_time_s": mean_lap_s,
+                "clean_wall_contact_s": CLEAN_WALL_CONTACT_S})  # fmt: skip
+        return {"mean_lap_time_s": mean_lap_s, "finished": summary["n_finished"], "clean": clean, "kept": kept}
+
+    def _write_policy(self, model: SAC, folder: Path, selection: dict[str, Any] | None = None) -> PolicySpec:
+        """Weights and then the sidecar that names them: a kill between the two leaves the sidecar naming the
+        previous weights, which stay beside the new ones (``policy.pt.prev``) and are what a load then reads."""
+        folder.mkdir(exist_ok=True)
+        sha = save_agent(model, folder / MODEL_NAME, self.fingerprint)
+        spec = dataclasses.replace(self.spec(model, MODEL_NAME, sha), selection=selection)
+        spec.write(folder / SIDECAR_NAME)
+        return spec
+
     def save(self, model: SAC, buffer: bool = True, snapshot: bool = False) -> None:
-        """Weights (policy.pt) and sidecar; the replay buffer when ``buffer`` (and cfg.save_buffer); with
-        ``snapshot`` also checkpoints/policy_<steps>.pt and its sidecar. The sidecar is written after the weights
-        it describes; a kill between the two leaves it naming the previous weights, which stay beside the new ones
-        (``policy.pt.prev``) and are what a resume then reads."""
-        sha = save_agent(model, self.out / MODEL_NAME, self.fingerprint)
-        spec = self.spec(model, MODEL_NAME, sha)
-        spec.write(self.out / SIDECAR_NAME)
+        """Weights (policy.pt) and sidecar (:meth:`_write_policy`); the replay buffer when ``buffer`` (and
+        cfg.save_buffer); with ``snapshot`` also checkpoints/policy_<steps>.pt and its sidecar."""
+        spec = self._write_policy(model, self.out)
         if buffer and self.cfg.save_buffer and model.replay_buffer is not None:
             save_buffer(model.replay_buffer, self.out / BUFFER_NAME, self.fingerprint)
         if snapshot:
@@ -626,6 +670,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     checks = {
         "cars": cfg.cars >= 1, "steps": cfg.steps >= 1, "eval_every_steps": cfg.eval_every_steps >= 0,
         "eval_seeds": cfg.eval_seeds >= 1 or cfg.eval_every_steps == 0, "eval_laps": cfg.eval_laps >= 1,
+        "select_starts": cfg.select_starts >= 0,
         "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
         "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "episode_s": cfg.episode_s >= cfg.control_dt_s,
         "control_dt_s": 0 < cfg.control_dt_s <= 1,
@@ -663,6 +708,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         raise ValueError(
             "--guide-bc-weight and --guide-pretrain-steps clone the AI's transitions: give --guide-steps too"
         )
+    if cfg.select_starts > 0 and cfg.eval_every_steps == 0:
+        raise ValueError("--select-starts chooses among the periodic evaluations: give --eval-every-steps above 0")
     if cfg.guide_label_fade_steps > 0 and cfg.guide_label_weight == 0:
         raise ValueError("--guide-label-fade-steps fades the labels' weight: give --guide-label-weight too")
     if cfg.frame_delay_s > 0 and not cfg.encoder:
