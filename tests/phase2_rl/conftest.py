@@ -68,3 +68,34 @@ def state_run(tmp_path_factory, small_track) -> tuple[Path, dict]:
     out = tmp_path_factory.mktemp("runs") / "policy" / "tiny-state"
     return out, train_policy(tiny_train_config(small_track, out))
 
+
+
+def script_held_out_laps(monkeypatch, mean_laps_s: list[float | None]) -> list[list[int]]:
+    """Make train-policy's held-out starts (``--select-starts``) lap in the scripted mean times, one per evaluation
+    (None: a start that did not finish clean), 0.1 s either side of the mean; the protocol's own starts are timed as
+    they drive. Returns the held-out start seeds of each call, as they are asked for."""
+    from vision_rl.phase2_rl import train as train_module
+
+    real, script, asked = train_module.time_laps, iter(mean_laps_s), []
+
+    class Scripted:
+        def __init__(self, seeds: list[int]) -> None:
+            self.mean_s = next(script)
+            self.seeds = seeds
+
+        def summary(self) -> dict:
+            laps = [None if self.mean_s is None else self.mean_s + (0.1 if i % 2 else -0.1)
+                    for i in range(len(self.seeds))]  # fmt: skip
+            return {"n_finished": sum(lap is not None for lap in laps),
+                    "seeds": [{"lap_time_s": lap, "finished": lap is not None, "clean": lap is not None}
+                              for lap in laps]}  # fmt: skip
+
+    def time_laps(driver, track, car, seeds, laps):
+        seeds = list(seeds)
+        if seeds[0] < train_module.SELECT_SEED_BASE:
+            return real(driver, track, car, seeds, laps)
+        asked.append(seeds)
+        return Scripted(seeds)
+
+    monkeypatch.setattr(train_module, "time_laps", time_laps)
+    return asked

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from tests.phase2_rl.conftest import tiny_train_config
+from tests.phase2_rl.conftest import script_held_out_laps, tiny_train_config
 from vision_rl.evaluation.leaderboard import aggregate_seeds, leaderboard
 from vision_rl.evaluation.protocol import PROTOCOL_VERSION
 from vision_rl.phase2_rl import experiment as experiment_module
@@ -44,7 +44,8 @@ def test_bad_seed_lists_are_refused(text):
     assert parse_seeds("2, 0,1") == (2, 0, 1)
 
 
-@pytest.mark.parametrize("change", [{"control_dt_s": 0.03}, {"steps": 0}, {"pedal_full_at": 2.0}])
+@pytest.mark.parametrize("change", [{"control_dt_s": 0.03}, {"steps": 0}, {"pedal_full_at": 2.0},
+                                    {"select_starts": 2, "eval_every_steps": 0}])
 def test_a_bad_option_is_refused_before_the_experiment_folder_is_written(small_track, tmp_path, change):
     with pytest.raises(ValueError, match="--"):
         run_experiment(tiny_train_config(small_track, tmp_path / "unused", **change), (0,), tmp_path / "exp")
@@ -99,6 +100,34 @@ def test_an_experiment_resumes_only_unfinished_seeds_and_refuses_another_recipe(
     assert "tiny (3 seeds)" in names and not any("seed-" in n for n in names)
     (row,) = [r for r in table["rows"] if r["name"] == "tiny (3 seeds)"]
     assert row["lap_time_mean_s"] == again["summary"]["lap_time_mean_s"]
+
+
+def test_the_weights_held_out_starts_chose_are_summarised_beside_the_last(small_track, tmp_path, monkeypatch):
+    # seed 0 keeps its 100-step weights; seed 1 never finishes its held-out starts clean and has none
+    script_held_out_laps(monkeypatch, [29.0, 30.0, None, None])
+    cfg = tiny_train_config(small_track, tmp_path / "unused", steps=200, eval_every_steps=100, checkpoint_every_steps=0,
+                            select_starts=2)  # fmt: skip
+    out = tmp_path / "exp"
+    result = run_experiment(cfg, (0, 1), out, eval_seeds=2, name="tiny")
+    chosen = result["selected"]
+    assert [r["kept_at_steps"] for r in chosen["per_seed"]] == [100, None]
+    evaluation = json.loads((out / "seed-0" / "best" / "evaluation.json").read_text())
+    assert evaluation["name"] == "tiny/seed-0/selected"
+    assert chosen["per_seed"][0]["lap_time_s"] == evaluation["best_lap_time_s"]
+    assert chosen["per_seed"][1] == {**result["per_seed"][1], "kept_at_steps": None}  # its last weights stand in
+    assert chosen["summary"]["n_training_seeds"] == 2
+    names = [r["name"] for r in leaderboard(small_track, "hatchback", str(tmp_path))["rows"]]
+    assert "tiny (2 seeds)" in names and "tiny (2 seeds, selected)" in names
+    assert not any("seed-" in n for n in names)
+
+    # a seed whose chosen weights were not timed is not done: only it is evaluated again, not retrained
+    (out / "seed-0" / "best" / "evaluation.json").unlink()
+    trained = []
+    real_train = experiment_module.train_policy
+    monkeypatch.setattr(experiment_module, "train_policy", lambda c, p=None: trained.append(c.seed) or real_train(c, p))
+    again = run_experiment(cfg, (0, 1), out, eval_seeds=2, name="tiny")
+    assert trained == [0] and again["selected"] == chosen
+    assert json.loads((out / "seed-0" / "best" / "evaluation.json").read_text())["name"] == "tiny/seed-0/selected"
 
 
 def test_an_experiment_without_periodic_evaluations_ends_with_its_summary_and_no_curves(small_track, tmp_path):

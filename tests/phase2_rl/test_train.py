@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
-from tests.phase2_rl.conftest import tiny_train_config
+from tests.phase2_rl.conftest import script_held_out_laps, tiny_train_config
 from vision_rl.envs import RacingConfig
 from vision_rl.envs.observations import STATE_OBS_NAMES
 from vision_rl.phase2_rl.artifact import PolicySpec, load_policy
@@ -222,6 +222,33 @@ def test_n_step_returns_sum_the_rewards_before_the_critics_bootstrap(small_track
         run.close()
     with pytest.raises(ValueError, match="--n-step 3 needs one car's steps in a row"):
         train_policy(tiny_train_config(small_track, tmp_path / "w2", n_step=3, workers=2))
+
+
+def test_held_out_starts_keep_the_fastest_clean_weights_and_a_resumed_run_goes_on_from_them(small_track, tmp_path,
+                                                                                          monkeypatch):
+    asked = script_held_out_laps(monkeypatch, [None, 30.0, 29.0, 29.5, 29.2, 28.0])
+    out = tmp_path / "run"
+    cfg = tiny_train_config(small_track, out, steps=400, select_starts=2, checkpoint_every_steps=0)
+    train_policy(cfg)
+    assert asked == [[100, 101]] * 4  # at every periodic evaluation, never the protocol's starts 0, 1
+    selection = [m["selection"] for m in read_metrics(out / "metrics.jsonl")]
+    assert [s["kept"] for s in selection] == [False, True, True, False]
+    assert selection[0]["mean_lap_time_s"] is None and not selection[0]["clean"]
+    assert selection[2]["mean_lap_time_s"] == pytest.approx(29.0) and selection[2]["finished"] == 2
+    best = load_policy(out / "best")
+    assert best.spec.num_timesteps == 300 and best.spec.selection["start_seeds"] == [100, 101]
+    assert best.spec.selection["mean_lap_time_s"] == pytest.approx(29.0)
+    last = load_policy(out)
+    assert last.spec.selection is None and last.spec.weights_sha256 != best.spec.weights_sha256
+
+    # 29.2 is slower than the 29.0 the run kept before it was resumed; 28.0 is faster.
+    train_policy(dataclasses.replace(cfg, steps=600, resume=True))
+    assert [m["selection"]["kept"] for m in read_metrics(out / "metrics.jsonl")][-2:] == [False, True]
+    assert load_policy(out / "best").spec.num_timesteps == 600
+    with pytest.raises(ValueError, match="--select-starts"):
+        train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), eval_every_steps=0))
+    with pytest.raises(ValueError, match="--select-starts -1 is out of range"):
+        train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), select_starts=-1))
 
 
 def test_read_metrics_drops_the_evaluations_a_resume_replaced(tmp_path):
