@@ -85,6 +85,11 @@ def test_bad_input_is_a_one_line_error_not_a_traceback(tmp_path, capsys, monkeyp
     assert main(["bench", "sim", "--track", str(bad), "--repeats", "1"]) == 2
     err = capsys.readouterr().err
     assert "bench sim: error:" in err and "bad.csv" in err
+    assert main(["bench", "ddpg", "--device", "gpu"]) == 2
+    assert "--device must be cpu or cuda, got 'gpu'" in capsys.readouterr().err
+    monkeypatch.setattr("torch.cuda.is_available", lambda: False)
+    assert main(["bench", "ddpg", "--device", "cuda"]) == 2
+    assert "torch sees no CUDA GPU here" in capsys.readouterr().err
     monkeypatch.setenv("VISION_RL_DEBUG", "1")
     with pytest.raises(ValueError):
         main(["limit", "--track", str(bad)])

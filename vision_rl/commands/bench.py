@@ -112,6 +112,8 @@ class BenchDDPGOptions:
     """Timed updates per case (after 2 untimed)."""
     torch_threads: int = 1
     """torch intra-op threads."""
+    device: str = "cpu"
+    """torch device of the networks and the batch: cpu or cuda (the GPU's updates are timed to their end)."""
     json: bool = False
     """Print the figures as JSON."""
 
@@ -127,13 +129,17 @@ def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
     layouts = [v.strip() for v in opts.layouts.split(",") if v.strip()]
     if not layouts or any(v not in BENCH_LAYOUTS for v in layouts):
         raise ValueError(f"--layouts {opts.layouts!r}: choose from {', '.join(BENCH_LAYOUTS)}")
+    if opts.device not in ("cpu", "cuda"):
+        raise ValueError(f"--device must be cpu or cuda, got {opts.device!r}")
+    if opts.device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("--device cuda: torch sees no CUDA GPU here (or is a CPU build)")
     torch.set_num_threads(opts.torch_threads)
     rows = []
     for variant in [v.strip() for v in opts.variants.split(",") if v.strip()]:
         env = PixelRacingConfig(frames=variant != "state-actor")
         # The state-only actor has no convolutions: one row says what it costs.
         for layout in layouts if env.frames else layouts[:1]:
-            figures = bench_updates(DDPGHyper(variant=variant), env, opts.updates, layout=layout)
+            figures = bench_updates(DDPGHyper(variant=variant), env, opts.updates, layout=layout, device=opts.device)
             rounded = {k: round(v, 3) for k, v in figures.items()}
             rows.append({"variant": variant, "layout": layout if env.frames else "no convolutions",
                          "batch_size": 32, "image_hw_px": list(env.image_hw_px), **rounded})  # fmt: skip
@@ -145,5 +151,6 @@ def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
             for r in result["rows"]
         ]
 
-    emit({"torch_threads": opts.torch_threads, "rows": rows}, opts.json, text)
+    device = torch.cuda.get_device_name() if opts.device == "cuda" else "cpu"
+    emit({"torch_threads": opts.torch_threads, "device": device, "rows": rows}, opts.json, text)
     return 0

@@ -738,16 +738,17 @@ BENCH_LAYOUTS = ("eager", "channels_last", "compiled")
 
 
 def bench_updates(hyper: DDPGHyper, env: PixelRacingConfig, updates: int = 10, warmup: int = 2,
-                  seed: int = 0, layout: str = "") -> dict[str, float]:  # fmt: skip
+                  seed: int = 0, layout: str = "", device: str = "cpu") -> dict[str, float]:  # fmt: skip
     """Updates per second at ``hyper.batch_size`` on random frames and states (what the network costs, no sim).
 
     ``layout`` overrides ``hyper.channels_last``: ``eager`` (NCHW), ``channels_last``, or ``compiled`` (channels-last
-    with every conv trunk through ``torch.compile``; its compilation happens in the untimed warm-up updates)."""
+    with every conv trunk through ``torch.compile``; its compilation happens in the untimed warm-up updates). On a
+    GPU the batch is copied from the host in every update, as in training, and the clock waits for the GPU."""
     if layout and layout not in BENCH_LAYOUTS:
         raise DDPGError(f"layout must be one of {BENCH_LAYOUTS}, got {layout!r}")
     if layout:
         hyper = replace(hyper, channels_last=layout != "eager")
-    agent = DDPGAgent(hyper, env, seed=seed)
+    agent = DDPGAgent(hyper, env, seed=seed, device=device)
     if layout == "compiled":
         for net in (agent.actor, agent.critic, agent.actor_target, agent.critic_target):
             if isinstance(getattr(net, "trunk", None), ConvTrunk):
@@ -764,10 +765,13 @@ def bench_updates(hyper: DDPGHyper, env: PixelRacingConfig, updates: int = 10, w
 
     batch = {"obs": obs(), "next_obs": obs(), "action": rng.uniform(0, 1, (n, 4)).astype(np.float32),
              "reward": rng.normal(size=n).astype(np.float32), "terminated": np.zeros(n, bool)}  # fmt: skip
+    sync = torch.cuda.synchronize if agent.device.type == "cuda" else (lambda: None)
     for _ in range(warmup):
         agent.update(batch)
+    sync()
     t0 = time.perf_counter()
     for _ in range(updates):
         agent.update(batch)
+    sync()
     dt = time.perf_counter() - t0
     return {"updates_per_s": updates / dt, "ms_per_update": 1000 * dt / updates}
