@@ -247,6 +247,8 @@ def test_held_out_starts_keep_the_fastest_clean_weights_and_a_resumed_run_goes_o
     assert load_policy(out / "best").spec.num_timesteps == 600
     with pytest.raises(ValueError, match="--select-starts"):
         train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), eval_every_steps=0))
+    with pytest.raises(ValueError, match="--eval-seeds 101 would time the held-out starts"):
+        train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), eval_seeds=101))
     with pytest.raises(ValueError, match="--select-starts -1 is out of range"):
         train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), select_starts=-1))
 

@@ -710,6 +710,9 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         )
     if cfg.select_starts > 0 and cfg.eval_every_steps == 0:
         raise ValueError("--select-starts chooses among the periodic evaluations: give --eval-every-steps above 0")
+    if cfg.select_starts > 0 and cfg.eval_seeds > SELECT_SEED_BASE:
+        raise ValueError(f"--eval-seeds {cfg.eval_seeds} would time the held-out starts of --select-starts, which "
+                         f"begin at seed {SELECT_SEED_BASE}: give at most {SELECT_SEED_BASE}")  # fmt: skip
     if cfg.guide_label_fade_steps > 0 and cfg.guide_label_weight == 0:
         raise ValueError("--guide-label-fade-steps fades the labels' weight: give --guide-label-weight too")
     if cfg.frame_delay_s > 0 and not cfg.encoder:
