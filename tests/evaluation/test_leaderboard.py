@@ -62,3 +62,13 @@ def test_the_limit_is_the_reference_of_the_gap(small_track, tmp_path):
     assert result["limit_lap_time_s"] == pytest.approx(25.6, abs=0.5)
     # The built-in AI aims at a fraction of the limit profile (its default skill): slower than the limit, not by much.
     assert 1.0 < result["rows"][0]["lap_time_s"] / result["limit_lap_time_s"] < 1.3
+
+
+def test_an_experiment_row_prints_its_seeds_mean_and_no_median():
+    row = {"name": "exp (3 seeds)", "lap_time_s": 129.3, "gap_to_limit_pct": 2.1, "gap_to_ai_pct": -7.2,
+           "median_lap_time_s": None, "finished": "9/9", "clean": True, "lap_time_mean_s": 129.8,
+           "lap_time_std_s": 0.48, "experiment_json": "runs/exp/experiment.json"}  # fmt: skip
+    text = format_leaderboard({"track": "expressway", "car": "hatchback", "protocol_version": PROTOCOL_VERSION,
+                               "limit_lap_time_s": 126.6, "rows": [row]})  # fmt: skip
+    assert "DNF" not in "\n".join(text) and text[2].split()[-3] == "-"
+    assert text[3].strip() == "mean over seeds 2:09.800 +- 0.48 s"

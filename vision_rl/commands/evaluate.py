@@ -150,9 +150,11 @@ def format_leaderboard(result: dict[str, Any]) -> list[str]:
     ]
     for r in rows:
         clean = "-" if r["lap_time_s"] is None else ("yes" if r["clean"] else "no")
+        # An experiment's row has no median over starts (its seeds' mean is on the next line), not a DNF.
+        median = "-" if "experiment_json" in r else _lap(r["median_lap_time_s"])
         lines.append(
             f"{r['name']:<{width}}  {_lap(r['lap_time_s']):>9}  {pct(r['gap_to_limit_pct']):>10}  "
-            f"{pct(r['gap_to_ai_pct']):>8}  {_lap(r['median_lap_time_s']):>9}  {r['finished']:>8}  {clean}"
+            f"{pct(r['gap_to_ai_pct']):>8}  {median:>9}  {r['finished']:>8}  {clean}"
         )
         if r.get("lap_time_mean_s") is not None:  # an experiment: the best seed above, the seeds' spread here
             std = r["lap_time_std_s"]
