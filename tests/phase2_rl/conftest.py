@@ -69,7 +69,6 @@ def state_run(tmp_path_factory, small_track) -> tuple[Path, dict]:
     return out, train_policy(tiny_train_config(small_track, out))
 
 
-
 def script_held_out_laps(monkeypatch, mean_laps_s: list[float | None]) -> list[list[int]]:
     """Make train-policy's held-out starts (``--select-starts``) lap in the scripted mean times, one per evaluation
     (None: a start that did not finish clean), 0.1 s either side of the mean; the protocol's own starts are timed as

@@ -120,7 +120,7 @@ def test_the_weights_held_out_starts_chose_are_summarised_beside_the_last(small_
     assert "tiny (2 seeds)" in names and "tiny (2 seeds, selected)" in names
     assert not any("seed-" in n for n in names)
 
-    # a seed whose chosen weights were not timed is not done: only it is evaluated again, not retrained
+    # a seed whose chosen weights were not timed is not done: only it is taken up again (no step left to train)
     (out / "seed-0" / "best" / "evaluation.json").unlink()
     trained = []
     real_train = experiment_module.train_policy
