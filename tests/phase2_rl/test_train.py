@@ -240,6 +240,7 @@ def test_held_out_starts_keep_the_fastest_clean_weights_and_a_resumed_run_goes_o
     assert best.spec.selection["mean_lap_time_s"] == pytest.approx(29.0)
     last = load_policy(out)
     assert last.spec.selection is None and last.spec.weights_sha256 != best.spec.weights_sha256
+    assert evaluate_policy(out / "best", laps=1, seeds=1, time_limit_s=5.0)["name"] == "run/best"
 
     # 29.2 is slower than the 29.0 the run kept before it was resumed; 28.0 is faster.
     train_policy(dataclasses.replace(cfg, steps=600, resume=True))

@@ -57,6 +57,8 @@ POLICY_FORMAT_VERSION = 3
 SIDECAR_NAME = "policy.json"
 MODEL_NAME = "policy.pt"
 BUFFER_NAME = "replay_buffer.npz"
+#: Sub-folder of a run that holds the weights chosen by held-out starts (train-policy ``--select-starts``).
+BEST_DIR = "best"
 #: What format 2 stored the weights in.
 SB3_ZIP_NAME = "policy.zip"
 POLICY_KINDS = ("state", "vision", "overtaking")

@@ -16,7 +16,7 @@ from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.outputs import check_video_dependencies, format_lap_time, plot_trajectory, write_video
 from vision_rl.evaluation.protocol import BuiltinAI, LapTiming, time_laps
 from vision_rl.evaluation.sections import compare_sections, lap_sections
-from vision_rl.phase2_rl.artifact import MODEL_NAME, LoadedPolicy, load_policy
+from vision_rl.phase2_rl.artifact import BEST_DIR, MODEL_NAME, LoadedPolicy, load_policy
 from vision_rl.phase2_rl.persist import atomic_write
 from vision_rl.sim.ai_driver import DEFAULT_SKILL
 
@@ -31,6 +31,8 @@ def evaluation_path(weights: Path) -> Path:
 
 
 def default_policy_name(weights: Path) -> str:
+    if weights.name == MODEL_NAME and weights.parent.name == BEST_DIR:  # the weights a run's held-out starts chose
+        return f"{weights.parent.parent.name}/{BEST_DIR}"
     if weights.name == MODEL_NAME:
         return weights.parent.name
     if weights.parent.name == "checkpoints":

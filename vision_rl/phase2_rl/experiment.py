@@ -36,11 +36,10 @@ import numpy as np
 from vision_rl.evaluation.leaderboard import AI_SEEDS, EXPERIMENT_FORMAT, aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.phase1_repr.checkpoint import checkpoint_sha256
-from vision_rl.phase2_rl.artifact import SIDECAR_NAME, PolicySpec
+from vision_rl.phase2_rl.artifact import BEST_DIR, SIDECAR_NAME, PolicySpec
 from vision_rl.phase2_rl.evaluate import EVALUATION_NAME, evaluate_policy
 from vision_rl.phase2_rl.persist import atomic_write
 from vision_rl.phase2_rl.train import (
-    BEST_DIR,
     METRICS_NAME,
     Progress,
     TrainPolicyConfig,

@@ -51,6 +51,7 @@ from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import CLEAN_WALL_CONTACT_S, time_laps
 from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
 from vision_rl.phase2_rl.artifact import (
+    BEST_DIR,
     BUFFER_NAME,
     MODEL_NAME,
     SIDECAR_NAME,
@@ -302,8 +303,6 @@ def torch_device(name: str) -> str:
     return name
 
 
-#: Sub-folder of a run that holds the weights chosen by ``select_starts``.
-BEST_DIR = "best"
 #: The first held-out start seed: apart from the protocol's (0, 1, 2, ...), so that the choice of weights does not
 #: look at the starts they are scored from.
 SELECT_SEED_BASE = 100
