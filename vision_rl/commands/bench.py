@@ -113,7 +113,7 @@ class BenchDDPGOptions:
     torch_threads: int = 1
     """torch intra-op threads."""
     device: str = "cpu"
-    """torch device of the networks and the batch: cpu or cuda (the GPU's updates are timed to their end)."""
+    """torch device of the networks and the batch: cpu, cuda or cuda:N (the GPU's updates are timed to their end)."""
     json: bool = False
     """Print the figures as JSON."""
 
@@ -122,6 +122,7 @@ def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
     import torch
 
     from vision_rl.envs.pixel_racing import PixelRacingConfig
+    from vision_rl.phase1_repr.bench import require_device
     from vision_rl.phase2_rl.ddpg import BENCH_LAYOUTS, DDPGHyper, bench_updates
 
     if opts.updates < 1 or opts.torch_threads < 1:
@@ -129,17 +130,14 @@ def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
     layouts = [v.strip() for v in opts.layouts.split(",") if v.strip()]
     if not layouts or any(v not in BENCH_LAYOUTS for v in layouts):
         raise ValueError(f"--layouts {opts.layouts!r}: choose from {', '.join(BENCH_LAYOUTS)}")
-    if opts.device not in ("cpu", "cuda"):
-        raise ValueError(f"--device must be cpu or cuda, got {opts.device!r}")
-    if opts.device == "cuda" and not torch.cuda.is_available():
-        raise ValueError("--device cuda: torch sees no CUDA GPU here (or is a CPU build)")
+    device = require_device(opts.device)
     torch.set_num_threads(opts.torch_threads)
     rows = []
     for variant in [v.strip() for v in opts.variants.split(",") if v.strip()]:
         env = PixelRacingConfig(frames=variant != "state-actor")
         # The state-only actor has no convolutions: one row says what it costs.
         for layout in layouts if env.frames else layouts[:1]:
-            figures = bench_updates(DDPGHyper(variant=variant), env, opts.updates, layout=layout, device=opts.device)
+            figures = bench_updates(DDPGHyper(variant=variant), env, opts.updates, layout=layout, device=str(device))
             rounded = {k: round(v, 3) for k, v in figures.items()}
             rows.append({"variant": variant, "layout": layout if env.frames else "no convolutions",
                          "batch_size": 32, "image_hw_px": list(env.image_hw_px), **rounded})  # fmt: skip
@@ -151,6 +149,6 @@ def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
             for r in result["rows"]
         ]
 
-    device = torch.cuda.get_device_name() if opts.device == "cuda" else "cpu"
-    emit({"torch_threads": opts.torch_threads, "device": device, "rows": rows}, opts.json, text)
+    name = torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
+    emit({"torch_threads": opts.torch_threads, "device": name, "rows": rows}, opts.json, text)
     return 0

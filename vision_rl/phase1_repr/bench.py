@@ -100,15 +100,24 @@ def _compiled_path(net: ReprNet, device: torch.device) -> Callable[[np.ndarray],
     return run
 
 
+def require_device(name: str) -> torch.device:
+    """``name`` as a torch device, or one clear line: a name torch does not know, or a GPU torch cannot see."""
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise ValueError(f"--device {name!r} is not a torch device: cpu, cuda or cuda:N") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"--device {name}: torch sees no CUDA GPU here (or is a CPU build)")
+    return device
+
+
 def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
     """Time the encoder as configured; returns the figures (``p50_ms``, ``p90_ms``, ``p99_ms``, ``variants``...)."""
     if cfg.runs < 1 or cfg.warmup < 0 or cfg.batch_size < 1:
         raise ValueError("runs and batch_size must be >= 1 and warmup >= 0")
-    if cfg.device.startswith("cuda") and not torch.cuda.is_available():
-        raise RuntimeError("--device cuda: torch sees no CUDA device here")
+    device = require_device(cfg.device)
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
-    device = torch.device(cfg.device)
     runtime = resolve_runtime(cfg.runtime, device)
     if cfg.encoder:
         trained = build_network(read_checkpoint(cfg.encoder), cfg.encoder)
@@ -231,11 +240,9 @@ def bench_train_step(cfg: BenchTrainStepConfig) -> dict[str, Any]:
     unknown = [p for p in cfg.precisions if p not in PRECISIONS]
     if unknown or not cfg.precisions:
         raise ValueError(f"precision {', '.join(unknown) or '(none)'}: choose from {', '.join(PRECISIONS)}")
-    if cfg.device.startswith("cuda") and not torch.cuda.is_available():
-        raise RuntimeError("--device cuda: torch sees no CUDA device here")
+    device = require_device(cfg.device)
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
-    device = torch.device(cfg.device)
     h, w = cfg.image_hw_px
     rows = [_time_train_step(cfg, device, batch_size, precision) for batch_size in cfg.batch_sizes
             for precision in cfg.precisions]  # fmt: skip
