@@ -86,6 +86,11 @@ def _plan(cfg: TrainPolicyConfig) -> dict[str, Any]:
     }
 
 
+def _seed_run(root: str | os.PathLike[str], seed: int) -> Path:
+    """A training seed's train-policy run folder (the leaderboard knows an experiment's seeds by this name)."""
+    return Path(root) / f"seed-{seed}"
+
+
 def _seed_is_done(run: Path, steps: int) -> bool:
     try:
         spec = PolicySpec.read(run / SIDECAR_NAME)
@@ -112,7 +117,7 @@ def _selected(root: Path, seeds: Sequence[int], last: Sequence[dict[str, Any]]) 
     """The summary of the weights the held-out starts chose, the last weights standing in for a seed without."""
     evaluations, kept_at = [], []
     for seed, final in zip(seeds, last, strict=True):
-        best = root / f"seed-{seed}" / BEST_DIR
+        best = _seed_run(root, seed) / BEST_DIR
         kept = (best / SIDECAR_NAME).is_file()
         evaluations.append(json.loads((best / EVALUATION_NAME).read_text()) if kept else final)
         kept_at.append(PolicySpec.read(best / SIDECAR_NAME).num_timesteps if kept else None)
@@ -165,7 +170,7 @@ def run_experiment(
     record: dict[str, Any] = {"format": EXPERIMENT_FORMAT, "name": name, **plan, "seeds": list(seeds),
                               "seeds_at_once": seeds_at_once}  # fmt: skip
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
-    steps_done = {seed: cfg.steps if _seed_is_done(root / f"seed-{seed}", cfg.steps) else 0 for seed in seeds}
+    steps_done = {seed: cfg.steps if _seed_is_done(_seed_run(root, seed), cfg.steps) else 0 for seed in seeds}
     todo = [seed for seed in seeds if steps_done[seed] < cfg.steps]
 
     def seed_steps(seed: int, steps: int) -> None:
@@ -180,7 +185,7 @@ def run_experiment(
                 raise KeyboardInterrupt
     else:
         _run_side_by_side(job, todo, seeds_at_once, seed_steps)
-    evaluations = [json.loads((root / f"seed-{seed}" / EVALUATION_NAME).read_text()) for seed in seeds]
+    evaluations = [json.loads((_seed_run(root, seed) / EVALUATION_NAME).read_text()) for seed in seeds]
     record["summary"] = aggregate_seeds(evaluations)
     record["per_seed"] = _seed_rows(seeds, evaluations)
     if cfg.select_starts:
@@ -204,7 +209,7 @@ class _SeedJob:
 
     def run(self, seed: int, progress: Progress | None = None) -> bool:
         """Train and evaluate ``seed``; True when training was interrupted (the run saved, not evaluated)."""
-        run = self.root / f"seed-{seed}"
+        run = _seed_run(self.root, seed)
         resume = (run / SIDECAR_NAME).is_file()
         result = train_policy(dataclasses.replace(self.cfg, seed=seed, out=str(run), resume=resume, force=False),
                               progress)  # fmt: skip
@@ -306,7 +311,7 @@ def learning_curves(root: str | os.PathLike[str], seeds: tuple[int, ...], contro
     steps and training seconds) and their summary over the seeds (:func:`summarise_curves`)."""
     per_seed = {}
     for seed in seeds:
-        records = read_metrics(Path(root) / f"seed-{seed}" / METRICS_NAME)
+        records = read_metrics(_seed_run(root, seed) / METRICS_NAME)
         per_seed[str(seed)] = {
             "num_timesteps": [r["num_timesteps"] for r in records],
             "train_time_s": [r["train_time_s"] for r in records],
