@@ -11,21 +11,26 @@ import pytest
 
 @pytest.fixture(scope="session", autouse=True)
 def _private_cache_and_runs(tmp_path_factory):
-    """Racing lines, profiles and statistics go to a temporary ``VISION_RL_CACHE``, and relative run folders (the
-    commands' default ``runs/...``) to a temporary working folder: no test writes to ``~/.cache`` or the checkout.
+    """Racing lines, profiles and statistics go to a temporary ``VISION_RL_CACHE``, Stable-Baselines3's default log
+    folder of a model that learns without a logger set (``tempdir/SB3-<date>`` otherwise, one per test left behind)
+    to a temporary ``SB3_LOGDIR``, and relative run folders (the commands' default ``runs/...``) to a temporary
+    working folder: no test writes to ``~/.cache``, the system's temporary folder or the checkout.
 
     Session-wide (not monkeypatch) because session-scoped fixtures, such as a trained policy, need it too."""
-    old_cache, old_cwd = os.environ.get("VISION_RL_CACHE"), os.getcwd()
+    old_env = {name: os.environ.get(name) for name in ("VISION_RL_CACHE", "SB3_LOGDIR")}
+    old_cwd = os.getcwd()
     os.environ["VISION_RL_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3"))
     os.chdir(tmp_path_factory.mktemp("work"))
     try:
         yield
     finally:
         os.chdir(old_cwd)
-        if old_cache is None:
-            os.environ.pop("VISION_RL_CACHE", None)
-        else:
-            os.environ["VISION_RL_CACHE"] = old_cache
+        for name, value in old_env.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def renderer_available() -> str:
