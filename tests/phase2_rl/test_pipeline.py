@@ -3,6 +3,7 @@ whole job from capture to leaderboard."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import sys
@@ -95,3 +96,37 @@ def test_a_second_process_returns_its_result_raises_its_error_and_never_waits_fo
         result()
     with _in_second_process(os._exit, 3) as result, pytest.raises(RuntimeError, match="exit code 3 and no result"):
         result()  # killed, out of memory: a pool would wait for its result for ever
+
+
+def test_the_state_policy_trains_from_the_start_beside_the_captures_and_phase_1(monkeypatch, tmp_path):
+    """It needs neither frames nor encoder, so it takes the cores the captures and Phase 1 leave idle; Phase 2
+    waits for that same run rather than starting another."""
+    import vision_rl.commands.pipeline as pipeline
+    import vision_rl.phase1_repr.train as phase1
+
+    events = []
+
+    @contextlib.contextmanager
+    def state_process(*stage):
+        events.append("state starts")
+        yield lambda: events.append("state waited for") or {"num_timesteps": 200}
+        events.append("state stopped")
+
+    def capture(opts, sizes, name, laps, disrupt):
+        events.append(f"capture {name}")
+        return pipeline._capture_path(opts, name)
+
+    def phase2(encoder, sizes, *, state, **kwargs):
+        events.append("phase 2")
+        return {"state": state()}
+
+    monkeypatch.setattr(pipeline, "state_in_second_process", state_process)
+    monkeypatch.setattr(pipeline, "_in_second_process", lambda fn, *args, **kw: contextlib.nullcontext(
+        lambda: fn(*args)))  # fmt: skip
+    monkeypatch.setattr(pipeline, "_capture", capture)
+    monkeypatch.setattr(phase1, "train_repr", lambda cfg: events.append("train-repr") or {})
+    monkeypatch.setattr(pipeline, "pipeline_phase2", phase2)
+    summary = run_pipeline_stages(PipelineOptions(tiny=True, runs=str(tmp_path)))
+    assert events == ["state starts", "capture train", "capture eval", "train-repr", "phase 2", "state waited for",
+                      "state stopped"]  # fmt: skip
+    assert summary["phase2"]["state"] == {"num_timesteps": 200}

@@ -3,8 +3,9 @@
 1. capture: disrupted built-in AI laps (training frames) and, in a second process beside them, clean laps (the
    evaluation set, as the paper's "undisturbed driving");
 2. train-repr: the space2depth encoder on those frames, best checkpoint on the clean laps;
-3. Phase 2: train-policy on the frozen encoder's embedding (its frames rendered in a sampler process) and, in a
-   second process beside it, on the state; the papers' evaluation of both; the leaderboard.
+3. Phase 2: train-policy on the frozen encoder's embedding (its frames rendered in a sampler process) and on the
+   state, in a second process at the lowest priority that starts with the captures (it needs neither frames nor
+   encoder); the papers' evaluation of both; the leaderboard.
 
 ``--quick`` shrinks every stage to finish in 13-22 minutes on 2 CPU cores, by the machine's day; without it the
 paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs, millions of SAC steps: days on a CPU). ``--tiny``
@@ -291,6 +292,13 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
     }
 
 
+def state_in_second_process(*stage: Any) -> contextlib.AbstractContextManager[Callable[[], dict[str, Any]]]:
+    """The state policy's stage (``_policy_stage("state", "", *stage)``) in a second process at the lowest priority:
+    it takes what the other stages leave of the cores (the vision learner and its sampler wait for each other at
+    times), so the vision policy, the long pole, is not slowed by it."""
+    return _in_second_process(_policy_stage, "state", "", *stage, niceness=19)
+
+
 def pipeline_phase2(
     encoder: str,
     sizes: PipelineSizes,
@@ -301,21 +309,23 @@ def pipeline_phase2(
     runs: str = "runs",
     seed: int = 0,
     device: str = "auto",
+    state: Callable[[], dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """Train and evaluate the state policy and, with an ``encoder``, the vision policy; the leaderboard; returns a
     summary dict. Runs go to ``runs/policy/pipeline-<kind>`` (replaced if present).
 
     With an encoder the state policy trains in a second process beside the vision one, whose frames render and
     embed in ``sizes.vision_workers`` sampler processes while its learner updates: together they keep the cores busy
-    (the state run needs about one core, the vision learner and its sampler about one each)."""
+    (the state run needs about one core, the vision learner and its sampler about one each). ``state`` waits for
+    the state policy's result where the caller already trains it in such a process (:func:`state_in_second_process`)."""
     from vision_rl.evaluation.leaderboard import leaderboard
 
     summary: dict[str, Any] = {"mode": mode, "track": track, "car": car}
     stage = (sizes, track, car, runs, seed, device)
     if encoder:
-        # The vision policy is the long pole: the state run, at the lowest priority, takes what its learner and
-        # sampler leave of the cores (each waits for the other at times).
-        with _in_second_process(_policy_stage, "state", "", *stage, niceness=19) as state:
+        with contextlib.ExitStack() as stack:
+            if state is None:
+                state = stack.enter_context(state_in_second_process(*stage))
             vision = _policy_stage("vision", encoder, *stage)
             summary["state"], summary["vision"] = state(), vision
     else:
@@ -330,9 +340,17 @@ def pipeline_phase2(
 
 def run_pipeline_stages(opts: PipelineOptions) -> dict[str, Any]:
     """Run every stage; returns a summary with each stage's figures and durations."""
+    sizes = SIZES[opts.mode]
+    # The state policy needs neither the frames nor the encoder: it trains from the start, at the lowest priority,
+    # on what the captures and Phase 1 leave of the cores, and then beside the vision policy.
+    with state_in_second_process(sizes, opts.track, opts.car, opts.runs, opts.seed, "auto") as state:
+        return _stages_beside_the_state_policy(opts, sizes, state)
+
+
+def _stages_beside_the_state_policy(opts: PipelineOptions, sizes: PipelineSizes,
+                                    state: Callable[[], dict[str, Any]]) -> dict[str, Any]:  # fmt: skip
     from vision_rl.phase1_repr.train import TrainReprConfig, train_repr
 
-    sizes = SIZES[opts.mode]
     summary: dict[str, Any] = {"mode": opts.mode, "track": opts.track, "car": opts.car}
     t_start = t0 = time.perf_counter()
     # A capture keeps about 1.2 cores busy: the clean laps are captured in a second process beside the disrupted
@@ -360,7 +378,7 @@ def run_pipeline_stages(opts: PipelineOptions) -> dict[str, Any]:
     summary["train_repr_seconds"] = time.perf_counter() - t0
 
     summary["phase2"] = pipeline_phase2(
-        str(ckpt), sizes, mode=opts.mode, track=opts.track, car=opts.car, runs=opts.runs, seed=opts.seed
+        str(ckpt), sizes, mode=opts.mode, track=opts.track, car=opts.car, runs=opts.runs, seed=opts.seed, state=state
     )
     summary["seconds"] = time.perf_counter() - t_start
     return summary
