@@ -7,10 +7,10 @@
    state, in a second process at the lowest priority that starts with the captures (it needs neither frames nor
    encoder); the papers' evaluation of both; the leaderboard.
 
-``--quick`` shrinks every stage to finish in 13-22 minutes on 2 CPU cores, by the machine's day; without it the
-paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs, millions of SAC steps: days on a CPU). ``--tiny``
-is for tests. Each stage's outputs stay under ``--runs`` and a stage whose output is complete is not redone (the
-policies are trained again), so an interrupted pipeline continues where it stopped.
+``--quick`` shrinks every stage to fit 20 minutes on 2 CPU cores (12.7 measured; README, "Two commands"); without
+it the paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs, millions of SAC steps: days on a CPU).
+``--tiny`` is for tests. Each stage's outputs stay under ``--runs`` and a stage whose output is complete is not
+redone (the policies are trained again), so an interrupted pipeline continues where it stopped.
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ class PipelineOptions:
     """The whole two-phase job: capture, train-repr, train-policy (state and vision), evaluate, leaderboard."""
 
     quick: bool = False
-    """Small sizes: 13-22 minutes on 2 CPU cores, by the machine's speed of the day (the target is 20)."""
+    """Small sizes: within 20 minutes on 2 CPU cores (12.7 measured; the machine's speed varies about 2x by day)."""
     tiny: bool = False
     """Minimal sizes, for tests (seconds; results mean nothing)."""
     track: str = "expressway"
