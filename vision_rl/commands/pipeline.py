@@ -7,7 +7,7 @@
    state, in a second process at the lowest priority that starts with the captures (it needs neither frames nor
    encoder); the papers' evaluation of both; the leaderboard.
 
-``--quick`` shrinks every stage to fit 20 minutes on 2 CPU cores (12.7 measured; README, "Two commands"); without
+``--quick`` shrinks every stage to fit 20 minutes on 2 CPU cores (11.3-12.7 measured; README, "Two commands"); without
 it the paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs, millions of SAC steps: days on a CPU).
 ``--tiny`` is for tests. Each stage's outputs stay under ``--runs`` and a stage whose output is complete is not
 redone (the policies are trained again), so an interrupted pipeline continues where it stopped.
@@ -109,7 +109,7 @@ SIZES: dict[str, PipelineSizes] = {
     # seeds of 400k state steps it lapped in 2:11.5 (9 of 9 starts) against 2:15.1 with the speed-scaled range
     # alone and 2:18.6 (6 of 9) with the papers' angle; vision: docs/results/vision-expressway-hatchback.
     # The vision sampler process and the captures side by side: 28.3 -> 21.6 min on a slow day (README, "How the
-    # stages now share the 2 cores"). 8 encoder epochs instead of 10 left vision policies that finished 1 and 0 of
+    # stages came to share the 2 cores"). 8 encoder epochs instead of 10 left vision policies that finished 1 and 0 of
     # 3 starts there, so the encoder keeps its 10 epochs. The vision stage trains 150k steps of 10 cars: over 3
     # training seeds of this recipe the protocol's lap was 2:16.88 +- 3.46 s at 150k steps and 2:16.45 +- 3.53 s
     # at 200k, every start finished at both (docs/results/vision-expressway-hatchback, "make quick's recipe").
@@ -138,7 +138,7 @@ class PipelineOptions:
     """The whole two-phase job: capture, train-repr, train-policy (state and vision), evaluate, leaderboard."""
 
     quick: bool = False
-    """Small sizes: within 20 minutes on 2 CPU cores (12.7 measured; the machine's speed varies about 2x by day)."""
+    """Small sizes: within 20 minutes on 2 CPU cores (11.3-12.7 measured; this machine's speed varies up to 2x)."""
     tiny: bool = False
     """Minimal sizes, for tests (seconds; results mean nothing)."""
     track: str = "expressway"
