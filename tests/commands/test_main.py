@@ -40,6 +40,15 @@ def test_tracks_refuses_an_unknown_name_and_bad_laps(capsys):
     assert "--laps must be >= 1, got 0" in capsys.readouterr().err
 
 
+def test_pipeline_refuses_a_bad_frame_size_and_two_modes(capsys, tmp_path):
+    runs = str(tmp_path / "runs")
+    assert main(["pipeline", "--tiny", "--runs", runs, "--image-hw-px", "0", "96"]) == 2
+    assert "--image-hw-px must be two positive sizes (height, width) or 0 0, got 0 96" in capsys.readouterr().err
+    assert main(["pipeline", "--quick", "--tiny", "--runs", runs]) == 2
+    assert "--quick and --tiny: choose one" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()  # refused before any stage started
+
+
 def test_limit_prints_the_lap_time(capsys):
     assert main(["limit", "--track", "technical", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)

@@ -154,6 +154,14 @@ class PipelineOptions:
     json: bool = False
     """Print the summary as JSON."""
 
+    def __post_init__(self) -> None:
+        # Refused before the state policy's process starts, not minutes in (a 0 beside a size was ignored before).
+        h, w = self.image_hw_px
+        if (h, w) != (0, 0) and not (h > 0 and w > 0):
+            raise ValueError(f"--image-hw-px must be two positive sizes (height, width) or 0 0, got {h} {w}")
+        if self.quick and self.tiny:
+            raise ValueError("--quick and --tiny: choose one")
+
     @property
     def mode(self) -> str:
         return "tiny" if self.tiny else "quick" if self.quick else "full"
