@@ -1,8 +1,10 @@
 # Two entry points for a fresh clone: `make quick` (the main job on built-in defaults) and `make test`.
 PYTHON ?= python3
-# The CPU build of torch is installed first so that the package's `torch>=2.1` needs nothing more; on a machine
-# with an NVIDIA GPU use `make setup TORCH_SPEC=torch` (or any CUDA build) instead.
+# torch is installed first so that the package's `torch>=2.1` needs nothing more. From PyPI, Linux gets the CUDA build
+# (it runs on a CPU too, with gigabytes of CUDA libraries); TORCH_INDEX=https://download.pytorch.org/whl/cpu gets the
+# CPU build instead. On a machine with an NVIDIA GPU any CUDA build does: `make setup TORCH_SPEC=torch`.
 TORCH_SPEC ?= torch==2.13.0
+TORCH_INDEX ?=
 VENV ?= .venv
 BIN := $(VENV)/bin
 
@@ -11,7 +13,7 @@ BIN := $(VENV)/bin
 $(BIN)/vision-rl: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet "$(TORCH_SPEC)"
+	$(BIN)/python -m pip install --quiet "$(TORCH_SPEC)" $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $@
 

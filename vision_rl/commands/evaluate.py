@@ -103,7 +103,7 @@ class EvaluateOptions:
     write: bool = True
     """Store evaluation.json beside the policy for the leaderboard."""
     encoder_runtime: str = "auto"
-    """Vision: auto (ONNX Runtime on a CPU when installed, 2-6x faster than torch here), torch or onnxruntime."""
+    """Vision: auto (ONNX Runtime on a CPU when installed: the encoder 3-6x faster here), torch or onnxruntime."""
     sections_m: float = 0.0
     """Cut the best scored lap into sections this long and compare it with the built-in AI's, and say how each drives
     where a steering-rate step exceeds the usable angle: full throttle, the wheel at its range's ends (0: off)."""

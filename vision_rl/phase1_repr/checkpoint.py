@@ -296,7 +296,7 @@ def load_encoder(
             doc), naming the first differing field.
         fuse: fold BatchNorm, normalisation and space2depth into the convolutions (same outputs, faster).
         runtime: ``"torch"``, ``"onnxruntime"`` (CPU; phi_rep by ONNX Runtime with torch's current thread count, the
-            same outputs to float rounding, 2-6x faster on the project's CPUs) or ``"auto"`` (ONNX Runtime on the CPU
+            same outputs to float rounding, 3-6x faster on the project's CPUs) or ``"auto"`` (ONNX Runtime on the CPU
             when installed).
     """
     requested_runtime, runtime = runtime, resolve_runtime(runtime, device)

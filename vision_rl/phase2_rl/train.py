@@ -237,7 +237,7 @@ class TrainPolicyConfig:
     device: str = "auto"
     """Torch device: auto, cpu or cuda."""
     encoder_runtime: str = "auto"
-    """Vision: `auto` (ONNX Runtime on a CPU when installed, 2-6x faster than torch here), torch or onnxruntime."""
+    """Vision: `auto` (ONNX Runtime on a CPU when installed: the encoder 3-6x faster here), torch or onnxruntime."""
     workers: int | None = None
     """Sampler actors (Ray), each a world of --cars cars in its own process, while this process learns; leave it out
     to sample in this process."""
