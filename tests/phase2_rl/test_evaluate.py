@@ -7,7 +7,7 @@ import pytest
 
 from tests.evaluation.test_protocol import CentreLineFollower
 from tests.phase2_rl.conftest import renderer_available
-from vision_rl.evaluation.outputs import format_lap_time, plot_trajectory, write_video
+from vision_rl.evaluation.outputs import TRACE_COLUMNS, format_lap_time, plot_trajectory, write_trace, write_video
 from vision_rl.evaluation.protocol import LapRecord, LapTiming, SeedRun, time_laps
 from vision_rl.phase2_rl.evaluate import evaluate_policy
 from vision_rl.sim.track_library import load_track
@@ -38,15 +38,17 @@ def test_format_lap_time():
     assert format_lap_time(None) == "DNF" and format_lap_time(float("inf")) == "DNF"
 
 
-def test_evaluate_is_deterministic_for_a_seed(state_run):
+def test_evaluate_is_deterministic_for_a_seed(state_run, tmp_path):
     out, _ = state_run
-    a = evaluate_policy(out, laps=2, seeds=2, seed=5, time_limit_s=15.0, write=False)
+    a = evaluate_policy(out, laps=2, seeds=2, seed=5, time_limit_s=15.0, write=False, trace=str(tmp_path / "t.csv"))
     b = evaluate_policy(out, laps=2, seeds=2, seed=5, time_limit_s=15.0, write=False)
     c = evaluate_policy(out, laps=2, seeds=2, seed=7, time_limit_s=15.0, write=False)
     assert a["seeds"] == b["seeds"] and a["protocol"] == b["protocol"]
     assert [s["seed"] for s in a["seeds"]] == [5, 6]
     assert a["seeds"][0]["distance_m"] != c["seeds"][0]["distance_m"]
     assert a["driver"]["driver"] == "policy" and len(a["driver"]["policy_sha256"]) == 64
+    trace = np.loadtxt(a["trace"], delimiter=",", skiprows=1)
+    assert set(trace[:, 0]) == {5, 6} and trace[:, 1].max() <= 15.0 + 1e-6 and b["trace"] is None
 
 
 def test_plot_and_video(small_track, tmp_path):
@@ -65,6 +67,46 @@ def test_plot_and_video(small_track, tmp_path):
 
     frames = imageio.mimread(str(mp4))
     assert len(frames) == len(timing.time_s) == 30 and frames[0].shape == (64, 96, 3)
+
+
+class OneCarBrakes(CentreLineFollower):
+    """The follower, 1 m left of the centre line, except that the second car brakes to a stop (a DNF: stuck)."""
+
+    def __init__(self) -> None:
+        super().__init__(target_lateral=lambda s: 1.0 + 0.0 * s)
+
+    def act(self, state):
+        action = super().act(state)
+        action[1:] = (0.0, -1.0)
+        return action
+
+
+def test_trace_places_every_step_on_the_track_and_ends_each_run_at_its_finish_or_dnf(small_track, tmp_path):
+    timing = time_laps(OneCarBrakes(), small_track, "hatchback", seeds=[3, 4], laps=1, record=True)
+    follower, braked = timing.runs
+    assert follower.dnf_reason is None and braked.dnf_reason.startswith("stuck")
+    path = write_trace(timing, tmp_path / "trace.csv")
+    assert path.read_text().splitlines()[0] == ",".join(TRACE_COLUMNS)
+    table = np.loadtxt(path, delimiter=",", skiprows=1)
+    col = {name: table[:, k] for k, name in enumerate(TRACE_COLUMNS)}
+    for i, run in enumerate(timing.runs):
+        rows = col["seed"] == run.seed
+        steps = timing.time_s <= run.time_s + 1e-9
+        # One row per recorded step up to the run's end, the braked car's rows ending at its DNF.
+        assert rows.sum() == steps.sum() and col["time_s"][rows][-1] == pytest.approx(run.time_s)
+        np.testing.assert_allclose(col["speed_kmh"][rows], 3.6 * timing.speed_mps[steps, i], atol=0.01)
+        # Arc length and lateral offset give back the pose (to the CSV's mm).
+        xy = timing.track.position_at(col["s_m"][rows], col["lateral_m"][rows])
+        np.testing.assert_allclose(xy, np.stack([col["x_m"][rows], col["y_m"][rows]], axis=1), atol=0.02)
+    assert braked.time_s < follower.time_s - 10.0
+    settled = (col["seed"] == 3) & (col["time_s"] > 10.0)
+    # The follower holds 1 m to the left (+), along the track (heading error near 0).
+    np.testing.assert_allclose(col["lateral_m"][settled], 1.0, atol=0.25)
+    assert np.abs(col["heading_error_deg"][settled]).max() < 5.0
+    assert col["speed_kmh"][col["seed"] == 4][-1] < 1.0 and col["pedal"][col["seed"] == 4][-1] < -0.9
+    untimed = time_laps(OneCarBrakes(), small_track, "hatchback", seeds=[3], laps=1, time_limit_s=1.0)
+    with pytest.raises(ValueError, match="record=True"):
+        write_trace(untimed, tmp_path / "none.csv")
 
 
 def test_evaluate_sections_say_when_no_lap_finished_and_refuse_bad_options(state_run):

@@ -69,7 +69,7 @@ def format_timing(result: dict[str, Any]) -> list[str]:
             cells = (" / ".join("-" if d[k][name] is None else f"{d[k][name]:.3f}" for d in (policy, ai))
                      for k in subsets)  # fmt: skip
             lines.append(f"  {name} ({unit}): " + ", ".join(f"{k} {c}" for k, c in zip(subsets, cells, strict=True)))
-    for key in ("plot", "video", "evaluation_json", "reward_plot"):
+    for key in ("plot", "video", "trace", "evaluation_json", "reward_plot"):
         if result.get(key):
             lines.append(f"{key}: {result[key]}")
     return lines
@@ -96,6 +96,9 @@ class EvaluateOptions:
     """Write the best seed's driver's view with a track map (mp4)."""
     plot: str = ""
     """Write the best seed's trajectory coloured by speed (png)."""
+    trace: str = ""
+    """Write every seed's run, one row per 0.1 s step up to its finish or DNF (csv): pose, arc length and lateral
+    offset, speed, heading against the track's, steering, pedal, wall contact; how a start got stuck."""
     name: str = ""
     """Name on the leaderboard (default: the run folder's name)."""
     device: str = "cpu"
@@ -129,7 +132,7 @@ def run_evaluate(opts: EvaluateOptions) -> int:
         opts.policy, laps=opts.laps, seeds=opts.seeds, seed=opts.seed, encoder=opts.encoder,
         time_limit_s=opts.time_limit_s, video=opts.video, plot=opts.plot, name=opts.name, device=opts.device,
         write=opts.write, encoder_runtime=opts.encoder_runtime, sections_m=opts.sections_m,
-        reference_skill=opts.reference_skill, encoder_error=opts.encoder_error,
+        reference_skill=opts.reference_skill, encoder_error=opts.encoder_error, trace=opts.trace,
     )  # fmt: skip
     emit(result, opts.json, format_timing)
     return 0

@@ -1,4 +1,5 @@
-"""What the lap-time protocol's recorded runs become: lap times as text, trajectory plots and driver's-view videos."""
+"""What the lap-time protocol's recorded runs become: lap times as text, trajectory plots, step-by-step traces and
+driver's-view videos."""
 
 from __future__ import annotations
 
@@ -57,6 +58,39 @@ def plot_trajectory(timing: LapTiming, index: int, path: str | os.PathLike[str],
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     plt.close(fig)
+    return path
+
+
+#: Columns of :func:`write_trace`, with their units.
+TRACE_COLUMNS = ("seed", "time_s", "x_m", "y_m", "s_m", "lateral_m", "speed_kmh", "heading_error_deg", "steer_rad",
+                 "pedal", "wall_contact")  # fmt: skip
+
+
+def write_trace(timing: LapTiming, path: str | os.PathLike[str]) -> Path:
+    """Every seed's run as CSV (:data:`TRACE_COLUMNS`), one row per recorded 0.1 s step up to its finish or DNF: the
+    pose, where that is on the track (arc length ``s_m``, ``lateral_m`` + left of the centre line), the speed, the
+    heading against the centre line's (+ turned left), the front wheels' angle, the pedal and wall contact. A start
+    that did not finish reads off its last rows: where it hit what, how fast, and what it steered after."""
+    if not len(timing.time_s):
+        raise ValueError("a trace needs the protocol's recorded steps: time the laps with record=True")
+    track = timing.track
+    seeds, times, columns = [], [], []
+    for i, run in enumerate(timing.runs):
+        rows = timing.time_s <= run.time_s + 1e-9
+        xy = np.stack([timing.x_m[rows, i], timing.y_m[rows, i]], axis=1)
+        where = track.project(xy)
+        heading_error = np.angle(np.exp(1j * (timing.yaw_rad[rows, i] - where.heading_rad)))
+        seeds.append(np.full(rows.sum(), run.seed))
+        times.append(timing.time_s[rows])
+        columns.append(np.column_stack([
+            xy, where.s_m, where.lateral_m, 3.6 * timing.speed_mps[rows, i], np.degrees(heading_error),
+            timing.steer_rad[rows, i], timing.omega[rows, i], timing.wall_contact[rows, i],
+        ]))  # fmt: skip
+    table = np.column_stack([np.concatenate(seeds), np.concatenate(times), np.concatenate(columns)])
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savetxt(path, table, delimiter=",", header=",".join(TRACE_COLUMNS), comments="",
+               fmt=["%d", "%.2f", "%.3f", "%.3f", "%.2f", "%.3f", "%.2f", "%.2f", "%.4f", "%.3f", "%d"])  # fmt: skip
     return path
 
 

@@ -13,7 +13,13 @@ from typing import Any
 from vision_rl.evaluation.controls import lap_controls
 from vision_rl.evaluation.encoder_error import encoder_error_on_lap
 from vision_rl.evaluation.leaderboard import evaluation_record
-from vision_rl.evaluation.outputs import check_video_dependencies, format_lap_time, plot_trajectory, write_video
+from vision_rl.evaluation.outputs import (
+    check_video_dependencies,
+    format_lap_time,
+    plot_trajectory,
+    write_trace,
+    write_video,
+)
 from vision_rl.evaluation.protocol import BuiltinAI, LapTiming, time_laps
 from vision_rl.evaluation.sections import compare_sections, lap_sections
 from vision_rl.phase2_rl.artifact import BEST_DIR, MODEL_NAME, LoadedPolicy, load_policy
@@ -56,13 +62,15 @@ def evaluate_policy(
     sections_m: float = 0.0,
     reference_skill: float = 1.0,
     encoder_error: bool = False,
+    trace: str = "",
 ) -> dict[str, Any]:
     """Run the protocol for a policy (path or loaded) on the track and car it was trained on; returns the record
     and, with ``write``, stores it as ``evaluation.json`` beside the policy for the leaderboard. ``sections_m`` > 0
     adds ``sections``: the best scored lap against the built-in AI's at ``reference_skill``, section by section
     (:mod:`vision_rl.evaluation.sections`). ``encoder_error`` (vision) adds ``encoder_error``: the encoder's error on
     the 27 targets along the best scored lap and along the built-in AI's lap from the same start
-    (:mod:`vision_rl.evaluation.encoder_error`)."""
+    (:mod:`vision_rl.evaluation.encoder_error`). ``trace``: a CSV of every seed's run, step by step
+    (:func:`~vision_rl.evaluation.outputs.write_trace`)."""
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds}")
     if sections_m < 0 or not 0.0 < reference_skill <= 1.0:
@@ -77,7 +85,7 @@ def evaluate_policy(
     driver = loaded.driver()
     try:
         timing = time_laps(driver, config.track, config.car, range(seed, seed + seeds), laps, time_limit_s,
-                           record=bool(plot or video or sections_m or encoder_error))  # fmt: skip
+                           record=bool(plot or video or sections_m or encoder_error or trace))  # fmt: skip
     finally:
         driver.close()
     result = evaluation_record(timing, driver.identity, name or default_policy_name(loaded.weights_path))
@@ -86,6 +94,7 @@ def evaluate_policy(
              f"(seed {result['best_seed']}, {timing.track.name}, {timing.car.name})")  # fmt: skip
     result["plot"] = str(plot_trajectory(timing, best, plot, title)) if plot else None
     result["video"] = str(write_video(timing, best, video, config.image_hw_px)) if video else None
+    result["trace"] = str(write_trace(timing, trace)) if trace else None
     if sections_m > 0:
         result["sections"] = _sections(timing, best, sections_m, reference_skill)
     if encoder_error:
