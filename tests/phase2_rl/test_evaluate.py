@@ -139,6 +139,13 @@ def test_evaluate_sections_print_how_the_best_lap_drives_at_speed_beside_the_ai(
     )
 
 
+def test_an_output_file_that_is_a_folder_is_refused_before_the_evaluation(state_run, tmp_path):
+    out, _ = state_run
+    for option in ("plot", "video", "trace"):
+        with pytest.raises(ValueError, match=f"--{option} .* is a folder"):
+            evaluate_policy(out, seeds=1, write=False, **{option: str(tmp_path)})
+
+
 def test_encoder_error_is_refused_for_a_state_policy(state_run):
     out, _ = state_run
     with pytest.raises(ValueError, match="this policy observes the state"):

@@ -7,10 +7,11 @@
    state, in a second process at the lowest priority that starts with the captures (it needs neither frames nor
    encoder); the papers' evaluation of both; the leaderboard.
 
-``--quick`` shrinks every stage to fit 20 minutes on 2 CPU cores (11.3-12.7 measured; README, "Two commands"); without
-it the paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs, millions of SAC steps: days on a CPU).
-``--tiny`` is for tests. Each stage's outputs stay under ``--runs`` and a stage whose output is complete is not
-redone (the policies are trained again), so an interrupted pipeline continues where it stopped.
+``--quick`` shrinks every stage to fit 20 minutes on 2 CPU cores (11.3-12.7 measured, 18.8 with the CPU held to 1.5
+cores; README, "Two commands"); without it the paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs,
+millions of SAC steps: days on a CPU). ``--tiny`` is for tests. Each stage's outputs stay under ``--runs`` and a
+stage whose output is complete is not redone (the policies are trained again), so an interrupted pipeline continues
+where it stopped.
 """
 
 from __future__ import annotations
@@ -112,7 +113,9 @@ SIZES: dict[str, PipelineSizes] = {
     # stages came to share the 2 cores"). 8 encoder epochs instead of 10 left vision policies that finished 1 and 0 of
     # 3 starts there, so the encoder keeps its 10 epochs. The vision stage trains 150k steps of 10 cars: over 3
     # training seeds of this recipe the protocol's lap was 2:16.88 +- 3.46 s at 150k steps and 2:16.45 +- 3.53 s
-    # at 200k, every start finished at both (docs/results/vision-expressway-hatchback, "make quick's recipe").
+    # at 200k, every start finished at both (docs/results/vision-expressway-hatchback, "make quick's recipe"); yet
+    # one single run in two to four leaves a policy that loses starts at the chicane (same doc, "How make quick's
+    # vision policy gets stuck"; a smaller steering step made it worse).
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
         repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=150_000,
@@ -138,7 +141,7 @@ class PipelineOptions:
     """The whole two-phase job: capture, train-repr, train-policy (state and vision), evaluate, leaderboard."""
 
     quick: bool = False
-    """Small sizes: within 20 minutes on 2 CPU cores (11.3-12.7 measured; this machine's speed varies up to 2x)."""
+    """Small sizes: within 20 minutes on 2 CPU cores (11.3-12.7 measured, 18.8 held to 1.5 cores)."""
     tiny: bool = False
     """Minimal sizes, for tests (seconds; results mean nothing)."""
     track: str = "expressway"

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from vision_rl.evaluation.protocol import STEP_S, LapTiming
+from vision_rl.sim.sensors import wrap_angle
 
 
 def format_lap_time(seconds: float | None) -> str:
@@ -79,7 +80,7 @@ def write_trace(timing: LapTiming, path: str | os.PathLike[str]) -> Path:
         rows = timing.time_s <= run.time_s + 1e-9
         xy = np.stack([timing.x_m[rows, i], timing.y_m[rows, i]], axis=1)
         where = track.project(xy)
-        heading_error = np.angle(np.exp(1j * (timing.yaw_rad[rows, i] - where.heading_rad)))
+        heading_error = wrap_angle(timing.yaw_rad[rows, i] - where.heading_rad)
         seeds.append(np.full(rows.sum(), run.seed))
         times.append(timing.time_s[rows])
         columns.append(np.column_stack([

@@ -76,6 +76,9 @@ def evaluate_policy(
     if sections_m < 0 or not 0.0 < reference_skill <= 1.0:
         raise ValueError(f"--sections-m must be >= 0 and --reference-skill in (0, 1], got {sections_m}, "
                          f"{reference_skill}")  # fmt: skip
+    for flag, out in (("--plot", plot), ("--video", video), ("--trace", trace)):
+        if out and Path(out).is_dir():  # found now, not after the whole evaluation
+            raise ValueError(f"{flag} {out} is a folder: give the file to write")
     if video:
         check_video_dependencies()
     loaded = policy if isinstance(policy, LoadedPolicy) else load_policy(policy, encoder, device, encoder_runtime)
