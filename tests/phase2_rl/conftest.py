@@ -69,10 +69,12 @@ def state_run(tmp_path_factory, small_track) -> tuple[Path, dict]:
     return out, train_policy(tiny_train_config(small_track, out))
 
 
-def script_held_out_laps(monkeypatch, mean_laps_s: list[float | None]) -> list[list[int]]:
+def script_held_out_laps(monkeypatch, mean_laps_s: list[float | list[float | None] | None],
+                         clean: bool = True) -> list[list[int]]:
     """Make train-policy's held-out starts (``--select-starts``) lap in the scripted mean times, one per evaluation
-    (None: a start that did not finish clean), 0.1 s either side of the mean; the protocol's own starts are timed as
-    they drive. Returns the held-out start seeds of each call, as they are asked for."""
+    (None: no start finished), 0.1 s either side of the mean, or in a list of each start's lap (None: that start did
+    not finish); finished laps are ``clean`` or not; the protocol's own starts are timed as they drive. Returns the
+    held-out start seeds of each call, as they are asked for."""
     from vision_rl.phase2_rl import train as train_module
 
     real, script, asked = train_module.time_laps, iter(mean_laps_s), []
@@ -83,10 +85,10 @@ def script_held_out_laps(monkeypatch, mean_laps_s: list[float | None]) -> list[l
             self.seeds = seeds
 
         def summary(self) -> dict:
-            laps = [None if self.mean_s is None else self.mean_s + (0.1 if i % 2 else -0.1)
-                    for i in range(len(self.seeds))]  # fmt: skip
+            laps = self.mean_s if isinstance(self.mean_s, list) else [
+                None if self.mean_s is None else self.mean_s + (0.1 if i % 2 else -0.1) for i in range(len(self.seeds))]
             return {"n_finished": sum(lap is not None for lap in laps),
-                    "seeds": [{"lap_time_s": lap, "finished": lap is not None, "clean": lap is not None}
+                    "seeds": [{"lap_time_s": lap, "finished": lap is not None, "clean": clean and lap is not None}
                               for lap in laps]}  # fmt: skip
 
     def time_laps(driver, track, car, seeds, laps):

@@ -254,6 +254,26 @@ def test_held_out_starts_keep_the_fastest_clean_weights_and_a_resumed_run_goes_o
         train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), select_starts=-1))
 
 
+def test_without_select_clean_held_out_starts_keep_the_fastest_weights_that_finished_every_start(small_track,
+                                                                                                  tmp_path,
+                                                                                                  monkeypatch):
+    # Laps with wall contact: the default (clean) keeps nothing; --no-select-clean keeps the fastest weights whose
+    # starts all finished, never those that lost one start however fast the others were.
+    script_held_out_laps(monkeypatch, [30.0, [27.0, None], 29.0, 29.5], clean=False)
+    cfg = tiny_train_config(small_track, tmp_path / "clean", steps=400, select_starts=2, checkpoint_every_steps=0)
+    train_policy(cfg)
+    assert not (tmp_path / "clean" / "best").exists()
+    script_held_out_laps(monkeypatch, [30.0, [27.0, None], 29.0, 29.5], clean=False)
+    out = tmp_path / "finished"
+    train_policy(dataclasses.replace(cfg, out=str(out), select_clean=False))
+    selection = [m["selection"] for m in read_metrics(out / "metrics.jsonl")]
+    assert [s["kept"] for s in selection] == [True, False, True, False]
+    assert selection[1]["finished"] == 1 and selection[1]["mean_lap_time_s"] is None
+    best = load_policy(out / "best").spec
+    assert best.num_timesteps == 300 and best.selection["mean_lap_time_s"] == pytest.approx(29.0)
+    assert best.selection["clean_wall_contact_s"] is None  # chosen without the clean rule, and it says so
+
+
 def test_read_metrics_drops_the_evaluations_a_resume_replaced(tmp_path):
     # killed after the 300-step evaluation, resumed from the 200-step checkpoint: the first 300 is another policy's
     lines = [{"num_timesteps": 100, "lap_time_s": 99.0}, {"num_timesteps": 200, "lap_time_s": 98.0},

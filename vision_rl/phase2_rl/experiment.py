@@ -123,7 +123,7 @@ def _selected(root: Path, seeds: Sequence[int], last: Sequence[dict[str, Any]]) 
         kept_at.append(PolicySpec.read(best / SIDECAR_NAME).num_timesteps if kept else None)
     rows = _seed_rows(seeds, evaluations)
     for row, steps in zip(rows, kept_at, strict=True):
-        row["kept_at_steps"] = steps  # None: no evaluation finished the held-out starts clean; the last weights
+        row["kept_at_steps"] = steps  # None: no evaluation finished the held-out starts (clean); the last weights
     return {"summary": aggregate_seeds(evaluations), "per_seed": rows}
 
 

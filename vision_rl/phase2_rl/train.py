@@ -9,9 +9,9 @@ policy against environment steps and training time) and TensorBoard logs in ``te
 
 ``--select-starts N`` also times the policy at each periodic evaluation from N held-out starts
 (:data:`SELECT_SEED_BASE` on; the protocol's are 0, 1, 2) and keeps the weights with the fastest mean scored lap
-over them, every start finished clean, as a second artifact in ``best/`` (Stable-Baselines3's EvalCallback keeps its
-``best_model`` the same way). The held-out starts choose the weights without looking at the laps the protocol then
-scores them on.
+over them, every start finished clean (or only finished: ``--no-select-clean``), as a second artifact in ``best/``
+(Stable-Baselines3's EvalCallback keeps its ``best_model`` the same way). The held-out starts choose the weights
+without looking at the laps the protocol then scores them on.
 
 What survives a kill: the weights, optimiser states and counters are saved every ``checkpoint_every_min`` minutes
 of wall-clock time (a light checkpoint) and at every ``checkpoint_every_steps`` with the replay buffer and a
@@ -157,6 +157,9 @@ class TrainPolicyConfig:
     select_starts: int = 0
     """Held-out start seeds (100, 101, ...) timed at each periodic evaluation; N >= 1 keeps the weights with the
     fastest mean scored lap over them, every start finished clean, in best/ (0: off)."""
+    select_clean: bool = True
+    """--select-starts keeps only weights whose held-out starts were all clean; --no-select-clean: all finished is
+    enough (for a policy that rides the walls and sometimes loses a start, as make quick's vision policy)."""
     checkpoint_every_steps: int = 200_000
     """Save weights, buffer and a snapshot every N steps (0: off)."""
     checkpoint_every_min: float = 10.0
@@ -519,10 +522,10 @@ class _Run:
         self.eval_driver: PolicyDriver | None = None
         return model
 
-    def _kept(self, name: str) -> float:
-        """The run's value of a cloning weight: a resumed run keeps the one it was started with."""
+    def _kept(self, name: str, default: float = 0.0) -> float:
+        """The run's value of a setting a resumed run keeps from its start (``default`` for a run older than it)."""
         config = self.previous.train_config if self.previous is not None else dataclasses.asdict(self.cfg)
-        return float(config.get(name, 0.0))
+        return float(config.get(name, default))
 
     def _restore(self, model: SAC) -> None:
         """Weights, optimisers and counters of the run, and its buffer when one was saved."""
@@ -622,19 +625,21 @@ class _Run:
         )
 
     def _select(self, model: SAC, starts: int) -> dict[str, Any]:
-        """Time the held-out starts; keep the weights in best/ when every start finished clean and their mean scored
-        lap is the fastest so far."""
+        """Time the held-out starts; keep the weights in best/ when every start finished (clean, unless the run was
+        started with --no-select-clean) and their mean scored lap is the fastest so far."""
         seeds = list(range(SELECT_SEED_BASE, SELECT_SEED_BASE + starts))
         assert self.eval_driver is not None
         summary = time_laps(self.eval_driver, self.racing.track, self.racing.car, seeds, self.cfg.eval_laps).summary()
         clean = all(s["clean"] for s in summary["seeds"])
-        mean_lap_s = float(np.mean([s["lap_time_s"] for s in summary["seeds"]])) if clean else None
+        need_clean = bool(self._kept("select_clean", True))
+        eligible = clean if need_clean else summary["n_finished"] == len(seeds)
+        mean_lap_s = float(np.mean([s["lap_time_s"] for s in summary["seeds"]])) if eligible else None
         kept = mean_lap_s is not None and (self.best_mean_lap_s is None or mean_lap_s < self.best_mean_lap_s)
         if kept:
             self.best_mean_lap_s = mean_lap_s
             self._write_policy(model, self.out / BEST_DIR, selection={
                 "start_seeds": seeds, "laps": self.cfg.eval_laps, "mean_lap_time_s": mean_lap_s,
-                "clean_wall_contact_s": CLEAN_WALL_CONTACT_S})  # fmt: skip
+                "clean_wall_contact_s": CLEAN_WALL_CONTACT_S if need_clean else None})  # fmt: skip
         return {"mean_lap_time_s": mean_lap_s, "finished": summary["n_finished"], "clean": clean, "kept": kept}
 
     def _write_policy(self, model: SAC, folder: Path, selection: dict[str, Any] | None = None) -> PolicySpec:
