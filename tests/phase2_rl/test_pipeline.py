@@ -11,6 +11,7 @@ import sys
 import pytest
 
 from tests.conftest import renderer_available
+from tests.phase2_rl.conftest import script_held_out_laps
 from vision_rl.commands.pipeline import (
     SIZES,
     PipelineOptions,
@@ -24,8 +25,11 @@ from vision_rl.commands.pipeline import (
 )
 
 
-def test_pipeline_tiny(small_track, tiny_encoders, tmp_path):
+def test_pipeline_tiny(small_track, tiny_encoders, tmp_path, monkeypatch):
     encoder = "" if renderer_available() else str(tiny_encoders[0])  # vision needs the renderer
+    # The vision policy's held-out start finishes at its one periodic evaluation (step 100 of 120): the pipeline
+    # times and ranks those weights, not the last ones.
+    script_held_out_laps(monkeypatch, [30.0], clean=False)
     summary = pipeline_phase2(encoder, SIZES["tiny"], mode="tiny", track=small_track, runs=str(tmp_path / "runs"),
                               device="cpu")  # fmt: skip
     assert summary["mode"] == "tiny"
@@ -34,7 +38,13 @@ def test_pipeline_tiny(small_track, tiny_encoders, tmp_path):
     names = [r["name"] for r in summary["leaderboard"]["rows"]]
     assert {"built-in AI (default skill)", "pipeline-state"} <= set(names)
     if encoder:
-        assert summary["vision"]["num_timesteps"] == 120 and "pipeline-vision" in names
+        vision = summary["vision"]
+        assert vision["num_timesteps"] == 120 and "pipeline-vision" in names
+        run = tmp_path / "runs" / "policy" / "pipeline-vision"
+        assert vision["chosen_at_steps"] == 100 and vision["policy"] == str(run / "best" / "policy.pt")
+        assert (run / "best" / "evaluation.json").is_file() and not (run / "evaluation.json").exists()
+        assert "the weights of step 100 (chosen by held-out starts)" in "\n".join(format_phase2(summary))
+        assert summary["state"]["chosen_at_steps"] is None
     else:
         assert "skipped" in summary["vision"]
 

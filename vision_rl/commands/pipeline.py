@@ -73,8 +73,13 @@ class PipelineSizes:
     """SAC batch size (0: the preset's)."""
     buffer_size: int
     """Replay buffer capacity, transitions (0: the preset's)."""
-    eval_every_steps: int
-    """Evaluate the policy in training every this many steps."""
+    state_eval_every_steps: int
+    """Evaluate the state policy in training every this many steps."""
+    vision_eval_every_steps: int
+    """Evaluate the vision policy in training every this many steps."""
+    vision_select_starts: int
+    """Vision: held-out starts (seeds 100, 101, ...) timed at each of those evaluations; the weights that finished
+    them all with the fastest mean lap are the ones the pipeline times and ranks (0, or no such weights: the last)."""
     state_eval_seeds: int
     """Start seeds of the state policy's final evaluation."""
     vision_eval_seeds: int
@@ -93,8 +98,9 @@ SIZES: dict[str, PipelineSizes] = {
         train_laps=1, eval_laps=1, capture_cars=2, capture_fps=5, image_hw_px=(64, 96), repr_epochs=1,
         repr_max_steps=3, sac_preset="cpu", steer_action="rate_scaled", state_steps=200, vision_steps=120,
         state_cars=2, vision_cars=2, state_learning_starts=50, vision_learning_starts=40, vision_gradient_steps=0,
-        vision_workers=0, batch_size=32,
-        buffer_size=5_000, eval_every_steps=100, state_eval_seeds=1, vision_eval_seeds=1, stats_steps=5,
+        vision_workers=0, batch_size=32, buffer_size=5_000, state_eval_every_steps=100,
+        vision_eval_every_steps=100, vision_select_starts=1,
+        state_eval_seeds=1, vision_eval_seeds=1, stats_steps=5,
         state_eval_time_limit_s=30.0, vision_eval_time_limit_s=30.0,
     ),
     # Frames at half the paper's side: training the encoder on 470 x 280 frames ran at about 30 frames/s on one of
@@ -120,7 +126,9 @@ SIZES: dict[str, PipelineSizes] = {
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
         repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=150_000,
         state_cars=20, vision_cars=10, state_learning_starts=-1, vision_learning_starts=5_000, vision_gradient_steps=0,
-        vision_workers=1, batch_size=0, buffer_size=0, eval_every_steps=50_000, state_eval_seeds=3, vision_eval_seeds=3,
+        vision_workers=1, batch_size=0, buffer_size=0, state_eval_every_steps=50_000,
+        vision_eval_every_steps=25_000, vision_select_starts=3,
+        state_eval_seeds=3, vision_eval_seeds=3,
         stats_steps=50, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=400.0,
     ),
     # The paper's scale: 50 disrupted laps at 60 fps and 470 x 280, 50 encoder epochs; SAC for 400 epochs of 20
@@ -130,8 +138,10 @@ SIZES: dict[str, PipelineSizes] = {
         train_laps=50, eval_laps=5, capture_cars=4, capture_fps=60, image_hw_px=(280, 470), repr_epochs=50,
         repr_max_steps=-1, sac_preset="paper", steer_action="angle", state_steps=8_000_000, vision_steps=8_000_000,
         state_cars=20, vision_cars=20, state_learning_starts=-1, vision_learning_starts=-1, vision_gradient_steps=0,
-        vision_workers=1, batch_size=0, buffer_size=0, eval_every_steps=200_000, state_eval_seeds=3,
-        vision_eval_seeds=3, stats_steps=100, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=0.0,
+        vision_workers=1, batch_size=0, buffer_size=0, state_eval_every_steps=200_000,
+        vision_eval_every_steps=200_000, vision_select_starts=0,
+        state_eval_seeds=3, vision_eval_seeds=3, stats_steps=100, state_eval_time_limit_s=0.0,
+        vision_eval_time_limit_s=0.0,
     ),
 }  # fmt: skip
 
@@ -260,7 +270,9 @@ def sampler_processes(sizes: PipelineSizes) -> int:
 
 def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car: str, runs: str, seed: int,
                   device: str) -> dict[str, Any]:  # fmt: skip
-    """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time it by the protocol."""
+    """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time it by the protocol:
+    its last weights, or those its held-out starts chose (``sizes.vision_select_starts``)."""
+    from vision_rl.phase2_rl.artifact import BEST_DIR, MODEL_NAME, SIDECAR_NAME, PolicySpec
     from vision_rl.phase2_rl.evaluate import evaluate_policy
     from vision_rl.phase2_rl.train import TrainPolicyConfig, train_policy
 
@@ -272,7 +284,9 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
         TrainPolicyConfig(
             encoder=encoder, track=track, car=car, cars=sizes.vision_cars if vision else sizes.state_cars,
             steps=sizes.vision_steps if vision else sizes.state_steps, preset=sizes.sac_preset, out=str(out),
-            seed=seed, force=True, eval_every_steps=sizes.eval_every_steps, checkpoint_every_steps=0,
+            seed=seed, force=True, checkpoint_every_steps=0,
+            eval_every_steps=sizes.vision_eval_every_steps if vision else sizes.state_eval_every_steps,
+            select_starts=sizes.vision_select_starts if vision else 0, select_clean=False,
             save_buffer=False, stats_steps=sizes.stats_steps,
             learning_starts=sizes.vision_learning_starts if vision else sizes.state_learning_starts,
             gradient_steps=sizes.vision_gradient_steps if vision else 0, batch_size=sizes.batch_size,
@@ -282,16 +296,18 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
     if trained["interrupted"]:
         raise KeyboardInterrupt
     t1 = time.perf_counter()
+    chosen = out / BEST_DIR if (out / BEST_DIR / SIDECAR_NAME).is_file() else out
     evaluation = evaluate_policy(
-        out,
+        chosen,
         seeds=sizes.vision_eval_seeds if vision else sizes.state_eval_seeds,
         time_limit_s=sizes.vision_eval_time_limit_s if vision else sizes.state_eval_time_limit_s,
         name=f"pipeline-{kind}",
         device="cpu",
     )
     return {
-        "policy": trained["policy"],
+        "policy": str(chosen / MODEL_NAME),
         "num_timesteps": trained["num_timesteps"],
+        "chosen_at_steps": PolicySpec.read(chosen / SIDECAR_NAME).num_timesteps if chosen != out else None,
         "train_time_s": trained["train_time_s"],
         "sampling": trained["sampling"],
         "best_lap_time_s": evaluation["best_lap_time_s"],
@@ -410,9 +426,11 @@ def format_phase2(summary: dict[str, Any]) -> list[str]:
         elif r:
             workers = (r.get("sampling") or {}).get("workers", 0)
             sampled = f", {workers} sampler process{'es' * (workers > 1)}" if workers else ""
+            at = r.get("chosen_at_steps")
+            chosen = f", the weights of step {at} (chosen by held-out starts)" if at else ""
             lines.append(
-                f"  {kind}: {r['num_timesteps']} steps in {r['wall_time_s']['train']:.0f} s{sampled}; lap 2 best "
-                f"{format_lap_time(r['best_lap_time_s'])} ({r['n_finished']}/{r['n_seeds']} seeds finished, "
+                f"  {kind}: {r['num_timesteps']} steps in {r['wall_time_s']['train']:.0f} s{sampled}{chosen}; "
+                f"lap 2 best {format_lap_time(r['best_lap_time_s'])} ({r['n_finished']}/{r['n_seeds']} seeds finished, "
                 f"{r['distance_m']:.0f} m driven at most); {r['policy']}"
             )
     return lines + format_leaderboard(summary["leaderboard"])
