@@ -156,7 +156,7 @@ class TrainPolicyConfig:
     """Laps of the periodic evaluation (the last is scored)."""
     select_starts: int = 0
     """Held-out start seeds (100, 101, ...) timed at each periodic evaluation; N >= 1 keeps the weights with the
-    fastest mean scored lap over them, every start finished clean, in best/ (0: off)."""
+    fastest mean scored lap over them, every start finished clean (see --select-clean), in best/ (0: off)."""
     select_clean: bool = True
     """--select-starts keeps only weights whose held-out starts were all clean; --no-select-clean: all finished is
     enough (for a policy that rides the walls and sometimes loses a start, as make quick's vision policy)."""
