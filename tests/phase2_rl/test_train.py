@@ -272,6 +272,8 @@ def test_without_select_clean_held_out_starts_keep_the_fastest_weights_that_fini
     best = load_policy(out / "best").spec
     assert best.num_timesteps == 300 and best.selection["mean_lap_time_s"] == pytest.approx(29.0)
     assert best.selection["clean_wall_contact_s"] is None  # chosen without the clean rule, and it says so
+    with pytest.raises(ValueError, match="--no-select-clean sets the rule of --select-starts"):
+        train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), select_starts=0, select_clean=False))
 
 
 def test_read_metrics_drops_the_evaluations_a_resume_replaced(tmp_path):

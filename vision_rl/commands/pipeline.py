@@ -272,12 +272,13 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
                   device: str) -> dict[str, Any]:  # fmt: skip
     """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time it by the protocol:
     its last weights, or those its held-out starts chose (``sizes.vision_select_starts``)."""
-    from vision_rl.phase2_rl.artifact import BEST_DIR, MODEL_NAME, SIDECAR_NAME, PolicySpec
+    from vision_rl.phase2_rl.artifact import MODEL_NAME, SIDECAR_NAME, PolicySpec, chosen_weights
     from vision_rl.phase2_rl.evaluate import evaluate_policy
     from vision_rl.phase2_rl.train import TrainPolicyConfig, train_policy
 
     vision = kind == "vision"
     workers = sampler_processes(sizes) if vision else 0
+    select = sizes.vision_select_starts if vision else 0
     t0 = time.perf_counter()
     out = Path(runs) / "policy" / f"pipeline-{kind}"
     trained = train_policy(
@@ -286,7 +287,7 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
             steps=sizes.vision_steps if vision else sizes.state_steps, preset=sizes.sac_preset, out=str(out),
             seed=seed, force=True, checkpoint_every_steps=0,
             eval_every_steps=sizes.vision_eval_every_steps if vision else sizes.state_eval_every_steps,
-            select_starts=sizes.vision_select_starts if vision else 0, select_clean=False,
+            select_starts=select, select_clean=not select,  # by finished starts: no quick vision lap is clean
             save_buffer=False, stats_steps=sizes.stats_steps,
             learning_starts=sizes.vision_learning_starts if vision else sizes.state_learning_starts,
             gradient_steps=sizes.vision_gradient_steps if vision else 0, batch_size=sizes.batch_size,
@@ -296,7 +297,7 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
     if trained["interrupted"]:
         raise KeyboardInterrupt
     t1 = time.perf_counter()
-    chosen = out / BEST_DIR if (out / BEST_DIR / SIDECAR_NAME).is_file() else out
+    chosen = chosen_weights(out) or out
     evaluation = evaluate_policy(
         chosen,
         seeds=sizes.vision_eval_seeds if vision else sizes.state_eval_seeds,

@@ -202,6 +202,12 @@ class PolicySpec:
         return cls.from_dict(data, str(path))
 
 
+def chosen_weights(run: str | os.PathLike[str]) -> Path | None:
+    """The folder of the weights a run's held-out starts chose (``run/best``), or None when it kept none."""
+    best = Path(run) / BEST_DIR
+    return best if (best / SIDECAR_NAME).is_file() else None
+
+
 def snapshot_sidecar(weights: Path) -> Path:
     """The sidecar of a snapshot ``checkpoints/policy_<steps>.pt``: ``policy_<steps>.json`` beside it."""
     return weights.with_suffix(".json")

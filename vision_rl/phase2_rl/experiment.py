@@ -36,7 +36,7 @@ import numpy as np
 from vision_rl.evaluation.leaderboard import AI_SEEDS, EXPERIMENT_FORMAT, aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.phase1_repr.checkpoint import checkpoint_sha256
-from vision_rl.phase2_rl.artifact import BEST_DIR, SIDECAR_NAME, PolicySpec
+from vision_rl.phase2_rl.artifact import SIDECAR_NAME, PolicySpec, chosen_weights
 from vision_rl.phase2_rl.evaluate import EVALUATION_NAME, evaluate_policy
 from vision_rl.phase2_rl.persist import atomic_write
 from vision_rl.phase2_rl.train import (
@@ -96,10 +96,8 @@ def _seed_is_done(run: Path, steps: int) -> bool:
         spec = PolicySpec.read(run / SIDECAR_NAME)
     except (ValueError, OSError):
         return False
-    best = run / BEST_DIR
-    evaluated = (run / EVALUATION_NAME).is_file() and (
-        not (best / SIDECAR_NAME).is_file() or (best / EVALUATION_NAME).is_file()
-    )
+    best = chosen_weights(run)
+    evaluated = (run / EVALUATION_NAME).is_file() and (best is None or (best / EVALUATION_NAME).is_file())
     return spec.num_timesteps >= steps and evaluated
 
 
@@ -117,10 +115,9 @@ def _selected(root: Path, seeds: Sequence[int], last: Sequence[dict[str, Any]]) 
     """The summary of the weights the held-out starts chose, the last weights standing in for a seed without."""
     evaluations, kept_at = [], []
     for seed, final in zip(seeds, last, strict=True):
-        best = _seed_run(root, seed) / BEST_DIR
-        kept = (best / SIDECAR_NAME).is_file()
-        evaluations.append(json.loads((best / EVALUATION_NAME).read_text()) if kept else final)
-        kept_at.append(PolicySpec.read(best / SIDECAR_NAME).num_timesteps if kept else None)
+        best = chosen_weights(_seed_run(root, seed))
+        evaluations.append(json.loads((best / EVALUATION_NAME).read_text()) if best else final)
+        kept_at.append(PolicySpec.read(best / SIDECAR_NAME).num_timesteps if best else None)
     rows = _seed_rows(seeds, evaluations)
     for row, steps in zip(rows, kept_at, strict=True):
         row["kept_at_steps"] = steps  # None: no evaluation finished the held-out starts (clean); the last weights
@@ -216,8 +213,9 @@ class _SeedJob:
         if result["interrupted"]:
             return True
         evaluate_policy(run, seeds=self.eval_seeds, name=f"{self.name}/seed-{seed}", encoder=self.cfg.encoder)
-        if (run / BEST_DIR / SIDECAR_NAME).is_file():
-            evaluate_policy(run / BEST_DIR, seeds=self.eval_seeds, name=f"{self.name}/seed-{seed}/selected",
+        best = chosen_weights(run)
+        if best:
+            evaluate_policy(best, seeds=self.eval_seeds, name=f"{self.name}/seed-{seed}/selected",
                             encoder=self.cfg.encoder)  # fmt: skip
         return False
 

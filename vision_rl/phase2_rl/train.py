@@ -59,6 +59,7 @@ from vision_rl.phase2_rl.artifact import (
     PolicyError,
     PolicySpec,
     check_encoder,
+    chosen_weights,
     policy_fingerprint,
     racing_config_to_dict,
     snapshot_sidecar,
@@ -444,8 +445,8 @@ class _Run:
         self.session_start = time.perf_counter()
         self.last_eval: dict[str, Any] | None = None
         # A resumed run goes on from the weights it kept (a kill may have rolled it back before them: they stay).
-        best = self.out / BEST_DIR / SIDECAR_NAME
-        selection = PolicySpec.read(best).selection if self.previous is not None and best.is_file() else None
+        best = chosen_weights(self.out) if self.previous is not None else None
+        selection = PolicySpec.read(best / SIDECAR_NAME).selection if best else None
         self.best_mean_lap_s: float | None = selection["mean_lap_time_s"] if selection else None
 
     # ------------------------------------------------------------------ set-up
@@ -714,6 +715,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         )
     if cfg.select_starts > 0 and cfg.eval_every_steps == 0:
         raise ValueError("--select-starts chooses among the periodic evaluations: give --eval-every-steps above 0")
+    if not cfg.select_clean and cfg.select_starts == 0:
+        raise ValueError("--no-select-clean sets the rule of --select-starts: give --select-starts N too")
     if cfg.select_starts > 0 and cfg.eval_seeds > SELECT_SEED_BASE:
         raise ValueError(f"--eval-seeds {cfg.eval_seeds} would time the held-out starts of --select-starts, which "
                          f"begin at seed {SELECT_SEED_BASE}: give at most {SELECT_SEED_BASE}")  # fmt: skip
