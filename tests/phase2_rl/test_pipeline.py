@@ -23,6 +23,7 @@ from vision_rl.commands.pipeline import (
     run_pipeline_stages,
     sampler_processes,
 )
+from vision_rl.phase2_rl.artifact import SIDECAR_NAME, PolicySpec
 
 
 def test_pipeline_tiny(small_track, tiny_encoders, tmp_path, monkeypatch):
@@ -45,6 +46,11 @@ def test_pipeline_tiny(small_track, tiny_encoders, tmp_path, monkeypatch):
         assert (run / "best" / "evaluation.json").is_file() and not (run / "evaluation.json").exists()
         assert "the weights of step 100 (chosen by held-out starts)" in "\n".join(format_phase2(summary))
         assert summary["state"]["chosen_at_steps"] is None
+        # The vision run alone takes the entropy target and the falling learning rate of its sizes.
+        sac = {k: PolicySpec.read(tmp_path / "runs" / "policy" / f"pipeline-{k}" / SIDECAR_NAME).sac
+               for k in ("state", "vision")}  # fmt: skip
+        assert (sac["vision"]["target_entropy"], sac["vision"]["learning_rate_final"]) == (-4.0, 1e-4)
+        assert (sac["state"]["target_entropy"], sac["state"]["learning_rate_final"]) == (0.0, 0.0)
     else:
         assert "skipped" in summary["vision"]
 
