@@ -99,6 +99,26 @@ def test_a_wall_ends_the_episode_only_when_asked(terminate_on_wall):
     assert not truncated[0]
 
 
+@pytest.mark.parametrize("terminate_when_stuck", [False, True])
+def test_a_stuck_car_ends_its_episode_only_when_asked(terminate_when_stuck):
+    # Car 0 stands on the brake (stuck: under 5 m in 5 s), car 1 drives on; only car 0's episode may end, at the
+    # first step after 5 s, and autoreset places it anew.
+    core = _core(n_groups=2, terminate_when_stuck=terminate_when_stuck)
+    core.reset_groups(np.arange(2))
+    core.world.reset(s_m=np.array([50.0, 300.0]), speed_mps=np.array([0.0, 10.0]))
+    core.stuck.reset(np.arange(2), core.world.state.unwrapped_s_m[core.ego_ids])  # judged from these places
+    ended_at = None
+    for step in range(1, 81):
+        actions = np.array([[0.0, -1.0], _follow_centre_line(core, 10.0)[1]])
+        _, _, terminated, truncated, infos = core.step(actions, autoreset=True)
+        assert not terminated[1] and not truncated.any()
+        if terminated[0]:
+            ended_at = step
+            assert "final_info" in infos[0] and core.steps[0] == 0  # placed anew
+            break
+    assert ended_at == (round(5.0 / core.config.control_dt_s) if terminate_when_stuck else None)
+
+
 def test_overtaking_reward_and_info_on_setting_a():
     core = _core(n_groups=1, scenario="setting_a", observation="overtaking")
     obs, info = None, None

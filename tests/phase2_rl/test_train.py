@@ -289,6 +289,14 @@ def test_read_metrics_drops_the_evaluations_a_resume_replaced(tmp_path):
     assert [r.get("event") for r in read_metrics(path, events=True)] == [None, None, "sampler_lost", None, None]
 
 
+@pytest.mark.parametrize("stuck_ends_episode", [False, True])
+def test_stuck_ends_episode_reaches_the_training_env_only(small_track, tmp_path, stuck_ends_episode):
+    from vision_rl.phase2_rl.train import _Run
+
+    run = _Run(tiny_train_config(small_track, tmp_path / "run", stuck_ends_episode=stuck_ends_episode))
+    assert run.racing.terminate_when_stuck is stuck_ends_episode
+
+
 def test_a_finer_control_step_keeps_the_discount_per_second_and_is_timed_at_its_own_rate(small_track, tmp_path):
     from vision_rl.phase2_rl.train import _Run, gamma_per_step
 
