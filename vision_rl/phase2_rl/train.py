@@ -188,8 +188,8 @@ class TrainPolicyConfig:
     """End a training episode when the car touches a wall (a terminal step; not in the GT Sport papers)."""
     stuck_ends_episode: bool = False
     """End a training episode when the car is stuck by the protocol's rule (a terminal step: the car has no reverse
-    gear, so a stuck car earns nothing more). Otherwise it stays stuck to the end of its 100 s: in make quick's
-    vision runs 80-90 % of the first 60k transitions were of stuck cars (not in the papers)."""
+    gear, so a stuck car earns nothing more). Otherwise it stands out the rest of its 100 s: in make quick's vision
+    runs most of the first 60k transitions were of standing cars (not in the papers)."""
     frame_delay_s: float = 0.0
     """Vision: frames lag the state by this long (the paper's 4 frames at 60 Hz: 0.067; 0: none)."""
     steer_action: str = "angle"
