@@ -290,7 +290,7 @@ def test_read_metrics_drops_the_evaluations_a_resume_replaced(tmp_path):
 
 
 @pytest.mark.parametrize("stuck_ends_episode", [False, True])
-def test_stuck_ends_episode_reaches_the_training_env_only(small_track, tmp_path, stuck_ends_episode):
+def test_stuck_ends_episode_reaches_the_training_env(small_track, tmp_path, stuck_ends_episode):
     from vision_rl.phase2_rl.train import _Run
 
     run = _Run(tiny_train_config(small_track, tmp_path / "run", stuck_ends_episode=stuck_ends_episode))
