@@ -55,22 +55,39 @@ def test_steering_change_penalty_is_quadratic_in_the_change_and_zero_without_one
     np.testing.assert_allclose(steering_change_penalty(prev, now, limit, 0.5), expected)
 
 
-def test_env_charges_the_steering_change_between_commands_and_not_at_an_episode_start():
-    from vision_rl.envs.core import RacingConfig, RacingCore
+def test_steering_change_penalty_takes_a_scale_per_car():
+    # the angle usable at two speeds: the same 0.07 rad change costs (0.07/0.07)^2 c_s and (0.07/0.5)^2 c_s
+    scale = np.array([0.07, 0.5])
+    np.testing.assert_allclose(steering_change_penalty(np.zeros(2), np.full(2, 0.07), scale, 2.0), [2.0, 0.0392])
+
+
+@pytest.mark.parametrize("scale", ["limit", "usable"])
+def test_env_charges_the_steering_change_between_commands_and_not_at_an_episode_start(scale):
+    from vision_rl.envs.core import RacingConfig, RacingCore, usable_steer_rad
 
     def rewards(c_s, steers):
-        core = RacingCore(RacingConfig(track="expressway", n_groups=1, steer_change_penalty_c_s=c_s), seed=3)
+        config = RacingConfig(track="expressway", n_groups=1, steer_change_penalty_c_s=c_s,
+                              steer_change_penalty_scale=scale)  # fmt: skip
+        core = RacingCore(config, seed=3)
         core.reset_groups(np.array([0]))
         start = core.world.state.vehicle.steer_rad[0]
-        out = [core.step(np.array([[start + ds, 0.5]]), autoreset=False)[1][0] for ds in steers]
-        return np.array(out), start
+        out, speeds = [], []
+        for ds in steers:
+            vehicle = core.world.state.vehicle
+            speeds.append(np.hypot(vehicle.vx_mps[0], vehicle.vy_mps[0]))
+            out.append(core.step(np.array([[start + ds, 0.5]]), autoreset=False)[1][0])
+        return np.array(out), start, np.array(speeds), core.car.wheelbase_m
 
-    steers = [0.0, 0.2, -0.2, -0.2]
-    base, start = rewards(0.0, steers)
-    charged, _ = rewards(2.0, steers)
+    steers = [0.0, 0.02, -0.02, -0.02]
+    base, start, speeds, wheelbase_m = rewards(0.0, steers)
+    charged, *_ = rewards(2.0, steers)
     commands = start + np.array(steers)
-    changes = np.diff(np.concatenate([[start], commands])) / (np.pi / 6)
-    np.testing.assert_allclose(base - charged, 2.0 * changes**2, rtol=1e-5, atol=1e-5)
+    # the usable angle at the step's starting speed (here 37 m/s: 0.11 rad) against the command's limit
+    scale_rad = LIMIT if scale == "limit" else usable_steer_rad(speeds, wheelbase_m)
+    if scale == "usable":
+        assert 0.10 < scale_rad.max() < 0.12
+    changes = np.diff(np.concatenate([[start], commands])) / scale_rad
+    np.testing.assert_allclose(base - charged, 2.0 * changes**2, rtol=1e-4, atol=1e-5)
     assert base[0] == pytest.approx(charged[0])  # the start command equals the placed wheel angle
 
 
@@ -136,3 +153,10 @@ def test_a_wall_hit_cuts_the_throttle_for_the_set_time_and_leaves_the_brake():
     braking_cut, _, _, left_braking, _ = _into_the_hairpin(45, omega=-1.0, wall_hit_throttle_cut_s=1.5)
     assert left_braking.any()  # it hits the wall braking too
     np.testing.assert_array_equal(braking_cut, braking)  # the brake is never cut
+
+
+def test_an_unknown_steering_penalty_scale_is_refused():
+    from vision_rl.envs.core import RacingConfig
+
+    with pytest.raises(ValueError, match=r"steer_change_penalty_scale must be one of .*'limit', 'usable'.*got 'speed'"):
+        RacingConfig(steer_change_penalty_scale="speed")

@@ -191,6 +191,7 @@ def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeyp
         ({"frame_delay_s": 2.0}, "--frame-delay-s 2.0"),
         ({"steer_action": "torque"}, "--steer-action must be one of angle, rate"),
         ({"wall_penalty_speed": "start"}, "--wall-penalty-speed must be one of end, impact"),
+        ({"steer_change_penalty_scale": "speed"}, "--steer-change-penalty-scale must be one of limit, usable"),
         ({"wall_hit_throttle_cut_s": -1.0}, "--wall-hit-throttle-cut-s -1.0"),
         ({"pedal_full_at": 0.0}, "--pedal-full-at 0.0"),
         ({"pedal_full_at": 1.5}, "--pedal-full-at 1.5"),

@@ -289,12 +289,17 @@ def test_read_metrics_drops_the_evaluations_a_resume_replaced(tmp_path):
     assert [r.get("event") for r in read_metrics(path, events=True)] == [None, None, "sampler_lost", None, None]
 
 
-@pytest.mark.parametrize("stuck_ends_episode", [False, True])
-def test_stuck_ends_episode_reaches_the_training_env(small_track, tmp_path, stuck_ends_episode):
+@pytest.mark.parametrize("stuck_ends_episode, scale", [(False, "usable"), (True, "limit")])
+def test_stuck_ends_episode_and_the_steering_penalty_scale_reach_the_training_env(
+    small_track, tmp_path, stuck_ends_episode, scale
+):
     from vision_rl.phase2_rl.train import _Run
 
-    run = _Run(tiny_train_config(small_track, tmp_path / "run", stuck_ends_episode=stuck_ends_episode))
+    config = tiny_train_config(small_track, tmp_path / "run", stuck_ends_episode=stuck_ends_episode,
+                               steer_change_penalty_scale=scale)  # fmt: skip
+    run = _Run(config)
     assert run.racing.terminate_when_stuck is stuck_ends_episode
+    assert run.racing.steer_change_penalty_scale == scale
 
 
 def test_a_finer_control_step_keeps_the_discount_per_second_and_is_timed_at_its_own_rate(small_track, tmp_path):

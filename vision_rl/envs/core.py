@@ -48,6 +48,8 @@ STATS_GROUPS = 20
 STEER_ACTIONS: tuple[str, ...] = ("angle", "rate", "speed_scaled", "rate_scaled")
 #: Speeds the wall penalty may square (see :func:`vision_rl.envs.rewards.wall_penalty_speed_mps`).
 WALL_PENALTY_SPEEDS: tuple[str, ...] = ("end", "impact")
+#: What the steering-change penalty measures a change against (``RacingConfig.steer_change_penalty_scale``).
+STEER_CHANGE_PENALTY_SCALES: tuple[str, ...] = ("limit", "usable")
 #: ``speed_scaled``: the command's range at speed v is this many times ``wheelbase * g / v^2``, the angle a
 #: neutral-steering car needs for 1 g. Chosen to cover the built-in AI at skill 1.0 on expressway and technical
 #: (hatchback, L = 2.566 m): its largest command was 0.072 rad at 40-45 m/s (the range at 42.5 m/s: 0.084 rad) and
@@ -180,8 +182,14 @@ class RacingConfig:
     """Vision: frames show the world this long before the state (the paper's 4 frames at 60 Hz: 0.067; 0: none);
     the dedicated features are not delayed."""
     steer_change_penalty_c_s: float = 0.0
-    """c_s of a penalty ``c_s * (change of the steering command / its limit)^2`` per step, against bang-bang
+    """c_s of a penalty ``c_s * (change of the steering command / scale)^2`` per step, against bang-bang
     steering (not in the papers; 0: their reward)."""
+    steer_change_penalty_scale: str = "limit"
+    """The steering-change penalty's scale: ``limit``, the command's +-pi/6, or ``usable``, the angle usable at the
+    car's speed when the step starts (:func:`usable_steer_rad`). At 159 km/h the hatchback may use +-0.07 rad, so a
+    swing between the ends of that range, which spun ``make quick``'s vision policies into the chicane's wall
+    (docs/results/vision-expressway-hatchback), costs ``0.07 c_s`` against ``limit`` and ``4 c_s`` against
+    ``usable``, while at low speed the two agree."""
     off_track_penalty_c_o: float = 0.0
     """c_o of a penalty ``c_o * |v|^2`` per step that ends with the side of the ego's body beyond the painted edge
     line (a wheel on the kerb; :func:`vision_rl.envs.rewards.off_track_penalty`; not in the papers; 0: their
@@ -237,6 +245,11 @@ class RacingConfig:
         if self.wall_penalty_speed not in WALL_PENALTY_SPEEDS:
             raise ValueError(
                 f"wall_penalty_speed must be one of {WALL_PENALTY_SPEEDS}, got {self.wall_penalty_speed!r}"
+            )
+        if self.steer_change_penalty_scale not in STEER_CHANGE_PENALTY_SCALES:
+            raise ValueError(
+                f"steer_change_penalty_scale must be one of {STEER_CHANGE_PENALTY_SCALES}, "
+                f"got {self.steer_change_penalty_scale!r}"
             )
         if self.n_groups < 1:
             raise ValueError(f"n_groups must be >= 1, got {self.n_groups}")
@@ -497,8 +510,11 @@ class RacingCore:
             beyond = self.track.beyond_edge_line(st.s_m[ego], lateral + np.copysign(0.5 * self.car.width_m, lateral))
             reward = reward - off_track_penalty(beyond, speed, cfg.off_track_penalty_c_o)
         if cfg.steer_change_penalty_c_s > 0:
+            scale_rad = ACTION_STEER_LIMIT_RAD
+            if cfg.steer_change_penalty_scale == "usable":
+                scale_rad = usable_steer_rad(ego_speed, self.car.wheelbase_m)
             reward = reward - steering_change_penalty(
-                self.steer_command_rad, steer_rad, ACTION_STEER_LIMIT_RAD, cfg.steer_change_penalty_c_s
+                self.steer_command_rad, steer_rad, scale_rad, cfg.steer_change_penalty_c_s
             )
         self.steer_command_rad = steer_rad
         if self.group_size > 1:

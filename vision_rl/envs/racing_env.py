@@ -95,10 +95,11 @@ class TimeTrial(_RacingEnv):
     ``r = (cp_t - cp_{t-1}) - c_w * wall * |v|^2``: centre-line progress in metres over the step (signed, so
     reversing is negative, and correct across the start/finish line) minus ``c_w`` (default 0.005) times the
     squared speed while touching a wall (overtaking paper Eq. 1, vision paper Eq. 3). Optional, not in the papers
-    (off by default): ``- c_s * (change of the steering command / pi/6)^2`` with ``steer_change_penalty_c_s``, against
-    the bang-bang steering SAC learns on the papers' reward; ``- c_o * off * |v|^2`` with ``off_track_penalty_c_o``,
-    ``off`` when the side of the car's body ends the step over the painted edge line, against running wide into the
-    wall.
+    (off by default): ``- c_s * (change of the steering command / pi/6)^2`` with ``steer_change_penalty_c_s`` (with
+    ``steer_change_penalty_scale='usable'`` the change is measured against the angle usable at the car's speed),
+    against the bang-bang steering SAC learns on the papers' reward; ``- c_o * off * |v|^2`` with
+    ``off_track_penalty_c_o``, ``off`` when the side of the car's body ends the step over the painted edge line,
+    against running wide into the wall.
 
     ## Starting State
     A uniformly random point of the track, on the built-in AI's racing line, heading along the track at the AI's
@@ -117,7 +118,7 @@ class TimeTrial(_RacingEnv):
     ## Arguments
     Any field of :class:`vision_rl.envs.core.RacingConfig`: ``track`` (built-in name, ``random:SEED``, CSV path),
     ``car``, ``observation``, ``control_dt_s``, ``episode_s``, ``wall_penalty_c_w``, ``steer_change_penalty_c_s``,
-    ``off_track_penalty_c_o``,
+    ``steer_change_penalty_scale``, ``off_track_penalty_c_o``,
     ``steer_action``, ``terminate_when_stuck``, ``normalize``, ``image_hw_px``, ``frame_delay_s``. For 20 cars in one
     world use :func:`vision_rl.envs.make_vector_env`.
 

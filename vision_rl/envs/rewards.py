@@ -36,14 +36,18 @@ def wall_penalty_speed_mps(speed_start_mps: np.ndarray, speed_end_mps: np.ndarra
 
 
 def steering_change_penalty(
-    steer_prev_rad: np.ndarray, steer_now_rad: np.ndarray, steer_limit_rad: float, steer_change_penalty_c_s: float
+    steer_prev_rad: np.ndarray,
+    steer_now_rad: np.ndarray,
+    steer_scale_rad: float | np.ndarray,
+    steer_change_penalty_c_s: float,
 ) -> np.ndarray:
-    """``c_s * ((steer_now - steer_prev) / steer_limit)^2``: the cost of a change of the steering command.
+    """``c_s * ((steer_now - steer_prev) / steer_scale)^2``: the cost of a change of the steering command, measured
+    against the command's limit or, per car, the angle usable at its speed.
 
     Not in either paper. SAC on the papers' reward learns bang-bang steering here (the command flips sign on 75-83 %
     of control steps, by 0.44-0.54 rad on average, in three 1M-step state policies), which the actuator's rate limit
     turns into a weave; a full flip costs ``4 c_s``, a 0.1 rad correction ``0.04 c_s``."""
-    change = (steer_now_rad - steer_prev_rad) / steer_limit_rad
+    change = (steer_now_rad - steer_prev_rad) / steer_scale_rad
     return steer_change_penalty_c_s * np.square(change)
 
 

@@ -44,7 +44,7 @@ from stable_baselines3.common.logger import configure
 from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecMonitor
 
-from vision_rl.envs.core import STEER_ACTIONS, WALL_PENALTY_SPEEDS, RacingConfig
+from vision_rl.envs.core import STEER_ACTIONS, STEER_CHANGE_PENALTY_SCALES, WALL_PENALTY_SPEEDS, RacingConfig
 from vision_rl.envs.observations import ObsNormalizer
 from vision_rl.envs.observer import Observer
 from vision_rl.envs.vector import make_sb3_vec_env
@@ -178,7 +178,10 @@ class TrainPolicyConfig:
     """Speed the wall penalty squares: `end` of the step (the papers) or `impact`, the larger of the step's start and
     end speeds (a hit charged at the speed that hit; not in the papers)."""
     steer_change_penalty_c_s: float = 0.0
-    """c_s of the reward's steering-change penalty ``c_s * (change / limit)^2`` (0: the papers' reward)."""
+    """c_s of the reward's steering-change penalty ``c_s * (change / scale)^2`` (0: the papers' reward)."""
+    steer_change_penalty_scale: str = "limit"
+    """The steering-change penalty's scale: `limit` (the command's +-pi/6) or `usable` (the angle usable at the
+    car's speed, +-0.07 rad at 159 km/h: a swing across it costs 4 c_s; not in the papers)."""
     off_track_penalty_c_o: float = 0.0
     """c_o of a penalty c_o |v|^2 per step ending with a wheel over the edge line (not in the papers; 0: none)."""
     wall_hit_throttle_cut_s: float = 0.0
@@ -436,6 +439,7 @@ class _Run:
                 track=cfg.track, car=cfg.car, observation=self.kind, n_groups=cfg.cars, episode_s=cfg.episode_s,
                 wall_penalty_c_w=cfg.wall_penalty_c_w, image_hw_px=image_hw,
                 steer_change_penalty_c_s=cfg.steer_change_penalty_c_s, frame_delay_s=cfg.frame_delay_s,
+                steer_change_penalty_scale=cfg.steer_change_penalty_scale,
                 steer_action=cfg.steer_action, terminate_on_wall=cfg.wall_ends_episode,
                 terminate_when_stuck=cfg.stuck_ends_episode,
                 off_track_penalty_c_o=cfg.off_track_penalty_c_o, wall_penalty_speed=cfg.wall_penalty_speed,
@@ -706,14 +710,14 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     if ai_ticks(cfg.control_dt_s) is None:
         raise ValueError(f"--control-dt-s {cfg.control_dt_s} is not a whole multiple of the simulator's "
                          f"{AI_CONTROL_DT_S} s step, e.g. 0.04 (25 Hz) or 0.1 (10 Hz)")
-    if cfg.steer_action not in STEER_ACTIONS:
-        raise ValueError(f"--steer-action must be one of {', '.join(STEER_ACTIONS)}, got {cfg.steer_action!r}")
+    choices = {"steer_action": STEER_ACTIONS, "wall_penalty_speed": WALL_PENALTY_SPEEDS,
+               "steer_change_penalty_scale": STEER_CHANGE_PENALTY_SCALES}  # fmt: skip
+    for name, allowed in choices.items():
+        value = getattr(cfg, name)
+        if value not in allowed:
+            raise ValueError(f"--{name.replace('_', '-')} must be one of {', '.join(allowed)}, got {value!r}")
     if cfg.steer_change_share_of_range > 0 and cfg.steer_action != "rate_scaled":
         raise ValueError("--steer-change-share-of-range limits rate_scaled steering: give --steer-action rate_scaled")
-    if cfg.wall_penalty_speed not in WALL_PENALTY_SPEEDS:
-        raise ValueError(
-            f"--wall-penalty-speed must be one of {', '.join(WALL_PENALTY_SPEEDS)}, got {cfg.wall_penalty_speed!r}"
-        )
     if (cfg.guide_bc_weight > 0 or cfg.guide_pretrain_steps > 0) and cfg.guide_steps == 0:
         raise ValueError(
             "--guide-bc-weight and --guide-pretrain-steps clone the AI's transitions: give --guide-steps too"
