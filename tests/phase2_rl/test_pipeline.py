@@ -46,13 +46,16 @@ def test_pipeline_tiny(small_track, tiny_encoders, tmp_path, monkeypatch):
         assert (run / "best" / "evaluation.json").is_file() and not (run / "evaluation.json").exists()
         assert "the weights of step 100 (chosen by held-out starts)" in "\n".join(format_phase2(summary))
         assert summary["state"]["chosen_at_steps"] is None
-        # The vision run alone takes the entropy target, the falling learning rate and the stuck ends of its sizes.
+        # The vision run alone takes the entropy target, the falling rate, the stuck ends and the steering penalty.
         specs = {k: PolicySpec.read(tmp_path / "runs" / "policy" / f"pipeline-{k}" / SIDECAR_NAME)
                  for k in ("state", "vision")}  # fmt: skip
         sac = {k: spec.sac for k, spec in specs.items()}
         assert (sac["vision"]["target_entropy"], sac["vision"]["learning_rate_final"]) == (-4.0, 1e-4)
         assert (sac["state"]["target_entropy"], sac["state"]["learning_rate_final"]) == (0.0, 0.0)
         assert specs["vision"].config.terminate_when_stuck and not specs["state"].config.terminate_when_stuck
+        penalty = {k: (spec.config.steer_change_penalty_c_s, spec.config.steer_change_penalty_scale)
+                   for k, spec in specs.items()}  # fmt: skip
+        assert penalty["vision"] == (0.5, "usable") and penalty["state"][0] == 0.0
     else:
         assert "skipped" in summary["vision"]
 
