@@ -5,8 +5,7 @@
 2. train-repr: the space2depth encoder on those frames, best checkpoint on the clean laps;
 3. Phase 2: train-policy on the frozen encoder's embedding (its frames rendered in a sampler process) and on the
    state, in a second process at the lowest priority that starts with the captures (it needs neither frames nor
-   encoder); the papers' evaluation of both (``--quick``: the vision policy's weights that its held-out starts
-   chose); the leaderboard.
+   encoder); the papers' evaluation of both policies' last weights; the leaderboard.
 
 ``--quick`` shrinks every stage to fit 20 minutes on 2 CPU cores (12.7 measured, 17.4 with the CPU held to 1.5
 cores; README, "Two commands"); without it the paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs,
@@ -88,9 +87,6 @@ class PipelineSizes:
     vision_steer_change_penalty_c_s: float
     """Vision: c_s of the steering-change penalty against the angle usable at the car's speed
     (``train-policy --steer-change-penalty-c-s C --steer-change-penalty-scale usable``; 0: the papers' reward)."""
-    vision_select_starts: int
-    """Vision: held-out starts (seeds 100, 101, ...) timed at each of those evaluations; the weights that finished
-    them all with the fastest mean lap are the ones the pipeline times and ranks (0, or no such weights: the last)."""
     state_eval_seeds: int
     """Start seeds of the state policy's final evaluation."""
     vision_eval_seeds: int
@@ -111,7 +107,7 @@ SIZES: dict[str, PipelineSizes] = {
         state_cars=2, vision_cars=2, state_learning_starts=50, vision_learning_starts=40, vision_gradient_steps=0,
         vision_workers=0, batch_size=32, buffer_size=5_000, state_eval_every_steps=100, vision_eval_every_steps=100,
         vision_target_entropy=-4.0, vision_learning_rate_final=1e-4, vision_stuck_ends_episode=True,
-        vision_steer_change_penalty_c_s=0.5, vision_select_starts=1, state_eval_seeds=1, vision_eval_seeds=1,
+        vision_steer_change_penalty_c_s=0.5, state_eval_seeds=1, vision_eval_seeds=1,
         stats_steps=5, state_eval_time_limit_s=30.0, vision_eval_time_limit_s=30.0,
     ),
     # Frames at half the paper's side: training the encoder on 470 x 280 frames ran at about 30 frames/s on one of
@@ -126,29 +122,31 @@ SIZES: dict[str, PipelineSizes] = {
     # Steering: a change of the command within the range usable at the car's speed (rate_scaled). Over 3 training
     # seeds of 400k state steps it lapped in 2:11.5 (9 of 9 starts) against 2:15.1 with the speed-scaled range
     # alone and 2:18.6 (6 of 9) with the papers' angle; vision: docs/results/vision-expressway-hatchback.
-    # The vision sampler process and the captures side by side: 28.3 -> 21.6 min on a slow day (README, "How the
-    # stages came to share the 2 cores"). 8 encoder epochs instead of 10 left vision policies that finished 1 and 0 of
-    # 3 starts there, so the encoder keeps its 10 epochs. The vision stage trains 150k steps of 10 cars: over 3
-    # training seeds of this recipe the protocol's lap was 2:16.88 +- 3.46 s at 150k steps and 2:16.45 +- 3.53 s
-    # at 200k, every start finished at both (docs/results/vision-expressway-hatchback, "make quick's recipe"); yet
-    # one single run in two to four leaves a policy that loses starts at the chicane (same doc, "How make quick's
-    # vision policy gets stuck"; a smaller steering step made it worse). Over 8 more training seeds the last weights
-    # finished 58 of 104 starts, those chosen by 3 held-out starts at 100k, 125k or 150k steps 69 (same doc,
-    # "Weights chosen by held-out starts"), so the job times the chosen ones. With the entropy target -4 and the
-    # learning rate falling to 1e-4 (the 25 Hz state recipe's) the last weights of 8 more seeds finished 90 of 104,
-    # the chosen ones 89 (same doc, "The entropy target and a falling learning rate"): the job trains with both.
-    # A stuck car stood out the rest of its 100 s episode: 45 % of those runs' transitions were of a standing car.
-    # Ending the episode there (same 8 seeds): 94 of 104 starts, every seed a lap on the protocol's starts (same doc,
-    # "Stuck cars end their training episodes"). The policies still swung the wheel between the ends of the angle
-    # usable at speed; a steering-change penalty against that angle (c_s 0.5) halved the swings and, over the same
-    # 8 seeds, finished 99 of 104 (same doc, "A steering-change penalty against the usable angle").
+    # The vision sampler process and the captures side by side: 28.3 -> 21.6 min on a slow day (docs/results/make-quick,
+    # "How long it takes"). 8 encoder epochs instead of 10 left vision policies that finished 1 and 0 of 3 starts there,
+    # so the encoder keeps its 10 epochs. The vision stage trains 150k steps of 10 cars: over 3 training seeds of this
+    # recipe the protocol's lap was 2:16.88 +- 3.46 s at 150k steps and 2:16.45 +- 3.53 s at 200k, every start finished
+    # at both (docs/results/vision-expressway-hatchback, "make quick's recipe"); yet one single run in two to four
+    # leaves a policy that loses starts at the chicane (same doc, "How make quick's vision policy gets stuck"; a smaller
+    # steering step made it worse). Over 8 more training seeds the last weights finished 58 of 104 starts, those chosen
+    # by 3 held-out starts at 100k, 125k or 150k steps 69 (same doc, "Weights chosen by held-out starts"), so the job
+    # timed the chosen ones. With the entropy target -4 and the learning rate falling to 1e-4 (the 25 Hz state recipe's)
+    # the last weights of 8 more seeds finished 90 of 104, the chosen ones 89 (same doc, "The entropy target and a
+    # falling learning rate"): the job trains with both. A stuck car stood out the rest of its 100 s episode: 45 % of
+    # those runs' transitions were of a standing car. Ending the episode there (same 8 seeds): 94 of 104 starts, every
+    # seed a lap on the protocol's starts (same doc, "Stuck cars end their training episodes"). The policies still swung
+    # the wheel between the ends of the angle usable at speed; a steering-change penalty against that angle (c_s 0.5)
+    # halved the swings and, over the same 8 seeds, finished 99 of 104 (same doc, "A steering-change penalty against the
+    # usable angle"); c_s 1.0 turned in late at the hairpin and finished 85 (same doc, "Twice the penalty"). The choice
+    # by held-out starts gained nothing over the last weights in the last three batches (89, 93 and 96 of 104 against
+    # 90, 94 and 99) and cost about 100 s of evaluations: the job times the last weights again.
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
         repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=150_000,
         state_cars=20, vision_cars=10, state_learning_starts=-1, vision_learning_starts=5_000, vision_gradient_steps=0,
-        vision_workers=1, batch_size=0, buffer_size=0, state_eval_every_steps=50_000, vision_eval_every_steps=25_000,
+        vision_workers=1, batch_size=0, buffer_size=0, state_eval_every_steps=50_000, vision_eval_every_steps=50_000,
         vision_target_entropy=-4.0, vision_learning_rate_final=1e-4, vision_stuck_ends_episode=True,
-        vision_steer_change_penalty_c_s=0.5, vision_select_starts=3, state_eval_seeds=3, vision_eval_seeds=3,
+        vision_steer_change_penalty_c_s=0.5, state_eval_seeds=3, vision_eval_seeds=3,
         stats_steps=50, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=400.0,
     ),
     # The paper's scale: 50 disrupted laps at 60 fps and 470 x 280, 50 encoder epochs; SAC for 400 epochs of 20
@@ -160,7 +158,7 @@ SIZES: dict[str, PipelineSizes] = {
         state_cars=20, vision_cars=20, state_learning_starts=-1, vision_learning_starts=-1, vision_gradient_steps=0,
         vision_workers=1, batch_size=0, buffer_size=0, state_eval_every_steps=200_000,
         vision_eval_every_steps=200_000, vision_target_entropy=0.0, vision_learning_rate_final=0.0,
-        vision_stuck_ends_episode=False, vision_steer_change_penalty_c_s=0.0, vision_select_starts=0,
+        vision_stuck_ends_episode=False, vision_steer_change_penalty_c_s=0.0,
         state_eval_seeds=3, vision_eval_seeds=3, stats_steps=100, state_eval_time_limit_s=0.0,
         vision_eval_time_limit_s=0.0,
     ),
@@ -291,15 +289,14 @@ def sampler_processes(sizes: PipelineSizes) -> int:
 
 def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car: str, runs: str, seed: int,
                   device: str) -> dict[str, Any]:  # fmt: skip
-    """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time it by the protocol:
-    its last weights, or those its held-out starts chose (``sizes.vision_select_starts``)."""
-    from vision_rl.phase2_rl.artifact import MODEL_NAME, SIDECAR_NAME, PolicySpec, chosen_weights
+    """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time its last weights by
+    the protocol."""
+    from vision_rl.phase2_rl.artifact import MODEL_NAME
     from vision_rl.phase2_rl.evaluate import evaluate_policy
     from vision_rl.phase2_rl.train import TrainPolicyConfig, train_policy
 
     vision = kind == "vision"
     workers = sampler_processes(sizes) if vision else 0
-    select = sizes.vision_select_starts if vision else 0
     t0 = time.perf_counter()
     out = Path(runs) / "policy" / f"pipeline-{kind}"
     trained = train_policy(
@@ -308,7 +305,6 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
             steps=sizes.vision_steps if vision else sizes.state_steps, preset=sizes.sac_preset, out=str(out),
             seed=seed, force=True, checkpoint_every_steps=0,
             eval_every_steps=sizes.vision_eval_every_steps if vision else sizes.state_eval_every_steps,
-            select_starts=select, select_clean=not select,  # by finished starts: no quick vision lap is clean
             save_buffer=False, stats_steps=sizes.stats_steps,
             learning_starts=sizes.vision_learning_starts if vision else sizes.state_learning_starts,
             gradient_steps=sizes.vision_gradient_steps if vision else 0, batch_size=sizes.batch_size,
@@ -323,18 +319,16 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
     if trained["interrupted"]:
         raise KeyboardInterrupt
     t1 = time.perf_counter()
-    chosen = chosen_weights(out) or out
     evaluation = evaluate_policy(
-        chosen,
+        out,
         seeds=sizes.vision_eval_seeds if vision else sizes.state_eval_seeds,
         time_limit_s=sizes.vision_eval_time_limit_s if vision else sizes.state_eval_time_limit_s,
         name=f"pipeline-{kind}",
         device="cpu",
     )
     return {
-        "policy": str(chosen / MODEL_NAME),
+        "policy": str(out / MODEL_NAME),
         "num_timesteps": trained["num_timesteps"],
-        "chosen_at_steps": PolicySpec.read(chosen / SIDECAR_NAME).num_timesteps if chosen != out else None,
         "train_time_s": trained["train_time_s"],
         "sampling": trained["sampling"],
         "best_lap_time_s": evaluation["best_lap_time_s"],
@@ -453,10 +447,8 @@ def format_phase2(summary: dict[str, Any]) -> list[str]:
         elif r:
             workers = (r.get("sampling") or {}).get("workers", 0)
             sampled = f", {workers} sampler process{'es' * (workers > 1)}" if workers else ""
-            at = r.get("chosen_at_steps")
-            chosen = f", the weights of step {at} (chosen by held-out starts)" if at else ""
             lines.append(
-                f"  {kind}: {r['num_timesteps']} steps in {r['wall_time_s']['train']:.0f} s{sampled}{chosen}; "
+                f"  {kind}: {r['num_timesteps']} steps in {r['wall_time_s']['train']:.0f} s{sampled}; "
                 f"lap 2 best {format_lap_time(r['best_lap_time_s'])} ({r['n_finished']}/{r['n_seeds']} seeds finished, "
                 f"{r['distance_m']:.0f} m driven at most); {r['policy']}"
             )
