@@ -7,7 +7,7 @@
    state, in a second process at the lowest priority that starts with the captures (it needs neither frames nor
    encoder); the papers' evaluation of both policies' last weights; the leaderboard.
 
-``--quick`` shrinks every stage to fit 20 minutes on 2 CPU cores (12.7 measured, 17.4 with the CPU held to 1.5
+``--quick`` shrinks every stage to fit 20 minutes on 2 CPU cores (12.5 measured, 16.4 with the CPU held to 1.5
 cores; README, "Two commands"); without it the paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs,
 millions of SAC steps: days on a CPU). ``--tiny`` is for tests. Each stage's outputs stay under ``--runs`` and a
 stage whose output is complete is not redone (the policies are trained again), so an interrupted pipeline continues
@@ -170,7 +170,7 @@ class PipelineOptions:
     """The whole two-phase job: capture, train-repr, train-policy (state and vision), evaluate, leaderboard."""
 
     quick: bool = False
-    """Small sizes: within 20 minutes on 2 CPU cores (12.7 measured, 17.4 held to 1.5 cores)."""
+    """Small sizes: within 20 minutes on 2 CPU cores (12.5 measured, 16.4 held to 1.5 cores)."""
     tiny: bool = False
     """Minimal sizes, for tests (seconds; results mean nothing)."""
     track: str = "expressway"
