@@ -73,10 +73,8 @@ class PipelineSizes:
     """SAC batch size (0: the preset's)."""
     buffer_size: int
     """Replay buffer capacity, transitions (0: the preset's)."""
-    state_eval_every_steps: int
-    """Evaluate the state policy in training every this many steps."""
-    vision_eval_every_steps: int
-    """Evaluate the vision policy in training every this many steps."""
+    eval_every_steps: int
+    """Evaluate each policy in training every this many steps."""
     vision_target_entropy: float
     """Vision: SAC's entropy target, nats (0: the preset's, Stable-Baselines3's -2 for the 2 action dimensions)."""
     vision_learning_rate_final: float
@@ -105,7 +103,7 @@ SIZES: dict[str, PipelineSizes] = {
         train_laps=1, eval_laps=1, capture_cars=2, capture_fps=5, image_hw_px=(64, 96), repr_epochs=1,
         repr_max_steps=3, sac_preset="cpu", steer_action="rate_scaled", state_steps=200, vision_steps=120,
         state_cars=2, vision_cars=2, state_learning_starts=50, vision_learning_starts=40, vision_gradient_steps=0,
-        vision_workers=0, batch_size=32, buffer_size=5_000, state_eval_every_steps=100, vision_eval_every_steps=100,
+        vision_workers=0, batch_size=32, buffer_size=5_000, eval_every_steps=100,
         vision_target_entropy=-4.0, vision_learning_rate_final=1e-4, vision_stuck_ends_episode=True,
         vision_steer_change_penalty_c_s=0.5, state_eval_seeds=1, vision_eval_seeds=1,
         stats_steps=5, state_eval_time_limit_s=30.0, vision_eval_time_limit_s=30.0,
@@ -122,29 +120,18 @@ SIZES: dict[str, PipelineSizes] = {
     # Steering: a change of the command within the range usable at the car's speed (rate_scaled). Over 3 training
     # seeds of 400k state steps it lapped in 2:11.5 (9 of 9 starts) against 2:15.1 with the speed-scaled range
     # alone and 2:18.6 (6 of 9) with the papers' angle; vision: docs/results/vision-expressway-hatchback.
-    # The vision sampler process and the captures side by side: 28.3 -> 21.6 min on a slow day (docs/results/make-quick,
-    # "How long it takes"). 8 encoder epochs instead of 10 left vision policies that finished 1 and 0 of 3 starts there,
-    # so the encoder keeps its 10 epochs. The vision stage trains 150k steps of 10 cars: over 3 training seeds of this
-    # recipe the protocol's lap was 2:16.88 +- 3.46 s at 150k steps and 2:16.45 +- 3.53 s at 200k, every start finished
-    # at both (docs/results/vision-expressway-hatchback, "make quick's recipe"); yet one single run in two to four
-    # leaves a policy that loses starts at the chicane (same doc, "How make quick's vision policy gets stuck"; a smaller
-    # steering step made it worse). Over 8 more training seeds the last weights finished 58 of 104 starts, those chosen
-    # by 3 held-out starts at 100k, 125k or 150k steps 69 (same doc, "Weights chosen by held-out starts"), so the job
-    # timed the chosen ones. With the entropy target -4 and the learning rate falling to 1e-4 (the 25 Hz state recipe's)
-    # the last weights of 8 more seeds finished 90 of 104, the chosen ones 89 (same doc, "The entropy target and a
-    # falling learning rate"): the job trains with both. A stuck car stood out the rest of its 100 s episode: 45 % of
-    # those runs' transitions were of a standing car. Ending the episode there (same 8 seeds): 94 of 104 starts, every
-    # seed a lap on the protocol's starts (same doc, "Stuck cars end their training episodes"). The policies still swung
-    # the wheel between the ends of the angle usable at speed; a steering-change penalty against that angle (c_s 0.5)
-    # halved the swings and, over the same 8 seeds, finished 99 of 104 (same doc, "A steering-change penalty against the
-    # usable angle"); c_s 1.0 turned in late at the hairpin and finished 85 (same doc, "Twice the penalty"). The choice
-    # by held-out starts gained nothing over the last weights in the last three batches (89, 93 and 96 of 104 against
-    # 90, 94 and 99) and cost about 100 s of evaluations: the job times the last weights again.
+    # The vision frames render in a sampler process beside the captures and the state run (28.3 -> 21.6 min on a slow
+    # day); 10 encoder epochs (8 left policies that lost starts). The vision stage, each change measured over the same
+    # 8 training seeds from 13 starts each (docs/results/vision-expressway-hatchback): the entropy target -4 and the
+    # learning rate falling to 1e-4 (58 -> 90 of 104 starts finished), a stuck car ending its training episode
+    # (45 % of the transitions had been of a standing car; 94), the steering-change penalty c_s 0.5 against the usable
+    # angle (the wheel's swings at speed halved; 99; c_s 1.0: 85). The last weights are timed: weights chosen by 3
+    # held-out starts gained nothing in the last three batches and cost about 100 s (docs/results/make-quick).
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
         repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=150_000,
         state_cars=20, vision_cars=10, state_learning_starts=-1, vision_learning_starts=5_000, vision_gradient_steps=0,
-        vision_workers=1, batch_size=0, buffer_size=0, state_eval_every_steps=50_000, vision_eval_every_steps=50_000,
+        vision_workers=1, batch_size=0, buffer_size=0, eval_every_steps=50_000,
         vision_target_entropy=-4.0, vision_learning_rate_final=1e-4, vision_stuck_ends_episode=True,
         vision_steer_change_penalty_c_s=0.5, state_eval_seeds=3, vision_eval_seeds=3,
         stats_steps=50, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=400.0,
@@ -156,8 +143,8 @@ SIZES: dict[str, PipelineSizes] = {
         train_laps=50, eval_laps=5, capture_cars=4, capture_fps=60, image_hw_px=(280, 470), repr_epochs=50,
         repr_max_steps=-1, sac_preset="paper", steer_action="angle", state_steps=8_000_000, vision_steps=8_000_000,
         state_cars=20, vision_cars=20, state_learning_starts=-1, vision_learning_starts=-1, vision_gradient_steps=0,
-        vision_workers=1, batch_size=0, buffer_size=0, state_eval_every_steps=200_000,
-        vision_eval_every_steps=200_000, vision_target_entropy=0.0, vision_learning_rate_final=0.0,
+        vision_workers=1, batch_size=0, buffer_size=0, eval_every_steps=200_000,
+        vision_target_entropy=0.0, vision_learning_rate_final=0.0,
         vision_stuck_ends_episode=False, vision_steer_change_penalty_c_s=0.0,
         state_eval_seeds=3, vision_eval_seeds=3, stats_steps=100, state_eval_time_limit_s=0.0,
         vision_eval_time_limit_s=0.0,
@@ -304,7 +291,7 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
             encoder=encoder, track=track, car=car, cars=sizes.vision_cars if vision else sizes.state_cars,
             steps=sizes.vision_steps if vision else sizes.state_steps, preset=sizes.sac_preset, out=str(out),
             seed=seed, force=True, checkpoint_every_steps=0,
-            eval_every_steps=sizes.vision_eval_every_steps if vision else sizes.state_eval_every_steps,
+            eval_every_steps=sizes.eval_every_steps,
             save_buffer=False, stats_steps=sizes.stats_steps,
             learning_starts=sizes.vision_learning_starts if vision else sizes.state_learning_starts,
             gradient_steps=sizes.vision_gradient_steps if vision else 0, batch_size=sizes.batch_size,
