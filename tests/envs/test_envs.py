@@ -119,6 +119,45 @@ def test_a_stuck_car_ends_its_episode_only_when_asked(terminate_when_stuck):
     assert ended_at == (round(5.0 / core.config.control_dt_s) if terminate_when_stuck else None)
 
 
+def _stand_until_stuck(core: RacingCore, stand_at_m: float) -> None:
+    """Car 0 stands on the brake at ``stand_at_m`` until the stuck rule ends its episode; car 1 drives on."""
+    core.reset_groups(np.arange(2))
+    core.world.reset(s_m=np.array([stand_at_m, 300.0]), speed_mps=np.array([0.0, 10.0]))
+    core.stuck.reset(np.arange(2), core.world.state.unwrapped_s_m[core.ego_ids])
+    for _ in range(round(5.0 / core.config.control_dt_s)):
+        _, _, terminated, _, _ = core.step(np.array([[0.0, -1.0], _follow_centre_line(core, 10.0)[1]]), True)
+    assert terminated.tolist() == [True, False]
+
+
+@pytest.mark.parametrize("share", [1.0, 0.5])
+def test_a_share_of_starts_lies_before_where_a_car_got_stuck(share):
+    # The stuck point is 40 m past the line, so a start up to 120 m before it wraps round to the end of the lap.
+    core = _core(n_groups=2, terminate_when_stuck=True, restart_before_stuck_share=share, restart_before_stuck_m=120.0)
+    length_m = core.track.length_m
+    _stand_until_stuck(core, 40.0)
+    np.testing.assert_allclose(core.stuck_points_s_m, [40.0], atol=0.1)
+    back_m = []
+    for _ in range(200):
+        core.reset_groups(np.array([0]))
+        back_m.append((40.0 - core.world.state.s_m[0]) % length_m)
+    before = np.asarray(back_m) <= 120.0
+    if share == 1.0:
+        assert before.all() and np.ptp(back_m) > 90.0  # spread over the 120 m, not one place
+        assert (np.asarray(back_m) > 40.0).any()  # some before the line
+    else:
+        assert 0.35 < before.mean() < 0.65  # the rest uniformly over the lap (120 m of it: under 10 %)
+
+
+def test_starts_before_stuck_points_need_stuck_ends_and_keep_nothing_when_off():
+    with pytest.raises(ValueError, match="use terminate_when_stuck"):
+        RacingConfig(restart_before_stuck_share=0.5)
+    with pytest.raises(ValueError, match="within \\[0, 1\\]"):
+        RacingConfig(terminate_when_stuck=True, restart_before_stuck_share=1.5)
+    off = _core(n_groups=2, terminate_when_stuck=True)
+    _stand_until_stuck(off, 40.0)
+    assert len(off.stuck_points_s_m) == 0
+
+
 def test_overtaking_reward_and_info_on_setting_a():
     core = _core(n_groups=1, scenario="setting_a", observation="overtaking")
     obs, info = None, None

@@ -289,17 +289,19 @@ def test_read_metrics_drops_the_evaluations_a_resume_replaced(tmp_path):
     assert [r.get("event") for r in read_metrics(path, events=True)] == [None, None, "sampler_lost", None, None]
 
 
-@pytest.mark.parametrize("stuck_ends_episode, scale", [(False, "usable"), (True, "limit")])
+@pytest.mark.parametrize("stuck_ends_episode, scale, restart_share", [(False, "usable", 0.0), (True, "limit", 0.5)])
 def test_stuck_ends_episode_and_the_steering_penalty_scale_reach_the_training_env(
-    small_track, tmp_path, stuck_ends_episode, scale
+    small_track, tmp_path, stuck_ends_episode, scale, restart_share
 ):
     from vision_rl.phase2_rl.train import _Run
 
     config = tiny_train_config(small_track, tmp_path / "run", stuck_ends_episode=stuck_ends_episode,
-                               steer_change_penalty_scale=scale)  # fmt: skip
+                               steer_change_penalty_scale=scale, restart_before_stuck_share=restart_share,
+                               restart_before_stuck_m=150.0)  # fmt: skip
     run = _Run(config)
     assert run.racing.terminate_when_stuck is stuck_ends_episode
     assert run.racing.steer_change_penalty_scale == scale
+    assert (run.racing.restart_before_stuck_share, run.racing.restart_before_stuck_m) == (restart_share, 150.0)
 
 
 def test_a_finer_control_step_keeps_the_discount_per_second_and_is_timed_at_its_own_rate(small_track, tmp_path):

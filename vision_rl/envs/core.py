@@ -42,6 +42,9 @@ SCENARIOS: dict[str, tuple[int, float]] = {
 STATS_SEED = 12345
 #: Groups of the world whose disrupted-AI drive gives the normalisation statistics (the papers' 20 cars).
 STATS_GROUPS = 20
+#: Stuck points an environment keeps for ``RacingConfig.restart_before_stuck_share``: the most recent, so the starts
+#: follow where the policy in training fails now rather than where its first random actions did.
+STUCK_POINTS_KEPT = 32
 
 
 #: How the first action entry steers (:func:`steering_command`).
@@ -225,6 +228,15 @@ class RacingConfig:
     """An episode starts at this share of the limit speed at the start point (the AI's speed there)."""
     terminate_when_stuck: bool = False
     """End (terminate) an episode when the ego is stuck by :data:`vision_rl.sim.fleet.STUCK_RULE`."""
+    restart_before_stuck_share: float = 0.0
+    """With ``terminate_when_stuck``: this share of episode starts is placed up to ``restart_before_stuck_m`` before
+    a point where an ego of this environment got stuck (one of the last :data:`STUCK_POINTS_KEPT`), the rest at
+    uniformly random points, so a policy meets the approaches it fails more often than once a lap (not in the
+    papers; 0: every start random, as theirs)."""
+    restart_before_stuck_m: float = 300.0
+    """How far before a stuck point such a start may be, m (uniformly within it). The losses of ``make quick``'s
+    vision policies begin at full throttle at about 150 km/h, 2-4 s before the wall (docs/results/
+    vision-expressway-hatchback), so 300 m covers the approach and its braking point."""
     terminate_on_wall: bool = False
     """End (terminate) an episode at the first control step in which the ego touches a wall, as the DDPG paper ends
     one on a crash (not in the GT Sport papers: their wall penalty alone). The step keeps its reward."""
@@ -261,6 +273,12 @@ class RacingConfig:
             raise ValueError("steer_change_share_of_range limits rate_scaled steering: use steer_action='rate_scaled'")
         if not 0 < self.pedal_full_at <= 1:
             raise ValueError(f"pedal_full_at must be within (0, 1], got {self.pedal_full_at}")
+        if not 0 <= self.restart_before_stuck_share <= 1:
+            raise ValueError(f"restart_before_stuck_share must be within [0, 1], got {self.restart_before_stuck_share}")
+        if self.restart_before_stuck_share > 0 and not self.terminate_when_stuck:
+            raise ValueError("restart_before_stuck_share starts episodes before stuck ends: use terminate_when_stuck")
+        if self.restart_before_stuck_m < 0:
+            raise ValueError(f"restart_before_stuck_m must be >= 0, got {self.restart_before_stuck_m}")
         if self.wall_hit_throttle_cut_s < 0:
             raise ValueError(f"wall_hit_throttle_cut_s must be >= 0, got {self.wall_hit_throttle_cut_s}")
         if self.episode_s < self.control_dt_s:
@@ -326,6 +344,8 @@ class RacingCore:
         self.start_gap_m = np.zeros((m, cfg.opponents))
         self.gap_m = np.zeros((m, cfg.opponents))
         self.stuck = StuckDetector(self.world.state.unwrapped_s_m[self.ego_ids], cfg.control_dt_s)
+        self.stuck_points_s_m = np.empty(0)
+        """Where egos got stuck, track arc length, m: the last :data:`STUCK_POINTS_KEPT`, oldest first."""
         if observer is None:
             observer = Observer(cfg.observation, self.track, self.car, self.groups, image_hw_px=cfg.image_hw_px)
             if cfg.normalize and cfg.observation != "vision":
@@ -356,16 +376,24 @@ class RacingCore:
 
     # ------------------------------------------------------------------ placement
     def reset_groups(self, gids: np.ndarray) -> None:
-        """New episodes for the groups ``gids``: random start point, AI speed, opponents ahead on the racing line."""
+        """New episodes for the groups ``gids``: random start point (or one before a stuck point, see
+        ``RacingConfig.restart_before_stuck_share``), AI speed, opponents ahead on the racing line."""
         cfg, k = self.config, self.group_size
         gids = np.asarray(gids, dtype=np.int64)
         if len(gids) == 0:
             return
         skill = np.full((len(gids), k), cfg.start_skill)
         s0 = np.empty(len(gids))
+        stuck_points = self.stuck_points_s_m
         for row, g in enumerate(gids):  # one draw per group from its own generator (a reset, not a step)
             rng = self.group_rngs[g]
             s0[row] = rng.uniform(0.0, self.track.length_m)
+            if cfg.restart_before_stuck_share > 0:
+                # Drawn whatever the choice, so a group's later draws do not depend on the stuck points so far.
+                choose, pick, back = rng.uniform(size=3)
+                if choose < cfg.restart_before_stuck_share and len(stuck_points):
+                    point_s_m = stuck_points[int(pick * len(stuck_points))]
+                    s0[row] = (point_s_m - back * cfg.restart_before_stuck_m) % self.track.length_m
             if k > 1:
                 skill[row, 1:] = rng.uniform(cfg.opponent_skill[0], cfg.opponent_skill[1], k - 1)
         offsets = np.arange(k) * SCENARIOS[cfg.scenario][1]
@@ -534,6 +562,9 @@ class RacingCore:
         stuck = self.stuck.update(st.unwrapped_s_m[ego])
         if cfg.terminate_when_stuck:
             terminated[stuck] = True
+            if cfg.restart_before_stuck_share > 0 and len(stuck):
+                kept = np.concatenate([self.stuck_points_s_m, st.s_m[ego[stuck]]])
+                self.stuck_points_s_m = kept[-STUCK_POINTS_KEPT:]
         if cfg.terminate_on_wall:
             terminated[st.wall_contact[ego]] = True
         truncated = (self.steps >= cfg.max_episode_steps) & ~terminated
@@ -587,7 +618,7 @@ def _statistics_sample(config: RacingConfig) -> np.ndarray:
     environment happened to compute them first (so they are sampled at the default control step too)."""
     dt = RacingConfig.control_dt_s
     pinned = dataclasses.replace(config, n_groups=STATS_GROUPS, normalize=False, control_dt_s=dt,
-                                 episode_s=max(config.episode_s, dt))  # fmt: skip
+                                 episode_s=max(config.episode_s, dt), restart_before_stuck_share=0.0)  # fmt: skip
     core = RacingCore(pinned)
     try:
         return core.sample_raw_observations(core.observer)

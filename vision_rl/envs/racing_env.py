@@ -104,7 +104,9 @@ class TimeTrial(_RacingEnv):
     ## Starting State
     A uniformly random point of the track, on the built-in AI's racing line, heading along the track at the AI's
     speed there (the papers start each 100 s trial at a new point). ``reset(seed=k)`` gives the same episodes as
-    group 0 of a vector environment seeded with k (:class:`vision_rl.envs.core.RacingCore`'s seeding).
+    group 0 of a vector environment seeded with k (:class:`vision_rl.envs.core.RacingCore`'s seeding). Not in the
+    papers (off by default): with ``terminate_when_stuck``, ``restart_before_stuck_share`` of the starts lie up to
+    ``restart_before_stuck_m`` before a place where the car recently got stuck.
 
     ## Episode End
     Truncation after ``episode_s`` (100 s = 1,000 steps at 10 Hz). No termination unless asked for:
@@ -119,7 +121,8 @@ class TimeTrial(_RacingEnv):
     Any field of :class:`vision_rl.envs.core.RacingConfig`: ``track`` (built-in name, ``random:SEED``, CSV path),
     ``car``, ``observation``, ``control_dt_s``, ``episode_s``, ``wall_penalty_c_w``, ``steer_change_penalty_c_s``,
     ``steer_change_penalty_scale``, ``off_track_penalty_c_o``,
-    ``steer_action``, ``terminate_when_stuck``, ``normalize``, ``image_hw_px``, ``frame_delay_s``. For 20 cars in one
+    ``steer_action``, ``terminate_when_stuck``, ``restart_before_stuck_share``, ``restart_before_stuck_m``,
+    ``normalize``, ``image_hw_px``, ``frame_delay_s``. For 20 cars in one
     world use :func:`vision_rl.envs.make_vector_env`.
 
     ## Version History

@@ -193,6 +193,11 @@ class TrainPolicyConfig:
     """End a training episode when the car is stuck by the protocol's rule (a terminal step: the car has no reverse
     gear, so a stuck car earns nothing more). Otherwise it stands out the rest of its 100 s: in make quick's vision
     runs most of the first 60k transitions were of standing cars (not in the papers)."""
+    restart_before_stuck_share: float = 0.0
+    """With --stuck-ends-episode: this share of training episodes starts up to --restart-before-stuck-m before a
+    place where a car of the run recently got stuck, the rest at random points (not in the papers; 0: all random)."""
+    restart_before_stuck_m: float = 300.0
+    """With --restart-before-stuck-share: the most such a start lies before the stuck place, m."""
     frame_delay_s: float = 0.0
     """Vision: frames lag the state by this long (the paper's 4 frames at 60 Hz: 0.067; 0: none)."""
     steer_action: str = "angle"
@@ -442,6 +447,8 @@ class _Run:
                 steer_change_penalty_scale=cfg.steer_change_penalty_scale,
                 steer_action=cfg.steer_action, terminate_on_wall=cfg.wall_ends_episode,
                 terminate_when_stuck=cfg.stuck_ends_episode,
+                restart_before_stuck_share=cfg.restart_before_stuck_share,
+                restart_before_stuck_m=cfg.restart_before_stuck_m,
                 off_track_penalty_c_o=cfg.off_track_penalty_c_o, wall_penalty_speed=cfg.wall_penalty_speed,
                 wall_hit_throttle_cut_s=cfg.wall_hit_throttle_cut_s, pedal_full_at=cfg.pedal_full_at,
                 steer_change_share_of_range=cfg.steer_change_share_of_range, control_dt_s=cfg.control_dt_s,
@@ -692,6 +699,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "steer_change_penalty_c_s": cfg.steer_change_penalty_c_s >= 0, "stats_steps": cfg.stats_steps >= 1,
         "off_track_penalty_c_o": cfg.off_track_penalty_c_o >= 0,
         "wall_hit_throttle_cut_s": 0 <= cfg.wall_hit_throttle_cut_s <= 60,
+        "restart_before_stuck_share": 0 <= cfg.restart_before_stuck_share <= 1,
+        "restart_before_stuck_m": cfg.restart_before_stuck_m >= 0,
         "frame_delay_s": 0 <= cfg.frame_delay_s <= 1, "pedal_full_at": 0 < cfg.pedal_full_at <= 1,
         "steer_change_share_of_range": cfg.steer_change_share_of_range >= 0,
         "learning_rate": cfg.learning_rate >= 0, "learning_rate_final": cfg.learning_rate_final >= 0,
@@ -731,6 +740,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
                          f"begin at seed {SELECT_SEED_BASE}: give at most {SELECT_SEED_BASE}")  # fmt: skip
     if cfg.guide_label_fade_steps > 0 and cfg.guide_label_weight == 0:
         raise ValueError("--guide-label-fade-steps fades the labels' weight: give --guide-label-weight too")
+    if cfg.restart_before_stuck_share > 0 and not cfg.stuck_ends_episode:
+        raise ValueError("--restart-before-stuck-share starts episodes before stuck ends: give --stuck-ends-episode")
     if cfg.frame_delay_s > 0 and not cfg.encoder:
         raise ValueError("--frame-delay-s delays the vision frames: give --encoder (the state observation has none)")
     if cfg.workers is not None or cfg.address:
