@@ -99,18 +99,27 @@ def test_a_wall_ends_the_episode_only_when_asked(terminate_on_wall):
     assert not truncated[0]
 
 
+def _place_one_standing_one_driving(core: RacingCore, stand_at_m: float) -> None:
+    """Car 0 at rest at ``stand_at_m``, car 1 at 10 m/s at 300 m; the stuck rule judges both from there."""
+    core.reset_groups(np.arange(2))
+    core.world.reset(s_m=np.array([stand_at_m, 300.0]), speed_mps=np.array([0.0, 10.0]))
+    core.stuck.reset(np.arange(2), core.world.state.unwrapped_s_m[core.ego_ids])
+
+
+def _stand_and_drive(core: RacingCore) -> np.ndarray:
+    """Actions: car 0 on the brake, car 1 along the centre line at 10 m/s."""
+    return np.array([[0.0, -1.0], _follow_centre_line(core, 10.0)[1]])
+
+
 @pytest.mark.parametrize("terminate_when_stuck", [False, True])
 def test_a_stuck_car_ends_its_episode_only_when_asked(terminate_when_stuck):
     # Car 0 stands on the brake (stuck: under 5 m in 5 s), car 1 drives on; only car 0's episode may end, at the
     # first step after 5 s, and autoreset places it anew.
     core = _core(n_groups=2, terminate_when_stuck=terminate_when_stuck)
-    core.reset_groups(np.arange(2))
-    core.world.reset(s_m=np.array([50.0, 300.0]), speed_mps=np.array([0.0, 10.0]))
-    core.stuck.reset(np.arange(2), core.world.state.unwrapped_s_m[core.ego_ids])  # judged from these places
+    _place_one_standing_one_driving(core, 50.0)
     ended_at = None
     for step in range(1, 81):
-        actions = np.array([[0.0, -1.0], _follow_centre_line(core, 10.0)[1]])
-        _, _, terminated, truncated, infos = core.step(actions, autoreset=True)
+        _, _, terminated, truncated, infos = core.step(_stand_and_drive(core), autoreset=True)
         assert not terminated[1] and not truncated.any()
         if terminated[0]:
             ended_at = step
@@ -121,11 +130,9 @@ def test_a_stuck_car_ends_its_episode_only_when_asked(terminate_when_stuck):
 
 def _stand_until_stuck(core: RacingCore, stand_at_m: float) -> None:
     """Car 0 stands on the brake at ``stand_at_m`` until the stuck rule ends its episode; car 1 drives on."""
-    core.reset_groups(np.arange(2))
-    core.world.reset(s_m=np.array([stand_at_m, 300.0]), speed_mps=np.array([0.0, 10.0]))
-    core.stuck.reset(np.arange(2), core.world.state.unwrapped_s_m[core.ego_ids])
+    _place_one_standing_one_driving(core, stand_at_m)
     for _ in range(round(5.0 / core.config.control_dt_s)):
-        _, _, terminated, _, _ = core.step(np.array([[0.0, -1.0], _follow_centre_line(core, 10.0)[1]]), True)
+        _, _, terminated, _, _ = core.step(_stand_and_drive(core), autoreset=True)
     assert terminated.tolist() == [True, False]
 
 

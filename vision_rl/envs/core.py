@@ -232,7 +232,8 @@ class RacingConfig:
     """With ``terminate_when_stuck``: this share of episode starts is placed up to ``restart_before_stuck_m`` before
     a point where an ego of this environment got stuck (one of the last :data:`STUCK_POINTS_KEPT`), the rest at
     uniformly random points, so a policy meets the approaches it fails more often than once a lap (not in the
-    papers; 0: every start random, as theirs)."""
+    papers; 0: every start random, as theirs). The places live in the environment's memory: each sampler process
+    keeps its own, and a resumed training run gathers them anew."""
     restart_before_stuck_m: float = 300.0
     """How far before a stuck point such a start may be, m (uniformly within it). The losses of ``make quick``'s
     vision policies begin at full throttle at about 150 km/h, 2-4 s before the wall (docs/results/
