@@ -75,14 +75,19 @@ def test_synchronous_pacing_alternates():
     assert not pacer.can_update() and pacer.next_chunk() == (4, 0) and pacer.version == 1
 
 
-def test_a_samplers_transitions_reach_the_buffer_as_its_world_gives_them(ray_local, small_track, tmp_path):
+@pytest.mark.parametrize("label_weight", [0.0, 10.0])
+def test_a_samplers_transitions_reach_the_buffer_as_its_world_gives_them(ray_local, small_track, tmp_path,
+                                                                          label_weight):  # fmt: skip
     """One synchronous sampler: the replay buffer holds, in order, what a world of the same seed returns for the
     stored actions (observations, next observations with the last one of an episode where it ended, rewards,
-    dones and time-limit flags), and the learner made the single-process loop's number of updates."""
+    dones and time-limit flags; with --guide-label-weight the built-in AI's label of each state an action was
+    chosen in), and the learner made the single-process loop's number of updates."""
     from vision_rl.envs.vector import make_sb3_vec_env
+    from vision_rl.phase2_rl.guide import LABEL_SKILL
 
     out = tmp_path / "run"
-    result = train_policy(tiny_train_config(small_track, out, workers=1, max_staleness=0, episode_s=3.0))
+    result = train_policy(tiny_train_config(small_track, out, workers=1, max_staleness=0, episode_s=3.0,
+                                            guide_label_weight=label_weight))  # fmt: skip
     assert result["num_timesteps"] == 200 and result["n_updates"] == (200 - 50) // 2
     sampling = result["sampling"]
     assert sampling["workers"] == 1 and sampling["samplers_lost"] == [] and sampling["max_staleness_seen"] == 0
@@ -92,13 +97,19 @@ def test_a_samplers_transitions_reach_the_buffer_as_its_world_gives_them(ray_loc
     with np.load(out / "replay_buffer.npz", allow_pickle=False) as data:
         buffer = {name: data[name] for name in ("observations", "next_observations", "actions", "rewards", "dones",
                                                 "timeouts")}  # fmt: skip
+        assert ("ai_labels" in data) == (label_weight > 0)
+        labels = data["ai_labels"] if label_weight > 0 else None
     assert buffer["observations"].shape == (100, 2, 38)
     env = make_sb3_vec_env(spec.config, seed=worker_seed(0, 0))
     env.core.observer.normalizer = spec.normalizer
+    env.core.label_with_ai(LABEL_SKILL)
     low, high = env.action_space.low.astype(np.float64), env.action_space.high.astype(np.float64)
     obs = env.reset()
     for k in range(100):
         np.testing.assert_array_equal(buffer["observations"][k], obs)
+        if labels is not None:
+            np.testing.assert_array_equal(labels[k], (2.0 * (env.core.ai_actions() - low) / (high - low) - 1.0)
+                                          .astype(np.float32))  # fmt: skip
         action = low + 0.5 * (buffer["actions"][k].astype(np.float64) + 1.0) * (high - low)
         obs, rewards, dones, infos = env.step(action)
         expected = obs.copy()

@@ -201,7 +201,7 @@ def test_the_labels_are_saved_and_restored_with_the_buffer(small_track, tmp_path
     assert np.isnan(unlabelled.ai_labels).all()
 
 
-def test_label_cloning_trains_and_refuses_samplers(small_track, tmp_path):
+def test_label_cloning_trains_saves_its_labels_and_resumes(small_track, tmp_path):
     from vision_rl.phase2_rl.artifact import BUFFER_NAME
     from vision_rl.phase2_rl.train import train_policy
 
@@ -213,8 +213,6 @@ def test_label_cloning_trains_and_refuses_samplers(small_track, tmp_path):
     resumed = train_policy(tiny_train_config(small_track, tmp_path / "run", steps=260, resume=True,
                                              eval_every_steps=0))  # fmt: skip
     assert resumed["buffer_restored"] == 100 and resumed["num_timesteps"] >= 260
-    with pytest.raises(ValueError, match="leave out --workers"):
-        train_policy(tiny_train_config(small_track, tmp_path / "bad", guide_label_weight=1.0, workers=1))
 
 
 def test_the_labels_weight_fades_to_zero_before_the_last_step(small_track):

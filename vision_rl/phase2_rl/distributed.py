@@ -301,6 +301,9 @@ class SamplerSetup:
     """Vision: the encoder checkpoint (an absolute path every node can read)."""
     encoder_runtime: str = "auto"
     """Vision: the encoder's runtime on the sampler's CPU."""
+    label_skill: float | None = None
+    """The built-in AI's skill that labels every state the sampler's cars visit (``--guide-label-weight``); None:
+    no labels."""
 
     def body(self) -> type:
         """The class of the sampler actors built from this setup."""
@@ -343,10 +346,11 @@ class Sampler:
 
     ``sample(weights, version, steps, random_steps)`` steps the world ``steps`` times and returns the transitions as
     numpy arrays (the observations before and after, with the last observation of an episode in place of the
-    next one where it ended, the actions scaled to [-1, 1] as SAC stores them, rewards, dones, time-limit flags),
-    the episodes that ended, and the version it acted with. The first ``random_steps`` act uniformly at random (the
-    run's start steps); the rest sample the policy's stochastic action. ``weights`` is a one-element list holding a
-    Ray object reference, fetched only when ``version`` changes.
+    next one where it ended, the actions scaled to [-1, 1] as SAC stores them, rewards, dones, time-limit flags;
+    with ``setup.label_skill`` also ``ai_labels``, the built-in AI's action at each state an action was chosen in,
+    scaled as the actions), the episodes that ended, and the version it acted with. The first ``random_steps`` act
+    uniformly at random (the run's start steps); the rest sample the policy's stochastic action. ``weights`` is a
+    one-element list holding a Ray object reference, fetched only when ``version`` changes.
     """
 
     def __init__(self, setup: SamplerSetup, worker: int) -> None:
@@ -383,6 +387,8 @@ class Sampler:
             core.observer.normalizer = normalizer
         mine = policy_fingerprint(config, setup.observation, self.env.observation_space.shape[0], encoder_sha)
         check_sampler_fingerprint(worker, mine, setup.fingerprint)
+        if setup.label_skill is not None:
+            core.label_with_ai(setup.label_skill)
         self.policy = SACPolicy(
             self.env.observation_space, self.env.action_space, lambda _: 0.0, net_arch=list(setup.hidden_units)
         )
@@ -418,6 +424,9 @@ class Sampler:
             "episode_return": np.full((steps, n), np.nan),
             "episode_length": np.zeros((steps, n), np.int64),
         }
+        labelled = self.env.core.labeller is not None
+        if labelled:
+            out["ai_labels"] = np.empty((steps, n, 2), np.float32)
         for k in range(steps):
             if k < random_steps:
                 unscaled = self.rng.uniform(self.low, self.high, (n, 2))
@@ -438,6 +447,9 @@ class Sampler:
             out["rewards"][k] = rewards
             out["dones"][k] = dones
             out["timeouts"][k] = [info.get("TimeLimit.truncated", False) for info in infos]
+            if labelled:
+                labels = np.stack([info["ai_action"] for info in infos])
+                out["ai_labels"][k] = 2.0 * (labels - self.low) / (self.high - self.low) - 1.0
             self.episode_return += rewards
             self.episode_length += 1
             out["episode_return"][k, ended] = self.episode_return[ended]
@@ -459,10 +471,13 @@ def start_samplers(cluster: Cluster, setup: Any, workers: int) -> list[Any]:
 
 
 def add_vector_step(buffer: Any, chunk: Mapping[str, np.ndarray], k: int) -> None:
-    """Vector step ``k`` of a chunk into an SB3 ``ReplayBuffer`` (what ``ReplayBuffer.add`` stores)."""
+    """Vector step ``k`` of a chunk into an SB3 ``ReplayBuffer`` (what ``ReplayBuffer.add`` stores, and the AI's
+    labels where the buffer has them: see :func:`vision_rl.phase2_rl.guide.start_labels`)."""
     pos = buffer.pos
     for name in CHUNK_ARRAYS:
         getattr(buffer, name)[pos] = chunk[name][k]
+    if getattr(buffer, "ai_labels", None) is not None:
+        buffer.ai_labels[pos] = chunk["ai_labels"][k]
     buffer.pos = pos + 1
     if buffer.pos == buffer.buffer_size:
         buffer.full, buffer.pos = True, 0

@@ -64,6 +64,7 @@ from vision_rl.phase2_rl.artifact import (
     racing_config_to_dict,
     snapshot_sidecar,
 )
+from vision_rl.phase2_rl.guide import LABEL_SKILL
 from vision_rl.phase2_rl.interrupts import learn_between_interrupts
 from vision_rl.phase2_rl.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
 from vision_rl.sim.fleet import AI_CONTROL_DT_S, ai_ticks
@@ -754,8 +755,6 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         if cfg.workers is None:
             raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
         check_workers(cfg.workers, cfg.max_staleness, cfg.version_every_updates)
-        if cfg.guide_label_weight > 0:
-            raise ValueError("--guide-label-weight labels the states this process steps: leave out --workers")
         if cfg.n_step > 1 and cfg.workers > 1:
             # The learner's buffer interleaves the samplers' vector steps, so a column is not one car's time line.
             raise ValueError(f"--n-step {cfg.n_step} needs one car's steps in a row: use --workers 1 or leave it out")
@@ -821,8 +820,10 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
     from vision_rl.phase2_rl.distributed import SamplersLostError, learn_like_sb3
 
     cfg = run.cfg
+    labelled = getattr(model.replay_buffer, "ai_labels", None) is not None  # see start_labels
     setup = sampler_setup(run.racing, run.kind, run.normalizer, run.fingerprint, run.preset.hidden_units,
-                          run.seed + run.start_steps, run.encoder_path, cfg.encoder_runtime)  # fmt: skip
+                          run.seed + run.start_steps, run.encoder_path, cfg.encoder_runtime,
+                          label_skill=LABEL_SKILL if labelled else None)  # fmt: skip
 
     def log_event(record: dict[str, Any]) -> None:
         record = {**record, "train_time_s": round(run.train_time_s, 2)}
@@ -848,8 +849,10 @@ def sampler_setup(
     seed: int,
     encoder_path: Path | None = None,
     encoder_runtime: str = "auto",
+    label_skill: float | None = None,
 ) -> Any:
-    """What the sampler actors of a run build their world and policy from."""
+    """What the sampler actors of a run build their world and policy from (``label_skill``: the built-in AI's skill
+    that labels the states they visit; None: no labels)."""
     from vision_rl.phase2_rl.distributed import SamplerSetup, portable_track
 
     config = {**racing_config_to_dict(racing), "track": portable_track(racing.track)}
@@ -857,6 +860,7 @@ def sampler_setup(
         racing_config=config, observation=kind, obs_normalizer=normalizer.to_dict(), fingerprint=fingerprint,
         hidden_units=tuple(hidden_units), seed=seed,
         encoder_path=str(encoder_path.resolve()) if encoder_path is not None else "", encoder_runtime=encoder_runtime,
+        label_skill=label_skill,
     )  # fmt: skip
 
 
