@@ -448,8 +448,8 @@ class Sampler:
             out["dones"][k] = dones
             out["timeouts"][k] = [info.get("TimeLimit.truncated", False) for info in infos]
             if labelled:
-                labels = np.stack([info["ai_action"] for info in infos])
-                out["ai_labels"][k] = 2.0 * (labels - self.low) / (self.high - self.low) - 1.0
+                # Scaled as the in-process path scales them (GuidedSAC._store_transition).
+                out["ai_labels"][k] = self.policy.scale_action(np.stack([info["ai_action"] for info in infos]))
             self.episode_return += rewards
             self.episode_length += 1
             out["episode_return"][k, ended] = self.episode_return[ended]

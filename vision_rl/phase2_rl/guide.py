@@ -64,6 +64,8 @@ def guided_sac_class():
         bc_weight: float = 0.0
         label_weight: float = 0.0
         """Weight of a cloning step on the AI's labels of the states the policy visits (0: none)."""
+        label_skill: float | None = None
+        """The labelling AI's skill (None: no labels); samplers in other processes label with it too."""
         label_fade_steps: int = 0
         """Environment steps before ``label_end_steps`` over which the labels' weight falls linearly to 0 (0: none)."""
         label_end_steps: int = 0
@@ -132,6 +134,6 @@ def start_labels(model, venv, weight: float, skill: float = LABEL_SKILL, fade_st
     refines the lap the labels taught to brake on."""
     buffer = model.replay_buffer
     buffer.ai_labels = np.full((buffer.buffer_size, buffer.n_envs, 2), np.nan, dtype=np.float32)
-    model.label_weight = weight
+    model.label_weight, model.label_skill = weight, skill
     model.label_fade_steps, model.label_end_steps = fade_steps, end_steps
     venv.core.label_with_ai(skill)

@@ -64,7 +64,6 @@ from vision_rl.phase2_rl.artifact import (
     racing_config_to_dict,
     snapshot_sidecar,
 )
-from vision_rl.phase2_rl.guide import LABEL_SKILL
 from vision_rl.phase2_rl.interrupts import learn_between_interrupts
 from vision_rl.phase2_rl.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
 from vision_rl.sim.fleet import AI_CONTROL_DT_S, ai_ticks
@@ -821,10 +820,9 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
     from vision_rl.phase2_rl.distributed import SamplersLostError, learn_like_sb3
 
     cfg = run.cfg
-    labelled = getattr(model.replay_buffer, "ai_labels", None) is not None  # see start_labels
     setup = sampler_setup(run.racing, run.kind, run.normalizer, run.fingerprint, run.preset.hidden_units,
                           run.seed + run.start_steps, run.encoder_path, cfg.encoder_runtime,
-                          label_skill=LABEL_SKILL if labelled else None)  # fmt: skip
+                          label_skill=getattr(model, "label_skill", None))  # fmt: skip
 
     def log_event(record: dict[str, Any]) -> None:
         record = {**record, "train_time_s": round(run.train_time_s, 2)}
