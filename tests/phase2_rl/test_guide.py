@@ -170,6 +170,39 @@ def test_label_cloning_stores_a_label_per_transition_and_pulls_the_actor_to_them
     assert error() < 0.5 * before
 
 
+def test_a_steering_weight_of_zero_clones_the_pedal_alone(small_track):
+    import torch
+    from stable_baselines3.common.logger import configure
+
+    from vision_rl.envs.core import RacingConfig
+    from vision_rl.envs.vector import make_sb3_vec_env
+    from vision_rl.phase2_rl.guide import guided_sac_class, start_labels
+
+    torch.set_num_threads(1)
+
+    def cloned(steer_weight: float, steer_labels: float | None) -> list[torch.Tensor]:
+        """The actor's weights after cloning the labels of 20 random steps (their steering column replaced by
+        ``steer_labels`` when given)."""
+        venv = make_sb3_vec_env(RacingConfig(track=small_track, n_groups=2, steer_action="rate_scaled"), seed=0)
+        model = guided_sac_class()("MlpPolicy", venv, buffer_size=100, learning_starts=1_000, device="cpu", seed=0)
+        model.set_logger(configure(None, [""]))
+        start_labels(model, venv, weight=1.0, steer_weight=steer_weight)
+        model.learn(total_timesteps=40)
+        if steer_labels is not None:
+            model.replay_buffer.ai_labels[:20, :, 0] = steer_labels
+        torch.manual_seed(1)  # the same batches for each model
+        model.clone(gradient_steps=20, batch_size=16, labels=True)
+        return [p.detach().clone() for p in model.actor.parameters()]
+
+    def same(a: list[torch.Tensor], b: list[torch.Tensor]) -> bool:
+        return all(torch.equal(x, y) for x, y in zip(a, b, strict=True))
+
+    # The steering labels do not move an actor that clones the pedal alone; with their usual weight they do.
+    assert same(cloned(0.0, -0.9), cloned(0.0, 0.9))
+    assert not same(cloned(1.0, -0.9), cloned(1.0, 0.9))
+    assert not same(cloned(0.0, None), cloned(1.0, None))
+
+
 def test_the_labels_are_saved_and_restored_with_the_buffer(small_track, tmp_path):
     from stable_baselines3.common.buffers import ReplayBuffer
 
@@ -239,11 +272,12 @@ def test_the_labels_weight_fades_to_zero_before_the_last_step(small_track):
     assert model.label_weight_now() == 30.0
 
 
-def test_a_fade_without_labels_is_refused(small_track, tmp_path):
+def test_shaping_the_labels_without_labels_is_refused(small_track, tmp_path):
     from vision_rl.phase2_rl.train import train_policy
 
-    with pytest.raises(ValueError, match="give --guide-label-weight"):
-        train_policy(tiny_train_config(small_track, tmp_path / "run", guide_label_fade_steps=100))
+    for shaping in ({"guide_label_fade_steps": 100}, {"guide_label_steer_weight": 0.0}):
+        with pytest.raises(ValueError, match="give --guide-label-weight"):
+            train_policy(tiny_train_config(small_track, tmp_path / "run", **shaping))
     with pytest.raises(ValueError, match="--guide-label-fade-steps -1 is out of range"):
         train_policy(tiny_train_config(small_track, tmp_path / "run", guide_label_weight=1.0,
                                        guide_label_fade_steps=-1))  # fmt: skip

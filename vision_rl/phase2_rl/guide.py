@@ -66,6 +66,8 @@ def guided_sac_class():
         """Weight of a cloning step on the AI's labels of the states the policy visits (0: none)."""
         label_skill: float | None = None
         """The labelling AI's skill (None: no labels); samplers in other processes label with it too."""
+        label_steer_weight: float = 1.0
+        """Weight of the steering column in the labels' cloning loss, the pedal's being 1 (0: the pedal alone)."""
         label_fade_steps: int = 0
         """Environment steps before ``label_end_steps`` over which the labels' weight falls linearly to 0 (0: none)."""
         label_end_steps: int = 0
@@ -96,12 +98,14 @@ def guided_sac_class():
 
         def clone(self, gradient_steps: int, batch_size: int, weight: float = 1.0, labels: bool = False) -> None:
             """``gradient_steps`` actor steps on ``weight * |mean action - the AI's action|^2`` over the guided rows
-            (none without them), or with ``labels`` over every row the AI labelled."""
+            (none without them), or with ``labels`` over every row the AI labelled, its steering column weighted by
+            ``label_steer_weight``."""
             buffer = self.replay_buffer
             rows = buffer.size() if labels else min(self.demo_rows, buffer.size())
             if rows == 0 or (labels and getattr(buffer, "ai_labels", None) is None):
                 return
             loss = None
+            columns = torch.tensor([self.label_steer_weight if labels else 1.0, 1.0], device=self.device)
             for _ in range(gradient_steps):
                 # torch's generator, which SB3 seeds with the run's seed, so a run repeats.
                 row = torch.randint(0, rows, (batch_size,)).numpy()
@@ -112,7 +116,7 @@ def guided_sac_class():
                     continue
                 obs = torch.as_tensor(buffer.observations[row[keep], env[keep]], device=self.device)
                 target = torch.as_tensor(actions[keep], device=self.device)
-                loss = weight * torch.mean((self.actor(obs, deterministic=True) - target) ** 2)
+                loss = weight * torch.mean(columns * (self.actor(obs, deterministic=True) - target) ** 2)
                 self.actor.optimizer.zero_grad()
                 loss.backward()
                 self.actor.optimizer.step()
@@ -123,7 +127,7 @@ def guided_sac_class():
 
 
 def start_labels(model, venv, weight: float, skill: float = LABEL_SKILL, fade_steps: int = 0,
-                 end_steps: int = 0) -> None:
+                 end_steps: int = 0, steer_weight: float = 1.0) -> None:
     """From the next transition on, ``venv``'s built-in AI at ``skill`` labels every state the policy visits with
     the action it would take there, the labels go beside the transitions into ``model`` (a ``GuidedSAC``), and the
     actor takes a cloning step of ``weight`` on a batch of them after each SAC update: DAgger's labels (Ross et al.
@@ -131,9 +135,10 @@ def start_labels(model, venv, weight: float, skill: float = LABEL_SKILL, fade_st
     the AI's, so the critic sees where braking leads (not in the papers). The labels are an array of the buffer,
     ``ai_labels`` (rows, envs, 2), NaN where a row has none, saved and restored with it. With ``fade_steps`` the
     weight falls linearly to 0 over the ``fade_steps`` environment steps before ``end_steps``, so that SAC alone
-    refines the lap the labels taught to brake on."""
+    refines the lap the labels taught to brake on. ``steer_weight`` weighs the steering column of the cloning loss
+    (0: the actor clones the AI's pedal alone; both columns are labelled and saved either way)."""
     buffer = model.replay_buffer
     buffer.ai_labels = np.full((buffer.buffer_size, buffer.n_envs, 2), np.nan, dtype=np.float32)
-    model.label_weight, model.label_skill = weight, skill
+    model.label_weight, model.label_skill, model.label_steer_weight = weight, skill, steer_weight
     model.label_fade_steps, model.label_end_steps = fade_steps, end_steps
     venv.core.label_with_ai(skill)

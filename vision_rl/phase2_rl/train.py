@@ -246,6 +246,9 @@ class TrainPolicyConfig:
     1.0) would take at the states the policy visits, labelled as they are collected, by the samplers with --workers
     (DAgger-style; not in the papers; 0: off). At 30 in make quick's vision stage its 8 runs finished 15 of 104
     starts against 99: they swung the wheel and spun (docs/results/vision-expressway-hatchback)."""
+    guide_label_steer_weight: float = 1.0
+    """With --guide-label-weight: weight of the steering column in the labels' cloning loss, the pedal's being 1
+    (0: the actor clones the AI's pedal alone; not in the papers)."""
     guide_label_fade_steps: int = 0
     """With --guide-label-weight: over the last N environment steps before --steps the labels' weight falls
     linearly to zero, so SAC alone refines the lap (not in the papers; 0: the weight stays)."""
@@ -525,7 +528,7 @@ class _Run:
             from vision_rl.phase2_rl.guide import start_labels
 
             start_labels(model, venv, label_weight, fade_steps=int(self._kept("guide_label_fade_steps")),
-                         end_steps=self.cfg.steps)
+                         end_steps=self.cfg.steps, steer_weight=self._kept("guide_label_steer_weight", 1.0))
         if self.previous is not None:
             self._restore(model)
         elif self.cfg.guide_steps > 0:
@@ -714,6 +717,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
         "guide_steps": cfg.guide_steps >= 0, "guide_bc_weight": cfg.guide_bc_weight >= 0,
         "guide_label_weight": cfg.guide_label_weight >= 0, "guide_label_fade_steps": cfg.guide_label_fade_steps >= 0,
+        "guide_label_steer_weight": cfg.guide_label_steer_weight >= 0,
         "guide_pretrain_steps": cfg.guide_pretrain_steps >= 0,
     }  # fmt: skip
     bad = [name for name, ok in checks.items() if not ok]
@@ -743,8 +747,9 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     if cfg.select_starts > 0 and cfg.eval_seeds > SELECT_SEED_BASE:
         raise ValueError(f"--eval-seeds {cfg.eval_seeds} would time the held-out starts of --select-starts, which "
                          f"begin at seed {SELECT_SEED_BASE}: give at most {SELECT_SEED_BASE}")  # fmt: skip
-    if cfg.guide_label_fade_steps > 0 and cfg.guide_label_weight == 0:
-        raise ValueError("--guide-label-fade-steps fades the labels' weight: give --guide-label-weight too")
+    if (cfg.guide_label_fade_steps > 0 or cfg.guide_label_steer_weight != 1) and cfg.guide_label_weight == 0:
+        raise ValueError("--guide-label-fade-steps and --guide-label-steer-weight shape the labels' cloning: "
+                         "give --guide-label-weight too")
     if cfg.restart_before_stuck_share > 0 and not cfg.stuck_ends_episode:
         raise ValueError("--restart-before-stuck-share starts episodes before stuck ends: give --stuck-ends-episode")
     if cfg.frame_delay_s > 0 and not cfg.encoder:
