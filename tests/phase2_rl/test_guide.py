@@ -276,7 +276,8 @@ def test_shaping_the_labels_without_labels_is_refused(small_track, tmp_path):
     from vision_rl.phase2_rl.train import train_policy
 
     for shaping in ({"guide_label_fade_steps": 100}, {"guide_label_steer_weight": 0.0}):
-        with pytest.raises(ValueError, match="give --guide-label-weight"):
+        option = "--" + next(iter(shaping)).replace("_", "-")
+        with pytest.raises(ValueError, match=f"^{option} shapes the labels' cloning: give --guide-label-weight too$"):
             train_policy(tiny_train_config(small_track, tmp_path / "run", **shaping))
     with pytest.raises(ValueError, match="--guide-label-fade-steps -1 is out of range"):
         train_policy(tiny_train_config(small_track, tmp_path / "run", guide_label_weight=1.0,

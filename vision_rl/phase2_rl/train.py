@@ -749,9 +749,10 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     if cfg.select_starts > 0 and cfg.eval_seeds > SELECT_SEED_BASE:
         raise ValueError(f"--eval-seeds {cfg.eval_seeds} would time the held-out starts of --select-starts, which "
                          f"begin at seed {SELECT_SEED_BASE}: give at most {SELECT_SEED_BASE}")  # fmt: skip
-    if (cfg.guide_label_fade_steps > 0 or cfg.guide_label_steer_weight != 1) and cfg.guide_label_weight == 0:
-        raise ValueError("--guide-label-fade-steps and --guide-label-steer-weight shape the labels' cloning: "
-                         "give --guide-label-weight too")
+    shaping = [name for name, given in (("--guide-label-fade-steps", cfg.guide_label_fade_steps > 0),
+                                        ("--guide-label-steer-weight", cfg.guide_label_steer_weight != 1)) if given]
+    if shaping and cfg.guide_label_weight == 0:
+        raise ValueError(f"{shaping[0]} shapes the labels' cloning: give --guide-label-weight too")
     if cfg.restart_before_stuck_share > 0 and not cfg.stuck_ends_episode:
         raise ValueError("--restart-before-stuck-share starts episodes before stuck ends: give --stuck-ends-episode")
     if cfg.frame_delay_s > 0 and not cfg.encoder:
