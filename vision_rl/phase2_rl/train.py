@@ -249,7 +249,8 @@ class TrainPolicyConfig:
     guide_label_steer_weight: float = 1.0
     """With --guide-label-weight: weight of the steering column in the labels' cloning loss, the pedal's being 1
     (0: the actor clones the AI's pedal alone; not in the papers). At 0 (weight 30) in make quick's vision stage its
-    8 runs finished 82 of 104 starts against 99, with a third of the wall contact and slower laps
+    8 runs finished 82 of 104 starts against 99, with a third of the wall contact and slower laps; faded over the
+    second half (--guide-label-fade-steps 75000) the braking went with them
     (docs/results/vision-expressway-hatchback)."""
     guide_label_fade_steps: int = 0
     """With --guide-label-weight: over the last N environment steps before --steps the labels' weight falls
