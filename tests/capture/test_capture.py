@@ -183,3 +183,35 @@ def test_a_driver_drives_the_capture_and_the_file_names_it(gl_available, circle_
         capture_sim(_config(circle_csv, tmp_path / "d.h5"), driver=_Follower())
     with pytest.raises(ValueError, match=r"--fps 7: the driver acts every 0\.1 s"):
         capture_sim(_config(circle_csv, tmp_path / "f.h5", fps=7, disrupt_ai=False), driver=_Follower())
+
+
+def test_a_car_turned_more_than_a_right_angle_from_the_track_is_found(circle_csv):
+    from vision_rl.capture.sim_capture import turned_round
+    from vision_rl.sim.vehicle import get_preset
+    from vision_rl.sim.world import World
+
+    track = load_track(circle_csv)
+    world = World(track, get_preset("hatchback"), n_cars=6)
+    # Five cars spread round the circle, so that the track's direction differs at each; the last sits on the line
+    # where the centre line's heading wraps from +pi to -pi.
+    offsets = np.array([0.0, 1.5, 1.65, -1.65, np.pi, -1.5])
+    world.reset(s_m=np.linspace(0.0, track.length_m, 6, endpoint=False), heading_offset_rad=offsets)
+    np.testing.assert_array_equal(turned_round(track, world.state), [2, 3, 4])
+
+
+def test_stronger_disruptions_are_recorded_and_cars_turned_round_are_placed_again(gl_available, circle_csv, tmp_path):
+    cfg = _config(circle_csv, tmp_path / "wild.h5", laps=1, disrupt_steer_offset_rad=1.5)
+    result = capture_sim(cfg)
+    assert result["turned_resets"] > 0  # offsets of 1.5 rad turn cars round on this circle
+    with open_capture(cfg.out) as f:
+        assert f.attrs["fingerprint"]["disrupt_steer_offset_rad"] == 1.5
+        heading = f.targets[:, list(f.target_names).index("heading_angle_to_centre_line")]
+    # A turned car is placed again before its next frame: no frame shows a car facing backwards.
+    assert np.abs(heading).max() <= np.pi / 2
+    # A partial file of one offset is not resumed with another: its frames would not belong together.
+    partial = _config(circle_csv, tmp_path / "partial.h5", max_frames=4, disrupt_steer_offset_rad=0.6)
+    capture_sim(partial)
+    with pytest.raises(CaptureFormatError, match=r"disrupt_steer_offset_rad is 0\.6 in the file but 0\.3 now"):
+        capture_sim(dataclasses.replace(partial, resume=True, disrupt_steer_offset_rad=0.3))
+    with pytest.raises(ValueError, match=r"--disrupt-steer-offset-rad must be >= 0, got -0\.1"):
+        _config(circle_csv, tmp_path / "bad.h5", disrupt_steer_offset_rad=-0.1)

@@ -120,6 +120,9 @@ def test_a_resume_with_other_settings_is_refused_naming_the_option(synthetic_run
     message = str(info.value)
     assert "cannot resume: settings.seed was 3, now 4 (--seed)" in message and len(message.splitlines()) == 1
     fault.refused("capture --workers 2 --resume with another --seed", message)
+    other = r"settings\.disrupt_steer_offset_rad was 0\.3, now 0\.6 \(--disrupt-steer-offset-rad\)"
+    with pytest.raises(ManifestError, match=other):
+        capture_sharded(dataclasses.replace(cfg, disrupt_steer_offset_rad=0.6, resume=True))
 
 
 @pytest.mark.parametrize("argv", [["--workers", "0"], ["--workers", "2", "--laps", "1"],

@@ -83,8 +83,8 @@ REQUIRED_ATTRS: tuple[str, ...] = ("track_name", "track_geometry_hash", "car_pre
 #: ``fingerprint`` (those the file has; a video capture has no ``cars`` or ``disrupted``, one the AI drove no
 #: ``driver``).
 FINGERPRINT_KEYS: tuple[str, ...] = (
-    "source", "track_name", "track_geometry_hash", "car_preset", "cars", "fps", "disrupted", "seed",
-    "image_height", "image_width", "renderer_settings", "target_names", "dedicated_names", "package_version",
+    "source", "track_name", "track_geometry_hash", "car_preset", "cars", "fps", "disrupted", "disrupt_steer_offset_rad",
+    "seed", "image_height", "image_width", "renderer_settings", "target_names", "dedicated_names", "package_version",
     "driver",
 )  # fmt: skip
 

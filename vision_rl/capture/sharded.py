@@ -124,6 +124,7 @@ def _settings(cfg: ShardedCaptureConfig, track_geometry_hash: str) -> dict[str, 
     return {
         "track_geometry_hash": track_geometry_hash, "car": cfg.car, "laps": cfg.laps,
         "cars": cfg.cars, "fps": float(cfg.fps), "disrupt_ai": bool(cfg.disrupt_ai),
+        "disrupt_steer_offset_rad": float(cfg.disrupt_steer_offset_rad),
         "image_hw_px": list(cfg.image_hw_px), "seed": int(cfg.seed), "workers": int(cfg.workers),
     }  # fmt: skip
 
@@ -317,6 +318,7 @@ def _check_shard(path: Path, shard: CaptureConfig, settings: dict[str, Any]) -> 
             "seed": shard.seed, "track_geometry_hash": settings["track_geometry_hash"], "car_preset": shard.car,
             "cars": shard.cars, "fps": float(shard.fps), "disrupted": bool(shard.disrupt_ai),
             "image_height": shard.image_hw_px[0], "image_width": shard.image_hw_px[1],
+            **({"disrupt_steer_offset_rad": float(shard.disrupt_steer_offset_rad)} if shard.disrupt_ai else {}),
         }  # fmt: skip
         for key, value in expected.items():
             if attrs.get(key) != value:

@@ -54,6 +54,11 @@ class CaptureConfig:
     """Laps to record, summed over all cars."""
     disrupt_ai: bool = True
     """Uniform random disruptions of the AI (off: clean laps for evaluation)."""
+    disrupt_steer_offset_rad: float = DisruptionParams.steer_offset_rad
+    """Disrupted AI: its steering offsets are uniform in +-this, rad. At 0.3 the AI's frames on expressway hold the
+    heading within 24 degrees of the track and touch the walls only side-on; at 0.6, 2 in 100 show the car at a wall
+    at an angle and 1 in 6 a heading error of 11-69 degrees, as a policy's laps do after a wall hit (a car turned
+    round is placed again)."""
     cars: int = 4
     """AI cars driving (and rendered) together."""
     fps: float = 60.0
@@ -82,6 +87,8 @@ class CaptureConfig:
             (self.cars >= 1, f"--cars must be >= 1, got {self.cars}"),
             (math.isfinite(self.fps) and self.fps > 0, f"--fps must be > 0, got {self.fps}"),
             (h > 0 and w > 0, f"--image-hw-px must be two positive sizes (height, width), got {h} {w}"),
+            (math.isfinite(self.disrupt_steer_offset_rad) and self.disrupt_steer_offset_rad >= 0,
+             f"--disrupt-steer-offset-rad must be >= 0, got {self.disrupt_steer_offset_rad}"),
             (self.max_frames >= 0, f"--max-frames must be >= 0 (0: no limit), got {self.max_frames}"),
             (self.flush_interval_s >= 0, f"--flush-interval-s must be >= 0, got {self.flush_interval_s}"),
         )
@@ -154,6 +161,7 @@ def capture_attrs(
     track: Track, cfg: CaptureConfig, renderer_settings: dict, source: str, driver: dict | None = None
 ) -> dict:
     """The file's attributes; ``driver``: who drove when not the built-in AI (a policy's identity)."""
+    disrupted_sim = cfg.disrupt_ai and source == "sim"
     return {
         "track_name": track.name,
         "track_geometry_hash": track.geometry_hash,
@@ -163,6 +171,7 @@ def capture_attrs(
         "source": source,
         "fps": float(cfg.fps),
         "disrupted": bool(cfg.disrupt_ai),
+        **({"disrupt_steer_offset_rad": float(cfg.disrupt_steer_offset_rad)} if disrupted_sim else {}),
         "requested_laps": cfg.laps,
         **({"cars": int(cfg.cars)} if source == "sim" else {}),
         **({"driver": driver} if driver is not None else {}),
@@ -196,6 +205,20 @@ def _done_so_far(path: Path) -> tuple[int, np.ndarray, float]:
         next_lap = np.zeros(int(car_id.max()) + 1, dtype=np.int64)
         np.maximum.at(next_lap, car_id, lap.astype(np.int64) + 1)
         return f.n_frames, next_lap, float(f.time_s.max())
+
+
+#: A disrupted car turned further than this from the track's direction is re-placed as a stuck car is, rad: the
+#: heading target wraps at +-pi, and the few frames of cars facing backwards (3 in 100 with steering offsets of 0.6
+#: rad) widened its spread from 0.21 to 0.50 rad, which the encoder's loss, scaled by each target's spread, then
+#: weighs about 6 times less on every frame.
+MAX_DISRUPTED_HEADING_ERROR_RAD = math.pi / 2
+
+
+def turned_round(track: Track, state) -> np.ndarray:
+    """Indices of the cars of ``state`` (a world state) turned more than :data:`MAX_DISRUPTED_HEADING_ERROR_RAD` from
+    the track's direction at their place."""
+    error = np.angle(np.exp(1j * (state.vehicle.yaw_rad - track.heading_at(state.s_m))))
+    return np.flatnonzero(np.abs(error) > MAX_DISRUPTED_HEADING_ERROR_RAD)
 
 
 def driver_steps_per_frame(fps: float, control_dt_s: float) -> int:
@@ -251,7 +274,7 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
     rng = np.random.default_rng([cfg.seed, frames_before])
     world = World(track, car, n_cars=n, config=world_config)
     line, profile = line_and_profile(track, car)
-    disruption = DisruptionParams() if cfg.disrupt_ai else None
+    disruption = DisruptionParams(steer_offset_rad=cfg.disrupt_steer_offset_rad) if cfg.disrupt_ai else None
     skill = disruption.skill if disruption is not None else DEFAULT_SKILL
     fleet_seed = int(rng.integers(2**31))  # drawn with a driver too, so the start points do not depend on who drives
     if driver is None:
@@ -268,7 +291,7 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
     caster = sensors.WallRayCaster(track)
     # The disrupted AI may end up facing a wall: the project's stuck rule, checked every frame.
     stuck_detector = StuckDetector(world.state.unwrapped_s_m, steps_per_frame * control_dt)
-    resets = 0
+    resets = turned_resets = 0
     frames = 0
     laps_done = laps_before
     t0 = time.perf_counter()
@@ -306,16 +329,20 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
                         action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(n, 2)
                         world.step(action[:, 0], action[:, 1])
                 stuck = stuck_detector.update(world.state.unwrapped_s_m)
+                resets += len(stuck)
+                if disruption is not None:
+                    turned = np.setdiff1d(turned_round(track, world.state), stuck)
+                    turned_resets += len(turned)
+                    stuck = np.union1d(stuck, turned)
                 if len(stuck):
-                    # Capture wants frames, not a race: a stuck car goes back on the racing line a little ahead,
-                    # at half the AI's speed, and starts a new lap index so that a lap never mixes two placements.
+                    # Capture wants frames, not a race: a stuck (or turned) car goes back on the racing line a little
+                    # ahead, at half the AI's speed, and starts a new lap index: a lap never mixes two placements.
                     done_now = np.floor((world.state.unwrapped_s_m[stuck] - start_u[stuck]) / track.length_m)
                     lap_count_base[stuck] += done_now.astype(np.int64)
                     lap_index_base[stuck] += done_now.astype(np.int64) + 1
                     place(stuck, world.state.s_m[stuck] + 5.0, speed_share=0.5)
                     start_u[stuck] = world.state.unwrapped_s_m[stuck]
                     stuck_detector.reset(stuck, world.state.unwrapped_s_m)
-                    resets += len(stuck)
                     if driver is not None:  # its steering memory and frame history start again from the new poses
                         driver.reset(world, np.arange(n))
     except KeyboardInterrupt:
@@ -332,6 +359,7 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
         "complete": complete,
         "interrupted": interrupted,
         "stuck_resets": resets,
+        "turned_resets": turned_resets,
         "capture_fps": frames / elapsed if elapsed > 0 else 0.0,
         "bytes_per_frame": path.stat().st_size / max(frames_before + frames, 1),
         "elapsed_s": elapsed,
