@@ -208,10 +208,3 @@ def test_stronger_disruptions_are_recorded_and_cars_turned_round_are_placed_agai
         heading = f.targets[:, list(f.target_names).index("heading_angle_to_centre_line")]
     # A turned car is placed again before its next frame: no frame shows a car facing backwards.
     assert np.abs(heading).max() <= np.pi / 2
-    # A partial file of one offset is not resumed with another: its frames would not belong together.
-    partial = _config(circle_csv, tmp_path / "partial.h5", max_frames=4, disrupt_steer_offset_rad=0.6)
-    capture_sim(partial)
-    with pytest.raises(CaptureFormatError, match=r"disrupt_steer_offset_rad is 0\.6 in the file but 0\.3 now"):
-        capture_sim(dataclasses.replace(partial, resume=True, disrupt_steer_offset_rad=0.3))
-    with pytest.raises(ValueError, match=r"--disrupt-steer-offset-rad must be >= 0, got -0\.1"):
-        _config(circle_csv, tmp_path / "bad.h5", disrupt_steer_offset_rad=-0.1)

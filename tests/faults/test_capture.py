@@ -50,6 +50,7 @@ def partial_capture(tmp_path_factory, gl_available) -> tuple[CaptureConfig, Path
     [
         ({"fps": 20.0}, "fps"),
         ({"disrupt_ai": False}, "disrupted"),
+        ({"disrupt_steer_offset_rad": 0.6}, "disrupt_steer_offset_rad"),
         ({"car": "gt3"}, "car_preset"),
         ({"seed": 4}, "seed"),
         ({"cars": 3}, "cars"),
@@ -76,7 +77,8 @@ def test_resume_with_a_changed_setting_is_refused_naming_it(partial_capture, tmp
 @pytest.mark.parametrize(
     "argv",
     [["--cars", "100000"], ["--cars", "0"], ["--laps", "0"], ["--laps", "-1"], ["--fps", "0"], ["--fps", "-5"],
-     ["--image-hw-px", "0", "64"], ["--max-frames", "-1"], ["--flush-interval-s", "-1"]],
+     ["--image-hw-px", "0", "64"], ["--max-frames", "-1"], ["--flush-interval-s", "-1"],
+     ["--disrupt-steer-offset-rad", "-0.1"]],
 )  # fmt: skip
 def test_options_out_of_bounds_are_one_line(tmp_path, argv, capsys, fault):
     out = tmp_path / "x.h5"
