@@ -128,7 +128,8 @@ SIZES: dict[str, PipelineSizes] = {
     # angle (the wheel's swings at speed halved; 99; c_s 1.0: 85; c_s 0.25 on 4 of the seeds: 49 of 52, as 0.5).
     # The last weights are timed: weights chosen by 3 held-out starts gained nothing in the last three batches and
     # cost about 100 s (docs/results/make-quick). Ending training episodes at a wall: 1 of 104; the AI's labels: 15;
-    # its pedal labels alone: 82.
+    # its pedal labels alone: 82. Phase 1 frames of cars at the walls at an angle (capture --disrupt-steer-offset-rad
+    # 0.6), alone or beside the job's: 39 and 46 of 52 on seeds 4-7 (the recipe: 49).
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
         repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=150_000,
