@@ -81,7 +81,7 @@ REQUIRED_ATTRS: tuple[str, ...] = ("track_name", "track_geometry_hash", "car_pre
 
 #: What the frames were made from, in the order a difference is reported: the attributes of the file's
 #: ``fingerprint`` (those the file has; a video capture has no ``cars`` or ``disrupted``, one the AI drove no
-#: ``driver``).
+#: ``driver``, an undisrupted one no ``disrupt_steer_offset_rad``).
 FINGERPRINT_KEYS: tuple[str, ...] = (
     "source", "track_name", "track_geometry_hash", "car_preset", "cars", "fps", "disrupted", "disrupt_steer_offset_rad",
     "seed", "image_height", "image_width", "renderer_settings", "target_names", "dedicated_names", "package_version",
