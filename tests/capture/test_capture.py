@@ -7,9 +7,11 @@ import pytest
 
 from tests.evaluation.test_protocol import CentreLineFollower
 from vision_rl.capture.h5format import CaptureFormatError, open_capture
-from vision_rl.capture.sim_capture import CaptureConfig, capture_sim, physics_step_for
+from vision_rl.capture.sim_capture import CaptureConfig, capture_sim, physics_step_for, turned_round
 from vision_rl.sim import sensors
 from vision_rl.sim.track_library import load_track
+from vision_rl.sim.vehicle import get_preset
+from vision_rl.sim.world import World
 
 
 @pytest.fixture
@@ -186,10 +188,6 @@ def test_a_driver_drives_the_capture_and_the_file_names_it(gl_available, circle_
 
 
 def test_a_car_turned_more_than_a_right_angle_from_the_track_is_found(circle_csv):
-    from vision_rl.capture.sim_capture import turned_round
-    from vision_rl.sim.vehicle import get_preset
-    from vision_rl.sim.world import World
-
     track = load_track(circle_csv)
     world = World(track, get_preset("hatchback"), n_cars=6)
     # Five cars spread round the circle, so that the track's direction differs at each; the last sits on the line

@@ -485,7 +485,7 @@ def _summary(
         if i in results:
             r = results[i]
             row.update(frames_written=r["frames_written"], capture_fps=r["capture_fps"], elapsed_s=r["elapsed_s"],
-                       cpu_s=r["cpu_s"], stuck_resets=r["stuck_resets"])  # fmt: skip
+                       cpu_s=r["cpu_s"], stuck_resets=r["stuck_resets"], turned_resets=r["turned_resets"])  # fmt: skip
         if i in failures:
             row["error"] = failures[i]
         shards.append(row)

@@ -217,7 +217,7 @@ MAX_DISRUPTED_HEADING_ERROR_RAD = math.pi / 2
 def turned_round(track: Track, state) -> np.ndarray:
     """Indices of the cars of ``state`` (a world state) turned more than :data:`MAX_DISRUPTED_HEADING_ERROR_RAD` from
     the track's direction at their place."""
-    error = np.angle(np.exp(1j * (state.vehicle.yaw_rad - track.heading_at(state.s_m))))
+    error = sensors.wrap_angle(state.vehicle.yaw_rad - track.heading_at(state.s_m))
     return np.flatnonzero(np.abs(error) > MAX_DISRUPTED_HEADING_ERROR_RAD)
 
 
