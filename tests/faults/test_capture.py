@@ -78,7 +78,7 @@ def test_resume_with_a_changed_setting_is_refused_naming_it(partial_capture, tmp
     "argv",
     [["--cars", "100000"], ["--cars", "0"], ["--laps", "0"], ["--laps", "-1"], ["--fps", "0"], ["--fps", "-5"],
      ["--image-hw-px", "0", "64"], ["--max-frames", "-1"], ["--flush-interval-s", "-1"],
-     ["--disrupt-steer-offset-rad", "-0.1"]],
+     ["--disrupt-steer-offset-rad", "-0.1"], ["--no-disrupt", "--disrupt-steer-offset-rad", "0.6"]],
 )  # fmt: skip
 def test_options_out_of_bounds_are_one_line(tmp_path, argv, capsys, fault):
     out = tmp_path / "x.h5"

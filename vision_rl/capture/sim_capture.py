@@ -89,6 +89,9 @@ class CaptureConfig:
             (h > 0 and w > 0, f"--image-hw-px must be two positive sizes (height, width), got {h} {w}"),
             (math.isfinite(self.disrupt_steer_offset_rad) and self.disrupt_steer_offset_rad >= 0,
              f"--disrupt-steer-offset-rad must be >= 0, got {self.disrupt_steer_offset_rad}"),
+            (self.disrupt_ai or self.disrupt_steer_offset_rad == DisruptionParams.steer_offset_rad,
+             f"--disrupt-steer-offset-rad {self.disrupt_steer_offset_rad:g} with --no-disrupt: clean laps have no "
+             "offsets; drop one of the two"),
             (self.max_frames >= 0, f"--max-frames must be >= 0 (0: no limit), got {self.max_frames}"),
             (self.flush_interval_s >= 0, f"--flush-interval-s must be >= 0, got {self.flush_interval_s}"),
         )
