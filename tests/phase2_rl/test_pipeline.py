@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import os
 import sys
 
@@ -13,6 +14,7 @@ import pytest
 from tests.conftest import renderer_available
 from vision_rl.commands.pipeline import (
     SIZES,
+    STATE_POLICY_CARS,
     PipelineOptions,
     _captured,
     _in_second_process,
@@ -23,6 +25,9 @@ from vision_rl.commands.pipeline import (
     sampler_processes,
 )
 from vision_rl.phase2_rl.artifact import SIDECAR_NAME, PolicySpec
+from vision_rl.sim.driving import line_and_profile
+from vision_rl.sim.track_library import load_track
+from vision_rl.sim.vehicle import get_preset
 
 
 def test_pipeline_tiny(small_track, tiny_encoders, tmp_path):
@@ -81,9 +86,16 @@ def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path):
     from vision_rl.capture.h5format import open_capture
 
     runs = tmp_path / "runs"
-    summary = run_pipeline_stages(PipelineOptions(tiny=True, track=small_track, runs=str(runs)))
+    summary = run_pipeline_stages(PipelineOptions(tiny=True, track=small_track, runs=str(runs), state_policy_laps=1))
     with open_capture(summary["capture"]["train"]) as f:
         assert f.complete and f.image_hw_px == (64, 96)
+    # Driven by the state policy just trained; one of 200 steps may not lap, and its capture ends at the protocol's
+    # time limit (3 x the limit lap), not never.
+    limit_lap_s = line_and_profile(load_track(small_track), get_preset("hatchback"))[1].lap_time_s
+    with open_capture(summary["state_policy_capture"]["path"]) as f:
+        assert f.attrs["driver"]["policy"] == summary["phase2"]["state"]["policy"]
+        # (the cut is checked after each step of the cars' frames)
+        assert 0 < f.n_frames < math.ceil(3 * limit_lap_s * SIZES["tiny"].capture_fps) + STATE_POLICY_CARS
     assert (runs / "repr" / "pipeline" / "ckpt.pt").is_file()
     assert summary["train_repr"]["n_train_frames"] > 0 and summary["train_repr"]["n_val_frames"] > 0
     names = [r["name"] for r in summary["phase2"]["leaderboard"]["rows"]]
@@ -94,6 +106,7 @@ def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path):
     text = "\n".join(format_pipeline(summary))
     # (tiny stops after 3 optimiser steps, before a validation epoch)
     assert "frames, no epoch scored" in text and "pipeline-vision" in text and "done in" in text
+    assert "the state policy's laps" in text
     assert "kept the existing encoder" in "\n".join(format_pipeline(again))
 
 
@@ -112,9 +125,11 @@ def test_a_second_process_returns_its_result_raises_its_error_and_never_waits_fo
         result()  # killed, out of memory: a pool would wait for its result for ever
 
 
-def test_the_state_policy_trains_from_the_start_beside_the_captures_and_phase_1(monkeypatch, tmp_path):
-    """It needs neither frames nor encoder, so it takes the cores the captures and Phase 1 leave idle; Phase 2
-    waits for that same run rather than starting another."""
+@pytest.mark.parametrize("state_policy_laps", [0, 1])
+def test_the_state_policy_trains_from_the_start_beside_the_captures(monkeypatch, tmp_path, state_policy_laps):
+    """It needs neither frames nor encoder, so it takes the cores the captures leave idle; Phase 1 waits for it
+    where it captures the state policy's laps (else it trains beside Phase 1 too), and Phase 2 waits for that same
+    run rather than starting another."""
     import vision_rl.commands.pipeline as pipeline
     import vision_rl.phase1_repr.train as phase1
 
@@ -127,7 +142,7 @@ def test_the_state_policy_trains_from_the_start_beside_the_captures_and_phase_1(
         events.append("state stopped")
 
     def capture(opts, sizes, name, laps, disrupt):
-        events.append(f"capture {name}")
+        events.append(f"capture {name}" + " disrupted" * disrupt)
         return pipeline._capture_path(opts, name)
 
     def phase2(encoder, sizes, *, state, **kwargs):
@@ -138,9 +153,16 @@ def test_the_state_policy_trains_from_the_start_beside_the_captures_and_phase_1(
     monkeypatch.setattr(pipeline, "_in_second_process", lambda fn, *args, **kw: contextlib.nullcontext(
         lambda: fn(*args)))  # fmt: skip
     monkeypatch.setattr(pipeline, "_capture", capture)
-    monkeypatch.setattr(phase1, "train_repr", lambda cfg: events.append("train-repr") or {})
+    monkeypatch.setattr(phase1, "train_repr", lambda cfg: events.append(f"train-repr on {cfg.data}") or {})
     monkeypatch.setattr(pipeline, "pipeline_phase2", phase2)
-    summary = run_pipeline_stages(PipelineOptions(tiny=True, runs=str(tmp_path)))
-    assert events == ["state starts", "capture train", "capture eval", "train-repr", "phase 2", "state waited for",
-                      "state stopped"]  # fmt: skip
+    summary = run_pipeline_stages(PipelineOptions(tiny=True, runs=str(tmp_path), state_policy_laps=state_policy_laps))
+    captures = tmp_path / "capture"
+    if state_policy_laps:
+        assert events == ["state starts", "capture train disrupted", "capture eval", "state waited for",
+                          "capture state_policy", f"train-repr on {captures / 'train.h5'},{captures}/state_policy.h5",
+                          "phase 2", "state stopped"]  # fmt: skip
+        assert summary["state_policy_capture"]["path"] == str(captures / "state_policy.h5")
+    else:
+        assert events == ["state starts", "capture train disrupted", "capture eval",
+                          f"train-repr on {captures / 'train.h5'}", "phase 2", "state waited for", "state stopped"]
     assert summary["phase2"]["state"] == {"num_timesteps": 200}

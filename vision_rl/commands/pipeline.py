@@ -1,7 +1,8 @@
 """`vision-rl pipeline`: the whole two-phase job of the vision paper on one track and car.
 
 1. capture: disrupted built-in AI laps (training frames) and, in a second process beside them, clean laps (the
-   evaluation set, as the paper's "undisturbed driving");
+   evaluation set, as the paper's "undisturbed driving"); with ``--state-policy-laps``, laps of Phase 2's state
+   policy too once it is trained (``capture --policy``);
 2. train-repr: the space2depth encoder on those frames, best checkpoint on the clean laps;
 3. Phase 2: train-policy on the frozen encoder's embedding (its frames rendered in a sampler process) and on the
    state, in a second process at the lowest priority that starts with the captures (it needs neither frames nor
@@ -17,6 +18,8 @@ where it stopped.
 from __future__ import annotations
 
 import contextlib
+import functools
+import math
 import multiprocessing
 import os
 import time
@@ -129,7 +132,8 @@ SIZES: dict[str, PipelineSizes] = {
     # The last weights are timed: weights chosen by 3 held-out starts gained nothing in the last three batches and
     # cost about 100 s (docs/results/make-quick). Ending training episodes at a wall: 1 of 104; the AI's labels: 15;
     # its pedal labels alone: 82. Phase 1 frames of cars at the walls at an angle (capture --disrupt-steer-offset-rad
-    # 0.6), alone or beside the job's: 39 and 46 of 52 on seeds 4-7 (the recipe: 49).
+    # 0.6), alone or beside the job's: 39 and 46 of 52 on seeds 4-7 (the recipe: 49). Phase 1 also on 2 laps of the
+    # state policy (--state-policy-laps 2): 100 of 104, but the job waits for the state policy (22.2 min): an option.
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
         repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=150_000,
@@ -173,6 +177,11 @@ class PipelineOptions:
     """Frame height and width, px (0 0: the mode's; full: 280 470, the paper's; quick: 140 236)."""
     seed: int = 0
     """Seed of every stage."""
+    state_policy_laps: int = 0
+    """Laps the trained state policy drives for Phase 1 beside the AI's, over 2 cars, undisrupted (capture --policy;
+    0: none). Phase 1 then waits for the state policy: with 2, make quick took 22.2 min (13.1 without); its encoder
+    erred a third as much at the walls, and its vision policies finished 100 of 104 starts over 8 training seeds
+    (without: 99; docs/results/vision-expressway-hatchback)."""
     json: bool = False
     """Print the summary as JSON."""
 
@@ -183,6 +192,8 @@ class PipelineOptions:
             raise ValueError(f"--image-hw-px must be two positive sizes (height, width) or 0 0, got {h} {w}")
         if self.quick and self.tiny:
             raise ValueError("--quick and --tiny: choose one")
+        if self.state_policy_laps < 0:
+            raise ValueError(f"--state-policy-laps must be >= 0 (0: none), got {self.state_policy_laps}")
 
     @property
     def mode(self) -> str:
@@ -207,23 +218,48 @@ def _captured(path: Path) -> str:
 
 
 def _capture(opts: PipelineOptions, sizes: PipelineSizes, name: str, laps: int, disrupt: bool) -> Path:
+    """The built-in AI's laps (``name`` ``train``: disrupted; ``eval``: clean), or with ``name`` ``state_policy`` the
+    trained state policy's: always captured again, as the policy is trained again, and cut where a policy that
+    does not lap would run on for ever (at the lap-time protocol's time limit)."""
     from vision_rl.capture.sim_capture import CaptureConfig, capture_sim
+    from vision_rl.evaluation.protocol import TIME_LIMIT_LIMIT_LAPS
+    from vision_rl.phase2_rl.artifact import load_policy
+    from vision_rl.sim.driving import line_and_profile
+    from vision_rl.sim.track_library import load_track
+    from vision_rl.sim.vehicle import get_preset
 
     out = _capture_path(opts, name)
-    state = _captured(out)
+    by_policy = name == "state_policy"
+    state = "none" if by_policy else _captured(out)
     if state == "complete":
         return out
     resume = state == "partial"
-    captured = capture_sim(
-        CaptureConfig(
-            out=str(out), track=opts.track, car=opts.car, laps=laps, disrupt_ai=disrupt, cars=sizes.capture_cars,
-            fps=sizes.capture_fps, image_hw_px=opts.image_hw_px if all(opts.image_hw_px) else sizes.image_hw_px,
-            seed=opts.seed + (0 if disrupt else 1), resume=resume, force=not resume,
-        )
-    )  # fmt: skip
+    max_frames = 0
+    if by_policy:
+        limit_lap_s = line_and_profile(load_track(opts.track), get_preset(opts.car))[1].lap_time_s
+        max_frames = math.ceil(laps * TIME_LIMIT_LIMIT_LAPS * limit_lap_s * sizes.capture_fps)
+    driver = load_policy(Path(opts.runs) / "policy" / "pipeline-state").driver() if by_policy else None
+    try:
+        captured = capture_sim(
+            CaptureConfig(
+                out=str(out), track=opts.track, car=opts.car, laps=laps, disrupt_ai=disrupt,
+                cars=STATE_POLICY_CARS if by_policy else sizes.capture_cars, fps=sizes.capture_fps,
+                image_hw_px=opts.image_hw_px if all(opts.image_hw_px) else sizes.image_hw_px,
+                seed=opts.seed + (0 if disrupt or by_policy else 1), resume=resume, force=not resume,
+                max_frames=max_frames,
+            ),
+            driver=driver,
+        )  # fmt: skip
+    finally:
+        if driver is not None:
+            driver.close()
     if captured["interrupted"]:  # what it captured is kept, and the next pipeline resumes it
         raise KeyboardInterrupt
     return out
+
+
+#: Cars the state policy drives together for ``--state-policy-laps``, as in make experiment's policy captures.
+STATE_POLICY_CARS = 2
 
 
 def _send_result(send: Any, niceness: int, fn: Callable[..., Any], args: tuple) -> None:
@@ -404,13 +440,22 @@ def _stages_beside_the_state_policy(opts: PipelineOptions, sizes: PipelineSizes,
             eval_h5 = clean()
     summary["capture"] = {"train": str(train_h5), "eval": str(eval_h5), "seconds": time.perf_counter() - t0}
 
-    t0 = time.perf_counter()
     repr_out = Path(opts.runs) / "repr" / "pipeline"
     ckpt = repr_out / "ckpt.pt"
+    data = [str(train_h5)]
+    if opts.state_policy_laps and not ckpt.is_file():
+        t0 = time.perf_counter()
+        state = functools.cache(state)  # Phase 2 takes this same result
+        state()
+        t1 = time.perf_counter()
+        data.append(str(_capture(opts, sizes, "state_policy", opts.state_policy_laps, False)))
+        summary["state_policy_capture"] = {"path": data[-1], "waited_s": t1 - t0, "seconds": time.perf_counter() - t1}
+
+    t0 = time.perf_counter()
     if not ckpt.is_file():
         result = train_repr(
             TrainReprConfig(
-                data=str(train_h5), val=str(eval_h5), epochs=sizes.repr_epochs, max_steps=sizes.repr_max_steps,
+                data=",".join(data), val=str(eval_h5), epochs=sizes.repr_epochs, max_steps=sizes.repr_max_steps,
                 out=str(repr_out), force=True, seed=opts.seed, num_workers=0 if opts.tiny else 2,
             )
         )  # fmt: skip
@@ -452,6 +497,10 @@ def format_pipeline(summary: dict[str, Any]) -> list[str]:
         f"vision-rl pipeline ({summary['mode']}) on {summary['track']} / {summary['car']}",
         f"  capture: {capture['seconds']:.0f} s -> {capture['train']} (disrupted), {capture['eval']} (clean)",
     ]
+    by_policy = summary.get("state_policy_capture")
+    if by_policy:
+        lines.append(f"  the state policy's laps: {by_policy['seconds']:.0f} s -> {by_policy['path']} (after "
+                     f"{by_policy['waited_s']:.0f} s waiting for the state policy)")  # fmt: skip
     repr_result = summary.get("train_repr")
     if repr_result is None:
         lines.append(f"  train-repr: kept the existing encoder ({summary['train_repr_seconds']:.0f} s)")
