@@ -51,6 +51,20 @@ def test_pipeline_refuses_a_bad_frame_size_and_two_modes(capsys, tmp_path):
     assert not (tmp_path / "runs").exists()  # refused before any stage started
 
 
+def test_pipeline_refuses_a_kept_encoder_trained_on_other_frames_than_asked(capsys, tmp_path):
+    encoder = tmp_path / "runs" / "repr" / "pipeline"
+    encoder.mkdir(parents=True)
+    (encoder / "ckpt.pt").write_bytes(b"")
+    (encoder / "data.json").write_text(json.dumps({"train": [{"file": "train.h5"}]}))
+    args = ["pipeline", "--tiny", "--runs", str(tmp_path / "runs")]
+    assert main([*args, "--state-policy-laps", "2"]) == 2
+    assert "trained without the state policy's laps and --state-policy-laps is 2" in capsys.readouterr().err
+    (encoder / "data.json").write_text(json.dumps({"train": [{"file": "train.h5"}, {"file": "state_policy.h5"}]}))
+    assert main(args) == 2
+    assert "trained with the state policy's laps and --state-policy-laps is 0" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "runs").rglob("*")) == ["ckpt.pt", "data.json", "pipeline", "repr"]
+
+
 def test_limit_prints_the_lap_time(capsys):
     assert main(["limit", "--track", "technical", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)

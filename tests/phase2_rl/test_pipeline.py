@@ -86,7 +86,8 @@ def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path):
     from vision_rl.capture.h5format import open_capture
 
     runs = tmp_path / "runs"
-    summary = run_pipeline_stages(PipelineOptions(tiny=True, track=small_track, runs=str(runs), state_policy_laps=1))
+    opts = PipelineOptions(tiny=True, track=small_track, runs=str(runs), state_policy_laps=1)
+    summary = run_pipeline_stages(opts)
     with open_capture(summary["capture"]["train"]) as f:
         assert f.complete and f.image_hw_px == (64, 96)
     # Driven by the state policy just trained; one of 200 steps may not lap, and its capture ends at the protocol's
@@ -101,7 +102,7 @@ def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path):
     names = [r["name"] for r in summary["phase2"]["leaderboard"]["rows"]]
     assert {"pipeline-state", "pipeline-vision"} <= set(names)
     # A second call finds every stage's output and does not redo the capture or Phase 1.
-    again = run_pipeline_stages(PipelineOptions(tiny=True, track=small_track, runs=str(runs)))
+    again = run_pipeline_stages(opts)
     assert "train_repr" not in again and again["capture"]["seconds"] < 1.0
     text = "\n".join(format_pipeline(summary))
     # (tiny stops after 3 optimiser steps, before a validation epoch)

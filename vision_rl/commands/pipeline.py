@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import json
 import math
 import multiprocessing
 import os
@@ -414,9 +415,24 @@ def pipeline_phase2(
     return summary
 
 
+def _check_kept_encoder(opts: PipelineOptions) -> None:
+    """An encoder kept from an earlier run must have seen the state policy's laps exactly when this run asks for
+    them: else the option would be dropped, or taken, without a word."""
+    data_json = Path(opts.runs) / "repr" / "pipeline" / "data.json"
+    if not (data_json.parent / "ckpt.pt").is_file() or not data_json.is_file():
+        return
+    files = {Path(entry["file"]).name for entry in json.loads(data_json.read_text())["train"]}
+    if ("state_policy.h5" in files) != bool(opts.state_policy_laps):
+        seen = "with" if "state_policy.h5" in files else "without"
+        raise ValueError(f"{data_json.parent} holds an encoder trained {seen} the state policy's laps and "
+                         f"--state-policy-laps is {opts.state_policy_laps}: remove that folder to train it again, or "
+                         "run as before")  # fmt: skip
+
+
 def run_pipeline_stages(opts: PipelineOptions) -> dict[str, Any]:
     """Run every stage; returns a summary with each stage's figures and durations."""
     sizes = SIZES[opts.mode]
+    _check_kept_encoder(opts)  # before the state policy's minutes
     # The state policy needs neither the frames nor the encoder: it trains from the start, at the lowest priority,
     # on what the captures and Phase 1 leave of the cores, and then beside the vision policy.
     with state_in_second_process(sizes, opts.track, opts.car, opts.runs, opts.seed, "auto") as state:
