@@ -154,6 +154,8 @@ def test_the_state_policy_trains_from_the_start_beside_the_captures(monkeypatch,
     monkeypatch.setattr(pipeline, "_in_second_process", lambda fn, *args, **kw: contextlib.nullcontext(
         lambda: fn(*args)))  # fmt: skip
     monkeypatch.setattr(pipeline, "_capture", capture)
+    monkeypatch.setattr(pipeline, "_capture_state_policy",
+                        lambda opts, sizes: capture(opts, sizes, "state_policy", opts.state_policy_laps, False))
     monkeypatch.setattr(phase1, "train_repr", lambda cfg: events.append(f"train-repr on {cfg.data}") or {})
     monkeypatch.setattr(pipeline, "pipeline_phase2", phase2)
     summary = run_pipeline_stages(PipelineOptions(tiny=True, runs=str(tmp_path), state_policy_laps=state_policy_laps))

@@ -218,42 +218,25 @@ def _captured(path: Path) -> str:
         return "none"
 
 
+def _image_hw_px(opts: PipelineOptions, sizes: PipelineSizes) -> tuple[int, int]:
+    return opts.image_hw_px if all(opts.image_hw_px) else sizes.image_hw_px
+
+
 def _capture(opts: PipelineOptions, sizes: PipelineSizes, name: str, laps: int, disrupt: bool) -> Path:
-    """The built-in AI's laps (``name`` ``train``: disrupted; ``eval``: clean), or with ``name`` ``state_policy`` the
-    trained state policy's: always captured again, as the policy is trained again, and cut where a policy that
-    does not lap would run on for ever (at the lap-time protocol's time limit)."""
     from vision_rl.capture.sim_capture import CaptureConfig, capture_sim
-    from vision_rl.evaluation.protocol import TIME_LIMIT_LIMIT_LAPS
-    from vision_rl.phase2_rl.artifact import load_policy
-    from vision_rl.sim.driving import line_and_profile
-    from vision_rl.sim.track_library import load_track
-    from vision_rl.sim.vehicle import get_preset
 
     out = _capture_path(opts, name)
-    by_policy = name == "state_policy"
-    state = "none" if by_policy else _captured(out)
+    state = _captured(out)
     if state == "complete":
         return out
     resume = state == "partial"
-    max_frames = 0
-    if by_policy:
-        limit_lap_s = line_and_profile(load_track(opts.track), get_preset(opts.car))[1].lap_time_s
-        max_frames = math.ceil(laps * TIME_LIMIT_LIMIT_LAPS * limit_lap_s * sizes.capture_fps)
-    driver = load_policy(Path(opts.runs) / "policy" / "pipeline-state").driver() if by_policy else None
-    try:
-        captured = capture_sim(
-            CaptureConfig(
-                out=str(out), track=opts.track, car=opts.car, laps=laps, disrupt_ai=disrupt,
-                cars=STATE_POLICY_CARS if by_policy else sizes.capture_cars, fps=sizes.capture_fps,
-                image_hw_px=opts.image_hw_px if all(opts.image_hw_px) else sizes.image_hw_px,
-                seed=opts.seed + (0 if disrupt or by_policy else 1), resume=resume, force=not resume,
-                max_frames=max_frames,
-            ),
-            driver=driver,
-        )  # fmt: skip
-    finally:
-        if driver is not None:
-            driver.close()
+    captured = capture_sim(
+        CaptureConfig(
+            out=str(out), track=opts.track, car=opts.car, laps=laps, disrupt_ai=disrupt, cars=sizes.capture_cars,
+            fps=sizes.capture_fps, image_hw_px=_image_hw_px(opts, sizes),
+            seed=opts.seed + (0 if disrupt else 1), resume=resume, force=not resume,
+        )
+    )  # fmt: skip
     if captured["interrupted"]:  # what it captured is kept, and the next pipeline resumes it
         raise KeyboardInterrupt
     return out
@@ -261,6 +244,36 @@ def _capture(opts: PipelineOptions, sizes: PipelineSizes, name: str, laps: int, 
 
 #: Cars the state policy drives together for ``--state-policy-laps``, as in make experiment's policy captures.
 STATE_POLICY_CARS = 2
+
+
+def _capture_state_policy(opts: PipelineOptions, sizes: PipelineSizes) -> Path:
+    """``opts.state_policy_laps`` of the trained state policy, undisrupted: always captured again, as the policy is
+    trained again, and cut at the lap-time protocol's time limit, where a policy that does not lap would run on."""
+    from vision_rl.capture.sim_capture import CaptureConfig, capture_sim
+    from vision_rl.evaluation.protocol import TIME_LIMIT_LIMIT_LAPS
+    from vision_rl.phase2_rl.artifact import load_policy
+    from vision_rl.sim.driving import line_and_profile
+    from vision_rl.sim.track_library import load_track
+    from vision_rl.sim.vehicle import get_preset
+
+    out = _capture_path(opts, "state_policy")
+    laps = opts.state_policy_laps
+    limit_lap_s = line_and_profile(load_track(opts.track), get_preset(opts.car))[1].lap_time_s
+    driver = load_policy(Path(opts.runs) / "policy" / "pipeline-state").driver()
+    try:
+        captured = capture_sim(
+            CaptureConfig(
+                out=str(out), track=opts.track, car=opts.car, laps=laps, disrupt_ai=False, cars=STATE_POLICY_CARS,
+                fps=sizes.capture_fps, image_hw_px=_image_hw_px(opts, sizes), seed=opts.seed, force=True,
+                max_frames=math.ceil(laps * TIME_LIMIT_LIMIT_LAPS * limit_lap_s * sizes.capture_fps),
+            ),
+            driver=driver,
+        )  # fmt: skip
+    finally:
+        driver.close()
+    if captured["interrupted"]:
+        raise KeyboardInterrupt
+    return out
 
 
 def _send_result(send: Any, niceness: int, fn: Callable[..., Any], args: tuple) -> None:
@@ -422,8 +435,9 @@ def _check_kept_encoder(opts: PipelineOptions) -> None:
     if not (data_json.parent / "ckpt.pt").is_file() or not data_json.is_file():
         return
     files = {Path(entry["file"]).name for entry in json.loads(data_json.read_text())["train"]}
-    if ("state_policy.h5" in files) != bool(opts.state_policy_laps):
-        seen = "with" if "state_policy.h5" in files else "without"
+    seen_laps = _capture_path(opts, "state_policy").name in files
+    if seen_laps != bool(opts.state_policy_laps):
+        seen = "with" if seen_laps else "without"
         raise ValueError(f"{data_json.parent} holds an encoder trained {seen} the state policy's laps and "
                          f"--state-policy-laps is {opts.state_policy_laps}: remove that folder to train it again, or "
                          "run as before")  # fmt: skip
@@ -464,7 +478,7 @@ def _stages_beside_the_state_policy(opts: PipelineOptions, sizes: PipelineSizes,
         state = functools.cache(state)  # Phase 2 takes this same result
         state()
         t1 = time.perf_counter()
-        data.append(str(_capture(opts, sizes, "state_policy", opts.state_policy_laps, False)))
+        data.append(str(_capture_state_policy(opts, sizes)))
         summary["state_policy_capture"] = {"path": data[-1], "waited_s": t1 - t0, "seconds": time.perf_counter() - t1}
 
     t0 = time.perf_counter()
