@@ -138,6 +138,7 @@ SIZES: dict[str, PipelineSizes] = {
     # 200k vision steps instead of 150k (the learning rate falling over the 200k): 103 of 104 on the 8 seeds, and on
     # one encoder's seeds 4-7 51 of 52 against 44 for 150k (Fisher p = 0.03); the job then took 9.5 min on the whole
     # machine and 12.3 held to 1.5 cores, 9.4 with 150k the same evening (the state run, which ends last, sets it).
+    # Twice the papers' wall penalty (c_w 0.01) at 200k on 4 seeds: 51 of 52 (the recipe: 49), 5.2 s slower a lap.
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
         repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=200_000,
