@@ -135,9 +135,10 @@ SIZES: dict[str, PipelineSizes] = {
     # its pedal labels alone: 82. Phase 1 frames of cars at the walls at an angle (capture --disrupt-steer-offset-rad
     # 0.6), alone or beside the job's: 39 and 46 of 52 on seeds 4-7 (the recipe: 49). Phase 1 also on 2 laps of the
     # state policy (--state-policy-laps 2): 100 of 104, but the job waits for the state policy (22.2 min): an option.
-    # 200k vision steps instead of 150k (the learning rate falling over the 200k): 103 of 104 on the 8 seeds, and on
-    # one encoder's seeds 4-7 51 of 52 against 44 for 150k (Fisher p = 0.03); the job then took 9.5 min on the whole
-    # machine and 12.3 held to 1.5 cores, 9.4 with 150k the same evening (the state run, which ends last, sets it).
+    # 200k vision steps instead of 150k (the learning rate falling over the 200k): 103 of 104 on the 8 seeds; 8 seeds
+    # paired with 150k on two encoders: 100 of 104 against 88 (Fisher p = 0.008), the lap the same. The job took 9.5
+    # min on the whole machine and 12.3 held to 1.5 cores, 9.4 with 150k the same night: the state run beside it
+    # takes as long as the captures, Phase 1 and the vision run together.
     # Twice the papers' wall penalty (c_w 0.01) at 200k on 4 seeds: 51 of 52 (the recipe: 49), 5.2 s slower a lap.
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
