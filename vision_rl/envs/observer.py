@@ -77,6 +77,18 @@ class PoseHistory:
         return xy[0], xy[1], newer[2] + f * turn
 
 
+def in_batches_of(size: int, fn, rows: np.ndarray) -> np.ndarray:
+    """``fn`` over ``rows`` in batches of exactly ``size`` rows (the last padded with copies of its last row), joined.
+
+    A network's matrix products round differently (in the last bit) by batch size and by the alignment of the batch
+    in memory, and a policy's laps are chaotic in the last bit of its command: each batch is a fresh array of one
+    size, so a row's result does not depend on how many rows there are.
+    """
+    n = len(rows)
+    padded = np.concatenate([rows, np.repeat(rows[-1:], -n % size, axis=0)])
+    return np.concatenate([np.asarray(fn(padded[i : i + size].copy())) for i in range(0, len(padded), size)])[:n]
+
+
 class Observer:
     """Observations of cars ``ids`` of a world on ``track`` with cars ``car`` in collision ``groups``.
 
@@ -85,6 +97,9 @@ class Observer:
         normalizer: applied to the vector (state, overtaking, vision with an encoder); None: raw physical units.
         encoder: vision only: the frozen frame encoder; None gives the Dict of frame and raw features.
         image_hw_px: vision frame size, (height, width) px.
+        batch_cars: vision: render and embed the frames in batches of this many cars (:func:`in_batches_of`; the
+            renderer's views per pass, whose layout sets a view's pixels), so that a car's observation is the same
+            however many cars are observed beside it; 0: all at once, one view per collision group.
     """
 
     def __init__(
@@ -96,6 +111,7 @@ class Observer:
         normalizer: obs_lib.ObsNormalizer | None = None,
         encoder=None,
         image_hw_px: tuple[int, int] = (280, 470),
+        batch_cars: int = 0,
     ) -> None:
         if kind not in OBSERVATION_KINDS:
             raise ValueError(f"observation must be one of {OBSERVATION_KINDS}, got {kind!r}")
@@ -108,6 +124,9 @@ class Observer:
         self.normalizer = normalizer
         self.encoder = encoder
         self.image_hw_px = (int(image_hw_px[0]), int(image_hw_px[1]))
+        if batch_cars < 0:
+            raise ValueError(f"batch_cars must be >= 0, got {batch_cars}")
+        self.batch_cars = int(batch_cars)
         self.caster = sensors.WallRayCaster(track)
         self.renderer = None
         self.pose_history: PoseHistory | None = None
@@ -157,8 +176,9 @@ class Observer:
                     f"it could not be imported: {exc}"
                 ) from exc
             height, width = self.image_hw_px
+            views = self.batch_cars or len(np.unique(self.groups))
             self.renderer = Renderer(
-                self.track, RenderConfig(width_px=width, height_px=height, max_views=len(np.unique(self.groups))),
+                self.track, RenderConfig(width_px=width, height_px=height, max_views=views),
                 car_length_m=self.car.length_m, car_width_m=self.car.width_m,
             )  # fmt: skip
         if self.pose_history is not None:
@@ -187,9 +207,12 @@ class Observer:
 
     def embed(self, images: np.ndarray, features: np.ndarray) -> np.ndarray:
         """(n, rep_dim + 11) float64 from frames (n, H, W, 3) uint8 and raw dedicated features (n, 11)."""
-        embedding = self.encoder(images)
-        embedding = embedding.cpu().numpy() if hasattr(embedding, "cpu") else np.asarray(embedding)
+        embedding = in_batches_of(self.batch_cars, self._encode, images) if self.batch_cars else self._encode(images)
         return np.hstack([embedding.astype(np.float64), np.asarray(features, dtype=np.float64)])
+
+    def _encode(self, images: np.ndarray) -> np.ndarray:
+        embedding = self.encoder(images)
+        return embedding.cpu().numpy() if hasattr(embedding, "cpu") else np.asarray(embedding)
 
     def __call__(self, state: WorldState, ids: np.ndarray) -> np.ndarray | dict[str, np.ndarray]:
         """The observations of cars ``ids``: normalised float32 vectors (len(ids), dim), or the vision Dict."""

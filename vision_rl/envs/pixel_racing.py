@@ -293,13 +293,16 @@ class PixelObserver:
     frame) and the racing line; used by the environment and by the lap-time protocol's DDPG driver alike.
     """
 
-    def __init__(self, config: PixelRacingConfig, track: Track, car: VehicleParams, groups: np.ndarray) -> None:
+    def __init__(
+        self, config: PixelRacingConfig, track: Track, car: VehicleParams, groups: np.ndarray, batch_cars: int = 0
+    ) -> None:
         self.config = config
         self.track, self.car = track, car
         self.line = goal_line(track, car, config.racing_line, config.track)
         hw = config.image_hw_px
-        self._frames = Observer(
-            "vision", track, car, groups, image_hw_px=(hw[0] * config.render_scale, hw[1] * config.render_scale)
+        self._frames = Observer(  # batch_cars: the renderer's views per pass (see Observer)
+            "vision", track, car, groups, image_hw_px=(hw[0] * config.render_scale, hw[1] * config.render_scale),
+            batch_cars=batch_cars,
         )
         self._spin_rad = math.radians(config.spin_slip_deg)
 

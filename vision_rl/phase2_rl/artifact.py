@@ -36,8 +36,9 @@ import numpy as np
 
 from vision_rl.envs.core import RacingConfig, pedal_command, steering_command
 from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
-from vision_rl.envs.observer import Observer
+from vision_rl.envs.observer import Observer, in_batches_of
 from vision_rl.envs.racing_env import action_space
+from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
 from vision_rl.phase2_rl.persist import (
     ArtifactError,
     atomic_write,
@@ -315,7 +316,8 @@ class PolicyDriver:
         if self.observer is not None:
             self.observer.close()
         self.observer = Observer(
-            self.kind, world.track, world.car, world.model.groups, self.normalizer, self.encoder, self.image_hw_px
+            self.kind, world.track, world.car, world.model.groups, self.normalizer, self.encoder, self.image_hw_px,
+            batch_cars=DRIVER_BATCH_CARS,
         )
         self.observer.delay_frames(self.frame_delay_s, self.control_dt_s)
         self.car_ids = np.asarray(car_ids)
@@ -327,8 +329,8 @@ class PolicyDriver:
     def act(self, state: WorldState) -> np.ndarray:
         assert self.observer is not None, "reset() first"
         self.observer.remember(state)  # called once per control step, as the environment does after each step
-        action = np.asarray(self.predict(self.observer(state, self.car_ids)), dtype=np.float64)
-        action = action.reshape(len(self.car_ids), 2).copy()
+        obs = self.observer(state, self.car_ids)
+        action = in_batches_of(DRIVER_BATCH_CARS, self.predict, obs).astype(np.float64).reshape(len(self.car_ids), 2)
         speed = np.hypot(state.vehicle.vx_mps[self.car_ids], state.vehicle.vy_mps[self.car_ids])
         action[:, 0] = self.steer_command_rad = steering_command(
             action[:, 0], self.steer_command_rad, self.steer_action, self.max_steer_change_rad, speed, self.wheelbase_m,

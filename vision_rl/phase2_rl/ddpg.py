@@ -50,6 +50,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from vision_rl.envs.observer import in_batches_of
 from vision_rl.envs.pixel_racing import (
     PixelObserver,
     PixelRacingConfig,
@@ -57,6 +58,7 @@ from vision_rl.envs.pixel_racing import (
     critic_input_scale,
     keys_to_action,
 )
+from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
 from vision_rl.phase2_rl.persist import ArtifactError, atomic_write, check_fingerprint, file_sha256
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import get_preset
@@ -715,14 +717,18 @@ class DDPGDriver:
         if self.observer is None or key != self._key:
             if self.observer is not None:
                 self.observer.close()
-            self.observer = PixelObserver(config, world.track, world.car, world.model.groups)
+            self.observer = PixelObserver(config, world.track, world.car, world.model.groups, DRIVER_BATCH_CARS)
             self._key = key
         self.car_ids = np.asarray(car_ids)
 
     def act(self, state: WorldState) -> np.ndarray:
         assert self.observer is not None, "reset() first"
-        keys = self.agent.act(self.observer(state, self.car_ids), explore=False)
-        return keys_to_action(keys)
+        obs = self.observer(state, self.car_ids)
+
+        def act(rows: np.ndarray) -> np.ndarray:
+            return self.agent.act({k: v[rows] for k, v in obs.items()}, explore=False)
+
+        return keys_to_action(in_batches_of(DRIVER_BATCH_CARS, act, np.arange(len(self.car_ids))))
 
     def close(self) -> None:
         if self.observer is not None:
