@@ -116,7 +116,8 @@ SIZES: dict[str, PipelineSizes] = {
     # these cores, on 236 x 140 at about 230 (measured side by side), which is what fits the quick budget.
     # On the 8,048 frames of 4 disrupted laps, R^2 on the clean lap was 0.90-0.99 (by target group) after 4 epochs
     # (86 s) and 0.961-0.997 after 10 (214 s alone; README, Phase 1).
-    # Phase 2 on 2 cores: state 250k steps in 183 s, which drove lap 2 of the expressway in 2:18.0.
+    # The first layout (before the sampler process and the lap-time protocol), Phase 2 on 2 cores: state 250k steps
+    # in 183 s, which drove lap 2 of the expressway in 2:18.0.
     # Vision (236 x 140 frames) learns per update much as with 20 cars, and an update costs 36 ms with 10 cars
     # against 50 ms with 20: with 10 cars it drove one lap after 150k steps (491 s) and two (lap 2 in 2:24.1)
     # after 200k (648 s; 587 s with the encoder on ONNX Runtime). The whole pipeline took 14.6 min with 150k
