@@ -78,13 +78,16 @@ class PoseHistory:
 
 
 def in_batches_of(size: int, fn, rows: np.ndarray) -> np.ndarray:
-    """``fn`` over ``rows`` in batches of exactly ``size`` rows (the last padded with copies of its last row), joined.
+    """``fn`` over ``rows`` in batches of exactly ``size`` rows (the last padded with copies of its last row), joined;
+    ``size`` rows or fewer in one batch as they are.
 
     A network's matrix products round differently (in the last bit) by batch size and by the alignment of the batch
     in memory, and a policy's laps are chaotic in the last bit of its command: each batch is a fresh array of one
     size, so a row's result does not depend on how many rows there are.
     """
     n = len(rows)
+    if n <= size:
+        return np.asarray(fn(rows.copy()))
     padded = np.concatenate([rows, np.repeat(rows[-1:], -n % size, axis=0)])
     return np.concatenate([np.asarray(fn(padded[i : i + size].copy())) for i in range(0, len(padded), size)])[:n]
 
@@ -98,8 +101,9 @@ class Observer:
         encoder: vision only: the frozen frame encoder; None gives the Dict of frame and raw features.
         image_hw_px: vision frame size, (height, width) px.
         batch_cars: vision: render and embed the frames in batches of this many cars (:func:`in_batches_of`; the
-            renderer's views per pass, whose layout sets a view's pixels), so that a car's observation is the same
-            however many cars are observed beside it; 0: all at once, one view per collision group.
+            renderer's views per pass, whose layout sets a view's pixels; all at once when there are no more), so
+            that the first ``batch_cars`` cars' observations do not change with more cars beside them; 0: all at once,
+            one view per collision group.
     """
 
     def __init__(
@@ -176,7 +180,8 @@ class Observer:
                     f"it could not be imported: {exc}"
                 ) from exc
             height, width = self.image_hw_px
-            views = self.batch_cars or len(np.unique(self.groups))
+            views = len(np.unique(self.groups))
+            views = min(views, self.batch_cars) if self.batch_cars else views
             self.renderer = Renderer(
                 self.track, RenderConfig(width_px=width, height_px=height, max_views=views),
                 car_length_m=self.car.length_m, car_width_m=self.car.width_m,

@@ -14,9 +14,9 @@ Rules (:data:`PROTOCOL_VERSION` 1; the vision paper's Sec. 4, after Fuchs et al.
 - **Laps**: ``laps`` consecutive laps (2); the last one is the score, so the start does not enter it.
 - **Seeds**: the seeds drive at once, each car alone (its own collision group: no contact between seeds). The
   leaderboard's figure is the best scored lap over seeds (the papers' "best lap score"); the median is beside it.
-  A driver that computes its cars' actions with networks does so in batches of :data:`DRIVER_BATCH_CARS`, so a
-  seed laps the same in any number of seeds as in the protocol's 3 (a batch's size changes its products in the
-  last bit, and laps are chaotic in that bit).
+  A driver that computes its cars' actions with networks does so in batches of :data:`DRIVER_BATCH_CARS` (all at
+  once for 3 seeds or fewer), so seeds 0-2 lap the same among any number of seeds as in the protocol's 3 (a batch's
+  size changes a network's products in the last bit, and laps are chaotic in that bit).
 - **Stuck**: :data:`vision_rl.sim.fleet.STUCK_RULE` (less than 5 m of progress in 5 s). A stuck car's run ends
   there: its unfinished laps are a DNF with the reason; nobody is put back on track.
 - **Time limit**: 3 x the QSS limit lap time per lap (``time_limit_s`` overrides); laps not done by then are a DNF.
@@ -62,9 +62,9 @@ START_JITTER_SPEED = 0.02
 TIME_LIMIT_LIMIT_LAPS = 3.0
 #: A scored lap with at most this much wall contact is clean, s.
 CLEAN_WALL_CONTACT_S = 0.5
-#: Cars a network-driven driver observes and acts for in one batch: the protocol's 3 starts, so that every
-#: evaluation of 3 seeds computes as it did before the batches (a policy's first 3 starts then lapped otherwise
-#: among 13 starts than alone: 2:11.385 against 2:13.090, README's lap-time section).
+#: Cars a network-driven driver observes and acts for in one batch: the protocol's 3 starts, so that an evaluation
+#: of 3 seeds or fewer computes as before the batches, and the first 3 of more seeds as those 3 (before, a policy's
+#: start 0 lapped in 2:11.385 among 13 starts and in 2:13.090 among 3: README, the lap-time protocol).
 DRIVER_BATCH_CARS = 3
 
 
