@@ -141,7 +141,8 @@ SIZES: dict[str, PipelineSizes] = {
     # min on the whole machine and 12.3 held to 1.5 cores, 9.4 with 150k the same night: the state run beside it
     # takes as long as the captures, Phase 1 and the vision run together.
     # Twice the papers' wall penalty (c_w 0.01) at 200k on 4 seeds: 51 of 52 (the recipe: 49), 5.2 s slower a lap.
-    # 300k steps on the same 4 seeds: 44 of 52, every loss at the chicane; the lap the same.
+    # 300k steps on the same 4 seeds: 44 of 52, every loss at the chicane; the lap the same. The wall penalty at the
+    # impact speed (--wall-penalty-speed impact): 47 of 52, more wall contact.
     # Over 16 training seeds at 200k (two encoders): 191 of 208 starts, 4 of 16 runs losing any.
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
