@@ -83,7 +83,7 @@ def in_batches_of(size: int, fn, rows: np.ndarray) -> np.ndarray:
 
     A network's matrix products round differently (in the last bit) by batch size and by the alignment of the batch
     in memory, and a policy's laps are chaotic in the last bit of its command: each batch is a fresh array of one
-    size, so a row's result does not depend on how many rows there are.
+    size, so the first ``size`` rows give the same results however many rows follow them.
     """
     n = len(rows)
     if n <= size:
