@@ -5,6 +5,7 @@ import torch
 
 from vision_rl.envs.core import RacingConfig, RacingCore
 from vision_rl.evaluation.protocol import time_laps
+from vision_rl.phase1_repr.checkpoint import load_encoder
 from vision_rl.phase2_rl.artifact import PolicyDriver
 
 
@@ -50,27 +51,13 @@ def test_a_driver_for_a_config_observes_and_steers_as_that_environment():
             driver.pedal_full_at) == ((24, 40), 0.2, 0.1, "speed_scaled", 0.9)  # fmt: skip
 
 
-class _TorchEncoder:
-    """A stand-in encoder with torch's float32 convolutions: a conv layer and a linear one of random weights."""
-
-    rep_dim = 64
-
-    def __init__(self) -> None:
-        self.net = torch.nn.Sequential(torch.nn.Conv2d(3, 8, 3, stride=2), torch.nn.ReLU(), torch.nn.Flatten(),
-                                       torch.nn.LazyLinear(self.rep_dim))  # fmt: skip
-
-    def __call__(self, frames):
-        with torch.no_grad():
-            return self.net(torch.as_tensor(frames).permute(0, 3, 1, 2).float() / 255.0)
-
-
-def test_a_start_drives_the_same_beside_any_number_of_others(gl_available):
+def test_a_start_drives_the_same_beside_any_number_of_others(gl_available, tiny_encoders):
     # A batch's size changes a network's products in the last bit, and laps are chaotic in that bit: a vision
     # policy's start 0 once lapped in 2:11.385 among 13 starts and in 2:13.090 among the protocol's 3. The driver
     # renders, embeds and acts in batches of 3, so 7 starts drive as the runs of starts 0-2, 3-5 and 6-8.
+    encoder = load_encoder(tiny_encoders[0])
     torch.manual_seed(0)
-    encoder = _TorchEncoder()
-    actor = torch.nn.Sequential(torch.nn.Linear(64 + 11, 256), torch.nn.ReLU(), torch.nn.Linear(256, 256),
+    actor = torch.nn.Sequential(torch.nn.Linear(encoder.rep_dim + 11, 256), torch.nn.ReLU(), torch.nn.Linear(256, 256),
                                 torch.nn.ReLU(), torch.nn.Linear(256, 2), torch.nn.Tanh())  # fmt: skip
 
     def predict(obs):
@@ -78,7 +65,7 @@ def test_a_start_drives_the_same_beside_any_number_of_others(gl_available):
             return actor(torch.as_tensor(obs)).numpy()
 
     def drive(seeds):
-        driver = PolicyDriver(predict, "vision", None, encoder, (24, 40))
+        driver = PolicyDriver(predict, "vision", None, encoder, encoder.input_hw_px)
         timing = time_laps(driver, "technical", "hatchback", seeds, laps=1, time_limit_s=3.0, record=True)
         driver.close()
         return np.stack([timing.x_m, timing.yaw_rad, timing.steer_rad, timing.omega])

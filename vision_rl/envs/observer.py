@@ -180,8 +180,7 @@ class Observer:
                     f"it could not be imported: {exc}"
                 ) from exc
             height, width = self.image_hw_px
-            views = len(np.unique(self.groups))
-            views = min(views, self.batch_cars) if self.batch_cars else views
+            views = min(len(np.unique(self.groups)), self.batch_cars or len(self.groups))
             self.renderer = Renderer(
                 self.track, RenderConfig(width_px=width, height_px=height, max_views=views),
                 car_length_m=self.car.length_m, car_width_m=self.car.width_m,
