@@ -191,20 +191,23 @@ def test_the_bench_learner_is_the_cpu_preset():
     assert {k: getattr(cpu, k) for k in BENCH_SAC} == BENCH_SAC
 
 
+@pytest.mark.parametrize("critic_state", [False, True])
 def test_vision_samplers_embed_frames_with_the_runs_encoder(ray_local, gl_available, tiny_encoders, small_track,
-                                                            tmp_path):  # fmt: skip
-    """A vision run with a sampler actor: the sampler renders and embeds with the run's encoder and normalisation,
-    so its observations match what the learner's own world gives at the same state (the first one after reset)."""
+                                                            tmp_path, critic_state):  # fmt: skip
+    """A vision run with a sampler actor: the sampler renders and embeds with the run's encoder and normalisation
+    (and, for a state-reading critic, appends the state observation), so its observations match what the learner's
+    own world gives at the same state (the first one after reset)."""
     from vision_rl.phase2_rl.train import _Run
 
     out = tmp_path / "run"
     config = tiny_train_config(small_track, out, encoder=str(tiny_encoders[0]), workers=1, steps=100,
-                               eval_every_steps=0, checkpoint_every_steps=0, stats_steps=5)  # fmt: skip
+                               eval_every_steps=0, checkpoint_every_steps=0, stats_steps=5,
+                               critic_state=critic_state)  # fmt: skip
     result = train_policy(config)
     assert result["observation"] == "vision" and result["num_timesteps"] == 100 and result["n_updates"] == 25
     with np.load(out / "replay_buffer.npz", allow_pickle=False) as data:
         observations = data["observations"]
-    assert observations.shape == (50, 2, 64 + 11)
+    assert observations.shape == (50, 2, 64 + 11 + (38 if critic_state else 0))
     run = _Run(dataclasses.replace(config, resume=True))
     run.build()
     core = run.venv.core

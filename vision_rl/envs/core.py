@@ -245,6 +245,11 @@ class RacingConfig:
     """Normalise vector observations (z-score; lidar min-max) with cached statistics."""
     image_hw_px: tuple[int, int] = (280, 470)
     """Height, width of the ``vision`` frames, px."""
+    critic_state: bool = False
+    """Vision with an encoder: the observation vector carries the 38-D ``state`` observation after the actor's
+    columns, for a critic that reads both (an asymmetric actor-critic, as the DDPG paper's critic reads state its
+    actor cannot see; not in the GT Sport papers). The actor reads its own columns alone, and the lap-time
+    protocol's drivers never compute the state part (:mod:`vision_rl.phase2_rl.critic_state`)."""
     extra: dict = field(default_factory=dict, compare=False, hash=False)
     """Free-form notes carried with the config (not used by the environment)."""
 
@@ -270,6 +275,8 @@ class RacingConfig:
             raise ValueError("the reward's penalty weights (c_w, c_s, c_o) must be >= 0")
         if self.steer_change_share_of_range < 0:
             raise ValueError(f"steer_change_share_of_range must be >= 0, got {self.steer_change_share_of_range}")
+        if self.critic_state and self.observation != "vision":
+            raise ValueError(f"critic_state adds the state observation to vision, not to {self.observation!r}")
         if self.steer_change_share_of_range > 0 and self.steer_action != "rate_scaled":
             raise ValueError("steer_change_share_of_range limits rate_scaled steering: use steer_action='rate_scaled'")
         if not 0 < self.pedal_full_at <= 1:

@@ -4,7 +4,8 @@ An :class:`Observer` turns the raw state of chosen cars of a world into one of t
 :mod:`vision_rl.envs.observations`: ``state`` (38-D), ``overtaking`` (96-D) or ``vision``. It owns what that takes:
 the wall ray caster, the offscreen renderer (vision, created on first use), the frozen encoder (vision, when given)
 and the normalisation. ``vision`` without an encoder gives the gymnasium Dict ``{image, features}``; with one, the
-vector ``[embedding (rep_dim), 11 dedicated features]`` that Phase 2's policies read.
+vector ``[embedding (rep_dim), 11 dedicated features]`` that Phase 2's policies read, followed, with ``critic_state``,
+by the 38-D ``state`` observation for an asymmetric critic.
 
 The encoder is any callable from frames (n, H, W, 3) uint8 to (n, rep_dim) (a torch tensor or an array) with a
 ``rep_dim`` attribute: this layer never imports torch.
@@ -104,6 +105,8 @@ class Observer:
             renderer's views per pass, whose layout sets a view's pixels; all at once when there are no more), so
             that the first ``batch_cars`` cars' observations do not change with more cars beside them; 0: all at once,
             one view per collision group.
+        critic_state: vision with an encoder: append the raw 38-D ``state`` observation to the vector
+            (``RacingConfig.critic_state``).
     """
 
     def __init__(
@@ -116,6 +119,7 @@ class Observer:
         encoder=None,
         image_hw_px: tuple[int, int] = (280, 470),
         batch_cars: int = 0,
+        critic_state: bool = False,
     ) -> None:
         if kind not in OBSERVATION_KINDS:
             raise ValueError(f"observation must be one of {OBSERVATION_KINDS}, got {kind!r}")
@@ -131,6 +135,9 @@ class Observer:
         if batch_cars < 0:
             raise ValueError(f"batch_cars must be >= 0, got {batch_cars}")
         self.batch_cars = int(batch_cars)
+        if critic_state and (kind != "vision" or encoder is None):
+            raise ValueError("critic_state appends the state observation to the vision vector: it needs an encoder")
+        self.critic_state = bool(critic_state)
         self.caster = sensors.WallRayCaster(track)
         self.renderer = None
         self.pose_history: PoseHistory | None = None
@@ -153,7 +160,10 @@ class Observer:
     def dim(self) -> int | None:
         """Length of the observation vector (None: the vision Dict)."""
         if self.kind == "vision":
-            return None if self.encoder is None else int(self.encoder.rep_dim) + len(sensors.DEDICATED_NAMES)
+            if self.encoder is None:
+                return None
+            critic_columns = len(obs_lib.STATE_OBS_NAMES) if self.critic_state else 0
+            return int(self.encoder.rep_dim) + len(sensors.DEDICATED_NAMES) + critic_columns
         return len(obs_lib.OBS_NAMES[self.kind])
 
     @property
@@ -207,7 +217,10 @@ class Observer:
             )
         if self.encoder is None:
             raise ValueError("the vision observation is a vector only with an encoder")
-        return self.embed(self.frames(state, ids), self._features(state, ids))
+        vector = self.embed(self.frames(state, ids), self._features(state, ids))
+        if self.critic_state:
+            return np.hstack([vector, obs_lib.state_observation(self.track, self.caster, state, ids)])
+        return vector
 
     def embed(self, images: np.ndarray, features: np.ndarray) -> np.ndarray:
         """(n, rep_dim + 11) float64 from frames (n, H, W, 3) uint8 and raw dedicated features (n, 11)."""

@@ -84,12 +84,13 @@ def racing_config_from_dict(data: Mapping[str, Any]) -> RacingConfig:
     return RacingConfig(**kwargs)
 
 
-def obs_dim(kind: str, rep_dim: int = 64) -> int:
-    """Length of a policy's input vector: 38 (state), 96 (overtaking) or rep_dim + 11 (vision)."""
+def obs_dim(kind: str, rep_dim: int = 64, critic_state: bool = False) -> int:
+    """Length of a policy's input vector: 38 (state), 96 (overtaking) or rep_dim + 11 (vision; + 38 with
+    ``critic_state``, the critic's columns)."""
     if kind in OBS_NAMES:
         return len(OBS_NAMES[kind])
     if kind == "vision":
-        return rep_dim + len(DEDICATED_NAMES)
+        return rep_dim + len(DEDICATED_NAMES) + (len(OBS_NAMES["state"]) if critic_state else 0)
     raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {kind!r}")
 
 
@@ -307,7 +308,12 @@ class PolicyDriver:
         identity: dict[str, Any] | None = None,
     ) -> PolicyDriver:  # fmt: skip
         """A driver that observes and steers as the environment ``config`` did in training (frame size, control
-        step, frame delay, steering and pedal actions)."""
+        step, frame delay, steering and pedal actions). A policy with a state-reading critic observes as a vision
+        policy (:func:`vision_rl.phase2_rl.critic_state.actor_only`)."""
+        if config.critic_state:
+            from vision_rl.phase2_rl.critic_state import actor_only
+
+            normalizer, predict = actor_only(normalizer, predict)
         return cls(predict, kind, normalizer, encoder, config.image_hw_px, config.control_dt_s, identity,
                    config.frame_delay_s, config.steer_action, config.pedal_full_at,
                    config.steer_change_share_of_range)  # fmt: skip
@@ -363,7 +369,8 @@ class LoadedPolicy:
 
     @property
     def obs_dim(self) -> int:
-        return obs_dim(self.spec.observation, self.encoder.rep_dim if self.encoder is not None else 64)
+        rep_dim = self.encoder.rep_dim if self.encoder is not None else 64
+        return obs_dim(self.spec.observation, rep_dim, self.config.critic_state)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Deterministic actions (n, 2) ``[steer rad, omega]`` for observations (n, obs_dim)."""
@@ -387,13 +394,18 @@ class LoadedPolicy:
         return PolicyDriver.for_config(self.act, spec.observation, spec.normalizer, self.encoder, config, identity)
 
 
-def sac_policy(obs_dim: int, hidden_units: list[int], device: str = "cpu"):
-    """An SB3 SAC actor-critic for ``obs_dim`` inputs and the racing action space, untrained."""
+def sac_policy(obs_dim: int, hidden_units: list[int], device: str = "cpu", critic_state: bool = False):
+    """An SB3 SAC actor-critic for ``obs_dim`` inputs and the racing action space, untrained; with ``critic_state``
+    its actor reads all but the critic's last columns (:mod:`vision_rl.phase2_rl.critic_state`)."""
     from gymnasium import spaces
     from stable_baselines3.sac.policies import SACPolicy
 
+    from vision_rl.phase2_rl.critic_state import sac_policy_class
+
     space = spaces.Box(-np.inf, np.inf, (obs_dim,), dtype=np.float32)
-    return SACPolicy(space, action_space(), lambda _: 0.0, net_arch=list(hidden_units)).to(device)
+    policy_class, kwargs = sac_policy_class(obs_dim, critic_state)
+    policy_class = SACPolicy if policy_class == "MlpPolicy" else policy_class
+    return policy_class(space, action_space(), lambda _: 0.0, net_arch=list(hidden_units), **kwargs).to(device)
 
 
 def load_policy(
@@ -422,13 +434,14 @@ def load_policy(
         module = load_encoder(encoder_path, device=device, runtime=encoder_runtime)
     elif encoder:
         check_encoder(spec, encoder, source=f"policy {weights_path}")  # raises: a state policy takes no encoder
-    dim = obs_dim(spec.observation, module.rep_dim if module is not None else 64)
+    critic_state = spec.config.critic_state
+    dim = obs_dim(spec.observation, module.rep_dim if module is not None else 64, critic_state)
     expected = policy_fingerprint(spec.config, spec.observation, dim, spec.encoder_sha256)
     try:
         # The sidecar's claim against the track as it loads today, then the weights' own record against both.
         check_fingerprint(spec.fingerprint, expected, str(spec_path))
         state = read_agent(weights_path, expected, spec.weights_sha256)
-        policy = sac_policy(dim, spec.hidden_units, device)
+        policy = sac_policy(dim, spec.hidden_units, device, critic_state)
         policy.load_state_dict(state["policy"])
     except ArtifactError as exc:
         raise PolicyError(str(exc)) from None

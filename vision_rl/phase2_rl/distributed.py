@@ -361,6 +361,7 @@ class Sampler:
         from vision_rl.envs.observer import Observer
         from vision_rl.envs.vector import make_sb3_vec_env
         from vision_rl.phase2_rl.artifact import policy_fingerprint, racing_config_from_dict
+        from vision_rl.phase2_rl.critic_state import sac_policy_class
 
         torch.set_num_threads(1)  # the learner and the other samplers share the cores
         self.torch = torch
@@ -380,7 +381,8 @@ class Sampler:
             encoder = load_encoder(setup.encoder_path, device="cpu", runtime=setup.encoder_runtime)
             core.observer.close()
             core.observer = Observer(
-                "vision", core.track, core.car, core.groups, normalizer, encoder, config.image_hw_px
+                "vision", core.track, core.car, core.groups, normalizer, encoder, config.image_hw_px,
+                critic_state=config.critic_state,
             )
             self.env.observation_space = core.observer.space
         else:
@@ -389,8 +391,11 @@ class Sampler:
         check_sampler_fingerprint(worker, mine, setup.fingerprint)
         if setup.label_skill is not None:
             core.label_with_ai(setup.label_skill)
-        self.policy = SACPolicy(
-            self.env.observation_space, self.env.action_space, lambda _: 0.0, net_arch=list(setup.hidden_units)
+        dim = self.env.observation_space.shape[0]
+        policy_class, policy_kwargs = sac_policy_class(dim, config.critic_state)
+        self.policy = (SACPolicy if policy_class == "MlpPolicy" else policy_class)(
+            self.env.observation_space, self.env.action_space, lambda _: 0.0, net_arch=list(setup.hidden_units),
+            **policy_kwargs,
         )
         self.policy.set_training_mode(False)
         space = self.env.action_space

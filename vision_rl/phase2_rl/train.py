@@ -64,6 +64,7 @@ from vision_rl.phase2_rl.artifact import (
     racing_config_to_dict,
     snapshot_sidecar,
 )
+from vision_rl.phase2_rl.critic_state import sac_policy_class
 from vision_rl.phase2_rl.interrupts import learn_between_interrupts
 from vision_rl.phase2_rl.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
 from vision_rl.sim.fleet import AI_CONTROL_DT_S, ai_ticks
@@ -204,6 +205,9 @@ class TrainPolicyConfig:
     """With --restart-before-stuck-share: the most such a start lies before the stuck place, m."""
     frame_delay_s: float = 0.0
     """Vision: frames lag the state by this long (the paper's 4 frames at 60 Hz: 0.067; 0: none)."""
+    critic_state: bool = False
+    """Vision: the critic also reads the 38-D state observation, the actor the vision vector alone (an asymmetric
+    actor-critic, as the DDPG paper's; not in the GT Sport papers). The policy drives as any vision policy."""
     steer_action: str = "angle"
     """`angle`: the action is the steering command (the papers); `rate`: a change of it, up to the car's steering
     rate limit per step; `speed_scaled`: a share of the angles usable at the car's speed; `rate_scaled`: `rate`
@@ -455,6 +459,7 @@ class _Run:
                 track=cfg.track, car=cfg.car, observation=self.kind, n_groups=cfg.cars, episode_s=cfg.episode_s,
                 wall_penalty_c_w=cfg.wall_penalty_c_w, image_hw_px=image_hw,
                 steer_change_penalty_c_s=cfg.steer_change_penalty_c_s, frame_delay_s=cfg.frame_delay_s,
+                critic_state=cfg.critic_state,
                 steer_change_penalty_scale=cfg.steer_change_penalty_scale,
                 steer_action=cfg.steer_action, terminate_on_wall=cfg.wall_ends_episode,
                 terminate_when_stuck=cfg.stuck_ends_episode,
@@ -491,7 +496,8 @@ class _Run:
             # The SAC input is the 75-D vector: the env's observer embeds the frames with the frozen encoder, so the
             # replay buffer holds vectors, not images.
             observer = Observer(
-                "vision", core.track, core.car, core.groups, None, self.encoder, self.racing.image_hw_px
+                "vision", core.track, core.car, core.groups, None, self.encoder, self.racing.image_hw_px,
+                critic_state=self.racing.critic_state,
             )
             if self.previous is not None:
                 observer.normalizer = self.previous.normalizer
@@ -514,12 +520,13 @@ class _Run:
                    or (self.previous is None and self.cfg.guide_pretrain_steps > 0))  # fmt: skip
         if cloning:
             from vision_rl.phase2_rl.guide import guided_sac_class
+        policy_class, policy_kwargs = sac_policy_class(venv.observation_space.shape[0], self.racing.critic_state)
         model = (guided_sac_class() if cloning else SAC)(
-            "MlpPolicy", env, learning_rate=p.learning_rate_schedule(), buffer_size=p.buffer_size,
+            policy_class, env, learning_rate=p.learning_rate_schedule(), buffer_size=p.buffer_size,
             learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau,
             gamma=gamma_per_step(p.gamma, self.racing.control_dt_s),
             train_freq=(p.train_freq_steps, "step"), gradient_steps=p.gradient_steps,
-            policy_kwargs={"net_arch": list(p.hidden_units)}, seed=self.seed + self.start_steps,
+            policy_kwargs={"net_arch": list(p.hidden_units), **policy_kwargs}, seed=self.seed + self.start_steps,
             target_entropy=p.target_entropy or "auto", device=self.device, verbose=0, n_steps=self.cfg.n_step,
         )  # fmt: skip
         model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
@@ -758,6 +765,8 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         raise ValueError("--restart-before-stuck-share starts episodes before stuck ends: give --stuck-ends-episode")
     if cfg.frame_delay_s > 0 and not cfg.encoder:
         raise ValueError("--frame-delay-s delays the vision frames: give --encoder (the state observation has none)")
+    if cfg.critic_state and not cfg.encoder:
+        raise ValueError("--critic-state gives a vision policy's critic the state observation: give --encoder")
     if cfg.workers is not None or cfg.address:
         from vision_rl.phase2_rl.distributed import check_workers
 
