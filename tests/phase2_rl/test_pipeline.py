@@ -44,7 +44,8 @@ def test_pipeline_tiny(small_track, tiny_encoders, tmp_path):
         assert vision["num_timesteps"] == 120 and "pipeline-vision" in names
         run = tmp_path / "runs" / "policy" / "pipeline-vision"
         assert vision["policy"] == str(run / "policy.pt") and (run / "evaluation.json").is_file()
-        # The vision run alone takes the entropy target, the falling rate, the stuck ends and the steering penalty.
+        # The vision run alone takes the entropy target, the falling rate, the stuck ends, the steering penalty and
+        # the critic that reads the state.
         specs = {k: PolicySpec.read(tmp_path / "runs" / "policy" / f"pipeline-{k}" / SIDECAR_NAME)
                  for k in ("state", "vision")}  # fmt: skip
         sac = {k: spec.sac for k, spec in specs.items()}
@@ -54,6 +55,7 @@ def test_pipeline_tiny(small_track, tiny_encoders, tmp_path):
         penalty = {k: (spec.config.steer_change_penalty_c_s, spec.config.steer_change_penalty_scale)
                    for k, spec in specs.items()}  # fmt: skip
         assert penalty["vision"] == (0.5, "usable") and penalty["state"][0] == 0.0
+        assert specs["vision"].config.critic_state and specs["vision"].fingerprint["obs_dim"] == 64 + 11 + 38
     else:
         assert "skipped" in summary["vision"]
 

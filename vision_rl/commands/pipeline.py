@@ -89,6 +89,9 @@ class PipelineSizes:
     vision_steer_change_penalty_c_s: float
     """Vision: c_s of the steering-change penalty against the angle usable at the car's speed
     (``train-policy --steer-change-penalty-c-s C --steer-change-penalty-scale usable``; 0: the papers' reward)."""
+    vision_critic_state: bool
+    """Vision: SAC's critic also reads the 38-D state observation, the actor the vision vector alone
+    (``train-policy --critic-state``; False: the paper's critic, which reads what the actor reads)."""
     state_eval_seeds: int
     """Start seeds of the state policy's final evaluation."""
     vision_eval_seeds: int
@@ -109,7 +112,7 @@ SIZES: dict[str, PipelineSizes] = {
         state_cars=2, vision_cars=2, state_learning_starts=50, vision_learning_starts=40, vision_gradient_steps=0,
         vision_workers=0, batch_size=32, buffer_size=5_000, eval_every_steps=100,
         vision_target_entropy=-4.0, vision_learning_rate_final=1e-4, vision_stuck_ends_episode=True,
-        vision_steer_change_penalty_c_s=0.5, state_eval_seeds=1, vision_eval_seeds=1,
+        vision_steer_change_penalty_c_s=0.5, vision_critic_state=True, state_eval_seeds=1, vision_eval_seeds=1,
         stats_steps=5, state_eval_time_limit_s=30.0, vision_eval_time_limit_s=30.0,
     ),
     # Frames at half the paper's side: training the encoder on 470 x 280 frames ran at about 30 frames/s on one of
@@ -150,7 +153,7 @@ SIZES: dict[str, PipelineSizes] = {
         state_cars=20, vision_cars=10, state_learning_starts=-1, vision_learning_starts=5_000, vision_gradient_steps=0,
         vision_workers=1, batch_size=0, buffer_size=0, eval_every_steps=50_000,
         vision_target_entropy=-4.0, vision_learning_rate_final=1e-4, vision_stuck_ends_episode=True,
-        vision_steer_change_penalty_c_s=0.5, state_eval_seeds=3, vision_eval_seeds=3,
+        vision_steer_change_penalty_c_s=0.5, vision_critic_state=True, state_eval_seeds=3, vision_eval_seeds=3,
         stats_steps=50, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=400.0,
     ),
     # The paper's scale: 50 disrupted laps at 60 fps and 470 x 280, 50 encoder epochs; SAC for 400 epochs of 20
@@ -162,7 +165,7 @@ SIZES: dict[str, PipelineSizes] = {
         state_cars=20, vision_cars=20, state_learning_starts=-1, vision_learning_starts=-1, vision_gradient_steps=0,
         vision_workers=1, batch_size=0, buffer_size=0, eval_every_steps=200_000,
         vision_target_entropy=0.0, vision_learning_rate_final=0.0,
-        vision_stuck_ends_episode=False, vision_steer_change_penalty_c_s=0.0,
+        vision_stuck_ends_episode=False, vision_steer_change_penalty_c_s=0.0, vision_critic_state=False,
         state_eval_seeds=3, vision_eval_seeds=3, stats_steps=100, state_eval_time_limit_s=0.0,
         vision_eval_time_limit_s=0.0,
     ),
@@ -363,6 +366,7 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
             stuck_ends_episode=vision and sizes.vision_stuck_ends_episode,
             steer_change_penalty_c_s=sizes.vision_steer_change_penalty_c_s if vision else 0.0,
             steer_change_penalty_scale="usable",  # moot where c_s is 0
+            critic_state=vision and sizes.vision_critic_state,
         )
     )  # fmt: skip
     if trained["interrupted"]:
