@@ -188,6 +188,7 @@ def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeyp
         ({"checkpoint_every_min": -5.0}, "--checkpoint-every-min"),
         ({"steer_change_penalty_c_s": -0.5}, "--steer-change-penalty-c-s -0.5"),
         ({"frame_delay_s": 0.067}, "give --encoder"),
+        ({"critic_state": True}, "the state observation: give --encoder"),
         ({"frame_delay_s": 2.0}, "--frame-delay-s 2.0"),
         ({"steer_action": "torque"}, "--steer-action must be one of angle, rate"),
         ({"wall_penalty_speed": "start"}, "--wall-penalty-speed must be one of end, impact"),

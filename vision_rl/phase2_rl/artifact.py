@@ -398,13 +398,11 @@ def sac_policy(obs_dim: int, hidden_units: list[int], device: str = "cpu", criti
     """An SB3 SAC actor-critic for ``obs_dim`` inputs and the racing action space, untrained; with ``critic_state``
     its actor reads all but the critic's last columns (:mod:`vision_rl.phase2_rl.critic_state`)."""
     from gymnasium import spaces
-    from stable_baselines3.sac.policies import SACPolicy
 
     from vision_rl.phase2_rl.critic_state import sac_policy_class
 
     space = spaces.Box(-np.inf, np.inf, (obs_dim,), dtype=np.float32)
     policy_class, kwargs = sac_policy_class(obs_dim, critic_state)
-    policy_class = SACPolicy if policy_class == "MlpPolicy" else policy_class
     return policy_class(space, action_space(), lambda _: 0.0, net_arch=list(hidden_units), **kwargs).to(device)
 
 

@@ -52,10 +52,10 @@ class CriticStateSACPolicy(SACPolicy):
         return {**super()._get_constructor_parameters(), "actor_inputs": self.actor_inputs}
 
 
-def sac_policy_class(obs_dim: int, critic_state: bool) -> tuple[type[SACPolicy] | str, dict]:
-    """SB3's policy argument and the extra policy keywords for an ``obs_dim``-input network."""
+def sac_policy_class(obs_dim: int, critic_state: bool) -> tuple[type[SACPolicy], dict]:
+    """SB3's SAC policy class and its extra keywords for an ``obs_dim``-input network."""
     if not critic_state:
-        return "MlpPolicy", {}
+        return SACPolicy, {}
     return CriticStateSACPolicy, {"actor_inputs": obs_dim - CRITIC_COLUMNS}
 
 

@@ -355,7 +355,6 @@ class Sampler:
 
     def __init__(self, setup: SamplerSetup, worker: int) -> None:
         import torch
-        from stable_baselines3.sac.policies import SACPolicy
 
         from vision_rl.envs.observations import ObsNormalizer
         from vision_rl.envs.observer import Observer
@@ -393,7 +392,7 @@ class Sampler:
             core.label_with_ai(setup.label_skill)
         dim = self.env.observation_space.shape[0]
         policy_class, policy_kwargs = sac_policy_class(dim, config.critic_state)
-        self.policy = (SACPolicy if policy_class == "MlpPolicy" else policy_class)(
+        self.policy = policy_class(
             self.env.observation_space, self.env.action_space, lambda _: 0.0, net_arch=list(setup.hidden_units),
             **policy_kwargs,
         )
