@@ -148,7 +148,8 @@ SIZES: dict[str, PipelineSizes] = {
     # impact speed (--wall-penalty-speed impact): 47 of 52, more wall contact.
     # Over 16 training seeds at 200k (two encoders): 191 of 208 starts, 4 of 16 runs losing any.
     # The critic also reading the 38-D state (--critic-state; the actor reads the vision vector alone), 8 seeds on
-    # one encoder: 104 of 104 against 88 (Fisher p = 2e-5), lap 2:10.8 +- 0.7 s against 2:15.2 +- 2.3 s.
+    # one encoder: 104 of 104 against 88 (Fisher p = 2e-5), lap 2:10.8 +- 0.7 s against 2:15.2 +- 2.3 s; 4 seeds on an
+    # encoder of Phase 1 seed 1: 51 of 52, 2:11.5 +- 0.9 s. The job took 10.6 min (its vision lap 2:10.560, 13 of 13).
     "quick": PipelineSizes(
         train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
         repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=200_000,
