@@ -436,6 +436,13 @@ class RacingCore:
         ids = self.ego_ids if gids is None else self.ego_ids[gids]
         return self.observer(self.world.state, ids)
 
+    def vision_observer(self, encoder, normalizer: obs_lib.ObsNormalizer | None = None) -> Observer:
+        """An observer of this environment's vision vector with a frame ``encoder`` (frame size and the critic's state
+        columns as its config says), for a trainer or a sampler to put in as :attr:`observer`."""
+        cfg = self.config
+        return Observer("vision", self.track, self.car, self.groups, normalizer, encoder, cfg.image_hw_px,
+                        critic_state=cfg.critic_state)  # fmt: skip
+
     def sample_raw_observations(self, observer: Observer, steps: int = 300) -> np.ndarray:
         """Raw observations by ``observer`` of the egos driven by the disrupted built-in AI from random starts over
         ``steps`` control steps (at least 6,000 samples): what normalisation statistics are computed from. Uses

@@ -45,6 +45,14 @@ OVERTAKING_OBS_NAMES: tuple[str, ...] = (
 OVERTAKING_LIDAR = slice(7, 79)
 OBS_NAMES = {"state": STATE_OBS_NAMES, "overtaking": OVERTAKING_OBS_NAMES}
 
+
+def vector_dim(kind: str, rep_dim: int = 64, critic_state: bool = False) -> int:
+    """Length of an observation vector: 38 (state), 96 (overtaking) or, for vision with an encoder of ``rep_dim``,
+    ``rep_dim`` + 11, + 38 with ``critic_state`` (the state observation after them)."""
+    if kind == "vision":
+        return rep_dim + len(sensors.DEDICATED_NAMES) + (len(STATE_OBS_NAMES) if critic_state else 0)
+    return len(OBS_NAMES[kind])
+
 #: Bump when an observation's definition or its statistics' sampling changes: cached statistics of older versions
 #: are then ignored. 3: statistics always come from a 20-group world, whatever the environment that asks.
 OBS_VERSION = 3

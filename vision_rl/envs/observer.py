@@ -162,9 +162,8 @@ class Observer:
         if self.kind == "vision":
             if self.encoder is None:
                 return None
-            critic_columns = len(obs_lib.STATE_OBS_NAMES) if self.critic_state else 0
-            return int(self.encoder.rep_dim) + len(sensors.DEDICATED_NAMES) + critic_columns
-        return len(obs_lib.OBS_NAMES[self.kind])
+            return obs_lib.vector_dim("vision", int(self.encoder.rep_dim), self.critic_state)
+        return obs_lib.vector_dim(self.kind)
 
     @property
     def space(self) -> spaces.Space:

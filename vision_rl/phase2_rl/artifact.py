@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from vision_rl.envs.core import RacingConfig, pedal_command, steering_command
-from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
+from vision_rl.envs.observations import ObsNormalizer, vector_dim
 from vision_rl.envs.observer import Observer, in_batches_of
 from vision_rl.envs.racing_env import action_space
 from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
@@ -47,7 +47,6 @@ from vision_rl.phase2_rl.persist import (
     read_sb3_zip,
     write_agent_state,
 )
-from vision_rl.sim.sensors import DEDICATED_NAMES
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.world import World, WorldState
 
@@ -87,11 +86,9 @@ def racing_config_from_dict(data: Mapping[str, Any]) -> RacingConfig:
 def obs_dim(kind: str, rep_dim: int = 64, critic_state: bool = False) -> int:
     """Length of a policy's input vector: 38 (state), 96 (overtaking) or rep_dim + 11 (vision; + 38 with
     ``critic_state``, the critic's columns)."""
-    if kind in OBS_NAMES:
-        return len(OBS_NAMES[kind])
-    if kind == "vision":
-        return rep_dim + len(DEDICATED_NAMES) + (len(OBS_NAMES["state"]) if critic_state else 0)
-    raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {kind!r}")
+    if kind not in POLICY_KINDS:
+        raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {kind!r}")
+    return vector_dim(kind, rep_dim, critic_state)
 
 
 def policy_fingerprint(config: RacingConfig, observation: str, obs_dim: int, encoder_sha256: str | None) -> dict:

@@ -357,7 +357,6 @@ class Sampler:
         import torch
 
         from vision_rl.envs.observations import ObsNormalizer
-        from vision_rl.envs.observer import Observer
         from vision_rl.envs.vector import make_sb3_vec_env
         from vision_rl.phase2_rl.artifact import policy_fingerprint, racing_config_from_dict
         from vision_rl.phase2_rl.critic_state import sac_policy_class
@@ -379,10 +378,7 @@ class Sampler:
             encoder_sha = checkpoint_sha256(setup.encoder_path)
             encoder = load_encoder(setup.encoder_path, device="cpu", runtime=setup.encoder_runtime)
             core.observer.close()
-            core.observer = Observer(
-                "vision", core.track, core.car, core.groups, normalizer, encoder, config.image_hw_px,
-                critic_state=config.critic_state,
-            )
+            core.observer = core.vision_observer(encoder, normalizer)
             self.env.observation_space = core.observer.space
         else:
             core.observer.normalizer = normalizer

@@ -46,7 +46,6 @@ from stable_baselines3.common.vec_env import VecMonitor
 
 from vision_rl.envs.core import STEER_ACTIONS, STEER_CHANGE_PENALTY_SCALES, WALL_PENALTY_SPEEDS, RacingConfig
 from vision_rl.envs.observations import ObsNormalizer
-from vision_rl.envs.observer import Observer
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import CLEAN_WALL_CONTACT_S, time_laps
 from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
@@ -493,12 +492,9 @@ class _Run:
             assert self.encoder_path is not None
             self.encoder = load_encoder(self.encoder_path, device=self.device, runtime=self.cfg.encoder_runtime)
             self.encoder_sha256 = checkpoint_sha256(self.encoder_path)
-            # The SAC input is the 75-D vector: the env's observer embeds the frames with the frozen encoder, so the
-            # replay buffer holds vectors, not images.
-            observer = Observer(
-                "vision", core.track, core.car, core.groups, None, self.encoder, self.racing.image_hw_px,
-                critic_state=self.racing.critic_state,
-            )
+            # The SAC input is the vision vector (with the critic's state after it): the env's observer embeds the
+            # frames with the frozen encoder, so the replay buffer holds vectors, not images.
+            observer = core.vision_observer(self.encoder)
             if self.previous is not None:
                 observer.normalizer = self.previous.normalizer
             else:
