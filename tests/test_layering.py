@@ -172,8 +172,10 @@ def _modules_after(code: str) -> set[str]:
 
 @pytest.mark.slow
 def test_import_vision_rl_registers_the_environments_and_loads_nothing_heavy():
-    probe = "import vision_rl, gymnasium\nassert 'vision_rl/TimeTrial-v1' in gymnasium.registry\n" \
-            "assert 'vision_rl/Overtaking-v1' in gymnasium.registry"  # fmt: skip
+    probe = (
+        "import vision_rl, gymnasium\nassert 'vision_rl/TimeTrial-v1' in gymnasium.registry\n"
+        "assert 'vision_rl/Overtaking-v1' in gymnasium.registry"
+    )
     loaded = _modules_after(probe)
     assert not {"torch", "moderngl", "vision_rl.envs"} & loaded
     assert not {"torch", "moderngl", "vision_rl.commands"} & _modules_after("import vision_rl.sim")
@@ -181,6 +183,8 @@ def test_import_vision_rl_registers_the_environments_and_loads_nothing_heavy():
 
 @pytest.mark.slow
 def test_gymnasium_make_works_after_import_vision_rl():
-    probe = "import vision_rl, gymnasium\nenv = gymnasium.make('vision_rl/TimeTrial-v1', track='technical')\n" \
-            "obs, _ = env.reset(seed=0)\nassert obs.shape == (38,)"  # fmt: skip
+    probe = (
+        "import vision_rl, gymnasium\nenv = gymnasium.make('vision_rl/TimeTrial-v1', track='technical')\n"
+        "obs, _ = env.reset(seed=0)\nassert obs.shape == (38,)"
+    )
     _modules_after(probe)

@@ -52,8 +52,16 @@ def batch(k: int, start: int = 0) -> dict[str, np.ndarray]:
 
 
 def writer(path: Path, **kw) -> CaptureWriter:
-    return CaptureWriter(path, image_hw_px=HW_PX, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
-                         dedicated_units=DED_UNITS, attrs=ATTRS, **kw)  # fmt: skip
+    return CaptureWriter(
+        path,
+        image_hw_px=HW_PX,
+        target_names=NAMES,
+        target_units=UNITS,
+        dedicated_names=DED,
+        dedicated_units=DED_UNITS,
+        attrs=ATTRS,
+        **kw,
+    )
 
 
 def assert_frames(cap, start: int, stop: int) -> None:
@@ -233,8 +241,15 @@ def test_bad_input_is_refused(tmp_path: Path) -> None:
     assert w.n_frames == 2
     w.close()
     with pytest.raises(ValueError, match="attrs lack"):
-        CaptureWriter(tmp_path / "x.h5", image_hw_px=HW_PX, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
-                      dedicated_units=DED_UNITS, attrs={"seed": 1})  # fmt: skip
+        CaptureWriter(
+            tmp_path / "x.h5",
+            image_hw_px=HW_PX,
+            target_names=NAMES,
+            target_units=UNITS,
+            dedicated_names=DED,
+            dedicated_units=DED_UNITS,
+            attrs={"seed": 1},
+        )
 
 
 _KILLED_WRITER = textwrap.dedent(
@@ -306,9 +321,19 @@ def test_committed_rows_of_a_chunk_damaged_in_its_rewrite_are_restored_from_the_
 def test_a_bad_or_foreign_journal_is_named(tmp_path: Path) -> None:
     path, other = tmp_path / "cap.h5", tmp_path / "other.h5"
     for p in (path, other):
-        w = writer(p) if p == path else CaptureWriter(
-            p, image_hw_px=HW_PX, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
-            dedicated_units=DED_UNITS, attrs={**ATTRS, "seed": 7})  # fmt: skip
+        w = (
+            writer(p)
+            if p == path
+            else CaptureWriter(
+                p,
+                image_hw_px=HW_PX,
+                target_names=NAMES,
+                target_units=UNITS,
+                dedicated_names=DED,
+                dedicated_units=DED_UNITS,
+                attrs={**ATTRS, "seed": 7},
+            )
+        )
         w.append(**batch(5))
         w.close()
     journal = h5format.journal_path(path)
@@ -328,12 +353,27 @@ def test_resume_refuses_other_settings_and_creates_missing_file(tmp_path: Path) 
     w.append(**batch(2))
     w.close()
     with pytest.raises(CaptureFormatError, match="track_geometry_hash"):
-        CaptureWriter(path, image_hw_px=HW_PX, target_names=NAMES, target_units=UNITS, dedicated_names=DED,
-                      dedicated_units=DED_UNITS, attrs={**ATTRS, "track_geometry_hash": "other"},
-                      resume=True)  # fmt: skip
+        CaptureWriter(
+            path,
+            image_hw_px=HW_PX,
+            target_names=NAMES,
+            target_units=UNITS,
+            dedicated_names=DED,
+            dedicated_units=DED_UNITS,
+            attrs={**ATTRS, "track_geometry_hash": "other"},
+            resume=True,
+        )
     with pytest.raises(CaptureFormatError, match="image_width"):
-        CaptureWriter(path, image_hw_px=(HW_PX[0], HW_PX[1] + 4), target_names=NAMES, target_units=UNITS,
-                      dedicated_names=DED, dedicated_units=DED_UNITS, attrs=ATTRS, resume=True)  # fmt: skip
+        CaptureWriter(
+            path,
+            image_hw_px=(HW_PX[0], HW_PX[1] + 4),
+            target_names=NAMES,
+            target_units=UNITS,
+            dedicated_names=DED,
+            dedicated_units=DED_UNITS,
+            attrs=ATTRS,
+            resume=True,
+        )
     fresh = writer(tmp_path / "new.h5", resume=True)
     assert fresh.n_frames == 0
     fresh.close()

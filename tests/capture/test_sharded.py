@@ -33,8 +33,16 @@ def _circle_csv(path) -> str:
 
 
 def _config(tmp_path, **kw) -> ShardedCaptureConfig:
-    base = dict(out=str(tmp_path / "cap.json"), track=_circle_csv(tmp_path / "circle.csv"), laps=2, cars=2, fps=5,
-                image_hw_px=(32, 48), seed=3, workers=2)  # fmt: skip
+    base = dict(
+        out=str(tmp_path / "cap.json"),
+        track=_circle_csv(tmp_path / "circle.csv"),
+        laps=2,
+        cars=2,
+        fps=5,
+        image_hw_px=(32, 48),
+        seed=3,
+        workers=2,
+    )
     return ShardedCaptureConfig(**{**base, **kw})
 
 
@@ -52,9 +60,13 @@ def test_shards_have_their_own_seeds_and_share_the_laps(tmp_path):
 
 @pytest.mark.parametrize(
     ("change", "words"),
-    [({"workers": 0}, "--workers must be >= 1"), ({"laps": 1, "workers": 2}, "every shard needs at least one lap"),
-     ({"out": "cap.h5"}, "give --out PATH.json"), ({"max_frames": 1}, "every shard needs at least one frame")],
-)  # fmt: skip
+    [
+        ({"workers": 0}, "--workers must be >= 1"),
+        ({"laps": 1, "workers": 2}, "every shard needs at least one lap"),
+        ({"out": "cap.h5"}, "give --out PATH.json"),
+        ({"max_frames": 1}, "every shard needs at least one frame"),
+    ],
+)
 def test_bad_shard_options_are_refused_naming_them(tmp_path, change, words):
     with pytest.raises(ValueError, match=words):
         _config(tmp_path, **change)
@@ -102,5 +114,3 @@ def test_sharded_capture_equals_single_process_captures_and_reads_as_one_dataset
         np.testing.assert_array_equal(batch.targets[1].numpy(), b.targets[-1])
     dataset.close()
     assert open_manifest(tmp_path / "cap.json") == paths
-
-

@@ -31,8 +31,26 @@ def test_text_output_prints_the_budget_beside(capsys) -> None:
 def test_bench_train_repr_prints_a_row_per_batch_and_precision(capsys) -> None:
     from vision_rl.commands.main import main
 
-    argv = ["bench", "train-repr", "--image-hw-px", "32", "48", "--batch-sizes", "2", "3", "--precisions", "fp32",
-            "--steps", "1", "--repeats", "1", "--warmup", "0", "--threads", "1"]  # fmt: skip
+    argv = [
+        "bench",
+        "train-repr",
+        "--image-hw-px",
+        "32",
+        "48",
+        "--batch-sizes",
+        "2",
+        "3",
+        "--precisions",
+        "fp32",
+        "--steps",
+        "1",
+        "--repeats",
+        "1",
+        "--warmup",
+        "0",
+        "--threads",
+        "1",
+    ]
     assert main([*argv, "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)["rows"]
     assert [(r["batch_size"], r["precision"]) for r in rows] == [(2, "fp32"), (3, "fp32")]

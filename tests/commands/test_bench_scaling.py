@@ -18,8 +18,24 @@ def test_capture_row_measures_one_and_two_workers(gl_available, ray_local, tmp_p
     a = np.linspace(0.0, 2 * np.pi, 120, endpoint=False)
     rows = np.stack([40 * np.cos(a), 40 * np.sin(a), np.full(120, 6.0), np.full(120, 6.0)], axis=1)
     np.savetxt(tmp_path / "circle.csv", rows, delimiter=",", header="x_m,y_m,w_tr_right_m,w_tr_left_m")
-    argv = ["bench", "scaling", "--rows", "capture", "--track", str(tmp_path / "circle.csv"), "--cars", "2",
-            "--image-hw-px", "32", "48", "--capture-frames", "24", "--repeats", "1", "--json"]  # fmt: skip
+    argv = [
+        "bench",
+        "scaling",
+        "--rows",
+        "capture",
+        "--track",
+        str(tmp_path / "circle.csv"),
+        "--cars",
+        "2",
+        "--image-hw-px",
+        "32",
+        "48",
+        "--capture-frames",
+        "24",
+        "--repeats",
+        "1",
+        "--json",
+    ]
     assert main(argv) == 0
     result = json.loads(capsys.readouterr().out)
     capture = result["rows"]["capture"]
@@ -59,8 +75,11 @@ def test_sampling_row_calls_bench_sampling_with_each_worker_count(monkeypatch):
 
     def bench_sampling(workers: int, seconds: float, seed: int) -> dict:
         heard.append((workers, seconds, seed))
-        return {"sampled_transitions_per_s": 400.0 * workers, "learner_updates_per_s": 20.0,
-                "learner_share_of_standalone": 0.97}  # fmt: skip
+        return {
+            "sampled_transitions_per_s": 400.0 * workers,
+            "learner_updates_per_s": 20.0,
+            "learner_share_of_standalone": 0.97,
+        }
 
     module.bench_sampling = bench_sampling
     monkeypatch.setitem(sys.modules, "vision_rl.phase2_rl.distributed", module)
@@ -72,9 +91,12 @@ def test_sampling_row_calls_bench_sampling_with_each_worker_count(monkeypatch):
 
 @pytest.mark.parametrize(
     ("argv", "words"),
-    [(["--rows", "render"], "--rows takes capture, train, sampling"), (["--rows", "train"], "include capture"),
-     (["--repeats", "0"], "--repeats")],
-)  # fmt: skip
+    [
+        (["--rows", "render"], "--rows takes capture, train, sampling"),
+        (["--rows", "train"], "include capture"),
+        (["--repeats", "0"], "--repeats"),
+    ],
+)
 def test_bad_options_are_one_line(argv, words, capsys):
     assert main(["bench", "scaling", *argv]) == 2
     err = capsys.readouterr().err.strip()

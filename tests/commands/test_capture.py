@@ -25,8 +25,24 @@ def test_a_small_capture_through_the_command(gl_available, tmp_path, capsys):
     track = tmp_path / "circle.csv"
     np.savetxt(track, rows, delimiter=",", header="x_m,y_m,w_tr_right_m,w_tr_left_m")
     out = tmp_path / "run.h5"
-    argv = ["capture", "--out", str(out), "--track", str(track), "--laps", "1", "--cars", "1", "--fps", "5",
-            "--image-hw-px", "48", "64", "--no-disrupt", "--json"]  # fmt: skip
+    argv = [
+        "capture",
+        "--out",
+        str(out),
+        "--track",
+        str(track),
+        "--laps",
+        "1",
+        "--cars",
+        "1",
+        "--fps",
+        "5",
+        "--image-hw-px",
+        "48",
+        "64",
+        "--no-disrupt",
+        "--json",
+    ]
     assert main(argv) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["complete"] and result["frames_in_file"] > 0
@@ -37,8 +53,28 @@ def test_a_small_capture_through_the_command(gl_available, tmp_path, capsys):
 def test_a_policy_drives_a_capture_through_the_command(gl_available, state_run, small_track, tmp_path):
     run, _ = state_run
     out = tmp_path / "policy.h5"
-    argv = ["capture", "--out", str(out), "--track", small_track, "--policy", str(run), "--laps", "1", "--cars", "2",
-            "--fps", "10", "--max-frames", "20", "--image-hw-px", "48", "64", "--no-disrupt", "--json"]  # fmt: skip
+    argv = [
+        "capture",
+        "--out",
+        str(out),
+        "--track",
+        small_track,
+        "--policy",
+        str(run),
+        "--laps",
+        "1",
+        "--cars",
+        "2",
+        "--fps",
+        "10",
+        "--max-frames",
+        "20",
+        "--image-hw-px",
+        "48",
+        "64",
+        "--no-disrupt",
+        "--json",
+    ]
     assert main(argv) == 0
     with open_capture(out) as f:
         assert f.n_frames == 20 and f.attrs["driver"]["driver"] == "policy"

@@ -48,15 +48,33 @@ def test_an_experiment_prints_its_last_and_its_chosen_weights():
     from vision_rl.commands.experiment import format_experiment
 
     def summary(mean_s, std_s):
-        return {"n_training_seeds": 2, "n_training_seeds_finished": 2, "lap_time_mean_s": mean_s,
-                "lap_time_std_s": std_s, "best_lap_time_s": mean_s - std_s, "finished": "6/6"}  # fmt: skip
+        return {
+            "n_training_seeds": 2,
+            "n_training_seeds_finished": 2,
+            "lap_time_mean_s": mean_s,
+            "lap_time_std_s": std_s,
+            "best_lap_time_s": mean_s - std_s,
+            "finished": "6/6",
+        }
 
-    rows = [{"seed": 0, "lap_time_s": 130.5, "finished": "3/3", "wall_contact_s": 0.0},
-            {"seed": 1, "lap_time_s": 131.5, "finished": "3/3", "wall_contact_s": None}]  # fmt: skip
-    result = {"name": "tt", "observation": "state", "steps": 1000, "track": "expressway", "car": "hatchback",
-              "summary": summary(131.0, 0.71), "per_seed": rows, "experiment_json": "exp/experiment.json",
-              "selected": {"summary": summary(130.2, 0.28), "per_seed": [
-                  {**rows[0], "lap_time_s": 130.0, "kept_at_steps": 600000}, {**rows[1], "kept_at_steps": None}]}}
+    rows = [
+        {"seed": 0, "lap_time_s": 130.5, "finished": "3/3", "wall_contact_s": 0.0},
+        {"seed": 1, "lap_time_s": 131.5, "finished": "3/3", "wall_contact_s": None},
+    ]
+    result = {
+        "name": "tt",
+        "observation": "state",
+        "steps": 1000,
+        "track": "expressway",
+        "car": "hatchback",
+        "summary": summary(131.0, 0.71),
+        "per_seed": rows,
+        "experiment_json": "exp/experiment.json",
+        "selected": {
+            "summary": summary(130.2, 0.28),
+            "per_seed": [{**rows[0], "lap_time_s": 130.0, "kept_at_steps": 600000}, {**rows[1], "kept_at_steps": None}],
+        },
+    }
     text = "\n".join(format_experiment(result))
     assert "last weights: lap 2 mean 2:11.000 +- 0.71 s" in text
     assert "weights chosen by the held-out starts: lap 2 mean 2:10.200 +- 0.28 s" in text

@@ -79,5 +79,13 @@ def write_synthetic_capture(
         sl = slice(s, s + batch)
         writer.append(images[sl], targets[sl], dedicated[sl], pose[sl], time_s[sl], lap[sl], car[sl])
     writer.close(complete=complete)
-    return {"images": images, "targets": targets, "dedicated": dedicated, "pose": pose, "time": time_s,
-            "lap": lap, "car_id": car, "latent": latent}  # fmt: skip
+    return {
+        "images": images,
+        "targets": targets,
+        "dedicated": dedicated,
+        "pose": pose,
+        "time": time_s,
+        "lap": lap,
+        "car_id": car,
+        "latent": latent,
+    }

@@ -55,9 +55,13 @@ def test_mirrored_targets_are_the_targets_on_the_mirrored_track() -> None:
     # a car at (x, y, yaw) goes to (-x, y, pi - yaw). Its targets there are the mirror map of the original ones.
     track = load_track("technical")
     mirrored = Track(
-        "mirrored", track.centre_xy_m * [-1.0, 1.0], np.pi - track.heading_rad, -track.curvature_1pm,
-        track.width_right_m, track.width_left_m,
-    )  # fmt: skip
+        "mirrored",
+        track.centre_xy_m * [-1.0, 1.0],
+        np.pi - track.heading_rad,
+        -track.curvature_1pm,
+        track.width_right_m,
+        track.width_left_m,
+    )
     rng = np.random.default_rng(3)
     s = rng.uniform(0.0, track.length_m, 40)
     xy = track.position_at(s, rng.uniform(-0.8, 0.8, 40) * track.min_width_m / 2)

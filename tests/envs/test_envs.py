@@ -314,8 +314,17 @@ def test_sb3_sac_runs_2000_steps_on_the_vector_env():
 
     torch.set_num_threads(1)
     venv = make_sb3_vec_env(RacingConfig(track=TRACK, n_groups=20, episode_s=5.0), seed=0)
-    model = SAC("MlpPolicy", venv, batch_size=64, learning_starts=200, train_freq=1, gradient_steps=1,
-                policy_kwargs={"net_arch": [32, 32]}, seed=0, device="cpu")  # fmt: skip
+    model = SAC(
+        "MlpPolicy",
+        venv,
+        batch_size=64,
+        learning_starts=200,
+        train_freq=1,
+        gradient_steps=1,
+        policy_kwargs={"net_arch": [32, 32]},
+        seed=0,
+        device="cpu",
+    )
     model.learn(total_timesteps=2000)
     assert model.num_timesteps >= 2000
     assert model.replay_buffer.size() * 20 >= 2000  # one row per step holds all 20 envs

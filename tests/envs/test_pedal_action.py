@@ -10,8 +10,9 @@ from vision_rl.phase2_rl.artifact import PolicyDriver
 
 def test_pedal_command_by_hand():
     # full travel from 0.9 on, either way; half of it at 0.45; the papers' map is the entry itself, clipped
-    np.testing.assert_allclose(pedal_command(np.array([0.95, 0.9, 0.45, -0.9, -2.0, 0.0]), 0.9),
-                               [1.0, 1.0, 0.5, -1.0, -1.0, 0.0])  # fmt: skip
+    np.testing.assert_allclose(
+        pedal_command(np.array([0.95, 0.9, 0.45, -0.9, -2.0, 0.0]), 0.9), [1.0, 1.0, 0.5, -1.0, -1.0, 0.0]
+    )
     np.testing.assert_allclose(pedal_command(np.array([0.97, -0.3, 1.4]), 1.0), [0.97, -0.3, 1.0])
 
 
@@ -30,8 +31,9 @@ def test_a_pedal_map_outside_0_1_is_refused(pedal_full_at):
 
 
 def _speed_after(pedal_full_at: float, throttle_entry: float, steps: int = 30) -> np.ndarray:
-    core = RacingCore(RacingConfig(track="expressway", n_groups=1, pedal_full_at=pedal_full_at, normalize=False),
-                      seed=0)  # fmt: skip
+    core = RacingCore(
+        RacingConfig(track="expressway", n_groups=1, pedal_full_at=pedal_full_at, normalize=False), seed=0
+    )
     core.reset_groups(np.array([0]))
     core.world.reset(s_m=np.array([2500.0]), lateral_m=np.array([0.0]), speed_mps=np.array([30.0]), car_ids=[0])
     for _ in range(steps):  # 3 s down the straight before the chicane, wheel straight
@@ -48,8 +50,14 @@ def test_an_entry_beyond_the_full_travel_point_accelerates_as_full_throttle_does
 
 
 def test_a_policy_drives_the_protocol_with_the_pedal_map_and_steering_steps_it_trained_with():
-    cfg = RacingConfig(track="technical", n_groups=2, pedal_full_at=0.8, steer_action="rate_scaled",
-                       steer_change_share_of_range=0.5, normalize=False)  # fmt: skip
+    cfg = RacingConfig(
+        track="technical",
+        n_groups=2,
+        pedal_full_at=0.8,
+        steer_action="rate_scaled",
+        steer_change_share_of_range=0.5,
+        normalize=False,
+    )
     trained = RacingCore(cfg, seed=2)
     trained.reset_groups(np.arange(2))
     replayed = RacingCore(RacingConfig(track="technical", n_groups=2, normalize=False), seed=2)
@@ -63,8 +71,9 @@ def test_a_policy_drives_the_protocol_with_the_pedal_map_and_steering_steps_it_t
         trained.step(a, autoreset=False)
         replayed.step(driver.act(replayed.world.state), autoreset=False)  # omega itself on the papers' map
     for name in ("x_m", "y_m", "vx_mps", "steer_rad", "omega"):
-        np.testing.assert_array_equal(getattr(replayed.world.state.vehicle, name),
-                                      getattr(trained.world.state.vehicle, name))  # fmt: skip
+        np.testing.assert_array_equal(
+            getattr(replayed.world.state.vehicle, name), getattr(trained.world.state.vehicle, name)
+        )
     assert np.abs(trained.world.state.vehicle.omega).max() > 0.0  # the pedals did move
     driver.close()
 

@@ -104,8 +104,12 @@ def test_the_critics_goal_is_the_racing_line_point_on_a_straight(straight_track)
     goal, dist = observer.goal(world.state, np.array([0]))
     np.testing.assert_allclose(goal[0], [200.0, 1.5, 0.0], atol=1e-2)  # 1 mm: the track is resampled
     assert dist[0] == pytest.approx(2.5, abs=1e-6)
-    body = PixelObserver(PixelRacingConfig(track="expressway", frames=False, goal_frame="body"), straight_track,
-                         get_preset("gt3"), np.zeros(1))  # fmt: skip
+    body = PixelObserver(
+        PixelRacingConfig(track="expressway", frames=False, goal_frame="body"),
+        straight_track,
+        get_preset("gt3"),
+        np.zeros(1),
+    )
     body.line = line
     goal, _ = body.goal(world.state, np.array([0]))
     np.testing.assert_allclose(goal[0], [0.0, 2.5, 0.0], atol=1e-6)  # 2.5 m to the car's left
@@ -170,8 +174,9 @@ def test_crash_states_from_known_states(straight_track):
 
 
 def test_the_episode_ends_beyond_the_line_distance(small_track):
-    core = PixelRacingCore(PixelRacingConfig(track=small_track, frames=False, start="line",
-                                             max_line_distance_m=0.5), seed=0)  # fmt: skip
+    core = PixelRacingCore(
+        PixelRacingConfig(track=small_track, frames=False, start="line", max_line_distance_m=0.5), seed=0
+    )
     core.reset_cars(core.ids)
     lateral = core.observer.line.lateral_at(np.zeros(1)) + 1.5
     core.world.reset(s_m=np.zeros(1), lateral_m=lateral, speed_mps=20.0)

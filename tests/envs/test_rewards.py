@@ -66,8 +66,9 @@ def test_env_charges_the_steering_change_between_commands_and_not_at_an_episode_
     from vision_rl.envs.core import RacingConfig, RacingCore, usable_steer_rad
 
     def rewards(c_s, steers):
-        config = RacingConfig(track="expressway", n_groups=1, steer_change_penalty_c_s=c_s,
-                              steer_change_penalty_scale=scale)  # fmt: skip
+        config = RacingConfig(
+            track="expressway", n_groups=1, steer_change_penalty_c_s=c_s, steer_change_penalty_scale=scale
+        )
         core = RacingCore(config, seed=3)
         core.reset_groups(np.array([0]))
         start = core.world.state.vehicle.steer_rad[0]
@@ -105,8 +106,9 @@ def _into_the_hairpin(steps: int, omega: float = 0.97, **config):
     speeds (from the start's), rewards, wall contact and the throttle cut's steps left after each step."""
     from vision_rl.envs.core import RacingConfig, RacingCore
 
-    core = RacingCore(RacingConfig(track="expressway", n_groups=1, steer_action="rate_scaled", normalize=False,
-                                   **config), seed=0)  # fmt: skip
+    core = RacingCore(
+        RacingConfig(track="expressway", n_groups=1, steer_action="rate_scaled", normalize=False, **config), seed=0
+    )
     core.reset_groups(np.array([0]))
     core.world.reset(s_m=np.array([860.0]), lateral_m=np.array([-2.5]), speed_mps=np.array([42.8]), car_ids=[0])
     core.steer_command_rad[:] = 0.0

@@ -19,13 +19,15 @@ def test_steering_command_by_hand():
     np.testing.assert_allclose(steering_command(np.array([0.3, -2.0]), prev[:2], "angle", 0.12), [0.3, -LIMIT])
     # speed_scaled, wheelbase 2.5 m: range 6 * 2.5 * 9.80665 / v^2 = 0.0613 rad at 60 m/s, pi/6 at 10 m/s
     speed = np.array([60.0, 60.0, 10.0, 0.0])
-    scaled = steering_command(np.array([LIMIT, -LIMIT / 2, LIMIT / 2, LIMIT]), prev[:4], "speed_scaled", 0.12,
-                              speed, 2.5)  # fmt: skip
+    scaled = steering_command(
+        np.array([LIMIT, -LIMIT / 2, LIMIT / 2, LIMIT]), prev[:4], "speed_scaled", 0.12, speed, 2.5
+    )
     np.testing.assert_allclose(scaled, [147.09975 / 3600, -147.09975 / 7200, LIMIT / 2, LIMIT])
     # rate_scaled: 0.1 + 0.12 = 0.22 clipped to the 0.0409 rad usable at 60 m/s; 0.1 - 0.06 = 0.04 inside it;
     # at 10 m/s the range is pi/6 and the rate rules
-    rate_scaled = steering_command(np.array([LIMIT, -LIMIT / 2, LIMIT, -LIMIT]), prev[:4], "rate_scaled", 0.12,
-                                   speed, 2.5)  # fmt: skip
+    rate_scaled = steering_command(
+        np.array([LIMIT, -LIMIT / 2, LIMIT, -LIMIT]), prev[:4], "rate_scaled", 0.12, speed, 2.5
+    )
     np.testing.assert_allclose(rate_scaled, [147.09975 / 3600, 0.04, LIMIT, -0.32])
 
 
@@ -38,16 +40,23 @@ def test_a_rate_scaled_step_limited_to_a_share_of_the_usable_range_by_hand():
     usable = 147.09975 / 3600
     limited = steering_command(action, prev, "rate_scaled", 0.12, speed, 2.5, change_share_of_range=0.5)
     np.testing.assert_allclose(limited, [usable / 2, 0.12, -usable / 4])
-    np.testing.assert_array_equal(steering_command(action, prev, "rate_scaled", 0.12, speed, 2.5, 0.0),
-                                  steering_command(action, prev, "rate_scaled", 0.12, speed, 2.5))  # fmt: skip
+    np.testing.assert_array_equal(
+        steering_command(action, prev, "rate_scaled", 0.12, speed, 2.5, 0.0),
+        steering_command(action, prev, "rate_scaled", 0.12, speed, 2.5),
+    )
     asked = action_for_command(limited, prev, "rate_scaled", 0.12, speed, 2.5, change_share_of_range=0.5)
     np.testing.assert_allclose(asked, action)
     beyond = action_for_command(np.full(3, usable), prev, "rate_scaled", 0.12, np.full(3, 60.0), 2.5, 0.5)
     np.testing.assert_allclose(beyond, LIMIT)  # twice the step away: the nearest, a full action
 
 
-@pytest.mark.parametrize(("changes", "message"), [({"steer_action": "rate"}, "limits rate_scaled steering"),
-                                                  ({"steer_change_share_of_range": -0.5}, "must be >= 0")])
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"steer_action": "rate"}, "limits rate_scaled steering"),
+        ({"steer_change_share_of_range": -0.5}, "must be >= 0"),
+    ],
+)
 def test_a_steering_step_share_without_rate_scaled_or_negative_is_refused(changes, message):
     with pytest.raises(ValueError, match=message):
         RacingConfig(**{"steer_action": "rate_scaled", "steer_change_share_of_range": 0.5, **changes})
@@ -65,19 +74,24 @@ def test_the_env_adds_the_asked_change_to_the_last_command():
     per_step = get_preset("hatchback").max_steer_rate_radps * 0.1  # 1.2 rad/s over a 0.1 s step
     for k in range(1, 4):
         core.step(np.array([[LIMIT, 1.0], [-LIMIT / 4, 1.0]]), autoreset=False)
-        np.testing.assert_allclose(core.world.state.prev_steer_cmd_rad[core.ego_ids],
-                                   start + k * per_step * np.array([1.0, -0.25]))  # fmt: skip
+        np.testing.assert_allclose(
+            core.world.state.prev_steer_cmd_rad[core.ego_ids], start + k * per_step * np.array([1.0, -0.25])
+        )
 
 
-@pytest.mark.parametrize(("steer_action", "control_dt_s"), [("rate", 0.1), ("speed_scaled", 0.1),
-                                                           ("rate_scaled", 0.1), ("rate_scaled", 0.04)])
+@pytest.mark.parametrize(
+    ("steer_action", "control_dt_s"),
+    [("rate", 0.1), ("speed_scaled", 0.1), ("rate_scaled", 0.1), ("rate_scaled", 0.04)],
+)
 def test_a_policy_drives_the_protocol_as_it_drove_its_environment(steer_action, control_dt_s):
-    cfg = RacingConfig(track="technical", n_groups=2, steer_action=steer_action, normalize=False,
-                       control_dt_s=control_dt_s)  # fmt: skip
+    cfg = RacingConfig(
+        track="technical", n_groups=2, steer_action=steer_action, normalize=False, control_dt_s=control_dt_s
+    )
     trained = RacingCore(cfg, seed=2)
     trained.reset_groups(np.arange(2))
-    replayed = RacingCore(RacingConfig(track="technical", n_groups=2, normalize=False, control_dt_s=control_dt_s),
-                          seed=2)  # fmt: skip
+    replayed = RacingCore(
+        RacingConfig(track="technical", n_groups=2, normalize=False, control_dt_s=control_dt_s), seed=2
+    )
     replayed.reset_groups(np.arange(2))
     rng = np.random.default_rng(0)
     actions = np.column_stack([rng.uniform(-LIMIT, LIMIT, (12, 2)).ravel(), np.full(24, 0.6)]).reshape(12, 2, 2)
@@ -141,8 +155,9 @@ def test_a_guided_step_lets_the_ai_drive_and_returns_the_actions_that_ask_for_it
         _, reward, terminated, truncated, _, actions = core.guided_step(autoreset=False)
         assert actions.shape == (3, 2) and np.all(np.abs(actions[:, 0]) <= LIMIT) and np.all(np.abs(actions[:, 1]) <= 1)
         # Where the AI's command was reachable in one step, the action asks for exactly it.
-        asked = steering_command(actions[:, 0], previous, "rate_scaled", core.max_change_rad, speed,
-                                 core.car.wheelbase_m)  # fmt: skip
+        asked = steering_command(
+            actions[:, 0], previous, "rate_scaled", core.max_change_rad, speed, core.car.wheelbase_m
+        )
         reachable = np.abs(actions[:, 0]) < LIMIT - 1e-9
         np.testing.assert_allclose(asked[reachable], core.steer_command_rad[reachable], atol=1e-9)
         rewards.append(reward)

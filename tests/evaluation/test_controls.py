@@ -46,7 +46,10 @@ def test_a_slalom_at_the_ends_of_the_range_and_a_steady_wheel_by_hand():
     # a steady wheel at a third of the angle, the throttle open on 7 of 10 steps
     steady = lap_controls(_lap(np.full(10, fast), np.full(10, end / 3), np.r_[np.ones(7), np.full(3, 0.5)]), 0)
     assert (steady["full_throttle_share"], steady["range_end_share"], steady["steer_sign_change_share"]) == (
-        pytest.approx(0.7), 0.0, 0.0)  # fmt: skip
+        pytest.approx(0.7),
+        0.0,
+        0.0,
+    )
 
 
 def test_a_lap_never_that_fast_or_not_recorded(small_track):

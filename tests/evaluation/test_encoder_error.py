@@ -56,8 +56,9 @@ def test_frames_are_the_drivers_views_and_targets_their_geometry(small_track):
         pytest.skip(reason)
     from vision_rl.render import RenderConfig, Renderer
 
-    timing = time_laps(CentreLineFollower(), small_track, "hatchback", seeds=[0, 1], laps=1, time_limit_s=4.0,
-                       record=True)  # fmt: skip
+    timing = time_laps(
+        CentreLineFollower(), small_track, "hatchback", seeds=[0, 1], laps=1, time_limit_s=4.0, record=True
+    )
     frames, targets, contact = lap_frames_and_targets(timing, 1, HW_PX)
     steps = len(timing.time_s)
     assert steps == 40 > BATCH_FRAMES and frames.shape == (steps, *HW_PX, 3) and targets.shape == (steps, 27)

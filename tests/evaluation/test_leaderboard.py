@@ -22,11 +22,20 @@ def test_gaps_reproduce_the_papers_table_1():
 def _evaluation(path, name, lap, track, car="hatchback", version=PROTOCOL_VERSION, wall_s=0.0):
     path.parent.mkdir(parents=True, exist_ok=True)
     best = None if lap is None else {"lap_time_s": lap, "wall_contact_s": wall_s}
-    data = {"format": lb.EVALUATION_FORMAT, "name": name, "protocol": {"version": version},
-            "driver": {"driver": "policy", "observation": "state", "policy": f"runs/{name}"},
-            "best_lap_time_s": lap, "median_lap_time_s": lap, "best_lap": best, "clean": wall_s <= 0.5,
-            "n_finished": 3 if lap else 0, "n_seeds": 3, "car": car,
-            "track_geometry_hash": load_track(track).geometry_hash}  # fmt: skip
+    data = {
+        "format": lb.EVALUATION_FORMAT,
+        "name": name,
+        "protocol": {"version": version},
+        "driver": {"driver": "policy", "observation": "state", "policy": f"runs/{name}"},
+        "best_lap_time_s": lap,
+        "median_lap_time_s": lap,
+        "best_lap": best,
+        "clean": wall_s <= 0.5,
+        "n_finished": 3 if lap else 0,
+        "n_seeds": 3,
+        "car": car,
+        "track_geometry_hash": load_track(track).geometry_hash,
+    }
     path.write_text(json.dumps(data))
 
 
@@ -65,10 +74,26 @@ def test_the_limit_is_the_reference_of_the_gap(small_track, tmp_path):
 
 
 def test_an_experiment_row_prints_its_seeds_mean_and_no_median():
-    row = {"name": "exp (3 seeds)", "lap_time_s": 129.3, "gap_to_limit_pct": 2.1, "gap_to_ai_pct": -7.2,
-           "median_lap_time_s": None, "finished": "9/9", "clean": True, "lap_time_mean_s": 129.8,
-           "lap_time_std_s": 0.48, "experiment_json": "runs/exp/experiment.json"}  # fmt: skip
-    text = format_leaderboard({"track": "expressway", "car": "hatchback", "protocol_version": PROTOCOL_VERSION,
-                               "limit_lap_time_s": 126.6, "rows": [row]})  # fmt: skip
+    row = {
+        "name": "exp (3 seeds)",
+        "lap_time_s": 129.3,
+        "gap_to_limit_pct": 2.1,
+        "gap_to_ai_pct": -7.2,
+        "median_lap_time_s": None,
+        "finished": "9/9",
+        "clean": True,
+        "lap_time_mean_s": 129.8,
+        "lap_time_std_s": 0.48,
+        "experiment_json": "runs/exp/experiment.json",
+    }
+    text = format_leaderboard(
+        {
+            "track": "expressway",
+            "car": "hatchback",
+            "protocol_version": PROTOCOL_VERSION,
+            "limit_lap_time_s": 126.6,
+            "rows": [row],
+        }
+    )
     assert "DNF" not in "\n".join(text) and text[2].split()[-3] == "-"
     assert text[3].strip() == "mean over seeds 2:09.800 +- 0.48 s"

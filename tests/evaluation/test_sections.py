@@ -18,8 +18,15 @@ def _constant_speed_lap(track, speed_mps: float) -> LapTiming:
     s = (speed_mps * t) % track.length_m
     xy = track.position_at(s)
     record = LapRecord(lap_s, 0.0, 0.0, 0.0, 3.6 * speed_mps, track.length_m)
-    timing = LapTiming(track, get_preset("hatchback"), 1, [SeedRun(0, [record], None, track.length_m, lap_s)],
-                       lap_s, 3 * lap_s, np.array([speed_mps]))  # fmt: skip
+    timing = LapTiming(
+        track,
+        get_preset("hatchback"),
+        1,
+        [SeedRun(0, [record], None, track.length_m, lap_s)],
+        lap_s,
+        3 * lap_s,
+        np.array([speed_mps]),
+    )
     timing.time_s, timing.x_m, timing.y_m = t, xy[:, :1], xy[:, 1:]
     timing.speed_mps = np.full((len(t), 1), speed_mps)
     timing.wall_contact = ((s >= 100.0) & (s < 150.0))[:, None]

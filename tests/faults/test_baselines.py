@@ -93,8 +93,13 @@ def test_an_edited_demonstrations_file_is_refused(small_demos, tmp_path, fault):
 def test_demonstrations_of_the_wrong_shape_are_refused(small_demos, tmp_path, fault):
     demos, _ = small_demos
     good = load_demos(demos)
-    arrays = {"observations": good.observations[:, :38], "actions": good.actions, "rewards": good.rewards,
-              "expert_actions": good.expert_actions, "episode_starts": good.episode_starts}  # fmt: skip
+    arrays = {
+        "observations": good.observations[:, :38],
+        "actions": good.actions,
+        "rewards": good.rewards,
+        "expert_actions": good.expert_actions,
+        "episode_starts": good.episode_starts,
+    }
     write_demos(tmp_path / "state.npz", arrays, {"fingerprint": good.fingerprint})
     with pytest.raises(DemoError) as excinfo:
         load_demos(tmp_path / "state.npz")
@@ -117,8 +122,11 @@ def test_a_policy_of_another_network_shape_is_refused(runs, tmp_path, fault):
     other = tmp_path / "bc-64"
     shutil.copytree(runs / "bc", other)
     spec = PolicySpec.read(other / "policy.json")
-    state = {"policy": sac_policy(96, [64, 64]).state_dict(), "optimizers": {},
-             "counters": {"num_timesteps": 0, "n_updates": 0, "episode_num": 0}}  # fmt: skip
+    state = {
+        "policy": sac_policy(96, [64, 64]).state_dict(),
+        "optimizers": {},
+        "counters": {"num_timesteps": 0, "n_updates": 0, "episode_num": 0},
+    }
     sha = write_agent_state(state, other / "policy.pt", spec.fingerprint)  # a whole file, checksum and fingerprint
     data = json.loads((other / "policy.json").read_text())
     (other / "policy.json").write_text(json.dumps({**data, "weights_sha256": sha}))
@@ -159,10 +167,40 @@ def test_a_continued_run_with_other_settings_is_refused_and_kept(runs, small_tra
 
 
 def _train_process(track: str, demos: Path, out: Path, steps: int) -> subprocess.Popen:
-    argv = [sys.executable, "-m", "vision_rl.commands.main", "train-baseline", "--algo", "sac", "--track", track,
-            "--demos", str(demos), "--out", str(out), "--cars", "2", "--steps", str(steps), "--learning-starts", "50",
-            "--batch-size", "32", "--buffer-size", "5000", "--eval-every-steps", "0", "--checkpoint-every-steps", "0",
-            "--checkpoint-every-min", "0", "--device", "cpu", "--no-progress", "--json"]  # fmt: skip
+    argv = [
+        sys.executable,
+        "-m",
+        "vision_rl.commands.main",
+        "train-baseline",
+        "--algo",
+        "sac",
+        "--track",
+        track,
+        "--demos",
+        str(demos),
+        "--out",
+        str(out),
+        "--cars",
+        "2",
+        "--steps",
+        str(steps),
+        "--learning-starts",
+        "50",
+        "--batch-size",
+        "32",
+        "--buffer-size",
+        "5000",
+        "--eval-every-steps",
+        "0",
+        "--checkpoint-every-steps",
+        "0",
+        "--checkpoint-every-min",
+        "0",
+        "--device",
+        "cpu",
+        "--no-progress",
+        "--json",
+    ]
     return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -186,6 +224,8 @@ def test_a_stopped_run_saves_and_continues(small_track, small_demos, tmp_path, f
     done = json.loads(stdout)
     assert done["status"] == "done" and done["num_timesteps"] == stopped["num_timesteps"] + 100
     assert done["buffer_restored"] == stopped["num_timesteps"]
-    fault.recovered("SIGTERM to train-baseline --algo sac mid-training",
-                    "weights, optimisers, counters and the replay buffer are saved; the same command with the run's "
-                    "settings continues from them")  # fmt: skip
+    fault.recovered(
+        "SIGTERM to train-baseline --algo sac mid-training",
+        "weights, optimisers, counters and the replay buffer are saved; the same command with the run's "
+        "settings continues from them",
+    )

@@ -38,8 +38,9 @@ def partial_capture(tmp_path_factory, gl_available) -> tuple[CaptureConfig, Path
     """An interrupted capture of 8 frames (2 cars, 32x48 px) on a small circle."""
     root = tmp_path_factory.mktemp("partial")
     track = circle_csv(root / "circle.csv")
-    cfg = CaptureConfig(out=str(root / "run.h5"), track=str(track), laps=2, cars=2, fps=10, image_hw_px=(32, 48),
-                        seed=3, max_frames=8)  # fmt: skip
+    cfg = CaptureConfig(
+        out=str(root / "run.h5"), track=str(track), laps=2, cars=2, fps=10, image_hw_px=(32, 48), seed=3, max_frames=8
+    )
     result = capture_sim(cfg)
     assert not result["complete"] and result["frames_in_file"] == 8
     return cfg, root
@@ -76,10 +77,20 @@ def test_resume_with_a_changed_setting_is_refused_naming_it(partial_capture, tmp
 
 @pytest.mark.parametrize(
     "argv",
-    [["--cars", "100000"], ["--cars", "0"], ["--laps", "0"], ["--laps", "-1"], ["--fps", "0"], ["--fps", "-5"],
-     ["--image-hw-px", "0", "64"], ["--max-frames", "-1"], ["--flush-interval-s", "-1"],
-     ["--disrupt-steer-offset-rad", "-0.1"], ["--no-disrupt", "--disrupt-steer-offset-rad", "0.6"]],
-)  # fmt: skip
+    [
+        ["--cars", "100000"],
+        ["--cars", "0"],
+        ["--laps", "0"],
+        ["--laps", "-1"],
+        ["--fps", "0"],
+        ["--fps", "-5"],
+        ["--image-hw-px", "0", "64"],
+        ["--max-frames", "-1"],
+        ["--flush-interval-s", "-1"],
+        ["--disrupt-steer-offset-rad", "-0.1"],
+        ["--no-disrupt", "--disrupt-steer-offset-rad", "0.6"],
+    ],
+)
 def test_options_out_of_bounds_are_one_line(tmp_path, argv, capsys, fault):
     out = tmp_path / "x.h5"
     assert main(["capture", "--out", str(out), *argv]) == 2
@@ -132,8 +143,26 @@ def test_a_killed_capture_loses_at_most_the_flush_interval_and_resumes(
     track = circle_csv(tmp_path / "circle.csv")
     out = tmp_path / "run.h5"
     # 10 laps: on an idle machine 2 laps were done within the 0.8 s before the kill, so nothing was left to kill
-    argv = ["--out", str(out), "--track", str(track), "--laps", "10", "--cars", "2", "--fps", "10", "--image-hw-px",
-            "32", "48", "--seed", "5", "--flush-interval-s", str(flush_interval_s), "--json"]  # fmt: skip
+    argv = [
+        "--out",
+        str(out),
+        "--track",
+        str(track),
+        "--laps",
+        "10",
+        "--cars",
+        "2",
+        "--fps",
+        "10",
+        "--image-hw-px",
+        "32",
+        "48",
+        "--seed",
+        "5",
+        "--flush-interval-s",
+        str(flush_interval_s),
+        "--json",
+    ]
     proc, reports, reader = _start_capture(argv)
     deadline = time.monotonic() + 120
     while not reports and proc.poll() is None and time.monotonic() < deadline:
@@ -173,8 +202,13 @@ def test_a_killed_capture_loses_at_most_the_flush_interval_and_resumes(
         how = f"{kept} of {reported} frames kept (flush every {flush_interval_s:g} s)"
         if kept_targets is None:
             how += ", a chunk damaged in its rewrite restored from the journal"
-    resumed = subprocess.run([sys.executable, "-m", "vision_rl.commands.main", "capture", *argv, "--resume"],
-                             capture_output=True, text=True, timeout=300, cwd=REPO)  # fmt: skip
+    resumed = subprocess.run(
+        [sys.executable, "-m", "vision_rl.commands.main", "capture", *argv, "--resume"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=REPO,
+    )
     assert resumed.returncode == 0, resumed.stderr
     with open_capture(out) as f:
         assert f.complete and f.n_frames > kept
@@ -187,8 +221,24 @@ def test_a_killed_capture_loses_at_most_the_flush_interval_and_resumes(
 def test_a_full_disk_names_the_file_and_resume_completes_it(gl_available, tmp_path, monkeypatch, capsys, fault):
     track = circle_csv(tmp_path / "circle.csv")
     out = tmp_path / "run.h5"
-    argv = ["capture", "--out", str(out), "--track", str(track), "--laps", "1", "--cars", "2", "--fps", "10",
-            "--image-hw-px", "32", "48", "--flush-interval-s", "0"]  # fmt: skip
+    argv = [
+        "capture",
+        "--out",
+        str(out),
+        "--track",
+        str(track),
+        "--laps",
+        "1",
+        "--cars",
+        "2",
+        "--fps",
+        "10",
+        "--image-hw-px",
+        "32",
+        "48",
+        "--flush-interval-s",
+        "0",
+    ]
     real_flush = h5py.File.flush
     calls = {"n": 0}
 

@@ -104,8 +104,13 @@ def test_a_crafted_pickle_in_ddpg_pt_is_refused_and_never_runs(tmp_path, fault):
 
 def test_a_changed_replay_chunk_is_refused(tmp_path, fault):
     buf = FrameReplay(20, 1, HW)
-    buf.start({"image": np.ones((1, *HW, 3), np.uint8), "motion": np.zeros((1, 15), np.float32),
-               "goal": np.zeros((1, 3), np.float32)})  # fmt: skip
+    buf.start(
+        {
+            "image": np.ones((1, *HW, 3), np.uint8),
+            "motion": np.zeros((1, 15), np.float32),
+            "goal": np.zeros((1, 3), np.float32),
+        }
+    )
     save_replay(buf, tmp_path / "replay", {"variant": "asymmetric"})
     chunk = next((tmp_path / "replay").glob("chunk_*.npz"))
     data = bytearray(chunk.read_bytes())
@@ -122,9 +127,20 @@ def test_a_changed_replay_chunk_is_refused(tmp_path, fault):
 def test_episodes_logged_after_the_last_checkpoint_are_dropped_on_resume(track, tmp_path, fault):
     from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig, train_ddpg
 
-    base = dict(variant="state-actor", track=track, cars=2, steps=10**7, out=str(tmp_path / "run"), buffer_size=200,
-                learning_starts=8, batch_size=8, eval_every_steps=0, eval_seeds=0, checkpoint_every_steps=0,
-                train_minutes=0.02)  # fmt: skip
+    base = dict(
+        variant="state-actor",
+        track=track,
+        cars=2,
+        steps=10**7,
+        out=str(tmp_path / "run"),
+        buffer_size=200,
+        learning_starts=8,
+        batch_size=8,
+        eval_every_steps=0,
+        eval_seeds=0,
+        checkpoint_every_steps=0,
+        train_minutes=0.02,
+    )
     first = train_ddpg(TrainDDPGConfig(**base))
     episodes = tmp_path / "run" / "episodes.jsonl"
     logged = episodes.read_text().splitlines()
@@ -136,8 +152,10 @@ def test_episodes_logged_after_the_last_checkpoint_are_dropped_on_resume(track, 
     records = [json.loads(line) for line in episodes.read_text().splitlines()]
     assert [r["episode"] for r in records] == list(range(second["episodes"]))  # each episode once, in order
     assert records[: len(logged)] == [json.loads(line) for line in logged]
-    fault.recovered("train-ddpg killed after its last checkpoint, then resumed",
-                    "episodes.jsonl keeps the checkpoint's episodes and drops those driven again and a torn line")
+    fault.recovered(
+        "train-ddpg killed after its last checkpoint, then resumed",
+        "episodes.jsonl keeps the checkpoint's episodes and drops those driven again and a torn line",
+    )
 
 
 def test_runs_compare_ddpg_cannot_compare_are_refused(tmp_path, fault):

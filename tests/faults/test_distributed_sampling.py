@@ -42,8 +42,9 @@ def test_a_killed_sampler_leaves_the_learner_going_with_the_other(ray_local, sma
     assert sampling["samplers_alive"] == 1 and len(sampling["samplers_lost"]) == 1
     events = [r for r in read_metrics(out / "metrics.jsonl", events=True) if r.get("event") == "sampler_lost"]
     assert len(events) == 1 and events[0]["samplers_alive"] == 1 and events[0]["num_timesteps"] >= 100
-    assert read_metrics(out / "metrics.jsonl") == [r for r in read_metrics(out / "metrics.jsonl", events=True)
-                                                   if "event" not in r]  # fmt: skip
+    assert read_metrics(out / "metrics.jsonl") == [
+        r for r in read_metrics(out / "metrics.jsonl", events=True) if "event" not in r
+    ]
     fault.recovered(
         "one of 2 sampler actors SIGKILLed mid-run",
         f"the learner finished the 300 steps with the other; metrics.jsonl: {events[0]['reason'][:80]}",
@@ -74,8 +75,7 @@ def test_all_samplers_killed_saves_the_run_and_stops_with_one_line(ray_local, sm
         ({"address": "auto"}, "--address without --workers", "needs --workers"),
     ],
 )
-def test_bad_sampling_options_are_refused_before_the_run_folder(small_track, tmp_path, fault, options, what,
-                                                                message):  # fmt: skip
+def test_bad_sampling_options_are_refused_before_the_run_folder(small_track, tmp_path, fault, options, what, message):
     out = tmp_path / "run"
     with pytest.raises(ValueError, match=message) as excinfo:
         train_policy(tiny_train_config(small_track, out, **options))

@@ -65,8 +65,9 @@ def test_a_policy_of_another_track_is_refused(agent1_run, fault):
 def test_a_continued_run_with_other_stage_settings_is_refused_and_kept(agent1_run, small_track, fault):
     before = (agent1_run / "run.json").read_text()
     with pytest.raises(OvertakingRunError) as excinfo:
-        train_overtaking(tiny_overtaking_config(small_track, agent1_run, agent="2", eval_every_steps=0,
-                                                stage2_steps=80))  # fmt: skip
+        train_overtaking(
+            tiny_overtaking_config(small_track, agent1_run, agent="2", eval_every_steps=0, stage2_steps=80)
+        )
     assert "stage2_steps = 40, not 80" in str(excinfo.value)
     assert (agent1_run / "run.json").read_text() == before and not (agent1_run / "agent2-stage3").exists()
     fault.refused("train-overtaking on a run folder with another --stage2-steps", str(excinfo.value))
@@ -74,8 +75,11 @@ def test_a_continued_run_with_other_stage_settings_is_refused_and_kept(agent1_ru
     cfg = tiny_overtaking_config(small_track, agent1_run, agent="3", eval_every_steps=0, stage2_steps=40)
     train_overtaking(cfg)
     with pytest.raises(OvertakingRunError) as excinfo:
-        train_overtaking(tiny_overtaking_config(small_track, agent1_run, agent="3", eval_every_steps=0,
-                                                stage2_steps=40, stage3_steps=60))  # fmt: skip
+        train_overtaking(
+            tiny_overtaking_config(
+                small_track, agent1_run, agent="3", eval_every_steps=0, stage2_steps=40, stage3_steps=60
+            )
+        )
     assert "steps = 100, not 60" in str(excinfo.value)
     fault.refused("train-overtaking --agent 3 again with another --stage3-steps", str(excinfo.value))
 
@@ -89,11 +93,39 @@ def test_a_damaged_sidecar_is_refused(agent1_run, tmp_path, fault):
 
 
 def _train_process(track: str, out: Path) -> subprocess.Popen:
-    argv = [sys.executable, "-m", "vision_rl.commands.main", "train-overtaking", "--agent", "1", "--track", track,
-            "--out", str(out), "--cars", "2", "--stage1-max-steps", "600", "--stage2-steps", "40",
-            "--learning-starts", "50", "--batch-size", "32", "--buffer-size", "5000", "--eval-every-steps", "0",
-            "--checkpoint-every-steps", "0", "--checkpoint-every-min", "0.002", "--device", "cpu",
-            "--no-progress"]  # fmt: skip
+    argv = [
+        sys.executable,
+        "-m",
+        "vision_rl.commands.main",
+        "train-overtaking",
+        "--agent",
+        "1",
+        "--track",
+        track,
+        "--out",
+        str(out),
+        "--cars",
+        "2",
+        "--stage1-max-steps",
+        "600",
+        "--stage2-steps",
+        "40",
+        "--learning-starts",
+        "50",
+        "--batch-size",
+        "32",
+        "--buffer-size",
+        "5000",
+        "--eval-every-steps",
+        "0",
+        "--checkpoint-every-steps",
+        "0",
+        "--checkpoint-every-min",
+        "0.002",
+        "--device",
+        "cpu",
+        "--no-progress",
+    ]
     return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -120,9 +152,11 @@ def test_a_killed_stage_resumes_from_its_checkpoint(small_track, tmp_path, fault
     record = json.loads((out / "stage1" / "stage.json").read_text())
     assert record["status"] == "done" and record["end_steps"] == 600 and record["start_steps"] == 0
     assert json.loads((out / "stage2" / "stage.json").read_text())["end_steps"] == 640
-    fault.recovered("SIGKILL to train-overtaking mid-stage 1",
-                    "the light checkpoint (weights, optimisers, counters) and the buffer saved when the stage began "
-                    "survive; the same command finishes the stage and goes on to stage 2")  # fmt: skip
+    fault.recovered(
+        "SIGKILL to train-overtaking mid-stage 1",
+        "the light checkpoint (weights, optimisers, counters) and the buffer saved when the stage began "
+        "survive; the same command finishes the stage and goes on to stage 2",
+    )
 
 
 def test_the_analysis_takes_one_policy_and_writes_its_figures(agent1_run, tmp_path, fault):

@@ -42,9 +42,13 @@ def test_a_stopped_pipeline_leaves_no_policy_training_alone(small_track, tiny_en
     if reason:
         pytest.skip(reason)
     runs = tmp_path / "runs"
-    process = subprocess.Popen([sys.executable, "-c", _SCRIPT, str(tiny_encoders[0]), small_track, str(runs)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=True)  # fmt: skip
+    process = subprocess.Popen(
+        [sys.executable, "-c", _SCRIPT, str(tiny_encoders[0]), small_track, str(runs)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     # The vision policy trains (its first evaluation is written) and the state policy's process runs at the lowest
     # priority: on a busy machine that process may take minutes to get as far, so the test does not wait for it.
     lowest = min(19, os.nice(0) + 19)
@@ -64,8 +68,11 @@ def test_a_stopped_pipeline_leaves_no_policy_training_alone(small_track, tiny_en
         raise AssertionError(f"the pipeline did not stop within 60 s of SIGTERM: {kill_and_read(process)}") from None
     assert process.returncode == 130, stderr
     time.sleep(0.5)
-    alive = {pid for pid in children if os.path.exists(f"/proc/{pid}") and "zombie" not in
-             open(f"/proc/{pid}/status").read()}  # fmt: skip
+    alive = {
+        pid for pid in children if os.path.exists(f"/proc/{pid}") and "zombie" not in open(f"/proc/{pid}/status").read()
+    }
     assert not alive, f"left running: {alive}"
-    fault.recovered("SIGTERM to pipeline while state and vision policies train",
-                    "both stop (the state policy's process with the pipeline), exit 130; capture and encoder are kept")
+    fault.recovered(
+        "SIGTERM to pipeline while state and vision policies train",
+        "both stop (the state policy's process with the pipeline), exit 130; capture and encoder are kept",
+    )

@@ -37,12 +37,21 @@ def test_player_quits_midway(fault, monkeypatch, tmp_path, gl_available):
 
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
     pygame.init()
-    script = iter([[pygame.event.Event(pygame.KEYDOWN, key=pygame.K_UP)]] + [[]] * 40
-                  + [[pygame.event.Event(pygame.KEYDOWN, key=pygame.K_ESCAPE)]])  # fmt: skip
-    result = play(PlayConfig(name="quitter", track="technical", realtime=False, window_hw_px=(64, 96),
-                             runs=str(tmp_path / "runs")), events=lambda: next(script, []))  # fmt: skip
+    script = iter(
+        [[pygame.event.Event(pygame.KEYDOWN, key=pygame.K_UP)]]
+        + [[]] * 40
+        + [[pygame.event.Event(pygame.KEYDOWN, key=pygame.K_ESCAPE)]]
+    )
+    result = play(
+        PlayConfig(
+            name="quitter", track="technical", realtime=False, window_hw_px=(64, 96), runs=str(tmp_path / "runs")
+        ),
+        events=lambda: next(script, []),
+    )
     assert result["quit"] and not (tmp_path / "runs/human/quitter-technical-hatchback/evaluation.json").exists()
     demos = load_demos(result["demos"])
     assert demos.n_transitions == 8  # 41 calls at 50 Hz: 9 commands, the last one's step unfinished
-    fault.recovered("the player pressed Escape after 0.8 s", f"no row; the {demos.n_transitions} transitions "
-                    "driven were kept as demonstrations")  # fmt: skip
+    fault.recovered(
+        "the player pressed Escape after 0.8 s",
+        f"no row; the {demos.n_transitions} transitions driven were kept as demonstrations",
+    )

@@ -131,8 +131,14 @@ def test_a_format_2_policy_is_refused_and_converts_without_unpickling(run_copy, 
         def step(self, action):
             return np.zeros(38, np.float32), 0.0, False, False, {}
 
-    model = SAC("MlpPolicy", make_vec_env(_Env, 1), buffer_size=50, learning_starts=0,
-                policy_kwargs={"net_arch": [256, 256]}, device="cpu")  # fmt: skip
+    model = SAC(
+        "MlpPolicy",
+        make_vec_env(_Env, 1),
+        buffer_size=50,
+        learning_starts=0,
+        policy_kwargs={"net_arch": [256, 256]},
+        device="cpu",
+    )
     model.learn(20)
     old = tmp_path / "old"
     old.mkdir()
@@ -165,8 +171,10 @@ def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeyp
 
     def disk_full(obj, f, *args, **kwargs):  # how torch reports it: a RuntimeError from its zip writer
         Path(f).write_bytes(b"partial")
-        raise RuntimeError("[enforce fail at inline_container.cc:664] . PytorchStreamWriter failed writing file "
-                           "data/0: file write failed: No space left on device")  # fmt: skip
+        raise RuntimeError(
+            "[enforce fail at inline_container.cc:664] . PytorchStreamWriter failed writing file "
+            "data/0: file write failed: No space left on device"
+        )
 
     monkeypatch.setattr(torch, "save", disk_full)
     with pytest.raises(ArtifactWriteError, match=r"cannot write .*policy\.pt: .*No space left") as excinfo:
@@ -217,10 +225,35 @@ def test_out_of_range_options_are_refused_before_anything_is_written(small_track
 
 
 def _train_policy_process(track: str, out: Path, steps: int) -> subprocess.Popen:
-    argv = [sys.executable, "-m", "vision_rl.commands.main", "train-policy", "--track", track, "--out", str(out),
-            "--cars", "2", "--steps", str(steps), "--learning-starts", "50", "--batch-size", "32",
-            "--buffer-size", "5000", "--eval-every-steps", "0", "--checkpoint-every-steps", "400",
-            "--checkpoint-every-min", "0.002", "--device", "cpu", "--no-progress"]  # fmt: skip
+    argv = [
+        sys.executable,
+        "-m",
+        "vision_rl.commands.main",
+        "train-policy",
+        "--track",
+        track,
+        "--out",
+        str(out),
+        "--cars",
+        "2",
+        "--steps",
+        str(steps),
+        "--learning-starts",
+        "50",
+        "--batch-size",
+        "32",
+        "--buffer-size",
+        "5000",
+        "--eval-every-steps",
+        "0",
+        "--checkpoint-every-steps",
+        "400",
+        "--checkpoint-every-min",
+        "0.002",
+        "--device",
+        "cpu",
+        "--no-progress",
+    ]
     if (out / "policy.json").exists():
         argv.append("--resume")
     return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -256,17 +289,50 @@ def test_a_killed_train_policy_resumes_from_what_it_saved(small_track, tmp_path,
     assert resumed.returncode == 0, stderr
     assert PolicySpec.read(out / "policy.json").num_timesteps == target
     name = "SIGKILL" if sig == signal.SIGKILL else "SIGTERM"
-    how = ("the light checkpoint (weights, optimisers, counters) of the last interval survives and --resume "
-           "continues" if sig == signal.SIGKILL else "saves weights and buffer, exits 130, --resume continues")
+    how = (
+        "the light checkpoint (weights, optimisers, counters) of the last interval survives and --resume continues"
+        if sig == signal.SIGKILL
+        else "saves weights and buffer, exits 130, --resume continues"
+    )
     fault.recovered(f"{name} to train-policy mid-run", how)
 
 
 def _experiment_process(track: str, out: Path, steps: int) -> subprocess.Popen:
-    argv = [sys.executable, "-m", "vision_rl.commands.main", "experiment", "--seeds", "0,1", "--seeds-at-once", "2",
-            "--track", track, "--out", str(out), "--cars", "2", "--steps", str(steps), "--learning-starts", "50",
-            "--batch-size", "32", "--buffer-size", "10000", "--eval-every-steps", "0", "--eval-seeds", "1",
-            "--checkpoint-every-steps", "0", "--checkpoint-every-min", "0.005", "--device", "cpu",
-            "--no-progress"]  # fmt: skip
+    argv = [
+        sys.executable,
+        "-m",
+        "vision_rl.commands.main",
+        "experiment",
+        "--seeds",
+        "0,1",
+        "--seeds-at-once",
+        "2",
+        "--track",
+        track,
+        "--out",
+        str(out),
+        "--cars",
+        "2",
+        "--steps",
+        str(steps),
+        "--learning-starts",
+        "50",
+        "--batch-size",
+        "32",
+        "--buffer-size",
+        "10000",
+        "--eval-every-steps",
+        "0",
+        "--eval-seeds",
+        "1",
+        "--checkpoint-every-steps",
+        "0",
+        "--checkpoint-every-min",
+        "0.005",
+        "--device",
+        "cpu",
+        "--no-progress",
+    ]
     return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -288,5 +354,7 @@ def test_a_stopped_experiment_saves_every_seed_running_side_by_side_and_resumes(
     record = json.loads((out / "experiment.json").read_text())
     assert [r["seed"] for r in record["per_seed"]] == [0, 1]
     assert all(PolicySpec.read(out / f"seed-{s}" / "policy.json").num_timesteps == 1_500 for s in (0, 1))
-    fault.recovered("SIGTERM to experiment --seeds-at-once 2 mid-run",
-                    "each seed's process saves its run, exit 130; the same command resumes both")  # fmt: skip
+    fault.recovered(
+        "SIGTERM to experiment --seeds-at-once 2 mid-run",
+        "each seed's process saves its run, exit 130; the same command resumes both",
+    )

@@ -37,8 +37,16 @@ def _circle_csv(path: Path) -> str:
 
 
 def _config(tmp_path: Path, **kw) -> ShardedCaptureConfig:
-    base = dict(out=str(tmp_path / "cap.json"), track=_circle_csv(tmp_path / "circle.csv"), laps=2, cars=2, fps=5,
-                image_hw_px=(32, 48), seed=3, workers=2)  # fmt: skip
+    base = dict(
+        out=str(tmp_path / "cap.json"),
+        track=_circle_csv(tmp_path / "circle.csv"),
+        laps=2,
+        cars=2,
+        fps=5,
+        image_hw_px=(32, 48),
+        seed=3,
+        workers=2,
+    )
     return ShardedCaptureConfig(**{**base, **kw})
 
 
@@ -70,16 +78,21 @@ def test_a_missing_shard_is_refused_naming_it(synthetic_run, fault):
     cfg, paths = synthetic_run
     assert len(FrameCatalogue.open(cfg.out)) == 2 * 16  # the intact run opens
     paths[1].unlink()
-    _refused(cfg.out, fault, "a manifest whose shard file is missing", "shard cap.shards/shard_001.h5 is missing",
-             "--resume")  # fmt: skip
+    _refused(
+        cfg.out, fault, "a manifest whose shard file is missing", "shard cap.shards/shard_001.h5 is missing", "--resume"
+    )
 
 
 def test_a_changed_shard_is_refused_naming_it(synthetic_run, fault):
     cfg, paths = synthetic_run
     paths[0].unlink()
     write_synthetic_capture(paths[0], seed=5, n_laps=3)  # same settings, other frames
-    message = _refused(cfg.out, fault, "a manifest whose shard was replaced by other frames of the same settings",
-                       "shard cap.shards/shard_000.h5 changed since the manifest was written")  # fmt: skip
+    message = _refused(
+        cfg.out,
+        fault,
+        "a manifest whose shard was replaced by other frames of the same settings",
+        "shard cap.shards/shard_000.h5 changed since the manifest was written",
+    )
     assert "shard_001" not in message  # the intact shard is not blamed
 
 
@@ -89,12 +102,23 @@ def test_a_foreign_shard_is_refused_naming_the_field(synthetic_run, tmp_path, fa
 
     cfg, paths = synthetic_run
     paths[1].unlink()
-    with CaptureWriter(paths[1], image_hw_px=(64, 96), target_names=sensors.TARGET_NAMES,
-                       target_units=sensors.TARGET_UNITS, dedicated_names=sensors.DEDICATED_NAMES,
-                       dedicated_units=sensors.DEDICATED_UNITS, attrs={**ATTRS, "car_preset": "gt3"}) as w:  # fmt: skip
+    with CaptureWriter(
+        paths[1],
+        image_hw_px=(64, 96),
+        target_names=sensors.TARGET_NAMES,
+        target_units=sensors.TARGET_UNITS,
+        dedicated_names=sensors.DEDICATED_NAMES,
+        dedicated_units=sensors.DEDICATED_UNITS,
+        attrs={**ATTRS, "car_preset": "gt3"},
+    ) as w:
         w.close(complete=True)
-    message = _refused(cfg.out, fault, "a manifest whose shard is another run's capture",
-                       "shard cap.shards/shard_001.h5 is not this run's shard", "car_preset is 'gt3'")  # fmt: skip
+    message = _refused(
+        cfg.out,
+        fault,
+        "a manifest whose shard is another run's capture",
+        "shard cap.shards/shard_001.h5 is not this run's shard",
+        "car_preset is 'gt3'",
+    )
     assert "shard_000" not in message  # the intact shard is not blamed
 
 
@@ -125,8 +149,7 @@ def test_a_resume_with_other_settings_is_refused_naming_the_option(synthetic_run
         capture_sharded(dataclasses.replace(cfg, disrupt_steer_offset_rad=0.6, resume=True))
 
 
-@pytest.mark.parametrize("argv", [["--workers", "0"], ["--workers", "2", "--laps", "1"],
-                                  ["--address", "auto"]])  # fmt: skip
+@pytest.mark.parametrize("argv", [["--workers", "0"], ["--workers", "2", "--laps", "1"], ["--address", "auto"]])
 def test_bad_worker_options_are_one_line(tmp_path, argv, capsys, fault):
     out = tmp_path / "cap.json"
     assert main(["capture", "--out", str(out), *argv]) == 2

@@ -60,9 +60,16 @@ def test_bad_targets_stop_training_before_it_starts(tmp_path: Path, name: str, v
 
 @pytest.mark.parametrize(
     ("option", "value"),
-    [("--epochs", "0"), ("--batch-size", "0"), ("--max-steps", "0"), ("--lr", "-0.1"), ("--val-fraction", "1.5"),
-     ("--num-workers", "-1"), ("--width-mult", "0")],
-)  # fmt: skip
+    [
+        ("--epochs", "0"),
+        ("--batch-size", "0"),
+        ("--max-steps", "0"),
+        ("--lr", "-0.1"),
+        ("--val-fraction", "1.5"),
+        ("--num-workers", "-1"),
+        ("--width-mult", "0"),
+    ],
+)
 def test_sizes_out_of_bounds_are_one_line(tmp_path: Path, option: str, value: str, capsys, fault) -> None:
     argv = ["train-repr", "--data", str(tmp_path / "none.h5"), "--out", str(tmp_path / "run"), option, value]
     assert main(argv) == 2
@@ -91,8 +98,24 @@ def test_a_crafted_lightning_checkpoint_never_runs(tmp_path: Path, capsys, fault
     crafted = torch.load(last, weights_only=True)
     crafted["callbacks"] = {"payload": _WritesMarker(marker)}
     torch.save(crafted, last)
-    argv = ["train-repr", "--data", str(data), "--out", str(out), "--resume", "--epochs", "2", "--batch-size", "8",
-            "--num-workers", "0", "--width-mult", "0.25", "--val-fraction", "0.25"]  # fmt: skip
+    argv = [
+        "train-repr",
+        "--data",
+        str(data),
+        "--out",
+        str(out),
+        "--resume",
+        "--epochs",
+        "2",
+        "--batch-size",
+        "8",
+        "--num-workers",
+        "0",
+        "--width-mult",
+        "0.25",
+        "--val-fraction",
+        "0.25",
+    ]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert not marker.exists()

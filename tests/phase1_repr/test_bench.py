@@ -37,8 +37,9 @@ def test_every_variant_is_timed_or_says_why_not() -> None:
 
 
 def test_backbone_option_builds_that_encoder() -> None:
-    cfg = BenchLatencyConfig(backbone="mobilenet_v3_small", image_hw_px=(32, 48), runs=2, warmup=0, batch_size=2,
-                             variants=False)  # fmt: skip
+    cfg = BenchLatencyConfig(
+        backbone="mobilenet_v3_small", image_hw_px=(32, 48), runs=2, warmup=0, batch_size=2, variants=False
+    )
     if importlib.util.find_spec("torchvision") is None:
         with pytest.raises(ImportError, match="pip install torchvision"):
             bench_latency(cfg)
@@ -49,8 +50,9 @@ def test_backbone_option_builds_that_encoder() -> None:
 
 
 def test_the_training_step_bench_trains_and_times_each_batch_and_precision() -> None:
-    cfg = BenchTrainStepConfig(image_hw_px=(32, 48), batch_sizes=(2, 4), precisions=("fp32", "bf16"), steps=2,
-                               repeats=2, warmup=3, threads=1)  # fmt: skip
+    cfg = BenchTrainStepConfig(
+        image_hw_px=(32, 48), batch_sizes=(2, 4), precisions=("fp32", "bf16"), steps=2, repeats=2, warmup=3, threads=1
+    )
     result = bench_train_step(cfg)
     rows = result["rows"]
     assert result["input_hw_px"] == [32, 48] and result["device"] == "cpu"
@@ -65,8 +67,12 @@ def test_the_training_step_bench_trains_and_times_each_batch_and_precision() -> 
 
 @pytest.mark.parametrize(
     "change,words",
-    [({"batch_sizes": (0,)}, "batch size"), ({"batch_sizes": ()}, "batch size"), ({"steps": 0}, "steps"),
-     ({"precisions": ("fp8",)}, "precision fp8: choose from fp32, bf16")],
+    [
+        ({"batch_sizes": (0,)}, "batch size"),
+        ({"batch_sizes": ()}, "batch size"),
+        ({"steps": 0}, "steps"),
+        ({"precisions": ("fp8",)}, "precision fp8: choose from fp32, bf16"),
+    ],
 )
 def test_the_training_step_bench_refuses_bad_settings(change, words) -> None:
     with pytest.raises(ValueError, match=words):

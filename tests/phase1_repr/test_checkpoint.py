@@ -13,8 +13,15 @@ from vision_rl.phase1_repr import EncoderCheckpointError, load_encoder, read_che
 from vision_rl.phase1_repr.checkpoint import checkpoint_checksums, checkpoint_sha256
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
 
-CFG = EncoderConfig(input_height_px=32, input_width_px=48, stem_channels=8, stage_channels=(16, 32),
-                    stage_blocks=(1, 1), stage_strides=(2, 2), n_targets=27)  # fmt: skip
+CFG = EncoderConfig(
+    input_height_px=32,
+    input_width_px=48,
+    stem_channels=8,
+    stage_channels=(16, 32),
+    stage_blocks=(1, 1),
+    stage_strides=(2, 2),
+    n_targets=27,
+)
 NAMES = [f"t{i}" for i in range(27)]
 UNITS = ["m"] * 27
 
@@ -32,8 +39,15 @@ def write(path: Path, cfg: EncoderConfig = CFG) -> tuple[ReprNet, np.ndarray, np
     net = trained_net(cfg)
     n = cfg.n_targets
     mean, std = np.linspace(-1, 1, n).astype(np.float32), np.linspace(0.5, 2, n).astype(np.float32)
-    save_checkpoint(path, net, target_names=NAMES[:n], target_units=UNITS[:n], target_mean=mean, target_std=std,
-                    metrics={"val_loss": 0.5})  # fmt: skip
+    save_checkpoint(
+        path,
+        net,
+        target_names=NAMES[:n],
+        target_units=UNITS[:n],
+        target_mean=mean,
+        target_std=std,
+        metrics={"val_loss": 0.5},
+    )
     return net, mean, std
 
 
@@ -52,8 +66,9 @@ def test_round_trip_gives_the_same_embedding(tmp_path: Path) -> None:
     torch.testing.assert_close(rep, rep_ref, rtol=1e-4, atol=1e-5)
     torch.testing.assert_close(enc(torch.from_numpy(frames)), rep)  # tensor input too
     physical = enc.predict_targets(frames)
-    torch.testing.assert_close(physical, pred_ref * torch.from_numpy(std) + torch.from_numpy(mean), rtol=1e-4,
-                               atol=1e-4)  # fmt: skip
+    torch.testing.assert_close(
+        physical, pred_ref * torch.from_numpy(std) + torch.from_numpy(mean), rtol=1e-4, atol=1e-4
+    )
     unfused = load_encoder(path, fuse=False)
     torch.testing.assert_close(unfused(frames), rep_ref)
     assert enc.metrics == {"val_loss": 0.5} and enc.rep_dim == 64 and enc.input_hw_px == (32, 48)

@@ -23,9 +23,12 @@ REPO = Path(__file__).resolve().parents[2]
 
 @pytest.mark.parametrize(
     ("change", "words"),
-    [({"devices": 2}, "--devices 2 needs --strategy ddp"), ({"strategy": "fsdp"}, "--strategy must be one of"),
-     ({"devices": 0, "strategy": "ddp"}, "--devices must be >= 1")],
-)  # fmt: skip
+    [
+        ({"devices": 2}, "--devices 2 needs --strategy ddp"),
+        ({"strategy": "fsdp"}, "--strategy must be one of"),
+        ({"devices": 0, "strategy": "ddp"}, "--devices must be >= 1"),
+    ],
+)
 def test_device_options_are_checked(change, words):
     with pytest.raises(ValueError, match=words):
         TrainReprConfig(data="d.h5", **change)
@@ -33,12 +36,40 @@ def test_device_options_are_checked(change, words):
 
 def test_two_cpu_processes_train_one_epoch_and_rank_zero_writes_the_checkpoint(tmp_path):
     write_synthetic_capture(tmp_path / "d.h5", n_laps=8, frames_per_lap=4)  # 32 frames: 24 to train, 8 held out
-    argv = ["train-repr", "--data", "d.h5", "--devices", "2", "--strategy", "ddp", "--device", "cpu", "--epochs", "1",
-            "--batch-size", "4", "--num-workers", "0", "--width-mult", "0.25", "--val-fraction", "0.25", "--out", "run",
-            "--json", "--no-progress"]  # fmt: skip
+    argv = [
+        "train-repr",
+        "--data",
+        "d.h5",
+        "--devices",
+        "2",
+        "--strategy",
+        "ddp",
+        "--device",
+        "cpu",
+        "--epochs",
+        "1",
+        "--batch-size",
+        "4",
+        "--num-workers",
+        "0",
+        "--width-mult",
+        "0.25",
+        "--val-fraction",
+        "0.25",
+        "--out",
+        "run",
+        "--json",
+        "--no-progress",
+    ]
     # Lightning starts the second process by running this command line again: run it as a command, not in pytest.
-    proc = subprocess.run([sys.executable, "-m", "vision_rl.commands.main", *argv], cwd=tmp_path, capture_output=True,
-                          text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(REPO)})  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-m", "vision_rl.commands.main", *argv],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads(proc.stdout)  # one JSON document: the second process printed nothing
     assert result["devices"] == 2 and result["n_train_frames"] == 24 and result["n_val_frames"] == 8
@@ -53,8 +84,16 @@ def test_two_cpu_processes_train_one_epoch_and_rank_zero_writes_the_checkpoint(t
     enc = load_encoder(ckpt, expected_input_hw_px=(64, 96), expected_target_names=TARGET_NAMES)
     assert enc.metrics["epoch"] == 0
     net = ReprNet(EncoderConfig(input_height_px=64, input_width_px=96, n_targets=27).scaled(0.25))
-    reference = save_checkpoint(tmp_path / "reference.pt", net, target_names=TARGET_NAMES, target_units=["m"] * 27,
-                                target_mean=[0.0] * 27, target_std=[1.0] * 27, metrics={}, dataset={})  # fmt: skip
+    reference = save_checkpoint(
+        tmp_path / "reference.pt",
+        net,
+        target_names=TARGET_NAMES,
+        target_units=["m"] * 27,
+        target_mean=[0.0] * 27,
+        target_std=[1.0] * 27,
+        metrics={},
+        dataset={},
+    )
     ours, theirs = (torch.load(p, map_location="cpu", weights_only=True) for p in (ckpt, reference))
     assert set(ours) == set(theirs)
     assert set(ours["state_dict"]) == set(theirs["state_dict"])  # the bare network: no DDP "module." prefix

@@ -12,8 +12,15 @@ import torch.nn.functional as F
 
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
 
-TINY = EncoderConfig(input_height_px=30, input_width_px=46, stem_channels=8, stage_channels=(16, 24),
-                     stage_blocks=(1, 2), stage_strides=(2, 2), n_targets=5)  # fmt: skip
+TINY = EncoderConfig(
+    input_height_px=30,
+    input_width_px=46,
+    stem_channels=8,
+    stage_channels=(16, 24),
+    stage_blocks=(1, 2),
+    stage_strides=(2, 2),
+    n_targets=5,
+)
 
 
 def frames(n: int, cfg: EncoderConfig, seed: int = 0) -> torch.Tensor:

@@ -32,8 +32,10 @@ def test_load_encoder_on_onnxruntime_matches_torch(tmp_path: Path) -> None:
     on_torch = load_encoder(path, runtime="torch")
     on_onnx = load_encoder(path, runtime="onnxruntime")
     assert (on_torch.runtime, on_onnx.runtime, load_encoder(path, runtime="auto").runtime) == (
-        "torch", "onnxruntime", "onnxruntime"
-    )  # fmt: skip
+        "torch",
+        "onnxruntime",
+        "onnxruntime",
+    )
     frames = np.random.default_rng(1).integers(0, 256, (4, 32, 48, 3), dtype=np.uint8)
     rep = on_onnx(frames)
     assert rep.shape == (4, 64) and rep.dtype == torch.float32

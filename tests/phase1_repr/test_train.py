@@ -31,8 +31,14 @@ def test_loss_falls_on_sixteen_frames(tmp_path: Path) -> None:
     std = TargetStandardiser.from_targets(written["targets"])
     targets = torch.from_numpy(std.transform(written["targets"]))
     torch.manual_seed(0)
-    cfg = EncoderConfig(input_height_px=64, input_width_px=96, stem_channels=16, stage_channels=(32, 64),
-                        stage_blocks=(1, 1), stage_strides=(2, 2))  # fmt: skip
+    cfg = EncoderConfig(
+        input_height_px=64,
+        input_width_px=96,
+        stem_channels=16,
+        stage_channels=(32, 64),
+        stage_blocks=(1, 1),
+        stage_strides=(2, 2),
+    )
     module = ReprModule(cfg.to_dict(), list(TARGET_NAMES), ["m"] * 27, std.mean.tolist(), std.std.tolist())
     opt = torch.optim.AdamW(module.parameters(), lr=3e-3)
     losses = []
@@ -55,8 +61,7 @@ def test_mirroring_flips_half_the_frames_with_their_targets() -> None:
     std = TargetStandardiser.from_targets(true)
     targets = torch.from_numpy(std.transform(true))
     cfg = EncoderConfig(input_height_px=64, input_width_px=96)
-    module = ReprModule(cfg.to_dict(), list(TARGET_NAMES), ["m"] * 27, std.mean.tolist(), std.std.tolist(),
-                        mirror=True)  # fmt: skip
+    module = ReprModule(cfg.to_dict(), list(TARGET_NAMES), ["m"] * 27, std.mean.tolist(), std.std.tolist(), mirror=True)
     torch.manual_seed(0)
     out_images, out_targets = module.mirror_half(images, targets)
     physical = std.inverse(out_targets.numpy())
@@ -92,8 +97,12 @@ def test_balanced_loss_counts_each_target_group_alike() -> None:
 
 def test_metrics_per_target_and_group() -> None:
     names = ["edge_distance_+00deg", "edge_distance_+15deg", "centre_line_offset", "curvature_40.0m_ahead", "x"]
-    assert group_targets(names) == {"edge_distances": [0, 1], "centre_offset": [2], "curvature_ahead": [3],
-                                    "other": [4]}  # fmt: skip
+    assert group_targets(names) == {
+        "edge_distances": [0, 1],
+        "centre_offset": [2],
+        "curvature_ahead": [3],
+        "other": [4],
+    }
     true = np.array([[0.0, 1, 2, 3, 4], [2.0, 3, 4, 5, 4]])
     pred = true + np.array([[1.0, 0, 0, 0, 0], [1.0, 0, 1, 0, 0]])
     m = regression_metrics(pred, true, names)
@@ -109,15 +118,21 @@ def test_train_repr_writes_run_and_resumes(tmp_path: Path) -> None:
     data = tmp_path / "d.h5"
     write_synthetic_capture(data, n_laps=4, frames_per_lap=4)
     out = tmp_path / "run"
-    cfg = TrainReprConfig(data=str(data), epochs=2, batch_size=8, num_workers=0, out=str(out), width_mult=0.25,
-                          val_fraction=0.25)  # fmt: skip
+    cfg = TrainReprConfig(
+        data=str(data), epochs=2, batch_size=8, num_workers=0, out=str(out), width_mult=0.25, val_fraction=0.25
+    )
     result = train_repr(cfg)
     assert result["n_train_frames"] == 12 and result["n_val_frames"] == 4  # one lap of four held out
     metrics = json.loads((out / "metrics.json").read_text())
     assert [e["epoch"] for e in metrics["epochs"]] == [0, 1]
     assert set(metrics["epochs"][0]["val_rmse"]) == set(TARGET_NAMES)
-    assert set(metrics["epochs"][0]["val_r2"]) == {"edge_distances", "min_edge_distances", "centre_offset",
-                                                    "heading_angle", "curvature_ahead"}  # fmt: skip
+    assert set(metrics["epochs"][0]["val_r2"]) == {
+        "edge_distances",
+        "min_edge_distances",
+        "centre_offset",
+        "heading_angle",
+        "curvature_ahead",
+    }
     assert metrics["best"]["val_loss"] == min(e["val_loss"] for e in metrics["epochs"])
     assert metrics["units"]["centre_line_offset"] == "m"
     assert (out / "pred_vs_true.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -133,4 +148,3 @@ def test_train_repr_writes_run_and_resumes(tmp_path: Path) -> None:
     assert heard and all(0 < done <= total for done, total in heard)  # the progress callback hears the resumed epoch
     metrics = json.loads((out / "metrics.json").read_text())
     assert [e["epoch"] for e in metrics["epochs"]] == [0, 1, 2]  # history kept, one more epoch run
-

@@ -37,11 +37,23 @@ def write_tiny_encoder(path: Path, seed: int) -> Path:
     from vision_rl.phase1_repr import EncoderConfig, ReprNet, save_checkpoint
 
     torch.manual_seed(seed)
-    cfg = EncoderConfig(input_height_px=64, input_width_px=96, stem_channels=8, stage_channels=(16, 32),
-                        stage_blocks=(1, 1), stage_strides=(2, 2))  # fmt: skip
+    cfg = EncoderConfig(
+        input_height_px=64,
+        input_width_px=96,
+        stem_channels=8,
+        stage_channels=(16, 32),
+        stage_blocks=(1, 1),
+        stage_strides=(2, 2),
+    )
     net = ReprNet(cfg).eval()
-    return save_checkpoint(path, net, target_names=TARGET_NAMES, target_units=TARGET_UNITS,
-                           target_mean=np.zeros(27), target_std=np.ones(27))  # fmt: skip
+    return save_checkpoint(
+        path,
+        net,
+        target_names=TARGET_NAMES,
+        target_units=TARGET_UNITS,
+        target_mean=np.zeros(27),
+        target_std=np.ones(27),
+    )
 
 
 @pytest.fixture(scope="session")
@@ -54,9 +66,19 @@ def tiny_encoders(tmp_path_factory) -> tuple[Path, Path]:
 def tiny_train_config(track: str, out: Path, **kw):
     from vision_rl.phase2_rl.train import TrainPolicyConfig
 
-    base = dict(track=track, cars=2, steps=200, out=str(out), learning_starts=50, batch_size=32, buffer_size=5_000,
-                eval_every_steps=100, eval_laps=1, checkpoint_every_steps=100,
-                device="cpu")  # fmt: skip
+    base = dict(
+        track=track,
+        cars=2,
+        steps=200,
+        out=str(out),
+        learning_starts=50,
+        batch_size=32,
+        buffer_size=5_000,
+        eval_every_steps=100,
+        eval_laps=1,
+        checkpoint_every_steps=100,
+        device="cpu",
+    )
     return TrainPolicyConfig(**{**base, **kw})
 
 
@@ -69,8 +91,9 @@ def state_run(tmp_path_factory, small_track) -> tuple[Path, dict]:
     return out, train_policy(tiny_train_config(small_track, out))
 
 
-def script_held_out_laps(monkeypatch, mean_laps_s: list[float | list[float | None] | None],
-                         clean: bool = True) -> list[list[int]]:
+def script_held_out_laps(
+    monkeypatch, mean_laps_s: list[float | list[float | None] | None], clean: bool = True
+) -> list[list[int]]:
     """Make train-policy's held-out starts (``--select-starts``) lap in the scripted mean times, one per evaluation
     (None: no start finished), 0.1 s either side of the mean, or in a list of each start's lap (None: that start did
     not finish); finished laps are ``clean`` or not; the protocol's own starts are timed as they drive. Returns the
@@ -85,11 +108,20 @@ def script_held_out_laps(monkeypatch, mean_laps_s: list[float | list[float | Non
             self.seeds = seeds
 
         def summary(self) -> dict:
-            laps = self.mean_s if isinstance(self.mean_s, list) else [
-                None if self.mean_s is None else self.mean_s + (0.1 if i % 2 else -0.1) for i in range(len(self.seeds))]
-            return {"n_finished": sum(lap is not None for lap in laps),
-                    "seeds": [{"lap_time_s": lap, "finished": lap is not None, "clean": clean and lap is not None}
-                              for lap in laps]}  # fmt: skip
+            laps = (
+                self.mean_s
+                if isinstance(self.mean_s, list)
+                else [
+                    None if self.mean_s is None else self.mean_s + (0.1 if i % 2 else -0.1)
+                    for i in range(len(self.seeds))
+                ]
+            )
+            return {
+                "n_finished": sum(lap is not None for lap in laps),
+                "seeds": [
+                    {"lap_time_s": lap, "finished": lap is not None, "clean": clean and lap is not None} for lap in laps
+                ],
+            }
 
     def time_laps(driver, track, car, seeds, laps):
         seeds = list(seeds)

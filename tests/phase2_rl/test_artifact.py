@@ -24,16 +24,24 @@ from vision_rl.phase2_rl.artifact import (
 def _vision_spec(encoder_path, sha) -> PolicySpec:
     cfg = RacingConfig(track="technical", observation="vision", n_groups=3, image_hw_px=(64, 96))
     return PolicySpec(
-        observation="vision", racing_config=racing_config_to_dict(cfg),
-        obs_normalizer={"offset": [0.0] * 75, "scale": [1.0] * 75}, fingerprint={}, weights_sha256="",
+        observation="vision",
+        racing_config=racing_config_to_dict(cfg),
+        obs_normalizer={"offset": [0.0] * 75, "scale": [1.0] * 75},
+        fingerprint={},
+        weights_sha256="",
         encoder={"path": str(encoder_path), "sha256": sha, "rep_dim": 64, "input_hw_px": [64, 96]},
-    )  # fmt: skip
+    )
 
 
 def _state_spec(**kw) -> PolicySpec:
-    return PolicySpec(observation="state", racing_config=racing_config_to_dict(RacingConfig()),
-                      obs_normalizer={"offset": [0.0] * 38, "scale": [1.0] * 38}, fingerprint={}, weights_sha256="",
-                      **kw)  # fmt: skip
+    return PolicySpec(
+        observation="state",
+        racing_config=racing_config_to_dict(RacingConfig()),
+        obs_normalizer={"offset": [0.0] * 38, "scale": [1.0] * 38},
+        fingerprint={},
+        weights_sha256="",
+        **kw,
+    )
 
 
 def test_racing_config_round_trips_through_json():

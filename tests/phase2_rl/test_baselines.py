@@ -29,9 +29,23 @@ small_demos = test_demos.small_demos  # the recorded demonstrations fixture, sha
 
 
 def tiny_baseline_config(track: str, demos, out, **kw) -> TrainBaselineConfig:
-    base = dict(track=track, demos=str(demos), out=str(out), cars=2, steps=300, learning_starts=100, batch_size=32,
-                buffer_size=5_000, eval_every_steps=200, eval_laps=1, eval_time_limit_s=20.0,
-                checkpoint_every_steps=0, gail_disc_every_steps=100, bc_max_epochs=30, device="cpu")  # fmt: skip
+    base = dict(
+        track=track,
+        demos=str(demos),
+        out=str(out),
+        cars=2,
+        steps=300,
+        learning_starts=100,
+        batch_size=32,
+        buffer_size=5_000,
+        eval_every_steps=200,
+        eval_laps=1,
+        eval_time_limit_s=20.0,
+        checkpoint_every_steps=0,
+        gail_disc_every_steps=100,
+        bc_max_epochs=30,
+        device="cpu",
+    )
     return TrainBaselineConfig(**{**base, **kw})
 
 
@@ -43,8 +57,20 @@ def test_bc_recovers_a_known_linear_policy():
     actions = np.clip(obs @ weights, -0.95, 0.95).astype(np.float32)
     policy = sac_policy(96, [256, 256])
     idx = rng.permutation(3000)
-    fit = fit_bc(policy, obs, actions, idx[:2500], idx[2500:], learning_rate=1e-3, batch_size=128,
-                 max_updates=100_000, max_epochs=200, patience=10, min_improvement=0.01, seed=0)  # fmt: skip
+    fit = fit_bc(
+        policy,
+        obs,
+        actions,
+        idx[:2500],
+        idx[2500:],
+        learning_rate=1e-3,
+        batch_size=128,
+        max_updates=100_000,
+        max_epochs=200,
+        patience=10,
+        min_improvement=0.01,
+        seed=0,
+    )
     assert fit["stopped"].startswith("converged")
     fresh = rng.normal(size=(500, 96)).astype(np.float32)
     target = np.clip(fresh @ weights, -0.95, 0.95)
@@ -100,13 +126,23 @@ class _TinyTask(gym.Env):
 def test_the_gail_reward_pulls_the_learner_towards_the_expert():
     rng = np.random.default_rng(2)
     expert_obs = rng.uniform(-1, 1, size=(4000, 3)).astype(np.float32)
-    updater = GAILUpdater(expert_obs, _expert(expert_obs), batch=128, updates=5, learning_rate=1e-3, seed=0,
-                          hidden_units=(64, 64))  # fmt: skip
+    updater = GAILUpdater(
+        expert_obs, _expert(expert_obs), batch=128, updates=5, learning_rate=1e-3, seed=0, hidden_units=(64, 64)
+    )
     torch.manual_seed(0)
     torch.set_num_threads(1)
-    model = SAC("MlpPolicy", _TinyTask(), learning_starts=200, batch_size=64, gamma=0.0, learning_rate=3e-3,
-                replay_buffer_class=GAILReplayBuffer, policy_kwargs={"net_arch": [64, 64]}, seed=0,
-                device="cpu")  # fmt: skip
+    model = SAC(
+        "MlpPolicy",
+        _TinyTask(),
+        learning_starts=200,
+        batch_size=64,
+        gamma=0.0,
+        learning_rate=3e-3,
+        replay_buffer_class=GAILReplayBuffer,
+        policy_kwargs={"net_arch": [64, 64]},
+        seed=0,
+        device="cpu",
+    )
     model.replay_buffer.discriminator = updater.disc
     probe = rng.uniform(-1, 1, size=(500, 3)).astype(np.float32)
 
@@ -131,8 +167,10 @@ def test_the_gail_reward_pulls_the_learner_towards_the_expert():
 def tiny_runs(tmp_path_factory, small_track, small_demos):
     demos, _ = small_demos
     root = tmp_path_factory.mktemp("baselines")
-    results = {algo: train_baseline(tiny_baseline_config(small_track, demos, root / algo, algo=algo))
-               for algo in ("bc", "td3", "gail")}  # fmt: skip
+    results = {
+        algo: train_baseline(tiny_baseline_config(small_track, demos, root / algo, algo=algo))
+        for algo in ("bc", "td3", "gail")
+    }
     return root, results
 
 
@@ -183,15 +221,52 @@ def test_the_commands_record_train_quick_and_refuse_in_one_line(small_track, tmp
     from vision_rl.commands.main import main
 
     demos = tmp_path / "ai.npz"
-    assert main(["record-demos", "--track", small_track, "--laps", "0.2", "--cars", "1", "--out", str(demos),
-                 "--no-progress", "--json"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "record-demos",
+                "--track",
+                small_track,
+                "--laps",
+                "0.2",
+                "--cars",
+                "1",
+                "--out",
+                str(demos),
+                "--no-progress",
+                "--json",
+            ]
+        )
+        == 0
+    )
     assert json.loads(capsys.readouterr().out)["n_transitions"] > 0
     out = tmp_path / "td3"
-    assert main(["train-baseline", "--algo", "td3", "--quick", "--track", small_track, "--demos", str(demos),
-                 "--out", str(out), "--device", "cpu", "--no-progress", "--json"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "train-baseline",
+                "--algo",
+                "td3",
+                "--quick",
+                "--track",
+                small_track,
+                "--demos",
+                str(demos),
+                "--out",
+                str(out),
+                "--device",
+                "cpu",
+                "--no-progress",
+                "--json",
+            ]
+        )
+        == 0
+    )
     result = json.loads(capsys.readouterr().out)
     assert result["status"] == "done" and result["num_timesteps"] == 300 and result["settings"]["cars"] == 2
     assert main(["train-baseline", "--algo", "planet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["vision-rl train-baseline: error: --algo must be one of bc, gail, td3, sac, dreamer, got 'planet'; "
-                   "PlaNet's row is trained as its successor, --algo dreamer"]
+    assert err == [
+        "vision-rl train-baseline: error: --algo must be one of bc, gail, td3, sac, dreamer, got 'planet'; "
+        "PlaNet's row is trained as its successor, --algo dreamer"
+    ]

@@ -55,12 +55,22 @@ def test_the_vector_is_the_vision_vector_then_the_state_observation(small_track,
 
 
 @pytest.mark.skipif(bool(_REASON), reason=_REASON or "renderer available")
-def test_a_run_with_the_state_critic_drives_from_the_vision_vector_alone(small_track, tiny_encoders, tmp_path,
-                                                                        monkeypatch):  # fmt: skip
+def test_a_run_with_the_state_critic_drives_from_the_vision_vector_alone(
+    small_track, tiny_encoders, tmp_path, monkeypatch
+):
     out = tmp_path / "asym"
-    result = train_policy(tiny_train_config(small_track, out, encoder=str(tiny_encoders[0]), steps=120,
-                                            learning_starts=40, stats_steps=3, eval_every_steps=60,
-                                            critic_state=True))  # fmt: skip
+    result = train_policy(
+        tiny_train_config(
+            small_track,
+            out,
+            encoder=str(tiny_encoders[0]),
+            steps=120,
+            learning_starts=40,
+            stats_steps=3,
+            eval_every_steps=60,
+            critic_state=True,
+        )
+    )
     assert result["num_timesteps"] == 120
     spec = PolicySpec.read(out / "policy.json")
     assert spec.config.critic_state and spec.fingerprint["obs_dim"] == 75 + CRITIC_COLUMNS

@@ -139,16 +139,19 @@ def test_replay_stores_each_frame_once_and_next_is_the_following_row(tmp_path):
 def test_one_training_step_changes_the_weights(track, variant):
     torch.set_num_threads(1)
     agent = DDPGAgent(DDPGHyper(variant=variant), _env(track, frames=variant != "state-actor"), seed=0)
-    before = {name: [p.detach().clone() for p in getattr(agent, name).parameters()]
-              for name in ("actor", "critic", "actor_target", "critic_target")}  # fmt: skip
+    before = {
+        name: [p.detach().clone() for p in getattr(agent, name).parameters()]
+        for name in ("actor", "critic", "actor_target", "critic_target")
+    }
     stats = agent.update(_batch(32, np.random.default_rng(0)))
     assert np.isfinite(list(stats.values())).all() and agent.n_updates == 1
     for name in ("actor", "critic"):
         changed = [not torch.equal(a, b) for a, b in zip(before[name], getattr(agent, name).parameters(), strict=True)]
         assert all(changed), f"{name}: {changed.count(False)} tensors unchanged"
     # targets moved by tau of the way to the updated networks
-    for t0, t1, online in zip(before["critic_target"], agent.critic_target.parameters(), agent.critic.parameters(),
-                              strict=True):  # fmt: skip
+    for t0, t1, online in zip(
+        before["critic_target"], agent.critic_target.parameters(), agent.critic.parameters(), strict=True
+    ):
         torch.testing.assert_close(t1, t0 + 0.01 * (online.detach() - t0))
 
 
@@ -206,8 +209,9 @@ def test_train_ddpg_tiny_run_evaluates_saves_and_resumes(gl_available, track, tm
     assert resumed["n_updates"] == result["n_updates"] + 3  # updates go on at once on the restored buffer
     assert json.loads((out / "ddpg.json").read_text())["counters"]["num_steps"] == 30
 
-    timing = evaluate_ddpg(out, seeds=1, laps=1, time_limit_s=2.0, video=str(tmp_path / "best.mp4"),
-                           plot=str(tmp_path / "best.png"))  # fmt: skip
+    timing = evaluate_ddpg(
+        out, seeds=1, laps=1, time_limit_s=2.0, video=str(tmp_path / "best.mp4"), plot=str(tmp_path / "best.png")
+    )
     assert timing["n_seeds"] == 1 and timing["driver"]["variant"] == "asymmetric"
     import imageio.v2 as imageio
 
@@ -223,8 +227,27 @@ def test_train_ddpg_tiny_run_evaluates_saves_and_resumes(gl_available, track, tm
     from vision_rl.commands.main import main
 
     png = tmp_path / "reward.png"
-    assert main(["evaluate-ddpg", "--agent", str(out), "--seeds", "1", "--laps", "1", "--time-limit-s", "2",
-                 "--no-save", "--reward-plot", str(png), "--reward-laps", "2"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "evaluate-ddpg",
+                "--agent",
+                str(out),
+                "--seeds",
+                "1",
+                "--laps",
+                "1",
+                "--time-limit-s",
+                "2",
+                "--no-save",
+                "--reward-plot",
+                str(png),
+                "--reward-laps",
+                "2",
+            ]
+        )
+        == 0
+    )
     profile = json.loads(png.with_suffix(".json").read_text())
     assert png.stat().st_size > 1000 and [lap["lap"] for lap in profile["laps"]] == [1, 2]
 
@@ -245,9 +268,20 @@ def test_train_minutes_stop_a_run_and_a_resume_with_more_continues_it(track, tmp
     steps, and a resume with a larger budget trains on from where it stopped."""
     from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig, train_ddpg
 
-    base = dict(variant="state-actor", track=track, cars=2, steps=10**7, out=str(tmp_path / "run"), buffer_size=200,
-                learning_starts=8, batch_size=8, eval_every_steps=0, eval_seeds=0, checkpoint_every_steps=0,
-                train_minutes=0.02)  # fmt: skip
+    base = dict(
+        variant="state-actor",
+        track=track,
+        cars=2,
+        steps=10**7,
+        out=str(tmp_path / "run"),
+        buffer_size=200,
+        learning_starts=8,
+        batch_size=8,
+        eval_every_steps=0,
+        eval_seeds=0,
+        checkpoint_every_steps=0,
+        train_minutes=0.02,
+    )
     first = train_ddpg(TrainDDPGConfig(**base))
     assert first["stopped_by"] == "train_minutes" and 0 < first["num_steps"] < 10**7
     assert 1.2 <= first["train_time_s"] < 10.0

@@ -10,15 +10,22 @@ import pytest
 from vision_rl.phase2_rl.ddpg_compare import compare_runs, plot_comparison
 
 
-def hand_made_run(folder, variant: str, minutes: float, episodes: list[tuple[float, float, int]], track="Catalunya",
-         updates=600):  # fmt: skip
+def hand_made_run(
+    folder, variant: str, minutes: float, episodes: list[tuple[float, float, int]], track="Catalunya", updates=600
+):
     """A run folder whose episodes end at (training minute, distance m, laps)."""
     folder.mkdir()
-    sidecar = {"hyper": {"variant": variant}, "env": {"track": track, "car": "gt3"}, "seed": 1,
-               "counters": {"train_time_s": 60.0 * minutes, "num_steps": 1000, "n_updates": updates}}  # fmt: skip
+    sidecar = {
+        "hyper": {"variant": variant},
+        "env": {"track": track, "car": "gt3"},
+        "seed": 1,
+        "counters": {"train_time_s": 60.0 * minutes, "num_steps": 1000, "n_updates": updates},
+    }
     (folder / "ddpg.json").write_text(json.dumps(sidecar))
-    lines = [json.dumps({"train_time_s": 60.0 * m, "distance_m": d, "laps": laps, "return": d, "end": "crash 2"})
-             for m, d, laps in episodes]  # fmt: skip
+    lines = [
+        json.dumps({"train_time_s": 60.0 * m, "distance_m": d, "laps": laps, "return": d, "end": "crash 2"})
+        for m, d, laps in episodes
+    ]
     (folder / "episodes.jsonl").write_text("".join(line + "\n" for line in lines))
     return folder
 
@@ -41,4 +48,3 @@ def test_runs_are_cut_at_the_common_time_and_binned(tmp_path):
     assert ra["updates_per_s"] == pytest.approx(600 / 1800) and rs["updates_per_s"] == pytest.approx(1200 / 2400)
     png = plot_comparison(result, tmp_path / "fig.png")
     assert png.stat().st_size > 5000
-

@@ -23,9 +23,22 @@ def track(tmp_path_factory) -> str:
 
 
 def ddpg_config(track: str, out, **kw) -> TrainDDPGConfig:
-    base = dict(track=track, cars=2, steps=24, out=str(out), image_hw_px=HW, buffer_size=200, learning_starts=8,
-                batch_size=8, eval_every_steps=0, eval_seeds=0, checkpoint_every_steps=0, workers=1,
-                max_staleness=0, version_every_updates=2)  # fmt: skip
+    base = dict(
+        track=track,
+        cars=2,
+        steps=24,
+        out=str(out),
+        image_hw_px=HW,
+        buffer_size=200,
+        learning_starts=8,
+        batch_size=8,
+        eval_every_steps=0,
+        eval_seeds=0,
+        checkpoint_every_steps=0,
+        workers=1,
+        max_staleness=0,
+        version_every_updates=2,
+    )
     return TrainDDPGConfig(**{**base, **kw})
 
 

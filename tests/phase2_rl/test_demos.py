@@ -25,8 +25,9 @@ CAR = "tt_cup"
 def small_demos(tmp_path_factory, small_track):
     """Two laps of demonstrations on the small track: 2 cars, 20 s episodes (so several episodes per car)."""
     out = tmp_path_factory.mktemp("demos") / "ai.npz"
-    result = record_demos(RecordDemosConfig(track=small_track, car=CAR, laps=2.0, cars=2, episode_s=20.0, seed=3,
-                                            out=str(out)))  # fmt: skip
+    result = record_demos(
+        RecordDemosConfig(track=small_track, car=CAR, laps=2.0, cars=2, episode_s=20.0, seed=3, out=str(out))
+    )
     return out, result
 
 
@@ -59,8 +60,9 @@ def test_replaying_the_recorded_actions_reproduces_the_recorded_observations(sma
 
 def test_noise_goes_on_the_applied_action_and_the_label_stays_the_ais(small_track, tmp_path):
     out = tmp_path / "noisy.npz"
-    record_demos(RecordDemosConfig(track=small_track, car=CAR, laps=0.3, cars=1, episode_s=20.0, seed=5, noise=0.1,
-                                   out=str(out)))  # fmt: skip
+    record_demos(
+        RecordDemosConfig(track=small_track, car=CAR, laps=0.3, cars=1, episode_s=20.0, seed=5, noise=0.1, out=str(out))
+    )
     demos = load_demos(out, demo_fingerprint(small_track, CAR))
     jitter = (demos.actions - demos.expert_actions) / np.array([np.pi / 6, 1.0])
     assert 0.07 < jitter[:, 0].std() < 0.13 and 0.07 < jitter[:, 1].std() < 0.13  # clipping trims omega's a little

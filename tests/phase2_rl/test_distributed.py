@@ -22,8 +22,16 @@ from vision_rl.phase2_rl.train import PRESETS, _TrainingLoop, read_metrics, trai
 
 
 def _pacing(**kw) -> Pacing:
-    base = dict(workers=1, n_cars=2, gradient_steps=1, learning_starts=50, start_timesteps=0,
-                total_timesteps=400, version_every_updates=4, max_staleness=1)  # fmt: skip
+    base = dict(
+        workers=1,
+        n_cars=2,
+        gradient_steps=1,
+        learning_starts=50,
+        start_timesteps=0,
+        total_timesteps=400,
+        version_every_updates=4,
+        max_staleness=1,
+    )
     return Pacing(**{**base, **kw})
 
 
@@ -76,8 +84,9 @@ def test_synchronous_pacing_alternates():
 
 
 @pytest.mark.parametrize("label_weight", [0.0, 10.0])
-def test_a_samplers_transitions_reach_the_buffer_as_its_world_gives_them(ray_local, small_track, tmp_path,
-                                                                          label_weight):  # fmt: skip
+def test_a_samplers_transitions_reach_the_buffer_as_its_world_gives_them(
+    ray_local, small_track, tmp_path, label_weight
+):
     """One synchronous sampler: the replay buffer holds, in order, what a world of the same seed returns for the
     stored actions (observations, next observations with the last one of an episode where it ended, rewards,
     dones and time-limit flags; with --guide-label-weight the built-in AI's label of each state an action was
@@ -86,8 +95,9 @@ def test_a_samplers_transitions_reach_the_buffer_as_its_world_gives_them(ray_loc
     from vision_rl.phase2_rl.guide import LABEL_SKILL
 
     out = tmp_path / "run"
-    result = train_policy(tiny_train_config(small_track, out, workers=1, max_staleness=0, episode_s=3.0,
-                                            guide_label_weight=label_weight))  # fmt: skip
+    result = train_policy(
+        tiny_train_config(small_track, out, workers=1, max_staleness=0, episode_s=3.0, guide_label_weight=label_weight)
+    )
     assert result["num_timesteps"] == 200 and result["n_updates"] == (200 - 50) // 2
     sampling = result["sampling"]
     assert sampling["workers"] == 1 and sampling["samplers_lost"] == [] and sampling["max_staleness_seen"] == 0
@@ -95,8 +105,10 @@ def test_a_samplers_transitions_reach_the_buffer_as_its_world_gives_them(ray_loc
     spec = PolicySpec.read(out / "policy.json")
     assert spec.train_config["workers"] == 1 and spec.num_timesteps == 200
     with np.load(out / "replay_buffer.npz", allow_pickle=False) as data:
-        buffer = {name: data[name] for name in ("observations", "next_observations", "actions", "rewards", "dones",
-                                                "timeouts")}  # fmt: skip
+        buffer = {
+            name: data[name]
+            for name in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+        }
         assert ("ai_labels" in data) == (label_weight > 0)
         labels = data["ai_labels"] if label_weight > 0 else None
     assert buffer["observations"].shape == (100, 2, 38)
@@ -108,8 +120,9 @@ def test_a_samplers_transitions_reach_the_buffer_as_its_world_gives_them(ray_loc
     for k in range(100):
         np.testing.assert_array_equal(buffer["observations"][k], obs)
         if labels is not None:
-            np.testing.assert_array_equal(labels[k], (2.0 * (env.core.ai_actions() - low) / (high - low) - 1.0)
-                                          .astype(np.float32))  # fmt: skip
+            np.testing.assert_array_equal(
+                labels[k], (2.0 * (env.core.ai_actions() - low) / (high - low) - 1.0).astype(np.float32)
+            )
         action = low + 0.5 * (buffer["actions"][k].astype(np.float64) + 1.0) * (high - low)
         obs, rewards, dones, infos = env.step(action)
         expected = obs.copy()
@@ -118,8 +131,9 @@ def test_a_samplers_transitions_reach_the_buffer_as_its_world_gives_them(ray_loc
         np.testing.assert_array_equal(buffer["next_observations"][k], expected)
         np.testing.assert_array_equal(buffer["rewards"][k], rewards)
         np.testing.assert_array_equal(buffer["dones"][k], dones)
-        np.testing.assert_array_equal(buffer["timeouts"][k], [i["TimeLimit.truncated"] if d else False
-                                                              for i, d in zip(infos, dones, strict=True)])  # fmt: skip
+        np.testing.assert_array_equal(
+            buffer["timeouts"][k], [i["TimeLimit.truncated"] if d else False for i, d in zip(infos, dones, strict=True)]
+        )
     assert buffer["dones"].sum() == 2 * 3  # 3 s episodes: 30 steps, ended 3 times per car in 100 steps
     assert np.abs(buffer["actions"][:25]).max() <= 1.0 and buffer["actions"][:25].std() > 0.4  # random start steps
     assert load_policy(out).spec.num_timesteps == 200
@@ -129,8 +143,11 @@ def test_one_synchronous_worker_repeats_a_run_of_the_same_seed(ray_local, small_
     runs = []
     for name in ("a", "b"):
         out = tmp_path / name
-        train_policy(tiny_train_config(small_track, out, workers=1, max_staleness=0, eval_every_steps=0,
-                                       checkpoint_every_steps=0))  # fmt: skip
+        train_policy(
+            tiny_train_config(
+                small_track, out, workers=1, max_staleness=0, eval_every_steps=0, checkpoint_every_steps=0
+            )
+        )
         runs.append(out)
     a, b = (PolicySpec.read(out / "policy.json") for out in runs)
     with np.load(runs[0] / "replay_buffer.npz") as x, np.load(runs[1] / "replay_buffer.npz") as y:
@@ -141,9 +158,18 @@ def test_one_synchronous_worker_repeats_a_run_of_the_same_seed(ray_local, small_
 
 def test_staleness_stays_within_the_bound_with_two_workers(ray_local, small_track, tmp_path):
     """Many weight versions (one per 2 updates), two samplers: K = 1 is reached but never exceeded."""
-    result = train_policy(tiny_train_config(small_track, tmp_path / "run", workers=2, max_staleness=1,
-                                            version_every_updates=2, steps=300, eval_every_steps=0,
-                                            checkpoint_every_steps=0))  # fmt: skip
+    result = train_policy(
+        tiny_train_config(
+            small_track,
+            tmp_path / "run",
+            workers=2,
+            max_staleness=1,
+            version_every_updates=2,
+            steps=300,
+            eval_every_steps=0,
+            checkpoint_every_steps=0,
+        )
+    )
     sampling = result["sampling"]
     assert result["num_timesteps"] == 300 and result["n_updates"] == (300 - 50) // 2
     assert sampling["weight_versions"] == 125 // 2 and sampling["chunk_steps"] == 1
@@ -174,8 +200,7 @@ def test_ctrl_c_with_workers_saves_and_resume_restarts_the_samplers(ray_local, s
     assert single["num_timesteps"] == 340 and single["sampling"] is None
 
 
-def test_bench_sampling_reports_the_learner_against_its_standalone_rate(ray_local, small_track, tmp_path,
-                                                                        monkeypatch):  # fmt: skip
+def test_bench_sampling_reports_the_learner_against_its_standalone_rate(ray_local, small_track, tmp_path, monkeypatch):
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     result = bench_sampling(1, 1.0, 0, cars=2, track=small_track, prefill_transitions=400)
     assert not list(tmp_path.glob("SB3-*"))  # no empty SB3 logger folder left behind
@@ -192,17 +217,26 @@ def test_the_bench_learner_is_the_cpu_preset():
 
 
 @pytest.mark.parametrize("critic_state", [False, True])
-def test_vision_samplers_embed_frames_with_the_runs_encoder(ray_local, gl_available, tiny_encoders, small_track,
-                                                            tmp_path, critic_state):  # fmt: skip
+def test_vision_samplers_embed_frames_with_the_runs_encoder(
+    ray_local, gl_available, tiny_encoders, small_track, tmp_path, critic_state
+):
     """A vision run with a sampler actor: the sampler renders and embeds with the run's encoder and normalisation
     (and, for a state-reading critic, appends the state observation), so its observations match what the learner's
     own world gives at the same state (the first one after reset)."""
     from vision_rl.phase2_rl.train import _Run
 
     out = tmp_path / "run"
-    config = tiny_train_config(small_track, out, encoder=str(tiny_encoders[0]), workers=1, steps=100,
-                               eval_every_steps=0, checkpoint_every_steps=0, stats_steps=5,
-                               critic_state=critic_state)  # fmt: skip
+    config = tiny_train_config(
+        small_track,
+        out,
+        encoder=str(tiny_encoders[0]),
+        workers=1,
+        steps=100,
+        eval_every_steps=0,
+        checkpoint_every_steps=0,
+        stats_steps=5,
+        critic_state=critic_state,
+    )
     result = train_policy(config)
     assert result["observation"] == "vision" and result["num_timesteps"] == 100 and result["n_updates"] == 25
     with np.load(out / "replay_buffer.npz", allow_pickle=False) as data:
@@ -229,8 +263,11 @@ def test_train_overtaking_with_a_worker_ends_stage_one_at_its_criterion_and_samp
 
     monkeypatch.setattr(ot, "time_laps", lambda *a, **k: Timing())
     out = tmp_path / "run"
-    result = ot.train_overtaking(tiny_overtaking_config(small_track, out, agent="1", stage2_steps=40, eval_episodes=0,
-                                                        workers=1, max_staleness=0))  # fmt: skip
+    result = ot.train_overtaking(
+        tiny_overtaking_config(
+            small_track, out, agent="1", stage2_steps=40, eval_episodes=0, workers=1, max_staleness=0
+        )
+    )
     stage1, stage2 = result["stages"]
     # The criterion's False stops the samplers' session as it stops SB3's learn: at the evaluation's step.
     assert stage1["end_steps"] == 100 and stage1["criterion"]["met_at_steps"] == 100
@@ -245,8 +282,11 @@ def test_train_overtaking_refuses_bad_sampling_options_before_writing(small_trac
     from tests.phase2_rl.test_overtaking import tiny_overtaking_config
     from vision_rl.phase2_rl.overtaking import train_overtaking
 
-    for change, message in [({"workers": 0}, "--workers 0"), ({"address": "auto"}, "needs --workers"),
-                            ({"workers": 1, "max_staleness": -1}, "--max-staleness -1")]:  # fmt: skip
+    for change, message in [
+        ({"workers": 0}, "--workers 0"),
+        ({"address": "auto"}, "needs --workers"),
+        ({"workers": 1, "max_staleness": -1}, "--max-staleness -1"),
+    ]:
         with pytest.raises(ValueError, match=message):
             train_overtaking(tiny_overtaking_config(small_track, tmp_path / "run", **change))
         assert not (tmp_path / "run").exists()
@@ -265,8 +305,14 @@ def test_a_local_cluster_runs_its_samplers_at_the_learners_priority():
     """Ray's default is nice 15, where anything else on the machine takes a sampler's core first."""
     pytest.importorskip("ray", reason="Ray is not installed: pip install 'vision_rl[ray]'")
     env = {k: v for k, v in os.environ.items() if k not in ("RAY_worker_niceness", "RAY_ADDRESS")}
-    process = subprocess.Popen([sys.executable, "-c", _NICENESS], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               text=True, env=env, start_new_session=True)  # fmt: skip
+    process = subprocess.Popen(
+        [sys.executable, "-c", _NICENESS],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        start_new_session=True,
+    )
     try:
         stdout, stderr = process.communicate(timeout=180)
     except subprocess.TimeoutExpired:  # the cluster's processes too: they hold the pipes

@@ -17,9 +17,19 @@ from vision_rl.phase2_rl.baselines import BaselineError, load_baseline, train_ba
 from vision_rl.phase2_rl.dreamer import DreamerAgent, DreamerRecipe, SequenceReplay, lambda_returns
 
 small_demos = test_baselines.small_demos  # the recorded demonstrations fixture, shared
-TINY = DreamerRecipe(hidden_units=(32, 32), deter_units=32, stoch_units=4, batch_sequences=16, sequence_steps=8,
-                     imagine_steps=5, imagine_starts=64, free_nats=0.0, actor_lr=1e-3, value_lr=1e-3,
-                     explore_std=0.3)  # fmt: skip
+TINY = DreamerRecipe(
+    hidden_units=(32, 32),
+    deter_units=32,
+    stoch_units=4,
+    batch_sequences=16,
+    sequence_steps=8,
+    imagine_steps=5,
+    imagine_starts=64,
+    free_nats=0.0,
+    actor_lr=1e-3,
+    value_lr=1e-3,
+    explore_std=0.3,
+)
 
 
 def test_lambda_returns_match_hand_computed_values():
@@ -106,8 +116,9 @@ def test_the_world_model_learns_known_dynamics_and_the_actor_learns_through_imag
 def dreamer_run(tmp_path_factory, small_track, small_demos):
     demos, _ = small_demos
     out = tmp_path_factory.mktemp("dreamer") / "run"
-    cfg = test_baselines.tiny_baseline_config(small_track, demos, out, algo="dreamer", batch_size=4,
-                                              dreamer_sequence_steps=8, dreamer_train_every_steps=50)  # fmt: skip
+    cfg = test_baselines.tiny_baseline_config(
+        small_track, demos, out, algo="dreamer", batch_size=4, dreamer_sequence_steps=8, dreamer_train_every_steps=50
+    )
     return out, cfg, train_baseline(cfg)
 
 

@@ -59,8 +59,7 @@ def test_plot_and_video(small_track, tmp_path):
     if reason:
         pytest.skip(reason)
     pytest.importorskip("imageio_ffmpeg", reason="the mp4 writer needs imageio[ffmpeg]")
-    timing = time_laps(CentreLineFollower(), small_track, "hatchback", seeds=[0], laps=1, time_limit_s=3.0,
-                       record=True)  # fmt: skip
+    timing = time_laps(CentreLineFollower(), small_track, "hatchback", seeds=[0], laps=1, time_limit_s=3.0, record=True)
     mp4 = write_video(timing, 0, tmp_path / "drive.mp4", image_hw_px=(64, 96), map_size_px=40)
     assert mp4.stat().st_size > 1000 and mp4.read_bytes()[4:8] == b"ftyp"
     import imageio.v2 as imageio
@@ -126,13 +125,29 @@ def test_evaluate_sections_print_how_the_best_lap_drives_at_speed_beside_the_ai(
 
     out, _ = state_run
     result = evaluate_policy(out, laps=1, seeds=1, time_limit_s=3.0, write=False)
-    row = {"start_m": 0.0, "time_s": 3.5, "reference_time_s": 3.4, "loss_s": 0.1, "min_speed_kmh": 96.0,
-           "reference_min_speed_kmh": 99.0, "wall_contact_s": 0.0}  # fmt: skip
-    controls = {"fast_above_kmh": 127.7, "steps": 600, "full_throttle_share": 0.002, "range_end_share": 0.16,
-                "steer_sign_change_share": 0.36}  # fmt: skip
+    row = {
+        "start_m": 0.0,
+        "time_s": 3.5,
+        "reference_time_s": 3.4,
+        "loss_s": 0.1,
+        "min_speed_kmh": 96.0,
+        "reference_min_speed_kmh": 99.0,
+        "wall_contact_s": 0.0,
+    }
+    controls = {
+        "fast_above_kmh": 127.7,
+        "steps": 600,
+        "full_throttle_share": 0.002,
+        "range_end_share": 0.16,
+        "steer_sign_change_share": 0.36,
+    }
     reference = {**controls, "full_throttle_share": 0.87, "range_end_share": 0.0, "steer_sign_change_share": 0.03}
-    result["sections"] = {"section_m": 100.0, "reference": {"skill": 1.0, "lap_time_s": 128.655}, "rows": [row],
-                          "controls": {"lap": controls, "reference": reference}}  # fmt: skip
+    result["sections"] = {
+        "section_m": 100.0,
+        "reference": {"skill": 1.0, "lap_time_s": 128.655},
+        "rows": [row],
+        "controls": {"lap": controls, "reference": reference},
+    }
     assert format_timing(result)[-1] == (
         "above 128 km/h (the best lap / the AI's): full throttle 0% / 87% of the steps, the wheel at the end of its "
         "usable angle 16% / 0%, changing side 36% / 3%"

@@ -18,9 +18,17 @@ from vision_rl.phase2_rl.train import train_policy
 
 def _record(lap_s, finished=3, wall_s=0.2, car="hatchback", version=PROTOCOL_VERSION):
     best = None if lap_s is None else {"wall_contact_s": wall_s}
-    return {"best_lap_time_s": lap_s, "median_lap_time_s": lap_s, "n_finished": finished, "n_seeds": 3,
-            "best_lap": best, "clean": wall_s <= 0.5, "protocol": {"version": version}, "track_geometry_hash": "abc",
-            "car": car}  # fmt: skip
+    return {
+        "best_lap_time_s": lap_s,
+        "median_lap_time_s": lap_s,
+        "n_finished": finished,
+        "n_seeds": 3,
+        "best_lap": best,
+        "clean": wall_s <= 0.5,
+        "protocol": {"version": version},
+        "track_geometry_hash": "abc",
+        "car": car,
+    }
 
 
 def test_the_summary_of_hand_made_seeds():
@@ -44,8 +52,10 @@ def test_bad_seed_lists_are_refused(text):
     assert parse_seeds("2, 0,1") == (2, 0, 1)
 
 
-@pytest.mark.parametrize("change", [{"control_dt_s": 0.03}, {"steps": 0}, {"pedal_full_at": 2.0},
-                                    {"select_starts": 2, "eval_every_steps": 0}])
+@pytest.mark.parametrize(
+    "change",
+    [{"control_dt_s": 0.03}, {"steps": 0}, {"pedal_full_at": 2.0}, {"select_starts": 2, "eval_every_steps": 0}],
+)
 def test_a_bad_option_is_refused_before_the_experiment_folder_is_written(small_track, tmp_path, change):
     with pytest.raises(ValueError, match="--"):
         run_experiment(tiny_train_config(small_track, tmp_path / "unused", **change), (0,), tmp_path / "exp")
@@ -56,8 +66,9 @@ def test_the_same_training_seed_gives_the_same_transitions(small_track, tmp_path
     runs = {}
     for name, seed in (("a", 0), ("b", 0), ("c", 1)):
         out = tmp_path / name
-        train_policy(tiny_train_config(small_track, out, steps=120, eval_every_steps=0, checkpoint_every_steps=0,
-                                       seed=seed))  # fmt: skip
+        train_policy(
+            tiny_train_config(small_track, out, steps=120, eval_every_steps=0, checkpoint_every_steps=0, seed=seed)
+        )
         with np.load(out / "replay_buffer.npz") as data:
             runs[name] = {k: data[k] for k in ("observations", "actions", "rewards")}
     for key in runs["a"]:
@@ -105,8 +116,9 @@ def test_an_experiment_resumes_only_unfinished_seeds_and_refuses_another_recipe(
 def test_the_weights_held_out_starts_chose_are_summarised_beside_the_last(small_track, tmp_path, monkeypatch):
     # seed 0 keeps its 100-step weights; seed 1 never finishes its held-out starts clean and has none
     script_held_out_laps(monkeypatch, [29.0, 30.0, None, None])
-    cfg = tiny_train_config(small_track, tmp_path / "unused", steps=200, eval_every_steps=100, checkpoint_every_steps=0,
-                            select_starts=2)  # fmt: skip
+    cfg = tiny_train_config(
+        small_track, tmp_path / "unused", steps=200, eval_every_steps=100, checkpoint_every_steps=0, select_starts=2
+    )
     out = tmp_path / "exp"
     result = run_experiment(cfg, (0, 1), out, eval_seeds=2, name="tiny")
     chosen = result["selected"]
@@ -141,17 +153,20 @@ def test_an_experiment_without_periodic_evaluations_ends_with_its_summary_and_no
 def test_curves_over_seeds_and_the_time_to_beat_the_ai(tmp_path):
     from vision_rl.phase2_rl.experiment import compare_learning_curves, summarise_curves, time_to_beat
 
-    per_seed = {"0": {"num_timesteps": [100, 200, 300], "train_time_s": [10.0, 20.0, 30.0],
-                      "lap_time_s": [None, 140.0, 130.0]},
-                "1": {"num_timesteps": [100, 200, 300], "train_time_s": [12.0, 22.0, 34.0],
-                      "lap_time_s": [None, None, 132.0]}}  # fmt: skip
+    per_seed = {
+        "0": {"num_timesteps": [100, 200, 300], "train_time_s": [10.0, 20.0, 30.0], "lap_time_s": [None, 140.0, 130.0]},
+        "1": {"num_timesteps": [100, 200, 300], "train_time_s": [12.0, 22.0, 34.0], "lap_time_s": [None, None, 132.0]},
+    }
     curves = {"per_seed": per_seed, **summarise_curves(per_seed)}
     assert curves["seeds_finished"] == ["0/2", "1/2", "2/2"] and curves["mean_lap_time_s"] == [None, 140.0, 131.0]
     assert curves["std_lap_time_s"][2] == pytest.approx(np.sqrt(2.0)) and curves["mean_train_time_s"][2] == 32.0
     # At 200 steps one seed's 140 s beats 141 s, but the other did not finish: the first full beat is at 300.
     # the paper's epoch is 20 trials of 100 s: 20,000 steps of 0.1 s
-    assert time_to_beat(curves, 141.0) == {"num_timesteps": 300, "epochs": pytest.approx(300 / 20_000),
-                                           "train_time_s": 32.0}
+    assert time_to_beat(curves, 141.0) == {
+        "num_timesteps": 300,
+        "epochs": pytest.approx(300 / 20_000),
+        "train_time_s": 32.0,
+    }
     # of 0.04 s steps it takes 50,000
     assert summarise_curves(per_seed, control_dt_s=0.04)["epochs"] == pytest.approx([0.002, 0.004, 0.006])
     assert time_to_beat(curves, 130.0) is None
@@ -187,13 +202,22 @@ def test_seeds_side_by_side_learn_what_they_learn_one_after_another(small_track,
     cfg = tiny_train_config(small_track, tmp_path / "unused", steps=120, eval_every_steps=0, checkpoint_every_steps=0)
     steps_seen = []
     alone = run_experiment(cfg, (0, 1), tmp_path / "alone", eval_seeds=1, name="tiny")
-    together = run_experiment(cfg, (0, 1), tmp_path / "together", eval_seeds=1, name="tiny", seeds_at_once=2,
-                              progress=lambda done, total: steps_seen.append((done, total)))  # fmt: skip
+    together = run_experiment(
+        cfg,
+        (0, 1),
+        tmp_path / "together",
+        eval_seeds=1,
+        name="tiny",
+        seeds_at_once=2,
+        progress=lambda done, total: steps_seen.append((done, total)),
+    )
     assert together["seeds_at_once"] == 2 and steps_seen[-1] == (240, 240)
     assert together["per_seed"] == alone["per_seed"]
     for seed in (0, 1):
-        with np.load(tmp_path / "alone" / f"seed-{seed}" / "replay_buffer.npz") as a, \
-                np.load(tmp_path / "together" / f"seed-{seed}" / "replay_buffer.npz") as b:  # fmt: skip
+        with (
+            np.load(tmp_path / "alone" / f"seed-{seed}" / "replay_buffer.npz") as a,
+            np.load(tmp_path / "together" / f"seed-{seed}" / "replay_buffer.npz") as b,
+        ):
             for key in ("observations", "actions", "rewards"):
                 np.testing.assert_array_equal(a[key], b[key])
 

@@ -15,8 +15,9 @@ def test_guided_transitions_enter_the_buffer_as_the_learner_would_store_them(sma
     from vision_rl.phase2_rl.guide import add_guided_transitions
 
     torch.set_num_threads(1)
-    venv = make_sb3_vec_env(RacingConfig(track=small_track, n_groups=4, steer_action="rate_scaled", episode_s=5.0),
-                            seed=0)  # fmt: skip
+    venv = make_sb3_vec_env(
+        RacingConfig(track=small_track, n_groups=4, steer_action="rate_scaled", episode_s=5.0), seed=0
+    )
     model = SAC("MlpPolicy", venv, buffer_size=1_000, device="cpu")
     added = add_guided_transitions(model, venv, 250)
     buffer = model.replay_buffer
@@ -96,9 +97,16 @@ def test_pretraining_fits_the_actor_to_the_ais_actions_before_sac_updates(small_
     train_module._Run.build = measured_build
     try:
         for steps in (0, 1_000):
-            cfg = tiny_train_config(small_track, tmp_path / f"run{steps}", steps=60, learning_starts=50,
-                                    guide_steps=400, guide_bc_weight=1e-9, guide_pretrain_steps=steps,
-                                    eval_every_steps=0)  # fmt: skip
+            cfg = tiny_train_config(
+                small_track,
+                tmp_path / f"run{steps}",
+                steps=60,
+                learning_starts=50,
+                guide_steps=400,
+                guide_bc_weight=1e-9,
+                guide_pretrain_steps=steps,
+                eval_every_steps=0,
+            )
             train_module.train_policy(cfg)
     finally:
         train_module._Run.build = build
@@ -140,10 +148,12 @@ def test_label_cloning_stores_a_label_per_transition_and_pulls_the_actor_to_them
     from vision_rl.phase2_rl.guide import guided_sac_class, start_labels
 
     torch.set_num_threads(1)
-    venv = make_sb3_vec_env(RacingConfig(track=small_track, n_groups=4, steer_action="rate_scaled", episode_s=5.0),
-                            seed=0)  # fmt: skip
-    model = guided_sac_class()("MlpPolicy", venv, buffer_size=1_000, learning_starts=1_000, learning_rate=1e-3,
-                               device="cpu", seed=0)  # fmt: skip
+    venv = make_sb3_vec_env(
+        RacingConfig(track=small_track, n_groups=4, steer_action="rate_scaled", episode_s=5.0), seed=0
+    )
+    model = guided_sac_class()(
+        "MlpPolicy", venv, buffer_size=1_000, learning_starts=1_000, learning_rate=1e-3, device="cpu", seed=0
+    )
     model.set_logger(configure(None, [""]))
     start_labels(model, venv, weight=1.0)
     model.learn(total_timesteps=240)  # random actions only (learning starts later): 60 vector steps, 5 s episodes
@@ -153,8 +163,9 @@ def test_label_cloning_stores_a_label_per_transition_and_pulls_the_actor_to_them
     assert np.abs(labels).max() <= 1.0 and labels[..., 1].mean() > 0.3  # scaled; the AI mostly drives on
     # Each label is the AI's answer to the state the transition starts from, not the one it ends in: a fresh
     # environment put in the first stored state answers with the first stored label.
-    fresh = make_sb3_vec_env(RacingConfig(track=small_track, n_groups=4, steer_action="rate_scaled", episode_s=5.0),
-                             seed=0)  # fmt: skip
+    fresh = make_sb3_vec_env(
+        RacingConfig(track=small_track, n_groups=4, steer_action="rate_scaled", episode_s=5.0), seed=0
+    )
     fresh.reset()
     fresh.core.label_with_ai(1.0)
     np.testing.assert_allclose(model.policy.scale_action(fresh.core.ai_actions()), labels[0], rtol=1e-5, atol=1e-6)
@@ -238,13 +249,11 @@ def test_label_cloning_trains_saves_its_labels_and_resumes(small_track, tmp_path
     from vision_rl.phase2_rl.artifact import BUFFER_NAME
     from vision_rl.phase2_rl.train import train_policy
 
-    result = train_policy(tiny_train_config(small_track, tmp_path / "run", guide_label_weight=10.0,
-                                            eval_every_steps=0))  # fmt: skip
+    result = train_policy(tiny_train_config(small_track, tmp_path / "run", guide_label_weight=10.0, eval_every_steps=0))
     assert result["num_timesteps"] >= 200
     with np.load(tmp_path / "run" / BUFFER_NAME) as saved:  # every transition labelled, and saved with them
         assert np.isfinite(saved["ai_labels"]).all() and len(saved["ai_labels"]) == 100
-    resumed = train_policy(tiny_train_config(small_track, tmp_path / "run", steps=260, resume=True,
-                                             eval_every_steps=0))  # fmt: skip
+    resumed = train_policy(tiny_train_config(small_track, tmp_path / "run", steps=260, resume=True, eval_every_steps=0))
     assert resumed["buffer_restored"] == 100 and resumed["num_timesteps"] >= 260
 
 
@@ -280,5 +289,6 @@ def test_shaping_the_labels_without_labels_is_refused(small_track, tmp_path):
         with pytest.raises(ValueError, match=f"^{option} shapes the labels' cloning: give --guide-label-weight too$"):
             train_policy(tiny_train_config(small_track, tmp_path / "run", **shaping))
     with pytest.raises(ValueError, match="--guide-label-fade-steps -1 is out of range"):
-        train_policy(tiny_train_config(small_track, tmp_path / "run", guide_label_weight=1.0,
-                                       guide_label_fade_steps=-1))  # fmt: skip
+        train_policy(
+            tiny_train_config(small_track, tmp_path / "run", guide_label_weight=1.0, guide_label_fade_steps=-1)
+        )

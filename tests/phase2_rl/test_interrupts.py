@@ -41,8 +41,17 @@ def python_sigint():
 
 def _sac() -> SAC:
     env = make_vec_env(lambda: gym.make("Pendulum-v1"), n_envs=2, seed=0)
-    return SAC("MlpPolicy", env, learning_starts=10, batch_size=8, train_freq=(4, "step"), gradient_steps=1,
-               policy_kwargs={"net_arch": [8]}, seed=0, device="cpu")  # fmt: skip
+    return SAC(
+        "MlpPolicy",
+        env,
+        learning_starts=10,
+        batch_size=8,
+        train_freq=(4, "step"),
+        gradient_steps=1,
+        policy_kwargs={"net_arch": [8]},
+        seed=0,
+        device="cpu",
+    )
 
 
 def test_plain_learn_stops_with_the_counter_ahead_of_the_buffer():

@@ -26,10 +26,25 @@ from vision_rl.phase2_rl.overtaking import (
 
 
 def tiny_overtaking_config(track: str, out: Path, **kw) -> TrainOvertakingConfig:
-    base = dict(track=track, cars=2, out=str(out), stage1_max_steps=200, stage2_steps=100, stage3_steps=100,
-                standard_steps=400, learning_starts=50, batch_size=32, buffer_size=5_000, eval_every_steps=100,
-                eval_laps=1, eval_time_limit_s=40.0, eval_episodes=2, eval_episode_s=5.0,
-                checkpoint_every_steps=0, device="cpu")  # fmt: skip
+    base = dict(
+        track=track,
+        cars=2,
+        out=str(out),
+        stage1_max_steps=200,
+        stage2_steps=100,
+        stage3_steps=100,
+        standard_steps=400,
+        learning_starts=50,
+        batch_size=32,
+        buffer_size=5_000,
+        eval_every_steps=100,
+        eval_laps=1,
+        eval_time_limit_s=40.0,
+        eval_episodes=2,
+        eval_episode_s=5.0,
+        checkpoint_every_steps=0,
+        device="cpu",
+    )
     return TrainOvertakingConfig(**{**base, **kw})
 
 
@@ -61,7 +76,11 @@ def test_agents_share_stages_one_and_two_and_record_their_boundaries(curriculum)
     spec = load_overtaking_policy(out / "stage2").spec
     cfg = spec.config
     assert (cfg.scenario, cfg.wall_penalty_c_w, cfg.car_penalty_c_c, cfg.observation) == (
-        "stage2", 0.005, 0.005, "overtaking")  # fmt: skip
+        "stage2",
+        0.005,
+        0.005,
+        "overtaking",
+    )
     core = RacingCore(cfg, seed=3)
     core.reset_groups(np.arange(cfg.n_groups))
     np.testing.assert_allclose(core.start_gap_m, 200.0, atol=1e-6)
@@ -122,8 +141,9 @@ def test_stage_one_ends_at_the_lap_time_criterion(small_track, tmp_path, monkeyp
             return {"best_lap_time_s": 30.0, "n_finished": 1}
 
     monkeypatch.setattr(ot, "time_laps", lambda *a, **k: Timing())
-    result = train_overtaking(tiny_overtaking_config(small_track, tmp_path / "run", agent="1", stage2_steps=20,
-                                                     eval_episodes=0))  # fmt: skip
+    result = train_overtaking(
+        tiny_overtaking_config(small_track, tmp_path / "run", agent="1", stage2_steps=20, eval_episodes=0)
+    )
     stage1 = result["stages"][0]
     assert stage1["end_steps"] == 100 < 200 and stage1["criterion"]["met_at_steps"] == 100
     assert result["stages"][1]["start_steps"] == 100
@@ -160,8 +180,10 @@ def test_the_policy_drives_the_protocol_and_the_curve_spans_the_stages(curriculu
     steps = [r["num_timesteps"] for r in curve["records"]]
     assert steps == [100, 200, 300, 400] and all(r["overtaking_return"] is not None for r in curve["records"])
     assert [r["stage"] for r in curve["records"]] == ["stage1", "stage1", "stage2", "agent3-stage3"]
-    assert curve["stage_switches"] == [{"stage": "stage2", "num_timesteps": 200},
-                                       {"stage": "agent3-stage3", "num_timesteps": 300}]  # fmt: skip
+    assert curve["stage_switches"] == [
+        {"stage": "stage2", "num_timesteps": 200},
+        {"stage": "agent3-stage3", "num_timesteps": 300},
+    ]
 
 
 def test_evaluate_times_an_overtaking_policy_like_any_other(curriculum):
@@ -187,8 +209,8 @@ def test_a_c_r_ablation_starts_from_another_runs_stage_one(curriculum, small_tra
     again = train_overtaking(cfg)  # continued like any run folder: nothing left to do
     assert again["trained_now"] == [] and again["done"]
     with pytest.raises(ot.OvertakingRunError, match="its seed is 0, not 1"):
-        train_overtaking(tiny_overtaking_config(small_track, tmp_path / "seed1", agent="1", seed=1,
-                                                stage1_from=str(out)))  # fmt: skip
+        train_overtaking(
+            tiny_overtaking_config(small_track, tmp_path / "seed1", agent="1", seed=1, stage1_from=str(out))
+        )
     with pytest.raises(ot.OvertakingRunError, match=r"no run\.json there"):
-        train_overtaking(tiny_overtaking_config(small_track, tmp_path / "none", agent="1",
-                                                stage1_from=str(tmp_path)))  # fmt: skip
+        train_overtaking(tiny_overtaking_config(small_track, tmp_path / "none", agent="1", stage1_from=str(tmp_path)))

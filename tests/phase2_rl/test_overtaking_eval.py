@@ -78,17 +78,32 @@ def test_the_built_in_ai_follows_and_the_outputs_are_written(small_track, tmp_pa
     assert trace.x_m.shape == (151, 6) and np.all(trace.gap_m > 0.0) and overtake_moments(trace) == []
     assert trace.wall_contact_s[-1] == runs[0]["wall_contact_s"] and trace.car_contact_s[-1] == 0.0
     assert np.sum(np.hypot(np.diff(trace.x_m[:, 0]), np.diff(trace.y_m[:, 0]))) == pytest.approx(
-        runs[0]["travel_distance_m"], rel=0.01)  # fmt: skip
+        runs[0]["travel_distance_m"], rel=0.01
+    )
     assert runs[0]["wall_contact_s"] == 0.0 and runs[0]["travel_distance_m"] > 300.0
-    result = {"setting": "A", "separation_m": 50.0, "track_name": "stadium", "car": "tt_cup",
-              "drivers": [{"name": "built-in AI", "reference": True, "runs": runs, "summary": summarise_runs(runs)}]}
+    result = {
+        "setting": "A",
+        "separation_m": 50.0,
+        "track_name": "stadium",
+        "car": "tt_cup",
+        "drivers": [{"name": "built-in AI", "reference": True, "runs": runs, "summary": summarise_runs(runs)}],
+    }
     files = write_setting_outputs(result, tmp_path)
     assert Path(files["png"]).stat().st_size > 1000 and json.loads(Path(files["json"]).read_text()) == result
 
 
 def test_summary_mean_spread_best():
-    runs = [{"travel_time_s": t, "travel_distance_m": 100.0 * t, "car_contact_s": c, "wall_contact_s": 0.0,
-             "overtaken": o, "all_overtaken": o == 5} for t, c, o in ((10.0, 1.0, 5), (20.0, 0.0, 3))]  # fmt: skip
+    runs = [
+        {
+            "travel_time_s": t,
+            "travel_distance_m": 100.0 * t,
+            "car_contact_s": c,
+            "wall_contact_s": 0.0,
+            "overtaken": o,
+            "all_overtaken": o == 5,
+        }
+        for t, c, o in ((10.0, 1.0, 5), (20.0, 0.0, 3))
+    ]
     s = summarise_runs(runs)
     assert s["travel_time_s"] == {"mean": 15.0, "std": 5.0, "best": 10.0}
     assert s["car_contact_s"]["best"] == 0.0 and s["all_overtaken_runs"] == 1
@@ -101,13 +116,20 @@ def test_summary_mean_spread_best():
 
 def _fake_run(root: Path, seed: int, switch: int) -> Path:
     """A run folder with stage-1/2 and standard metrics: returns rise by 1 per 100 steps (curriculum from 10)."""
-    for name, start, end, base in (("stage1", 0, switch, 10.0), ("stage2", switch, 600, 10.0),
-                                   ("standard", 0, 600, 0.0)):  # fmt: skip
+    for name, start, end, base in (
+        ("stage1", 0, switch, 10.0),
+        ("stage2", switch, 600, 10.0),
+        ("standard", 0, 600, 0.0),
+    ):
         folder = root / f"s{seed}" / name
         folder.mkdir(parents=True)
         (folder / "stage.json").write_text(json.dumps({"start_steps": start, "end_steps": end}))
-        lines = [json.dumps({"stage": name, "num_timesteps": n, "train_time_s": n / 10,
-                             "overtaking_return": base + n / 100 + seed}) for n in range(start + 100, end + 1, 100)]
+        lines = [
+            json.dumps(
+                {"stage": name, "num_timesteps": n, "train_time_s": n / 10, "overtaking_return": base + n / 100 + seed}
+            )
+            for n in range(start + 100, end + 1, 100)
+        ]
         (folder / "metrics.jsonl").write_text("\n".join(lines) + "\n")
     return root / f"s{seed}"
 
@@ -134,8 +156,11 @@ def test_a_seed_still_training_counts_only_where_every_seed_has_a_point(tmp_path
     runs = [_fake_run(tmp_path, 0, 200), _fake_run(tmp_path, 2, 300)]
     for name in ("stage2", "standard"):  # seed 2 has trained to 400 steps only
         metrics = runs[1] / name / "metrics.jsonl"
-        metrics.write_text("".join(line + "\n" for line in metrics.read_text().splitlines()
-                                   if json.loads(line)["num_timesteps"] <= 400))  # fmt: skip
+        metrics.write_text(
+            "".join(
+                line + "\n" for line in metrics.read_text().splitlines() if json.loads(line)["num_timesteps"] <= 400
+            )
+        )
     result = learning_curves(runs, "1")
     assert result["standard"]["n_seeds"] == [2, 2, 2, 2, 1, 1] and not result["complete"]
     # Standard SAC's mean at 400 (both seeds: 4 and 6), not at 600 where only seed 0 is: 5.0.
@@ -158,18 +183,30 @@ def test_passes_that_stood_contacts_and_the_fastest_run():
     gaps[:, 0] = [5, 3, 1, -1, -2, 1, -1, -3, -4, -5]  # passed at sample 3, re-passed, passed again at 6
     gaps[:, 2] = -8.0  # behind the agent from the start
     t = np.arange(10) * TRACE_DT_S
-    trace = RunTrace(t, np.zeros((10, 6)), np.zeros((10, 6)), np.zeros((10, 6)), np.full(10, 25.0), gaps,
-                     np.array([0, 0, 0.02, 0.04, 0.04, 0.04, 0.06, 0.06, 0.06, 0.06]), np.zeros(10))  # fmt: skip
+    trace = RunTrace(
+        t,
+        np.zeros((10, 6)),
+        np.zeros((10, 6)),
+        np.zeros((10, 6)),
+        np.full(10, 25.0),
+        gaps,
+        np.array([0, 0, 0.02, 0.04, 0.04, 0.04, 0.06, 0.06, 0.06, 0.06]),
+        np.zeros(10),
+    )
     moments = overtake_moments(trace)
     assert [(m["opponent"], m["sample"]) for m in moments] == [(3, 0), (1, 6)]
     assert [m["approach_sample"] for m in moments] == [0, 6]  # never 10 m ahead: the pass itself
     assert moments[1]["time_s"] == pytest.approx(0.6) and moments[1]["speed_kmh"] == pytest.approx(90.0)
-    assert contact_intervals(t, trace.car_contact_s) == [(pytest.approx(0.1), pytest.approx(0.3)),
-                                                         (pytest.approx(0.5), pytest.approx(0.6))]  # fmt: skip
+    assert contact_intervals(t, trace.car_contact_s) == [
+        (pytest.approx(0.1), pytest.approx(0.3)),
+        (pytest.approx(0.5), pytest.approx(0.6)),
+    ]
     assert contact_intervals(t, trace.wall_contact_s) == []
-    runs = [{"all_overtaken": False, "overtaken": 4, "travel_time_s": 50.0},
-            {"all_overtaken": True, "overtaken": 5, "travel_time_s": 90.0},
-            {"all_overtaken": True, "overtaken": 5, "travel_time_s": 80.0}]  # fmt: skip
+    runs = [
+        {"all_overtaken": False, "overtaken": 4, "travel_time_s": 50.0},
+        {"all_overtaken": True, "overtaken": 5, "travel_time_s": 90.0},
+        {"all_overtaken": True, "overtaken": 5, "travel_time_s": 80.0},
+    ]
     assert fastest_run(runs) == 2 and fastest_run(runs[:1]) == 0
 
 
@@ -177,10 +214,15 @@ def test_analysis_figures_and_the_driver_view_at_each_pass(small_track, tmp_path
     track = load_track(small_track)
     gaps = np.tile(np.arange(1, 6) * 10.0, (40, 1)) - 5.0 * np.arange(40)[:, None]  # one pass each 0.2 s
     trace = _trace(track, gaps, np.zeros(40))
-    record = {"name": "agent", "run": {"run": 0, "seed": 0, "overtaken": 5, "travel_time_s": 3.9,
-              "car_contact_s": 0.0, "wall_contact_s": 0.0}, "time_s": trace.time_s.tolist(),
-              "overtaken": np.sum(gaps < 0, axis=1).tolist(), "moments": overtake_moments(trace),
-              "car_contacts": [], "wall_contacts": [(1.0, 1.2)]}  # fmt: skip
+    record = {
+        "name": "agent",
+        "run": {"run": 0, "seed": 0, "overtaken": 5, "travel_time_s": 3.9, "car_contact_s": 0.0, "wall_contact_s": 0.0},
+        "time_s": trace.time_s.tolist(),
+        "overtaken": np.sum(gaps < 0, axis=1).tolist(),
+        "moments": overtake_moments(trace),
+        "car_contacts": [],
+        "wall_contacts": [(1.0, 1.2)],
+    }
     analysis = {"setting": "A", "track_name": track.name, "car": "tt_cup", "agent": record, "reference": record}
     files = write_analysis_outputs(analysis, trace, track, tmp_path)
     assert [m["opponent"] for m in record["moments"]] == [1, 2, 3, 4, 5]

@@ -32,8 +32,9 @@ from vision_rl.sim.vehicle import get_preset
 
 def test_pipeline_tiny(small_track, tiny_encoders, tmp_path):
     encoder = "" if renderer_available() else str(tiny_encoders[0])  # vision needs the renderer
-    summary = pipeline_phase2(encoder, SIZES["tiny"], mode="tiny", track=small_track, runs=str(tmp_path / "runs"),
-                              device="cpu")  # fmt: skip
+    summary = pipeline_phase2(
+        encoder, SIZES["tiny"], mode="tiny", track=small_track, runs=str(tmp_path / "runs"), device="cpu"
+    )
     assert summary["mode"] == "tiny"
     assert summary["state"]["num_timesteps"] == 200 and summary["state"]["n_seeds"] == 1
     assert (tmp_path / "runs" / "policy" / "pipeline-state" / "evaluation.json").is_file()
@@ -46,14 +47,18 @@ def test_pipeline_tiny(small_track, tiny_encoders, tmp_path):
         assert vision["policy"] == str(run / "policy.pt") and (run / "evaluation.json").is_file()
         # The vision run alone takes the entropy target, the falling rate, the stuck ends, the steering penalty and
         # the critic that reads the state.
-        specs = {k: PolicySpec.read(tmp_path / "runs" / "policy" / f"pipeline-{k}" / SIDECAR_NAME)
-                 for k in ("state", "vision")}  # fmt: skip
+        specs = {
+            k: PolicySpec.read(tmp_path / "runs" / "policy" / f"pipeline-{k}" / SIDECAR_NAME)
+            for k in ("state", "vision")
+        }
         sac = {k: spec.sac for k, spec in specs.items()}
         assert (sac["vision"]["target_entropy"], sac["vision"]["learning_rate_final"]) == (-4.0, 1e-4)
         assert (sac["state"]["target_entropy"], sac["state"]["learning_rate_final"]) == (0.0, 0.0)
         assert specs["vision"].config.terminate_when_stuck and not specs["state"].config.terminate_when_stuck
-        penalty = {k: (spec.config.steer_change_penalty_c_s, spec.config.steer_change_penalty_scale)
-                   for k, spec in specs.items()}  # fmt: skip
+        penalty = {
+            k: (spec.config.steer_change_penalty_c_s, spec.config.steer_change_penalty_scale)
+            for k, spec in specs.items()
+        }
         assert penalty["vision"] == (0.5, "usable") and penalty["state"][0] == 0.0
         assert specs["vision"].config.critic_state and specs["vision"].fingerprint["obs_dim"] == 64 + 11 + 38
     else:
@@ -65,8 +70,9 @@ def test_pipeline_vision_policy_samples_in_a_sampler_process(ray_local, small_tr
     if reason:
         pytest.skip(reason)
     sizes = dataclasses.replace(SIZES["tiny"], vision_workers=1)
-    summary = pipeline_phase2(str(tiny_encoders[0]), sizes, mode="tiny", track=small_track,
-                              runs=str(tmp_path / "runs"), device="cpu")  # fmt: skip
+    summary = pipeline_phase2(
+        str(tiny_encoders[0]), sizes, mode="tiny", track=small_track, runs=str(tmp_path / "runs"), device="cpu"
+    )
     vision, state = summary["vision"], summary["state"]
     assert vision["num_timesteps"] == 120 and vision["n_seeds"] == 1
     assert vision["sampling"]["workers"] == 1 and vision["sampling"]["samplers_alive"] == 1
@@ -153,21 +159,39 @@ def test_the_state_policy_trains_from_the_start_beside_the_captures(monkeypatch,
         return {"state": state()}
 
     monkeypatch.setattr(pipeline, "state_in_second_process", state_process)
-    monkeypatch.setattr(pipeline, "_in_second_process", lambda fn, *args, **kw: contextlib.nullcontext(
-        lambda: fn(*args)))  # fmt: skip
+    monkeypatch.setattr(
+        pipeline, "_in_second_process", lambda fn, *args, **kw: contextlib.nullcontext(lambda: fn(*args))
+    )
     monkeypatch.setattr(pipeline, "_capture", capture)
-    monkeypatch.setattr(pipeline, "_capture_state_policy",
-                        lambda opts, sizes: capture(opts, sizes, "state_policy", opts.state_policy_laps, False))
+    monkeypatch.setattr(
+        pipeline,
+        "_capture_state_policy",
+        lambda opts, sizes: capture(opts, sizes, "state_policy", opts.state_policy_laps, False),
+    )
     monkeypatch.setattr(phase1, "train_repr", lambda cfg: events.append(f"train-repr on {cfg.data}") or {})
     monkeypatch.setattr(pipeline, "pipeline_phase2", phase2)
     summary = run_pipeline_stages(PipelineOptions(tiny=True, runs=str(tmp_path), state_policy_laps=state_policy_laps))
     captures = tmp_path / "capture"
     if state_policy_laps:
-        assert events == ["state starts", "capture train disrupted", "capture eval", "state waited for",
-                          "capture state_policy", f"train-repr on {captures / 'train.h5'},{captures}/state_policy.h5",
-                          "phase 2", "state stopped"]  # fmt: skip
+        assert events == [
+            "state starts",
+            "capture train disrupted",
+            "capture eval",
+            "state waited for",
+            "capture state_policy",
+            f"train-repr on {captures / 'train.h5'},{captures}/state_policy.h5",
+            "phase 2",
+            "state stopped",
+        ]
         assert summary["state_policy_capture"]["path"] == str(captures / "state_policy.h5")
     else:
-        assert events == ["state starts", "capture train disrupted", "capture eval",
-                          f"train-repr on {captures / 'train.h5'}", "phase 2", "state waited for", "state stopped"]
+        assert events == [
+            "state starts",
+            "capture train disrupted",
+            "capture eval",
+            f"train-repr on {captures / 'train.h5'}",
+            "phase 2",
+            "state waited for",
+            "state stopped",
+        ]
     assert summary["phase2"]["state"] == {"num_timesteps": 200}

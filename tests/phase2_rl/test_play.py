@@ -38,17 +38,22 @@ def test_gamepad_axes_map_to_steer_and_omega():
     np.testing.assert_allclose(gamepad_command(-0.5, -1.0, 1.0, 5.0), [0.5 * ACTION_STEER_LIMIT_RAD, -1.0])
 
 
-def test_scripted_keys_drive_forward_time_the_run_and_record_valid_demonstrations(
-    gl_available, monkeypatch, tmp_path
-):
+def test_scripted_keys_drive_forward_time_the_run_and_record_valid_demonstrations(gl_available, monkeypatch, tmp_path):
     from vision_rl.evaluation.leaderboard import find_evaluations
     from vision_rl.phase2_rl.demos import demo_fingerprint, load_demos
 
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
     pygame.init()
     script = iter([[pygame.event.Event(pygame.KEYDOWN, key=pygame.K_UP)]])  # throttle held from the first step
-    cfg = PlayConfig(name="tester", track="technical", laps=1, time_limit_s=6.0, realtime=False,
-                     window_hw_px=(64, 96), runs=str(tmp_path / "runs"))  # fmt: skip
+    cfg = PlayConfig(
+        name="tester",
+        track="technical",
+        laps=1,
+        time_limit_s=6.0,
+        realtime=False,
+        window_hw_px=(64, 96),
+        runs=str(tmp_path / "runs"),
+    )
     result = play(cfg, events=lambda: next(script, []))
 
     demos = load_demos(result["demos"], demo_fingerprint("technical", "hatchback"))
@@ -75,8 +80,15 @@ def test_recorded_actions_replayed_in_the_environment_give_the_recorded_observat
     pygame.init()
     keys = [pygame.K_UP, pygame.K_LEFT]
     script = iter([[pygame.event.Event(pygame.KEYDOWN, key=k) for k in keys]])
-    cfg = PlayConfig(name="replay", track="technical", laps=1, time_limit_s=2.0, realtime=False,
-                     window_hw_px=(64, 96), runs=str(tmp_path / "runs"))  # fmt: skip
+    cfg = PlayConfig(
+        name="replay",
+        track="technical",
+        laps=1,
+        time_limit_s=2.0,
+        realtime=False,
+        window_hw_px=(64, 96),
+        runs=str(tmp_path / "runs"),
+    )
     demos = load_demos(play(cfg, events=lambda: next(script, []))["demos"])
     assert demos.actions[5, 0] > 0.0  # steering left
 
@@ -103,13 +115,22 @@ def test_a_person_through_setting_a_is_a_reference_row_of_the_evaluation(gl_avai
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
     pygame.init()
     brake = [pygame.event.Event(pygame.KEYDOWN, key=pygame.K_DOWN)]  # held through both runs
-    cfg = PlayConfig(name="tester", track="expressway", car="tt_cup", setting="A", time_limit_s=20.0, realtime=False,
-                     window_hw_px=(64, 96), runs=str(tmp_path / "runs"))  # fmt: skip
+    cfg = PlayConfig(
+        name="tester",
+        track="expressway",
+        car="tt_cup",
+        setting="A",
+        time_limit_s=20.0,
+        realtime=False,
+        window_hw_px=(64, 96),
+        runs=str(tmp_path / "runs"),
+    )
     result = play(cfg, events=lambda: brake)
     assert [(r["run"], r["seed"]) for r in result["runs"]] == [(0, 0), (1, 1)] and not result["quit"]
     assert all(r["overtaken"] == 0 and r["end"].startswith("stuck") for r in result["runs"])  # stopped behind
-    evaluation = evaluate_overtaking([], "A", runs=2, time_limit_s=20.0, reference=False,
-                                     humans=[result["setting_json"]])  # fmt: skip
+    evaluation = evaluate_overtaking(
+        [], "A", runs=2, time_limit_s=20.0, reference=False, humans=[result["setting_json"]]
+    )
     (row,) = evaluation["drivers"]
     assert row["name"] == "human (tester)" and row["reference"] and row["runs"] == result["runs"]
     with pytest.raises(SettingError, match="setting A on expressway with the tt_cup, not setting B"):

@@ -26,8 +26,15 @@ def test_driver_observations_equal_the_environments_with_a_frame_delay(gl_availa
     core.reset_groups(np.arange(2))
     seen = []
     actions = np.array([[0.2, 1.0], [-0.2, 0.8]])
-    driver = PolicyDriver(lambda obs: seen.append(obs.copy()) or actions, "vision", None, _MeanColour(),
-                          cfg.image_hw_px, cfg.control_dt_s, frame_delay_s=cfg.frame_delay_s)  # fmt: skip
+    driver = PolicyDriver(
+        lambda obs: seen.append(obs.copy()) or actions,
+        "vision",
+        None,
+        _MeanColour(),
+        cfg.image_hw_px,
+        cfg.control_dt_s,
+        frame_delay_s=cfg.frame_delay_s,
+    )
     driver.reset(core.world, core.ego_ids)
     env_obs = [core.observation()]
     for _ in range(4):
@@ -40,15 +47,26 @@ def test_driver_observations_equal_the_environments_with_a_frame_delay(gl_availa
     core.observer.close()
 
 
-
 def test_a_driver_for_a_config_observes_and_steers_as_that_environment():
     # Regression: train-policy's periodic evaluation once built its driver without the frame delay and the steering
     # action of the run's environment, so its learning curves timed another policy than the one saved.
-    cfg = RacingConfig(track="technical", observation="vision", image_hw_px=(24, 40), control_dt_s=0.2,
-                       frame_delay_s=0.1, steer_action="speed_scaled", pedal_full_at=0.9)  # fmt: skip
+    cfg = RacingConfig(
+        track="technical",
+        observation="vision",
+        image_hw_px=(24, 40),
+        control_dt_s=0.2,
+        frame_delay_s=0.1,
+        steer_action="speed_scaled",
+        pedal_full_at=0.9,
+    )
     driver = PolicyDriver.for_config(lambda obs: obs, "vision", None, _MeanColour(), cfg)
-    assert (driver.image_hw_px, driver.control_dt_s, driver.frame_delay_s, driver.steer_action,
-            driver.pedal_full_at) == ((24, 40), 0.2, 0.1, "speed_scaled", 0.9)  # fmt: skip
+    assert (
+        driver.image_hw_px,
+        driver.control_dt_s,
+        driver.frame_delay_s,
+        driver.steer_action,
+        driver.pedal_full_at,
+    ) == ((24, 40), 0.2, 0.1, "speed_scaled", 0.9)
 
 
 def test_a_start_drives_the_same_beside_any_number_of_others(gl_available, tiny_encoders):
@@ -57,8 +75,14 @@ def test_a_start_drives_the_same_beside_any_number_of_others(gl_available, tiny_
     # renders, embeds and acts in batches of 3, so 7 starts drive as the runs of starts 0-2, 3-5 and 6-8.
     encoder = load_encoder(tiny_encoders[0])
     torch.manual_seed(0)
-    actor = torch.nn.Sequential(torch.nn.Linear(encoder.rep_dim + 11, 256), torch.nn.ReLU(), torch.nn.Linear(256, 256),
-                                torch.nn.ReLU(), torch.nn.Linear(256, 2), torch.nn.Tanh())  # fmt: skip
+    actor = torch.nn.Sequential(
+        torch.nn.Linear(encoder.rep_dim + 11, 256),
+        torch.nn.ReLU(),
+        torch.nn.Linear(256, 256),
+        torch.nn.ReLU(),
+        torch.nn.Linear(256, 2),
+        torch.nn.Tanh(),
+    )
 
     def predict(obs):
         with torch.no_grad():

@@ -25,8 +25,9 @@ def bc_run(tmp_path_factory, small_track, small_demos):
 
 
 def test_the_table_times_the_ai_and_the_runs_beside_the_paper(bc_run, small_track):
-    result = table3(Table3Config(runs=str(bc_run), track=small_track, car="tt_cup", seeds=1, laps=1,
-                                 demonstrator=False))  # fmt: skip
+    result = table3(
+        Table3Config(runs=str(bc_run), track=small_track, car="tt_cup", seeds=1, laps=1, demonstrator=False)
+    )
     rows = {row["key"]: row for row in result["rows"]}
     assert list(rows) == ["ai", "bc", "gail", "sac", "td3", "planet"]
     ai_lap = time_laps(BuiltinAI(), small_track, "tt_cup", seeds=[0], laps=1).summary()["best_lap"]
@@ -49,8 +50,21 @@ def test_the_table_times_the_ai_and_the_runs_beside_the_paper(bc_run, small_trac
 
 def test_found_runs_of_another_track_are_skipped_with_the_reason(bc_run, tmp_path, small_track, capsys):
     # The default is every run under --runs-root; the bc run is of the small track, so on expressway it is skipped.
-    code = main(["table3", "--runs-root", str(bc_run.parent), "--seeds", "1", "--laps", "1", "--no-demonstrator",
-                 "--time-limit-s", "1", "--json"])  # fmt: skip
+    code = main(
+        [
+            "table3",
+            "--runs-root",
+            str(bc_run.parent),
+            "--seeds",
+            "1",
+            "--laps",
+            "1",
+            "--no-demonstrator",
+            "--time-limit-s",
+            "1",
+            "--json",
+        ]
+    )
     assert code == 0
     result = json.loads(capsys.readouterr().out)
     assert result["skipped"][0]["run"] == str(bc_run) and "not 'expressway'" in result["skipped"][0]["reason"]

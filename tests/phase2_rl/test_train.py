@@ -33,8 +33,11 @@ def test_train_writes_a_policy_that_evaluate_loads(state_run, small_track):
     assert spec.config == RacingConfig(track=small_track, n_groups=2)
     assert len(spec.obs_normalizer["offset"]) == len(STATE_OBS_NAMES) == 38
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == [
-        "policy_100.json", "policy_100.pt", "policy_200.json", "policy_200.pt"
-    ]  # fmt: skip
+        "policy_100.json",
+        "policy_100.pt",
+        "policy_200.json",
+        "policy_200.pt",
+    ]
     assert (out / "replay_buffer.npz").is_file() and any((out / "tensorboard").iterdir())
     metrics = read_metrics(out / "metrics.jsonl")
     assert [m["num_timesteps"] for m in metrics] == [100, 200]
@@ -106,8 +109,7 @@ def test_existing_run_and_missing_run_are_refused(state_run, tmp_path):
     assert (out / "policy.pt").is_file()  # a bad option with --force left the run alone
 
 
-def test_light_checkpoints_on_time_survive_a_crash_and_resume_refills_the_buffer(small_track, tmp_path,
-                                                                                 monkeypatch):
+def test_light_checkpoints_on_time_survive_a_crash_and_resume_refills_the_buffer(small_track, tmp_path, monkeypatch):
     """A crash that saves nothing (as a SIGKILL) after light checkpoints: the weights of the last one remain, with
     no buffer, and resume collects fresh random transitions before it updates again."""
     original = _TrainingLoop._on_step
@@ -119,8 +121,9 @@ def test_light_checkpoints_on_time_survive_a_crash_and_resume_refills_the_buffer
 
     monkeypatch.setattr(_TrainingLoop, "_on_step", crash)
     out = tmp_path / "run"
-    config = tiny_train_config(small_track, out, eval_every_steps=0, checkpoint_every_steps=0,
-                               checkpoint_every_min=1e-9)  # fmt: skip
+    config = tiny_train_config(
+        small_track, out, eval_every_steps=0, checkpoint_every_steps=0, checkpoint_every_min=1e-9
+    )
     with pytest.raises(SystemExit):
         train_policy(config)
     assert PolicySpec.read(out / "policy.json").num_timesteps == 148  # the last step before the crash
@@ -134,14 +137,22 @@ def test_light_checkpoints_on_time_survive_a_crash_and_resume_refills_the_buffer
 
 def test_presets_and_overrides():
     paper = PRESETS["paper"]
-    assert (paper.hidden_units, paper.batch_size, paper.buffer_size, paper.learning_starts) == ((256, 256), 4096,
-                                                                                                1_000_000, 40_000)
+    assert (paper.hidden_units, paper.batch_size, paper.buffer_size, paper.learning_starts) == (
+        (256, 256),
+        4096,
+        1_000_000,
+        40_000,
+    )
     assert (paper.learning_rate, paper.gamma) == (1e-3, 0.99)
     cpu = resolve_preset(TrainPolicyConfig(preset="cpu"))
     assert cpu == PRESETS["cpu"] and cpu.torch_threads == 1
     custom = resolve_preset(TrainPolicyConfig(preset="paper", batch_size=64, learning_starts=0, learning_rate=3e-4))
-    assert (custom.batch_size, custom.learning_starts, custom.learning_rate, custom.buffer_size) == (64, 0, 3e-4,
-                                                                                                  1_000_000)
+    assert (custom.batch_size, custom.learning_starts, custom.learning_rate, custom.buffer_size) == (
+        64,
+        0,
+        3e-4,
+        1_000_000,
+    )
 
 
 def test_the_learning_rate_falls_linearly_to_its_final_value_over_the_run(small_track, state_run, tmp_path):
@@ -167,8 +178,10 @@ def test_the_entropy_target_is_sacs_and_a_resumed_run_keeps_its_own(small_track,
     assert PolicySpec.read(state_run[0] / "policy.json").sac["target_entropy"] == 0.0  # SB3's auto: -2
     out = tmp_path / "low"
     train_policy(tiny_train_config(small_track, out, steps=100, target_entropy=-6.0))
-    for cfg in (tiny_train_config(small_track, out, steps=200, resume=True),  # the run's -6, not the default's
-                tiny_train_config(small_track, tmp_path / "auto", steps=100)):
+    for cfg in (
+        tiny_train_config(small_track, out, steps=200, resume=True),  # the run's -6, not the default's
+        tiny_train_config(small_track, tmp_path / "auto", steps=100),
+    ):
         run = _Run(cfg)
         try:
             assert run.build().target_entropy == (-6.0 if cfg.resume else -2.0)
@@ -215,8 +228,9 @@ def test_n_step_returns_sum_the_rewards_before_the_critics_bootstrap(small_track
         for reward in (1.0, 2.0, 3.0, 4.0):
             buffer.add(obs, obs, action, np.full(buffer.n_envs, reward), no_end, [{}] * buffer.n_envs)
         batch = buffer._get_samples(np.array([0, 1]))
-        np.testing.assert_allclose(batch.rewards.numpy().ravel(), [1 + 2 * gamma + 3 * gamma**2,
-                                                                   2 + 3 * gamma + 4 * gamma**2], rtol=1e-6)
+        np.testing.assert_allclose(
+            batch.rewards.numpy().ravel(), [1 + 2 * gamma + 3 * gamma**2, 2 + 3 * gamma + 4 * gamma**2], rtol=1e-6
+        )
         np.testing.assert_allclose(batch.discounts.numpy().ravel(), gamma**3, rtol=1e-6)
     finally:
         run.close()
@@ -224,8 +238,9 @@ def test_n_step_returns_sum_the_rewards_before_the_critics_bootstrap(small_track
         train_policy(tiny_train_config(small_track, tmp_path / "w2", n_step=3, workers=2))
 
 
-def test_held_out_starts_keep_the_fastest_clean_weights_and_a_resumed_run_goes_on_from_them(small_track, tmp_path,
-                                                                                          monkeypatch):
+def test_held_out_starts_keep_the_fastest_clean_weights_and_a_resumed_run_goes_on_from_them(
+    small_track, tmp_path, monkeypatch
+):
     asked = script_held_out_laps(monkeypatch, [None, 30.0, 29.0, 29.5, 29.2, 28.0])
     out = tmp_path / "run"
     cfg = tiny_train_config(small_track, out, steps=400, select_starts=2, checkpoint_every_steps=0)
@@ -254,9 +269,9 @@ def test_held_out_starts_keep_the_fastest_clean_weights_and_a_resumed_run_goes_o
         train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), select_starts=-1))
 
 
-def test_without_select_clean_held_out_starts_keep_the_fastest_weights_that_finished_every_start(small_track,
-                                                                                                  tmp_path,
-                                                                                                  monkeypatch):
+def test_without_select_clean_held_out_starts_keep_the_fastest_weights_that_finished_every_start(
+    small_track, tmp_path, monkeypatch
+):
     # Laps with wall contact: the default (clean) keeps nothing; --no-select-clean keeps the fastest weights whose
     # starts all finished, never those that lost one start however fast the others were.
     script_held_out_laps(monkeypatch, [30.0, [27.0, None], 29.0, 29.5], clean=False)
@@ -278,14 +293,23 @@ def test_without_select_clean_held_out_starts_keep_the_fastest_weights_that_fini
 
 def test_read_metrics_drops_the_evaluations_a_resume_replaced(tmp_path):
     # killed after the 300-step evaluation, resumed from the 200-step checkpoint: the first 300 is another policy's
-    lines = [{"num_timesteps": 100, "lap_time_s": 99.0}, {"num_timesteps": 200, "lap_time_s": 98.0},
-             {"event": "sampler_lost", "num_timesteps": 250}, {"num_timesteps": 300, "lap_time_s": 90.0},
-             {"num_timesteps": 300, "lap_time_s": 97.0}, {"num_timesteps": 400, "lap_time_s": 96.0}]  # fmt: skip
+    lines = [
+        {"num_timesteps": 100, "lap_time_s": 99.0},
+        {"num_timesteps": 200, "lap_time_s": 98.0},
+        {"event": "sampler_lost", "num_timesteps": 250},
+        {"num_timesteps": 300, "lap_time_s": 90.0},
+        {"num_timesteps": 300, "lap_time_s": 97.0},
+        {"num_timesteps": 400, "lap_time_s": 96.0},
+    ]
     path = tmp_path / "metrics.jsonl"
     path.write_text("".join(json.dumps(r) + "\n" for r in lines) + '{"num_timesteps": 5')  # a torn last line
     records = read_metrics(path)
-    assert [(r["num_timesteps"], r["lap_time_s"]) for r in records] == [(100, 99.0), (200, 98.0), (300, 97.0),
-                                                                        (400, 96.0)]  # fmt: skip
+    assert [(r["num_timesteps"], r["lap_time_s"]) for r in records] == [
+        (100, 99.0),
+        (200, 98.0),
+        (300, 97.0),
+        (400, 96.0),
+    ]
     assert [r.get("event") for r in read_metrics(path, events=True)] == [None, None, "sampler_lost", None, None]
 
 
@@ -295,9 +319,14 @@ def test_stuck_ends_episode_and_the_steering_penalty_scale_reach_the_training_en
 ):
     from vision_rl.phase2_rl.train import _Run
 
-    config = tiny_train_config(small_track, tmp_path / "run", stuck_ends_episode=stuck_ends_episode,
-                               steer_change_penalty_scale=scale, restart_before_stuck_share=restart_share,
-                               restart_before_stuck_m=150.0)  # fmt: skip
+    config = tiny_train_config(
+        small_track,
+        tmp_path / "run",
+        stuck_ends_episode=stuck_ends_episode,
+        steer_change_penalty_scale=scale,
+        restart_before_stuck_share=restart_share,
+        restart_before_stuck_m=150.0,
+    )
     run = _Run(config)
     assert run.racing.terminate_when_stuck is stuck_ends_episode
     assert run.racing.steer_change_penalty_scale == scale

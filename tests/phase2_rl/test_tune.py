@@ -40,8 +40,10 @@ def test_a_tiny_study_scores_its_trials_and_resumes(small_track, tmp_path):
     assert [t["last_reported_step"] for t in first["trials"]] == [200, 200]
     for t in first["trials"]:
         low, high = SEARCH_SPACE["learning_rate"].values
-        assert low <= t["params"]["learning_rate"] <= high and t["params"]["steer_action"] in SEARCH_SPACE[
-            "steer_action"].values  # fmt: skip
+        assert (
+            low <= t["params"]["learning_rate"] <= high
+            and t["params"]["steer_action"] in SEARCH_SPACE["steer_action"].values
+        )
         evaluation = json.loads((tmp_path / "s" / f"trial-{t['number']}" / "evaluation.json").read_text())
         laps = [s["lap_time_s"] for s in evaluation["seeds"]]
         assert t["score_s"] == pytest.approx(score(laps, [0.0], evaluation["limit_lap_time_s"]))

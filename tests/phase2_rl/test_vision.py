@@ -51,8 +51,11 @@ def test_the_observer_embeds_frames_inside_the_vector_env_terminal_frames_includ
 def test_vision_policy_records_its_encoder_and_refuses_another(small_track, tiny_encoders, tmp_path):
     enc_a, enc_b = tiny_encoders
     out = tmp_path / "vision"
-    result = train_policy(tiny_train_config(small_track, out, encoder=str(enc_a), steps=120, learning_starts=40,
-                                            stats_steps=3, eval_every_steps=60))  # fmt: skip
+    result = train_policy(
+        tiny_train_config(
+            small_track, out, encoder=str(enc_a), steps=120, learning_starts=40, stats_steps=3, eval_every_steps=60
+        )
+    )
     assert result["observation"] == "vision" and result["num_timesteps"] == 120
     spec = PolicySpec.read(out / "policy.json")
     assert spec.encoder["sha256"] == checkpoint_sha256(enc_a) and spec.encoder["input_hw_px"] == [64, 96]

@@ -352,12 +352,21 @@ def test_curvature_ahead_in_time(stadium_caster, circle_caster) -> None:
 # ---------------------------------------------------------------------------------------------------- dedicated
 def test_dedicated_features_copy_fields() -> None:
     state = SimpleNamespace(
-        x_m=np.array([9.0, 9.0]), y_m=np.array([9.0, 9.0]), yaw_rad=np.array([9.0, 9.0]),
-        vx_mps=np.array([30.0, -1.0]), vy_mps=np.array([-0.5, 0.2]), yaw_rate_radps=np.array([0.3, -0.4]),
-        steer_rad=np.array([9.0, 9.0]), omega=np.array([9.0, 9.0]), ax_mps2=np.array([2.0, -8.0]),
-        ay_mps2=np.array([-3.0, 4.0]), roll_rad=np.array([9.0, 9.0]), pitch_rad=np.array([9.0, 9.0]),
-        roll_rate_radps=np.array([0.01, -0.02]), pitch_rate_radps=np.array([-0.03, 0.04]),
-    )  # fmt: skip
+        x_m=np.array([9.0, 9.0]),
+        y_m=np.array([9.0, 9.0]),
+        yaw_rad=np.array([9.0, 9.0]),
+        vx_mps=np.array([30.0, -1.0]),
+        vy_mps=np.array([-0.5, 0.2]),
+        yaw_rate_radps=np.array([0.3, -0.4]),
+        steer_rad=np.array([9.0, 9.0]),
+        omega=np.array([9.0, 9.0]),
+        ax_mps2=np.array([2.0, -8.0]),
+        ay_mps2=np.array([-3.0, 4.0]),
+        roll_rad=np.array([9.0, 9.0]),
+        pitch_rad=np.array([9.0, 9.0]),
+        roll_rate_radps=np.array([0.01, -0.02]),
+        pitch_rate_radps=np.array([-0.03, 0.04]),
+    )
     f = dedicated_features(state, np.array([False, True]), np.array([0.1, -0.2]))
     expected = [
         [30.0, -0.5, 0.0, 2.0, -3.0, 0.0, 0.01, -0.03, 0.3, 0.0, 0.1],

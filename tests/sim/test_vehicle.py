@@ -169,8 +169,14 @@ def test_bad_tyre_params_are_rejected():
 
 
 def test_magic_formula_peak_and_cornering_stiffness():
-    tyre = TyreParams(stiffness_b_per_rad=10.0, shape_c=1.9, curvature_e=0.97, peak_mu=1.0, load_sensitivity=-0.1,
-                      nominal_load_n=4000.0)  # fmt: skip
+    tyre = TyreParams(
+        stiffness_b_per_rad=10.0,
+        shape_c=1.9,
+        curvature_e=0.97,
+        peak_mu=1.0,
+        load_sensitivity=-0.1,
+        nominal_load_n=4000.0,
+    )
     b, c, e = tyre.stiffness_b_per_rad, tyre.shape_c, tyre.curvature_e
     peak = tyre.peak_slip_angle_rad
     assert 0.15 < peak < 0.21  # the dry-tarmac curve peaks near 10 deg

@@ -83,10 +83,23 @@ REQUIRED_ATTRS: tuple[str, ...] = ("track_name", "track_geometry_hash", "car_pre
 #: ``fingerprint`` (those the file has; a video capture has no ``cars`` or ``disrupted``, one the AI drove no
 #: ``driver``, an undisrupted one no ``disrupt_steer_offset_rad``).
 FINGERPRINT_KEYS: tuple[str, ...] = (
-    "source", "track_name", "track_geometry_hash", "car_preset", "cars", "fps", "disrupted", "disrupt_steer_offset_rad",
-    "seed", "image_height", "image_width", "renderer_settings", "target_names", "dedicated_names", "package_version",
+    "source",
+    "track_name",
+    "track_geometry_hash",
+    "car_preset",
+    "cars",
+    "fps",
+    "disrupted",
+    "disrupt_steer_offset_rad",
+    "seed",
+    "image_height",
+    "image_width",
+    "renderer_settings",
+    "target_names",
+    "dedicated_names",
+    "package_version",
     "driver",
-)  # fmt: skip
+)
 
 #: Fingerprint fields a resumed file must share with the writer reopening it, or the frames would not belong
 #: together. The package version may differ (a resumed run records the version that finished it).
@@ -438,14 +451,21 @@ class CaptureWriter:
             elif compression == "zstd":
                 comp = dict(hdf5plugin.Zstd(clevel=_ZSTD_LEVEL))
             h, w = self.image_hw_px
-            f.create_dataset("images", shape=(0, h, w, 3), maxshape=(None, h, w, 3), dtype=np.uint8,
-                             chunks=(1, h, w, 3), **comp)  # fmt: skip
+            f.create_dataset(
+                "images", shape=(0, h, w, 3), maxshape=(None, h, w, 3), dtype=np.uint8, chunks=(1, h, w, 3), **comp
+            )
             tables = {**_FRAME_DATASETS, "image_crc32": (np.dtype(np.uint32), ())}
             for name, (dtype, tail) in tables.items():
                 if tail is None:
                     tail = (len(self.target_names) if name == "targets" else len(self.dedicated_names),)
-                f.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail), dtype=dtype,
-                                 chunks=(_ROW_CHUNK, *tail), fletcher32=True)  # fmt: skip
+                f.create_dataset(
+                    name,
+                    shape=(0, *tail),
+                    maxshape=(None, *tail),
+                    dtype=dtype,
+                    chunks=(_ROW_CHUNK, *tail),
+                    fletcher32=True,
+                )
             f["targets"].attrs["names"] = file_attrs["target_names"]
             f["targets"].attrs["units"] = file_attrs["target_units"]
             f["dedicated"].attrs["names"] = file_attrs["dedicated_names"]
@@ -726,8 +746,10 @@ class CaptureFile:
         self._crc: np.ndarray | None = None
         self._crc_of = str(attrs.get("image_crc32_of", "frame"))
         if self._crc_of == "chunk" and self._decode is None:
-            raise CaptureFormatError(f"{path}: image checksums cover zstd/deflate chunks but the images are stored "
-                                     "otherwise (a rewritten file?)")  # fmt: skip
+            raise CaptureFormatError(
+                f"{path}: image checksums cover zstd/deflate chunks but the images are stored "
+                "otherwise (a rewritten file?)"
+            )
         self._pool: ThreadPoolExecutor | None = None
         self._pool_threads = 0
 
@@ -949,9 +971,18 @@ def _validate(path: Path, f: h5py.File) -> tuple[dict[str, Any], int]:
 
     attrs = _decode_attrs(f.attrs)
     needed = (
-        "format_version", "target_names", "target_units", "dedicated_names", "dedicated_units", "image_height",
-        "image_width", "complete", "n_frames", "package_version", *REQUIRED_ATTRS,
-    )  # fmt: skip
+        "format_version",
+        "target_names",
+        "target_units",
+        "dedicated_names",
+        "dedicated_units",
+        "image_height",
+        "image_width",
+        "complete",
+        "n_frames",
+        "package_version",
+        *REQUIRED_ATTRS,
+    )
     missing = [k for k in needed if k not in attrs]
     if missing:
         raise fail(f"missing attributes {missing}")
@@ -976,9 +1007,10 @@ def _validate(path: Path, f: h5py.File) -> tuple[dict[str, Any], int]:
         **{name: tail for name, (_, tail) in _FRAME_DATASETS.items() if tail is not None},
     }
     expected_dtype = {
-        "images": np.dtype(np.uint8), "image_crc32": np.dtype(np.uint32),
+        "images": np.dtype(np.uint8),
+        "image_crc32": np.dtype(np.uint32),
         **{name: d for name, (d, _) in _FRAME_DATASETS.items()},
-    }  # fmt: skip
+    }
     lengths = {}
     for name in ALL_DATASETS:
         if name not in f:

@@ -72,14 +72,21 @@ class ShardedCaptureConfig(CaptureConfig):
         super().__post_init__()
         checks = (
             (self.workers >= 1, f"--workers must be >= 1, got {self.workers}"),
-            (self.laps >= self.workers, f"--laps {self.laps} < --workers {self.workers}: every shard needs at "
-             "least one lap"),
-            (self.max_frames == 0 or self.max_frames >= self.workers, f"--max-frames {self.max_frames} < --workers "
-             f"{self.workers}: every shard needs at least one frame"),
+            (
+                self.laps >= self.workers,
+                f"--laps {self.laps} < --workers {self.workers}: every shard needs at least one lap",
+            ),
+            (
+                self.max_frames == 0 or self.max_frames >= self.workers,
+                f"--max-frames {self.max_frames} < --workers {self.workers}: every shard needs at least one frame",
+            ),
             (self.task_retries >= 0, f"task_retries must be >= 0, got {self.task_retries}"),
-            (self.out.endswith(".json"), f"--out {self.out!r}: a sharded capture writes a manifest: give --out "
-             "PATH.json (the shards go to PATH.shards/)"),
-        )  # fmt: skip
+            (
+                self.out.endswith(".json"),
+                f"--out {self.out!r}: a sharded capture writes a manifest: give --out "
+                "PATH.json (the shards go to PATH.shards/)",
+            ),
+        )
         for ok, message in checks:
             if not ok:
                 raise ValueError(message)
@@ -111,22 +118,37 @@ def plan_shards(cfg: ShardedCaptureConfig) -> list[CaptureConfig]:
     if Path(track).is_file():  # a track file: the same absolute path on every node (a shared filesystem)
         track = str(Path(track).resolve())
     return [
-        CaptureConfig(**{**base, "out": str(folder / f"shard_{i:03d}.h5"), "track": track,
-                         "seed": shard_seed(cfg.seed, i), "laps": laps[i], "max_frames": frames[i], "resume": True,
-                         "force": False})
+        CaptureConfig(
+            **{
+                **base,
+                "out": str(folder / f"shard_{i:03d}.h5"),
+                "track": track,
+                "seed": shard_seed(cfg.seed, i),
+                "laps": laps[i],
+                "max_frames": frames[i],
+                "resume": True,
+                "force": False,
+            }
+        )
         for i in range(cfg.workers)
-    ]  # fmt: skip
+    ]
 
 
 def _settings(cfg: ShardedCaptureConfig, track_geometry_hash: str) -> dict[str, Any]:
     """What every shard of the run shares (a resume must keep all of it); the track by its geometry, so that the
     same track file named by another path resumes."""
     return {
-        "track_geometry_hash": track_geometry_hash, "car": cfg.car, "laps": cfg.laps,
-        "cars": cfg.cars, "fps": float(cfg.fps), "disrupt_ai": bool(cfg.disrupt_ai),
+        "track_geometry_hash": track_geometry_hash,
+        "car": cfg.car,
+        "laps": cfg.laps,
+        "cars": cfg.cars,
+        "fps": float(cfg.fps),
+        "disrupt_ai": bool(cfg.disrupt_ai),
         "disrupt_steer_offset_rad": float(cfg.disrupt_steer_offset_rad),
-        "image_hw_px": list(cfg.image_hw_px), "seed": int(cfg.seed), "workers": int(cfg.workers),
-    }  # fmt: skip
+        "image_hw_px": list(cfg.image_hw_px),
+        "seed": int(cfg.seed),
+        "workers": int(cfg.workers),
+    }
 
 
 # ------------------------------------------------------------------------------------------------------ manifest
@@ -138,9 +160,16 @@ def _manifest_digest(body: dict[str, Any]) -> str:
 def _shard_record(path: Path, manifest_dir: Path, index: int, cfg: CaptureConfig) -> dict[str, Any]:
     """The manifest's line of one shard, read from its file (absent or unreadable: no frames, not complete)."""
     record: dict[str, Any] = {
-        "index": index, "path": os.path.relpath(path, manifest_dir), "seed": cfg.seed, "laps": cfg.laps,
-        "complete": False, "n_frames": 0, "content_sha256": None, "fingerprint_sha256": None, "fingerprint": None,
-    }  # fmt: skip
+        "index": index,
+        "path": os.path.relpath(path, manifest_dir),
+        "seed": cfg.seed,
+        "laps": cfg.laps,
+        "complete": False,
+        "n_frames": 0,
+        "content_sha256": None,
+        "fingerprint_sha256": None,
+        "fingerprint": None,
+    }
     if not path.exists():
         return record
     try:
@@ -191,13 +220,17 @@ def read_manifest(path: str | os.PathLike[str]) -> dict[str, Any]:
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise ManifestError(f"{path}: not a capture manifest (unreadable JSON: {exc})") from exc
     if not isinstance(body, dict) or body.get("format") != MANIFEST_FORMAT:
-        raise ManifestError(f"{path}: not a capture manifest (no 'format': {MANIFEST_FORMAT!r}); give a capture "
-                            "file (.h5) or the manifest a sharded capture wrote")  # fmt: skip
+        raise ManifestError(
+            f"{path}: not a capture manifest (no 'format': {MANIFEST_FORMAT!r}); give a capture "
+            "file (.h5) or the manifest a sharded capture wrote"
+        )
     if body.get("version") != MANIFEST_VERSION:
         raise ManifestError(f"{path}: manifest version {body.get('version')!r}, this reader reads {MANIFEST_VERSION}")
     if body.get("manifest_sha256") != _manifest_digest(body):
-        raise ManifestError(f"{path}: the manifest does not match its manifest_sha256 (edited or damaged): rewrite it "
-                            "with capture --workers N --resume")  # fmt: skip
+        raise ManifestError(
+            f"{path}: the manifest does not match its manifest_sha256 (edited or damaged): rewrite it "
+            "with capture --workers N --resume"
+        )
     return body
 
 
@@ -217,14 +250,17 @@ def open_manifest(path: str | os.PathLike[str]) -> list[Path]:
         if record["content_sha256"] is None and not shard.exists():
             continue  # a shard that had not started when the manifest was written
         if not shard.exists():
-            raise ManifestError(f"{path}: shard {rel} is missing: restore it, or redo it with capture --workers "
-                                f"{len(body['shards'])} --resume")  # fmt: skip
+            raise ManifestError(
+                f"{path}: shard {rel} is missing: restore it, or redo it with capture --workers "
+                f"{len(body['shards'])} --resume"
+            )
         with open_capture(shard) as cap:
             if record["fingerprint_sha256"] != cap.attrs["fingerprint_sha256"]:
                 diff = first_difference(record["fingerprint"] or {}, cap.fingerprint, "fingerprint")
                 what = f"{diff[0]} is {diff[2]!r} in the file, {diff[1]!r} in the manifest" if diff else "fingerprint"
-                raise ManifestError(f"{path}: shard {rel} is not this run's shard ({what}): restore it or capture "
-                                    "again")  # fmt: skip
+                raise ManifestError(
+                    f"{path}: shard {rel} is not this run's shard ({what}): restore it or capture again"
+                )
             if cap.n_frames != record["n_frames"] or cap.content_sha256() != record["content_sha256"]:
                 raise ManifestError(
                     f"{path}: shard {rel} changed since the manifest was written ({cap.n_frames} frames, "
@@ -304,8 +340,10 @@ def check_workers(ray: Any, workers: int, option: str = "--workers") -> int:
     """The cluster's CPU count, after refusing more ``workers`` (one CPU each) than it has."""
     cpus = int(ray.cluster_resources().get("CPU", 0))
     if workers > cpus:
-        raise ValueError(f"{option} {workers} but the Ray cluster has {cpus} CPUs: use {option} <= {cpus} or add "
-                         "nodes (ray start --address HEAD:6379 on each)")  # fmt: skip
+        raise ValueError(
+            f"{option} {workers} but the Ray cluster has {cpus} CPUs: use {option} <= {cpus} or add "
+            "nodes (ray start --address HEAD:6379 on each)"
+        )
     return cpus
 
 
@@ -315,11 +353,16 @@ def _check_shard(path: Path, shard: CaptureConfig, settings: dict[str, Any]) -> 
     with open_capture(path) as cap:
         attrs = cap.attrs
         expected = {
-            "seed": shard.seed, "track_geometry_hash": settings["track_geometry_hash"], "car_preset": shard.car,
-            "cars": shard.cars, "fps": float(shard.fps), "disrupted": bool(shard.disrupt_ai),
-            "image_height": shard.image_hw_px[0], "image_width": shard.image_hw_px[1],
+            "seed": shard.seed,
+            "track_geometry_hash": settings["track_geometry_hash"],
+            "car_preset": shard.car,
+            "cars": shard.cars,
+            "fps": float(shard.fps),
+            "disrupted": bool(shard.disrupt_ai),
+            "image_height": shard.image_hw_px[0],
+            "image_width": shard.image_hw_px[1],
             **({"disrupt_steer_offset_rad": float(shard.disrupt_steer_offset_rad)} if shard.disrupt_ai else {}),
-        }  # fmt: skip
+        }
         for key, value in expected.items():
             if attrs.get(key) != value:
                 raise ManifestError(
@@ -362,8 +405,10 @@ def capture_sharded(
         if diff is not None:
             field, was, now = diff
             option = "--" + field.split(".", 1)[1].split("[")[0].replace("_", "-")
-            raise ManifestError(f"{manifest}: cannot resume: {field} was {was!r}, now {now!r} ({option}); resume "
-                                "with the run's settings or start over with --force")  # fmt: skip
+            raise ManifestError(
+                f"{manifest}: cannot resume: {field} was {was!r}, now {now!r} ({option}); resume "
+                "with the run's settings or start over with --force"
+            )
     elif not cfg.resume and (manifest.exists() or folder.exists()) and not cfg.force:
         raise FileExistsError(f"{manifest} exists: pass --force to overwrite it or --resume to continue it")
     # Ray and its CPUs are checked before anything on disk is touched: a refused run changes nothing.
@@ -446,8 +491,10 @@ def _run(
                 if progress is not None:
                     done = [results[i] for i in results]
                     live = [r for i, r in reports.items() if i not in results]
-                    progress(sum(r["laps_in_file"] for r in done) + sum(r[0] for r in live),
-                             sum(r["frames_written"] for r in done) + sum(r[1] for r in live))  # fmt: skip
+                    progress(
+                        sum(r["laps_in_file"] for r in done) + sum(r[0] for r in live),
+                        sum(r["frames_written"] for r in done) + sum(r[1] for r in live),
+                    )
         except KeyboardInterrupt:
             interrupted = True
             for ref in pending:  # a KeyboardInterrupt in each task: it closes its file after the current batch
@@ -478,14 +525,34 @@ def _summary(
     shards = []
     for record in body["shards"]:
         i = record["index"]
-        status = "kept" if i not in todo else "failed" if i in failures else "captured" if record["complete"] else (
-            "interrupted")  # fmt: skip
-        row = {"index": i, "path": record["path"], "seed": record["seed"], "laps": record["laps"], "status": status,
-               "frames_in_file": record["n_frames"], "complete": record["complete"]}  # fmt: skip
+        status = (
+            "kept"
+            if i not in todo
+            else "failed"
+            if i in failures
+            else "captured"
+            if record["complete"]
+            else ("interrupted")
+        )
+        row = {
+            "index": i,
+            "path": record["path"],
+            "seed": record["seed"],
+            "laps": record["laps"],
+            "status": status,
+            "frames_in_file": record["n_frames"],
+            "complete": record["complete"],
+        }
         if i in results:
             r = results[i]
-            row.update(frames_written=r["frames_written"], capture_fps=r["capture_fps"], elapsed_s=r["elapsed_s"],
-                       cpu_s=r["cpu_s"], stuck_resets=r["stuck_resets"], turned_resets=r["turned_resets"])  # fmt: skip
+            row.update(
+                frames_written=r["frames_written"],
+                capture_fps=r["capture_fps"],
+                elapsed_s=r["elapsed_s"],
+                cpu_s=r["cpu_s"],
+                stuck_resets=r["stuck_resets"],
+                turned_resets=r["turned_resets"],
+            )
         if i in failures:
             row["error"] = failures[i]
         shards.append(row)

@@ -87,11 +87,15 @@ class CaptureConfig:
             (self.cars >= 1, f"--cars must be >= 1, got {self.cars}"),
             (math.isfinite(self.fps) and self.fps > 0, f"--fps must be > 0, got {self.fps}"),
             (h > 0 and w > 0, f"--image-hw-px must be two positive sizes (height, width), got {h} {w}"),
-            (math.isfinite(self.disrupt_steer_offset_rad) and self.disrupt_steer_offset_rad >= 0,
-             f"--disrupt-steer-offset-rad must be >= 0, got {self.disrupt_steer_offset_rad}"),
-            (self.disrupt_ai or self.disrupt_steer_offset_rad == DisruptionParams.steer_offset_rad,
-             f"--disrupt-steer-offset-rad {self.disrupt_steer_offset_rad:g} with --no-disrupt: clean laps have no "
-             "offsets; drop one of the two"),
+            (
+                math.isfinite(self.disrupt_steer_offset_rad) and self.disrupt_steer_offset_rad >= 0,
+                f"--disrupt-steer-offset-rad must be >= 0, got {self.disrupt_steer_offset_rad}",
+            ),
+            (
+                self.disrupt_ai or self.disrupt_steer_offset_rad == DisruptionParams.steer_offset_rad,
+                f"--disrupt-steer-offset-rad {self.disrupt_steer_offset_rad:g} with --no-disrupt: clean laps have no "
+                "offsets; drop one of the two",
+            ),
             (self.max_frames >= 0, f"--max-frames must be >= 0 (0: no limit), got {self.max_frames}"),
             (self.flush_interval_s >= 0, f"--flush-interval-s must be >= 0, got {self.flush_interval_s}"),
         )
@@ -284,8 +288,10 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
         fleet = AIFleet(world, line, profile, skill=skill, disruption=disruption, seed=fleet_seed)
         place = fleet.place
     else:  # the AI only places the cars on its line, at its speed
+
         def place(ids: np.ndarray, s_m: np.ndarray, speed_share: float = 1.0) -> None:
             place_on_line(world, line, profile, ids, s_m, speed_share * skill)
+
     s0 = np.mod(rng.uniform(0, track.length_m) + np.arange(n) * track.length_m / n, track.length_m)
     place(np.arange(n), s0)
     if driver is not None:

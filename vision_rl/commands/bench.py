@@ -139,8 +139,15 @@ def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
         for layout in layouts if env.frames else layouts[:1]:
             figures = bench_updates(DDPGHyper(variant=variant), env, opts.updates, layout=layout, device=str(device))
             rounded = {k: round(v, 3) for k, v in figures.items()}
-            rows.append({"variant": variant, "layout": layout if env.frames else "no convolutions",
-                         "batch_size": 32, "image_hw_px": list(env.image_hw_px), **rounded})  # fmt: skip
+            rows.append(
+                {
+                    "variant": variant,
+                    "layout": layout if env.frames else "no convolutions",
+                    "batch_size": 32,
+                    "image_hw_px": list(env.image_hw_px),
+                    **rounded,
+                }
+            )
 
     def text(result):
         return [

@@ -31,8 +31,10 @@ def format_bench_latency(result: dict[str, Any]) -> list[str]:
     ]
     for name, v in result["variants"].items():
         if "p50_ms" in v:
-            lines.append(f"  {name:<14s} p50 {v['p50_ms']:.2f} ms  p90 {v['p90_ms']:.2f} ms  p99 {v['p99_ms']:.2f} ms"
-                         f"   (budget {budget:.0f} ms)")  # fmt: skip
+            lines.append(
+                f"  {name:<14s} p50 {v['p50_ms']:.2f} ms  p90 {v['p90_ms']:.2f} ms  p99 {v['p99_ms']:.2f} ms"
+                f"   (budget {budget:.0f} ms)"
+            )
         else:
             lines.append(f"  {name:<14s} {v.get('error') or v.get('skipped')}")
     return lines

@@ -105,9 +105,18 @@ def _capture_row(opts: BenchScalingOptions, folder: Path) -> tuple[dict[str, Any
     from vision_rl.capture.sharded import ShardedCaptureConfig, capture_sharded
 
     def config(workers: int, name: str, frames: int) -> ShardedCaptureConfig:
-        return ShardedCaptureConfig(out=str(folder / f"{name}.json"), track=opts.track, cars=opts.cars,
-                                    image_hw_px=opts.image_hw_px, laps=1000, max_frames=frames, workers=workers,
-                                    seed=opts.seed, force=True, address=opts.address)  # fmt: skip
+        return ShardedCaptureConfig(
+            out=str(folder / f"{name}.json"),
+            track=opts.track,
+            cars=opts.cars,
+            image_hw_px=opts.image_hw_px,
+            laps=1000,
+            max_frames=frames,
+            workers=workers,
+            seed=opts.seed,
+            force=True,
+            address=opts.address,
+        )
 
     # Untimed: starts Ray's two worker processes and loads the simulator and renderer in each.
     capture_sharded(config(2, "warmup", 2 * opts.cars))
@@ -117,25 +126,52 @@ def _capture_row(opts: BenchScalingOptions, folder: Path) -> tuple[dict[str, Any
         name = f"capture_w{workers}_r{repeat}"
         result = capture_sharded(config(workers, name, opts.capture_frames))
         if result["failed_shards"]:
-            raise RuntimeError(f"bench scaling: capture shards {result['failed_shards']} failed: "
-                               f"{[s.get('error') for s in result['shards'] if 'error' in s]}")  # fmt: skip
+            raise RuntimeError(
+                f"bench scaling: capture shards {result['failed_shards']} failed: "
+                f"{[s.get('error') for s in result['shards'] if 'error' in s]}"
+            )
         if workers == 2:
             last["data"] = result["out"]
-        return {"frames": result["frames_written"], "frames_per_s": result["capture_fps"],
-                "frames_per_s_in_shards": result["capture_fps_in_shards"],
-                "cpu_ms_per_frame": 1e3 * result["cpu_s_per_frame"]}  # fmt: skip
+        return {
+            "frames": result["frames_written"],
+            "frames_per_s": result["capture_fps"],
+            "frames_per_s_in_shards": result["capture_fps_in_shards"],
+            "cpu_ms_per_frame": 1e3 * result["cpu_s_per_frame"],
+        }
 
     one, two = _alternate(opts.repeats, run)
-    figures = {"frames_per_s": "frames/s", "frames_per_s_in_shards": "frames/s inside the shards",
-               "cpu_ms_per_frame": "CPU ms per frame"}  # fmt: skip
+    figures = {
+        "frames_per_s": "frames/s",
+        "frames_per_s_in_shards": "frames/s inside the shards",
+        "cpu_ms_per_frame": "CPU ms per frame",
+    }
     return _compare(one, two, figures), last["data"]
 
 
 def train_run(devices: int, data: str, out: Path, opts: BenchScalingOptions) -> dict[str, Any]:
     """One ``train-repr`` command on CPUs (``devices`` processes), as a user runs it; its JSON result."""
-    argv = ["train-repr", "--data", data, "--devices", str(devices), "--strategy", "ddp" if devices > 1 else "auto",
-            "--device", "cpu", "--epochs", str(opts.train_epochs), "--batch-size", str(opts.train_batch_size),
-            "--num-workers", "0", "--out", str(out), "--force", "--json", "--no-progress"]  # fmt: skip
+    argv = [
+        "train-repr",
+        "--data",
+        data,
+        "--devices",
+        str(devices),
+        "--strategy",
+        "ddp" if devices > 1 else "auto",
+        "--device",
+        "cpu",
+        "--epochs",
+        str(opts.train_epochs),
+        "--batch-size",
+        str(opts.train_batch_size),
+        "--num-workers",
+        "0",
+        "--out",
+        str(out),
+        "--force",
+        "--json",
+        "--no-progress",
+    ]
     # A command of its own: Lightning starts the second DDP process by running the command line again.
     proc = subprocess.run([sys.executable, "-m", "vision_rl.commands.main", *argv], capture_output=True, text=True)
     if proc.returncode != 0:
@@ -168,8 +204,10 @@ def _sampling_row(opts: BenchScalingOptions) -> dict[str, Any]:
 
 
 def _lines(result: dict[str, Any]) -> list[str]:
-    lines = [f"{result['cpus']} CPUs, {result['repeats']} repeat(s); medians, (min..max), ratio = 2 workers / 1",
-             f"{'row':<9} {'figure':<30} {'1 worker':>20} {'2 workers':>20} {'ratio':>7}"]  # fmt: skip
+    lines = [
+        f"{result['cpus']} CPUs, {result['repeats']} repeat(s); medians, (min..max), ratio = 2 workers / 1",
+        f"{'row':<9} {'figure':<30} {'1 worker':>20} {'2 workers':>20} {'ratio':>7}",
+    ]
     for row, figures in result["rows"].items():
         if "missing" in figures:
             lines.append(f"{row:<9} {figures['missing']}")

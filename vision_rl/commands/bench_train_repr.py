@@ -23,8 +23,10 @@ def run_bench_train_repr(opts: BenchTrainReprOptions) -> int:
 
     def text(result):
         h, w = result["input_hw_px"]
-        head = f"Phase 1 training step, frames {w}x{h}, {result['device']} ({result['device_name']}), " \
-               f"{result['threads']} threads"  # fmt: skip
+        head = (
+            f"Phase 1 training step, frames {w}x{h}, {result['device']} ({result['device_name']}), "
+            f"{result['threads']} threads"
+        )
         return [head] + [
             f"  batch {r['batch_size']:>4} {r['precision']}: {r['step_ms']:8.2f} ms/step  {r['frames_per_s']:9.0f} "
             f"frames/s ({r['frames_per_s_spread'][0]:.0f}-{r['frames_per_s_spread'][1]:.0f})  "

@@ -102,9 +102,12 @@ def run_capture(opts: CaptureOptions) -> int:
             raise ValueError("--source video:... needs --poses POSES.csv (the telemetry to pair the frames with)")
         with progress_bar(None, "frame", "capture") as bar:
             result = capture_video(
-                opts, video=opts.source.removeprefix("video:"), poses_csv=opts.poses,
-                frame_delay_frames=opts.frame_delay, progress=lambda frames: show(bar, frames),
-            )  # fmt: skip
+                opts,
+                video=opts.source.removeprefix("video:"),
+                poses_csv=opts.poses,
+                frame_delay_frames=opts.frame_delay,
+                progress=lambda frames: show(bar, frames),
+            )
         emit(result, opts.json)
         return 0
     if opts.source != "sim":
@@ -142,8 +145,10 @@ def _policy_driver(opts: CaptureOptions):
     loaded = load_policy(opts.policy)
     trained = loaded.config
     if load_track(opts.track).geometry_hash != load_track(trained.track).geometry_hash or opts.car != trained.car:
-        raise ValueError(f"--policy {opts.policy} drives {trained.track} with the {trained.car}: give --track "
-                         f"{trained.track} --car {trained.car}")  # fmt: skip
+        raise ValueError(
+            f"--policy {opts.policy} drives {trained.track} with the {trained.car}: give --track "
+            f"{trained.track} --car {trained.car}"
+        )
     return loaded.driver()
 
 

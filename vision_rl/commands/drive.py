@@ -47,15 +47,18 @@ def run_drive(opts: DriveOptions) -> int:
         raise ValueError(f"--seeds must be >= 1, got {opts.seeds}")
     disruption = DisruptionParams() if opts.disrupt else None
     driver = BuiltinAI(opts.skill or None, disruption, seed=opts.seed)
-    timing = time_laps(driver, opts.track, opts.car, range(opts.seed, opts.seed + opts.seeds), opts.laps,
-                       record=bool(opts.plot))  # fmt: skip
+    timing = time_laps(
+        driver, opts.track, opts.car, range(opts.seed, opts.seed + opts.seeds), opts.laps, record=bool(opts.plot)
+    )
     result: dict[str, Any] = evaluation_record(
         timing, driver.identity, "built-in AI" + (" (disrupted)" if opts.disrupt else "")
     )
     if opts.plot:
         best = timing.best_index()
-        title = (f"{timing.track.name}, {timing.car.name}, AI skill {driver.skill:g}: lap {opts.laps} "
-                 f"{format_lap_time(result['best_lap_time_s'])}")  # fmt: skip
+        title = (
+            f"{timing.track.name}, {timing.car.name}, AI skill {driver.skill:g}: lap {opts.laps} "
+            f"{format_lap_time(result['best_lap_time_s'])}"
+        )
         result["plot"] = str(plot_trajectory(timing, best, opts.plot, title))
     emit(result, opts.json, format_timing)
     return 0

@@ -15,7 +15,7 @@ def _lap(seconds: float | None) -> str:
 
 
 def _hits(lap: dict[str, Any]) -> str:
-    """", N hits, the fastest at V km/h" for a lap with wall hits (records of before the count have none)."""
+    """ ", N hits, the fastest at V km/h" for a lap with wall hits (records of before the count have none)."""
     hits = lap.get("wall_hits", 0)
     return f", {hits} hits, the fastest at {lap['fastest_wall_hit_kmh']:.0f} km/h" if hits else ""
 
@@ -45,29 +45,38 @@ def format_timing(result: dict[str, Any]) -> list[str]:
     elif sections is not None:
         ref = sections["reference"]
         rows = sorted(sections["rows"], key=lambda r: -r["loss_s"])[:TOP_SECTIONS]
-        lines.append(f"where the best lap loses most against the built-in AI at skill {ref['skill']:g} "
-                     f"({_lap(ref['lap_time_s'])}), {sections['section_m']:g} m sections:")  # fmt: skip
+        lines.append(
+            f"where the best lap loses most against the built-in AI at skill {ref['skill']:g} "
+            f"({_lap(ref['lap_time_s'])}), {sections['section_m']:g} m sections:"
+        )
         lines.append("  from m    lap s  AI s   lost s  min km/h (AI)  wall s")
         for r in rows:
-            lines.append(f"  {r['start_m']:6.0f}  {r['time_s']:6.2f}  {r['reference_time_s']:5.2f}  "
-                         f"{r['loss_s']:+6.2f}  {r['min_speed_kmh']:5.0f} ({r['reference_min_speed_kmh']:3.0f})  "
-                         f"{r['wall_contact_s']:6.1f}")  # fmt: skip
+            lines.append(
+                f"  {r['start_m']:6.0f}  {r['time_s']:6.2f}  {r['reference_time_s']:5.2f}  "
+                f"{r['loss_s']:+6.2f}  {r['min_speed_kmh']:5.0f} ({r['reference_min_speed_kmh']:3.0f})  "
+                f"{r['wall_contact_s']:6.1f}"
+            )
         lap, ai = sections["controls"]["lap"], sections["controls"]["reference"]
         if lap["steps"] and ai["steps"]:
-            lines.append(f"above {lap['fast_above_kmh']:.0f} km/h (the best lap / the AI's): full throttle "
-                         f"{lap['full_throttle_share']:.0%} / {ai['full_throttle_share']:.0%} of the steps, the "
-                         f"wheel at the end of its usable angle {lap['range_end_share']:.0%} / "
-                         f"{ai['range_end_share']:.0%}, changing side {lap['steer_sign_change_share']:.0%} / "
-                         f"{ai['steer_sign_change_share']:.0%}")  # fmt: skip
+            lines.append(
+                f"above {lap['fast_above_kmh']:.0f} km/h (the best lap / the AI's): full throttle "
+                f"{lap['full_throttle_share']:.0%} / {ai['full_throttle_share']:.0%} of the steps, the "
+                f"wheel at the end of its usable angle {lap['range_end_share']:.0%} / "
+                f"{ai['range_end_share']:.0%}, changing side {lap['steer_sign_change_share']:.0%} / "
+                f"{ai['steer_sign_change_share']:.0%}"
+            )
     errors = result.get("encoder_error")
     if errors is not None:
         policy, ai = errors["policy"], errors["built_in_ai"]
         subsets = ("all", "near_wall", "wall_contact")
-        lines.append(f"encoder error (mean absolute), the best lap / the built-in AI's at skill {ai['skill']:g}: "
-                     + ", ".join(f"{k}: {policy[k]['frames']} / {ai[k]['frames']} frames" for k in subsets))
+        lines.append(
+            f"encoder error (mean absolute), the best lap / the built-in AI's at skill {ai['skill']:g}: "
+            + ", ".join(f"{k}: {policy[k]['frames']} / {ai[k]['frames']} frames" for k in subsets)
+        )
         for name, unit in policy["units"].items():
-            cells = (" / ".join("-" if d[k][name] is None else f"{d[k][name]:.3f}" for d in (policy, ai))
-                     for k in subsets)  # fmt: skip
+            cells = (
+                " / ".join("-" if d[k][name] is None else f"{d[k][name]:.3f}" for d in (policy, ai)) for k in subsets
+            )
             lines.append(f"  {name} ({unit}): " + ", ".join(f"{k} {c}" for k, c in zip(subsets, cells, strict=True)))
     for key in ("plot", "video", "trace", "evaluation_json", "reward_plot"):
         if result.get(key):
@@ -129,11 +138,23 @@ def run_evaluate(opts: EvaluateOptions) -> int:
     if not opts.policy:
         raise ValueError("evaluate needs --policy: a train-policy run folder or its policy.pt")
     result = evaluate_policy(
-        opts.policy, laps=opts.laps, seeds=opts.seeds, seed=opts.seed, encoder=opts.encoder,
-        time_limit_s=opts.time_limit_s, video=opts.video, plot=opts.plot, name=opts.name, device=opts.device,
-        write=opts.write, encoder_runtime=opts.encoder_runtime, sections_m=opts.sections_m,
-        reference_skill=opts.reference_skill, encoder_error=opts.encoder_error, trace=opts.trace,
-    )  # fmt: skip
+        opts.policy,
+        laps=opts.laps,
+        seeds=opts.seeds,
+        seed=opts.seed,
+        encoder=opts.encoder,
+        time_limit_s=opts.time_limit_s,
+        video=opts.video,
+        plot=opts.plot,
+        name=opts.name,
+        device=opts.device,
+        write=opts.write,
+        encoder_runtime=opts.encoder_runtime,
+        sections_m=opts.sections_m,
+        reference_skill=opts.reference_skill,
+        encoder_error=opts.encoder_error,
+        trace=opts.trace,
+    )
     emit(result, opts.json, format_timing)
     return 0
 
@@ -161,8 +182,10 @@ def format_leaderboard(result: dict[str, Any]) -> list[str]:
         )
         if r.get("lap_time_mean_s") is not None:  # an experiment: the best seed above, the seeds' spread here
             std = r["lap_time_std_s"]
-            lines.append(f"{'':<{width}}  mean over seeds {_lap(r['lap_time_mean_s'])}"
-                         + ("" if std is None else f" +- {std:.2f} s"))  # fmt: skip
+            lines.append(
+                f"{'':<{width}}  mean over seeds {_lap(r['lap_time_mean_s'])}"
+                + ("" if std is None else f" +- {std:.2f} s")
+            )
     lines += [f"refused: {why}" for why in result.get("refused", [])]
     return lines
 

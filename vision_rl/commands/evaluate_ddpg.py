@@ -50,8 +50,16 @@ def run_evaluate_ddpg(opts: EvaluateDDPGOptions) -> int:
         raise ValueError("--seeds and --laps must be >= 1 and --time-limit-s >= 0")
     if opts.reward_laps < 1 or opts.reward_bin_m <= 0:
         raise ValueError("--reward-laps must be >= 1 and --reward-bin-m > 0")
-    result = evaluate_ddpg(opts.agent, opts.seeds, opts.laps, opts.variant or None, opts.time_limit_s, opts.save,
-                           video=opts.video, plot=opts.plot)  # fmt: skip
+    result = evaluate_ddpg(
+        opts.agent,
+        opts.seeds,
+        opts.laps,
+        opts.variant or None,
+        opts.time_limit_s,
+        opts.save,
+        video=opts.video,
+        plot=opts.plot,
+    )
     if opts.reward_plot:
         from pathlib import Path
 
@@ -86,14 +94,21 @@ class CompareDDPGOptions:
 
 
 def format_compare(result: dict) -> list[str]:
-    lines = [f"{result['track']} / {result['car']}: {len(result['runs'])} runs over the common "
-             f"{result['common_minutes']:.1f} training minutes; distance per episode over its last third:"]  # fmt: skip
+    lines = [
+        f"{result['track']} / {result['car']}: {len(result['runs'])} runs over the common "
+        f"{result['common_minutes']:.1f} training minutes; distance per episode over its last third:"
+    ]
     for r in result["runs"]:
         distance = "none" if r["mean_distance_last_m"] is None else f"{r['mean_distance_last_m']:.0f} m"
-        lap = "no lap" if r["first_lap_episode"] is None else (
-            f"first lap in episode {r['first_lap_episode']} after {r['first_lap_minutes']:.1f} min")
-        lines.append(f"  {r['name']:<20} {distance:>8} (best {r['best_distance_m'] or 0:.0f} m), {r['episodes']} "
-                     f"episodes, {r['updates']} updates ({r['updates_per_s']:.2f}/s); {lap}")  # fmt: skip
+        lap = (
+            "no lap"
+            if r["first_lap_episode"] is None
+            else (f"first lap in episode {r['first_lap_episode']} after {r['first_lap_minutes']:.1f} min")
+        )
+        lines.append(
+            f"  {r['name']:<20} {distance:>8} (best {r['best_distance_m'] or 0:.0f} m), {r['episodes']} "
+            f"episodes, {r['updates']} updates ({r['updates_per_s']:.2f}/s); {lap}"
+        )
     return [*lines, f"figure: {result['figure']}   numbers: {result['json']}"]
 
 

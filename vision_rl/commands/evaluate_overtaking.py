@@ -56,10 +56,14 @@ def _split(text: str) -> list[str]:
 
 
 def format_setting(result: dict[str, Any]) -> list[str]:
-    lines = [f"setting {result['setting']}: 5 opponents {result['separation_m']:g} m apart, {result['track_name']}, "
-             f"{result['car']}, {result['runs']} runs, limit {result['time_limit_s']:g} s"]  # fmt: skip
-    lines.append(f"  {'driver':<28} {'all 5':>6} {'passed':>7} {'time s':>16} {'distance m':>18} {'car s':>12} "
-                 f"{'wall s':>12}")  # fmt: skip
+    lines = [
+        f"setting {result['setting']}: 5 opponents {result['separation_m']:g} m apart, {result['track_name']}, "
+        f"{result['car']}, {result['runs']} runs, limit {result['time_limit_s']:g} s"
+    ]
+    lines.append(
+        f"  {'driver':<28} {'all 5':>6} {'passed':>7} {'time s':>16} {'distance m':>18} {'car s':>12} {'wall s':>12}"
+    )
+
     def cell(s: dict[str, Any], metric: str, digits: int = 1) -> str:
         m = s[metric]
         return f"{m['mean']:.{digits}f}+-{m['std']:.{digits}f} ({m['best']:.{digits}f})"
@@ -67,11 +71,16 @@ def format_setting(result: dict[str, Any]) -> list[str]:
     for row in result["drivers"]:
         s = row["summary"]
 
-        lines.append(f"  {row['name']:<28} {s['all_overtaken_runs']:>3}/{s['runs']:<2} {s['overtaken']['mean']:>7.1f} "
-                     f"{cell(s, 'travel_time_s'):>16} {cell(s, 'travel_distance_m', 0):>18} "
-                     f"{cell(s, 'car_contact_s'):>12} {cell(s, 'wall_contact_s'):>12}")  # fmt: skip
-    fastest = ", ".join(f"{row['name']} {row['summary']['fastest_all_five_s']:.1f} s" for row in result["drivers"]
-                        if row["summary"].get("fastest_all_five_s") is not None)  # fmt: skip
+        lines.append(
+            f"  {row['name']:<28} {s['all_overtaken_runs']:>3}/{s['runs']:<2} {s['overtaken']['mean']:>7.1f} "
+            f"{cell(s, 'travel_time_s'):>16} {cell(s, 'travel_distance_m', 0):>18} "
+            f"{cell(s, 'car_contact_s'):>12} {cell(s, 'wall_contact_s'):>12}"
+        )
+    fastest = ", ".join(
+        f"{row['name']} {row['summary']['fastest_all_five_s']:.1f} s"
+        for row in result["drivers"]
+        if row["summary"].get("fastest_all_five_s") is not None
+    )
     lines.append("  (mean+-std (best) over the runs; best includes runs that ended early, stuck)")
     lines.append(f"  fastest run that passed all five: {fastest or 'none'}")
     lines.append(f"files: {result['files']['json']}, {result['files']['png']}")
@@ -82,17 +91,21 @@ def format_curves(result: dict[str, Any]) -> list[str]:
     lines = []
     for label in ("curriculum", "standard"):
         data = result[label]
-        lines.append(f"{label}: {data['seeds_with_data']} seeds, {len(data['x'])} points, up to "
-                     f"{data['x'][-1] if data['x'] else 0:.0f} ({min(data['n_seeds'] or [0])}-"
-                     f"{max(data['n_seeds'] or [0])} seeds a point)")  # fmt: skip
+        lines.append(
+            f"{label}: {data['seeds_with_data']} seeds, {len(data['x'])} points, up to "
+            f"{data['x'][-1] if data['x'] else 0:.0f} ({min(data['n_seeds'] or [0])}-"
+            f"{max(data['n_seeds'] or [0])} seeds a point)"
+        )
     final = result.get("standard_final_return")
     if final is not None:
         partial = "" if result["complete"] else " (a seed is still training: the last point every seed reached)"
         lines.append(f"standard SAC's final mean return {final:.1f} at {result['standard_final_x']:.0f}{partial}")
     steps = result.get("curriculum_steps_to_standard_final")
     if steps is not None:
-        lines.append(f"curriculum (every seed) reaches it at {steps:.0f} steps, "
-                     f"{100 * result['share_of_standard_steps']:.0f} % of standard SAC's steps")  # fmt: skip
+        lines.append(
+            f"curriculum (every seed) reaches it at {steps:.0f} steps, "
+            f"{100 * result['share_of_standard_steps']:.0f} % of standard SAC's steps"
+        )
     elif final is not None and result["axis"] == "num_timesteps":
         lines.append("curriculum (every seed) has not reached it")
     lines.append(f"files: {result['files']['json']}, {result['files']['png']}")
@@ -100,17 +113,24 @@ def format_curves(result: dict[str, Any]) -> list[str]:
 
 
 def format_analysis(result: dict[str, Any]) -> list[str]:
-    lines = [f"setting {result['setting']}, run {result['run']} of {result['runs']} (seed "
-             f"{result['agent']['run']['seed']}): the fastest of {result['agent']['name']}"]  # fmt: skip
+    lines = [
+        f"setting {result['setting']}, run {result['run']} of {result['runs']} (seed "
+        f"{result['agent']['run']['seed']}): the fastest of {result['agent']['name']}"
+    ]
     for key in ("agent", "reference"):
         record = result[key]
         run = record["run"]
         passes = ", ".join(f"car {m['opponent']} at {m['time_s']:.1f} s" for m in record["moments"]) or "none"
-        lines.append(f"  {record['name']:<28} {run['overtaken']}/5 in {run['travel_time_s']:.1f} s, car contact "
-                     f"{run['car_contact_s']:.1f} s, wall {run['wall_contact_s']:.1f} s; passes: {passes}")  # fmt: skip
+        lines.append(
+            f"  {record['name']:<28} {run['overtaken']}/5 in {run['travel_time_s']:.1f} s, car contact "
+            f"{run['car_contact_s']:.1f} s, wall {run['wall_contact_s']:.1f} s; passes: {passes}"
+        )
     files = result["files"]
-    lines.append("files: " + ", ".join(str(v) for k, v in files.items() if k != "frames")
-                 + (f", {len(files['frames'])} frames" if files.get("frames") else ""))  # fmt: skip
+    lines.append(
+        "files: "
+        + ", ".join(str(v) for k, v in files.items() if k != "frames")
+        + (f", {len(files['frames'])} frames" if files.get("frames") else "")
+    )
     return lines
 
 
@@ -132,9 +152,19 @@ def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
     runs, limit = (2, opts.time_limit_s or 20.0) if opts.quick else (opts.runs, opts.time_limit_s)
     if opts.analysis:
         return _analysis(opts, runs, limit)
-    result = evaluate_overtaking(_split(opts.policy), opts.setting, runs, opts.seed, limit, opts.lead_margin_m,
-                                 opts.reference, _split(opts.names), opts.track, opts.car,
-                                 humans=_split(opts.human))  # fmt: skip
+    result = evaluate_overtaking(
+        _split(opts.policy),
+        opts.setting,
+        runs,
+        opts.seed,
+        limit,
+        opts.lead_margin_m,
+        opts.reference,
+        _split(opts.names),
+        opts.track,
+        opts.car,
+        humans=_split(opts.human),
+    )
     result["files"] = write_setting_outputs(result, opts.out)
     emit(result, opts.json, format_setting)
     return 0
@@ -154,13 +184,15 @@ def _analysis(opts: EvaluateOvertakingOptions, runs: int, limit_s: float) -> int
     name = _split(opts.names)[0] if opts.names else policies[0]
     driver = policy.driver()
     try:
-        result, trace = analyse_overtaking(driver, name, track, car, opts.setting, runs, opts.seed, limit_s,
-                                           opts.lead_margin_m)  # fmt: skip
+        result, trace = analyse_overtaking(
+            driver, name, track, car, opts.setting, runs, opts.seed, limit_s, opts.lead_margin_m
+        )
     finally:
         if hasattr(driver, "close"):
             driver.close()
-    result["files"] = write_analysis_outputs(result, trace, track, opts.out, car_length_m=car.length_m,
-                                             car_width_m=car.width_m)  # fmt: skip
+    result["files"] = write_analysis_outputs(
+        result, trace, track, opts.out, car_length_m=car.length_m, car_width_m=car.width_m
+    )
     # The paths stay in the JSON file; the printed result keeps the runs, passes and contacts.
     paths = ("time_s", "overtaken", "speed_kmh", "x_m", "y_m")
     for key in ("agent", "reference"):

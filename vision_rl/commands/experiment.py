@@ -42,22 +42,31 @@ def format_experiment(result: dict[str, Any]) -> list[str]:
 
     def block(title: str, s: dict[str, Any], per_seed: list[dict[str, Any]]) -> list[str]:
         spread = "" if s["lap_time_std_s"] is None else f" +- {s['lap_time_std_s']:.2f} s"
-        lines = [f"  {title}: lap 2 mean {format_lap_time(s['lap_time_mean_s'])}{spread} over "
-                 f"{s['n_training_seeds_finished']} seeds that finished; best {format_lap_time(s['best_lap_time_s'])};"
-                 f" starts finished {s['finished']}"]  # fmt: skip
+        lines = [
+            f"  {title}: lap 2 mean {format_lap_time(s['lap_time_mean_s'])}{spread} over "
+            f"{s['n_training_seeds_finished']} seeds that finished; best {format_lap_time(s['best_lap_time_s'])};"
+            f" starts finished {s['finished']}"
+        ]
         for r in per_seed:
             wall = "-" if r["wall_contact_s"] is None else f"{r['wall_contact_s']:.2f} s"
             kept = ""
             if "kept_at_steps" in r:
-                kept = ", no held-out evaluation clean: last weights" if r["kept_at_steps"] is None else \
-                    f", kept at {r['kept_at_steps']} steps"
-            lines.append(f"    seed {r['seed']}: {format_lap_time(r['lap_time_s'])} ({r['finished']} finished, "
-                         f"wall contact {wall}{kept})")  # fmt: skip
+                kept = (
+                    ", no held-out evaluation clean: last weights"
+                    if r["kept_at_steps"] is None
+                    else f", kept at {r['kept_at_steps']} steps"
+                )
+            lines.append(
+                f"    seed {r['seed']}: {format_lap_time(r['lap_time_s'])} ({r['finished']} finished, "
+                f"wall contact {wall}{kept})"
+            )
         return lines
 
     s = result["summary"]
-    lines = [f"{result['name']}: {s['n_training_seeds']} training seeds of {result['observation']} SAC, "
-             f"{result['steps']} steps each, on {result['track']} / {result['car']}"]  # fmt: skip
+    lines = [
+        f"{result['name']}: {s['n_training_seeds']} training seeds of {result['observation']} SAC, "
+        f"{result['steps']} steps each, on {result['track']} / {result['car']}"
+    ]
     lines += block("last weights", s, result["per_seed"])
     if result.get("selected"):
         chosen = result["selected"]
@@ -74,11 +83,21 @@ def run_experiment_command(opts: ExperimentOptions) -> int:
     previous = interrupt_on_sigterm()
     try:
         with progress_bar(opts.steps * len(seeds), "step", "experiment", enabled=opts.progress) as bar:
-            result = run_experiment(train, seeds, opts.out, opts.eval_seeds, opts.name,
-                                    lambda done, total: show(bar, done, total), opts.seeds_at_once)  # fmt: skip
+            result = run_experiment(
+                train,
+                seeds,
+                opts.out,
+                opts.eval_seeds,
+                opts.name,
+                lambda done, total: show(bar, done, total),
+                opts.seeds_at_once,
+            )
     except KeyboardInterrupt:
-        emit({"interrupted": True, "resume": "run the same command again"}, opts.json,
-             lambda r: ["interrupted: the finished seeds and the current run are saved; run the same command again"])
+        emit(
+            {"interrupted": True, "resume": "run the same command again"},
+            opts.json,
+            lambda r: ["interrupted: the finished seeds and the current run are saved; run the same command again"],
+        )
         return 130
     finally:
         restore_sigterm(previous)
@@ -114,10 +133,18 @@ def format_curves(result: dict[str, Any]) -> list[str]:
     lines = [f"limit {limit}, built-in AI {ai}"]
     for s in result["series"]:
         beat = s["time_to_beat_ai"]
-        when = "never" if beat is None else (f"{beat['num_timesteps']} steps ({beat['epochs']:g} epochs, "
-                                              f"{beat['train_time_s'] / 60:.1f} min of training)")  # fmt: skip
-        lines.append(f"  {s['name']}: {len(s['per_seed'])} seeds, last mean {format_lap_time(s['mean_lap_time_s'][-1])}"
-                     f" ({s['seeds_finished'][-1]} finished); beats the AI at {when}")  # fmt: skip
+        when = (
+            "never"
+            if beat is None
+            else (
+                f"{beat['num_timesteps']} steps ({beat['epochs']:g} epochs, "
+                f"{beat['train_time_s'] / 60:.1f} min of training)"
+            )
+        )
+        lines.append(
+            f"  {s['name']}: {len(s['per_seed'])} seeds, last mean {format_lap_time(s['mean_lap_time_s'][-1])}"
+            f" ({s['seeds_finished'][-1]} finished); beats the AI at {when}"
+        )
     lines.append(f"files: {result['files']['png']}, {result['files']['json']}")
     return lines
 

@@ -33,7 +33,9 @@ _C = "vision_rl.commands"
 
 COMMANDS: dict[str, Command] = {
     "tracks": Command(
-        "the tracks (built-in and racetrack-database); --check drives them", f"{_C}.tracks", "TracksOptions",
+        "the tracks (built-in and racetrack-database); --check drives them",
+        f"{_C}.tracks",
+        "TracksOptions",
         "run_tracks",
     ),
     "limit": Command("physical-limit (QSS) lap time of a car", f"{_C}.limit", "LimitOptions", "run_limit"),
@@ -43,11 +45,15 @@ COMMANDS: dict[str, Command] = {
     "bench ddpg": Command("DDPG updates/s per variant and layout", f"{_C}.bench", "BenchDDPGOptions", "run_bench_ddpg"),
     "bench render": Command("renderer and capture throughput", f"{_C}.bench", "BenchRenderOptions", "run_bench_render"),
     "bench train-repr": Command(
-        "Phase-1 training step, frames/s per batch and precision", f"{_C}.bench_train_repr", "BenchTrainReprOptions",
+        "Phase-1 training step, frames/s per batch and precision",
+        f"{_C}.bench_train_repr",
+        "BenchTrainReprOptions",
         "run_bench_train_repr",
     ),
     "bench scaling": Command(
-        "capture, Phase-1 training and sampling, 1 vs 2 workers", f"{_C}.bench_scaling", "BenchScalingOptions",
+        "capture, Phase-1 training and sampling, 1 vs 2 workers",
+        f"{_C}.bench_scaling",
+        "BenchScalingOptions",
         "run_bench_scaling",
     ),
     "capture": Command("record frames and targets to HDF5", f"{_C}.capture", "CaptureOptions", "run_capture"),
@@ -58,11 +64,15 @@ COMMANDS: dict[str, Command] = {
         "Phase 1: encoder latency, batch 1", f"{_C}.bench_latency", "BenchLatencyOptions", "run_bench_latency"
     ),
     "train-policy": Command(
-        "Phase 2: SAC on the state or the frozen embedding", f"{_C}.train_policy", "TrainPolicyOptions",
+        "Phase 2: SAC on the state or the frozen embedding",
+        f"{_C}.train_policy",
+        "TrainPolicyOptions",
         "run_train_policy",
     ),
     "experiment": Command(
-        "Phase 2 over several training seeds: mean, spread, best", f"{_C}.experiment", "ExperimentOptions",
+        "Phase 2 over several training seeds: mean, spread, best",
+        f"{_C}.experiment",
+        "ExperimentOptions",
         "run_experiment_command",
     ),
     "curves": Command(
@@ -76,29 +86,41 @@ COMMANDS: dict[str, Command] = {
         "lap-time table: AI, limit, policies (Table 1)", f"{_C}.evaluate", "LeaderboardOptions", "run_leaderboard"
     ),
     "convert-policy": Command(
-        "a policy of format 2 (SB3 zip) to format 3 (no pickle)", f"{_C}.convert_policy", "ConvertPolicyOptions",
+        "a policy of format 2 (SB3 zip) to format 3 (no pickle)",
+        f"{_C}.convert_policy",
+        "ConvertPolicyOptions",
         "run_convert_policy",
     ),
     "train-overtaking": Command(
-        "curriculum SAC (Agents 1-3) or standard SAC for overtaking", f"{_C}.train_overtaking",
-        "TrainOvertakingOptions", "run_train_overtaking",
+        "curriculum SAC (Agents 1-3) or standard SAC for overtaking",
+        f"{_C}.train_overtaking",
+        "TrainOvertakingOptions",
+        "run_train_overtaking",
     ),
     "evaluate-overtaking": Command(
-        "settings A/B of the overtaking paper (or --curves: Fig. 3)", f"{_C}.evaluate_overtaking",
-        "EvaluateOvertakingOptions", "run_evaluate_overtaking",
+        "settings A/B of the overtaking paper (or --curves: Fig. 3)",
+        f"{_C}.evaluate_overtaking",
+        "EvaluateOvertakingOptions",
+        "run_evaluate_overtaking",
     ),
     "record-demos": Command(
-        "the built-in AI's demonstrations of the single-car race", f"{_C}.record_demos", "RecordDemosOptions",
+        "the built-in AI's demonstrations of the single-car race",
+        f"{_C}.record_demos",
+        "RecordDemosOptions",
         "run_record_demos",
     ),
     "train-baseline": Command(
-        "a Table III baseline (bc, gail, td3, sac, dreamer) on the single-car race", f"{_C}.train_baseline",
-        "TrainBaselineOptions", "run_train_baseline",
+        "a Table III baseline (bc, gail, td3, sac, dreamer) on the single-car race",
+        f"{_C}.train_baseline",
+        "TrainBaselineOptions",
+        "run_train_baseline",
     ),
-    "table3": Command("Table III: AI and baselines on the protocol, beside the paper", f"{_C}.table3", "Table3Options",
-                      "run_table3"),
-    "play": Command("drive the protocol's laps yourself (keyboard or gamepad)", f"{_C}.play", "PlayOptions",
-                    "run_play"),
+    "table3": Command(
+        "Table III: AI and baselines on the protocol, beside the paper", f"{_C}.table3", "Table3Options", "run_table3"
+    ),
+    "play": Command(
+        "drive the protocol's laps yourself (keyboard or gamepad)", f"{_C}.play", "PlayOptions", "run_play"
+    ),
     "pipeline": Command("the whole job (--quick: small)", f"{_C}.pipeline", "PipelineOptions", "run_pipeline"),
     "train-ddpg": Command(
         "DDPG, asymmetric actor-critic from pixels", f"{_C}.train_ddpg", "TrainDDPGOptions", "run_train_ddpg"
@@ -107,10 +129,12 @@ COMMANDS: dict[str, Command] = {
         "a DDPG agent through the lap-time protocol", f"{_C}.evaluate_ddpg", "EvaluateDDPGOptions", "run_evaluate_ddpg"
     ),
     "compare-ddpg": Command(
-        "DDPG runs at equal training time (distance per episode)", f"{_C}.evaluate_ddpg", "CompareDDPGOptions",
+        "DDPG runs at equal training time (distance per episode)",
+        f"{_C}.evaluate_ddpg",
+        "CompareDDPGOptions",
         "run_compare_ddpg",
     ),
-}  # fmt: skip
+}
 
 
 def _debug() -> bool:

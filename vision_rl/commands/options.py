@@ -19,8 +19,12 @@ import textwrap
 from typing import Any
 
 _SCALARS = {"int": int, "float": float, "str": str}
-_TUPLES = {"tuple[int, int]": (int, 2), "tuple[float, float]": (float, 2), "tuple[int, ...]": (int, "+"),
-           "tuple[str, ...]": (str, "+")}  # fmt: skip
+_TUPLES = {
+    "tuple[int, int]": (int, 2),
+    "tuple[float, float]": (float, 2),
+    "tuple[int, ...]": (int, "+"),
+    "tuple[str, ...]": (str, "+"),
+}
 
 
 def field_docs(config_cls: type) -> dict[str, str]:

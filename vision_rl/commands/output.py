@@ -40,7 +40,6 @@ def show(bar: Any, done: int, total: int | None = None, **postfix: Any) -> None:
     bar.update(0)
 
 
-
 def _raise_interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
 

@@ -107,13 +107,36 @@ class PipelineSizes:
 SIZES: dict[str, PipelineSizes] = {
     # CI: a few hundred steps on whatever track the test picks, short evaluation runs.
     "tiny": PipelineSizes(
-        train_laps=1, eval_laps=1, capture_cars=2, capture_fps=5, image_hw_px=(64, 96), repr_epochs=1,
-        repr_max_steps=3, sac_preset="cpu", steer_action="rate_scaled", state_steps=200, vision_steps=120,
-        state_cars=2, vision_cars=2, state_learning_starts=50, vision_learning_starts=40, vision_gradient_steps=0,
-        vision_workers=0, batch_size=32, buffer_size=5_000, eval_every_steps=100,
-        vision_target_entropy=-4.0, vision_learning_rate_final=1e-4, vision_stuck_ends_episode=True,
-        vision_steer_change_penalty_c_s=0.5, vision_critic_state=True, state_eval_seeds=1, vision_eval_seeds=1,
-        stats_steps=5, state_eval_time_limit_s=30.0, vision_eval_time_limit_s=30.0,
+        train_laps=1,
+        eval_laps=1,
+        capture_cars=2,
+        capture_fps=5,
+        image_hw_px=(64, 96),
+        repr_epochs=1,
+        repr_max_steps=3,
+        sac_preset="cpu",
+        steer_action="rate_scaled",
+        state_steps=200,
+        vision_steps=120,
+        state_cars=2,
+        vision_cars=2,
+        state_learning_starts=50,
+        vision_learning_starts=40,
+        vision_gradient_steps=0,
+        vision_workers=0,
+        batch_size=32,
+        buffer_size=5_000,
+        eval_every_steps=100,
+        vision_target_entropy=-4.0,
+        vision_learning_rate_final=1e-4,
+        vision_stuck_ends_episode=True,
+        vision_steer_change_penalty_c_s=0.5,
+        vision_critic_state=True,
+        state_eval_seeds=1,
+        vision_eval_seeds=1,
+        stats_steps=5,
+        state_eval_time_limit_s=30.0,
+        vision_eval_time_limit_s=30.0,
     ),
     # Frames at half the paper's side: training the encoder on 470 x 280 frames ran at about 30 frames/s on one of
     # these cores, on 236 x 140 at about 230 (measured side by side), which is what fits the quick budget.
@@ -151,28 +174,73 @@ SIZES: dict[str, PipelineSizes] = {
     # one encoder: 104 of 104 against 88 (Fisher p = 2e-5), lap 2:10.8 +- 0.7 s against 2:15.2 +- 2.3 s; 4 seeds on an
     # encoder of Phase 1 seed 1: 51 of 52, 2:11.5 +- 0.9 s. The job took 10.6 min (its vision lap 2:10.560, 13 of 13).
     "quick": PipelineSizes(
-        train_laps=4, eval_laps=1, capture_cars=4, capture_fps=10, image_hw_px=(140, 236), repr_epochs=10,
-        repr_max_steps=-1, sac_preset="cpu", steer_action="rate_scaled", state_steps=250_000, vision_steps=200_000,
-        state_cars=20, vision_cars=10, state_learning_starts=-1, vision_learning_starts=5_000, vision_gradient_steps=0,
-        vision_workers=1, batch_size=0, buffer_size=0, eval_every_steps=50_000,
-        vision_target_entropy=-4.0, vision_learning_rate_final=1e-4, vision_stuck_ends_episode=True,
-        vision_steer_change_penalty_c_s=0.5, vision_critic_state=True, state_eval_seeds=3, vision_eval_seeds=3,
-        stats_steps=50, state_eval_time_limit_s=0.0, vision_eval_time_limit_s=400.0,
+        train_laps=4,
+        eval_laps=1,
+        capture_cars=4,
+        capture_fps=10,
+        image_hw_px=(140, 236),
+        repr_epochs=10,
+        repr_max_steps=-1,
+        sac_preset="cpu",
+        steer_action="rate_scaled",
+        state_steps=250_000,
+        vision_steps=200_000,
+        state_cars=20,
+        vision_cars=10,
+        state_learning_starts=-1,
+        vision_learning_starts=5_000,
+        vision_gradient_steps=0,
+        vision_workers=1,
+        batch_size=0,
+        buffer_size=0,
+        eval_every_steps=50_000,
+        vision_target_entropy=-4.0,
+        vision_learning_rate_final=1e-4,
+        vision_stuck_ends_episode=True,
+        vision_steer_change_penalty_c_s=0.5,
+        vision_critic_state=True,
+        state_eval_seeds=3,
+        vision_eval_seeds=3,
+        stats_steps=50,
+        state_eval_time_limit_s=0.0,
+        vision_eval_time_limit_s=400.0,
     ),
     # The paper's scale: 50 disrupted laps at 60 fps and 470 x 280, 50 encoder epochs; SAC for 400 epochs of 20
     # trials of 100 s (vision paper, section 4, Figure 3) = 8M steps. The vision frames render in a sampler process
     # as in quick (not timed at this scale).
     "full": PipelineSizes(
-        train_laps=50, eval_laps=5, capture_cars=4, capture_fps=60, image_hw_px=(280, 470), repr_epochs=50,
-        repr_max_steps=-1, sac_preset="paper", steer_action="angle", state_steps=8_000_000, vision_steps=8_000_000,
-        state_cars=20, vision_cars=20, state_learning_starts=-1, vision_learning_starts=-1, vision_gradient_steps=0,
-        vision_workers=1, batch_size=0, buffer_size=0, eval_every_steps=200_000,
-        vision_target_entropy=0.0, vision_learning_rate_final=0.0,
-        vision_stuck_ends_episode=False, vision_steer_change_penalty_c_s=0.0, vision_critic_state=False,
-        state_eval_seeds=3, vision_eval_seeds=3, stats_steps=100, state_eval_time_limit_s=0.0,
+        train_laps=50,
+        eval_laps=5,
+        capture_cars=4,
+        capture_fps=60,
+        image_hw_px=(280, 470),
+        repr_epochs=50,
+        repr_max_steps=-1,
+        sac_preset="paper",
+        steer_action="angle",
+        state_steps=8_000_000,
+        vision_steps=8_000_000,
+        state_cars=20,
+        vision_cars=20,
+        state_learning_starts=-1,
+        vision_learning_starts=-1,
+        vision_gradient_steps=0,
+        vision_workers=1,
+        batch_size=0,
+        buffer_size=0,
+        eval_every_steps=200_000,
+        vision_target_entropy=0.0,
+        vision_learning_rate_final=0.0,
+        vision_stuck_ends_episode=False,
+        vision_steer_change_penalty_c_s=0.0,
+        vision_critic_state=False,
+        state_eval_seeds=3,
+        vision_eval_seeds=3,
+        stats_steps=100,
+        state_eval_time_limit_s=0.0,
         vision_eval_time_limit_s=0.0,
     ),
-}  # fmt: skip
+}
 
 
 @dataclass(frozen=True)
@@ -247,11 +315,19 @@ def _capture(opts: PipelineOptions, sizes: PipelineSizes, name: str, laps: int, 
     resume = state == "partial"
     captured = capture_sim(
         CaptureConfig(
-            out=str(out), track=opts.track, car=opts.car, laps=laps, disrupt_ai=disrupt, cars=sizes.capture_cars,
-            fps=sizes.capture_fps, image_hw_px=_image_hw_px(opts, sizes),
-            seed=opts.seed + (0 if disrupt else 1), resume=resume, force=not resume,
+            out=str(out),
+            track=opts.track,
+            car=opts.car,
+            laps=laps,
+            disrupt_ai=disrupt,
+            cars=sizes.capture_cars,
+            fps=sizes.capture_fps,
+            image_hw_px=_image_hw_px(opts, sizes),
+            seed=opts.seed + (0 if disrupt else 1),
+            resume=resume,
+            force=not resume,
         )
-    )  # fmt: skip
+    )
     if captured["interrupted"]:  # what it captured is kept, and the next pipeline resumes it
         raise KeyboardInterrupt
     return out
@@ -278,12 +354,20 @@ def _capture_state_policy(opts: PipelineOptions, sizes: PipelineSizes) -> Path:
     try:
         captured = capture_sim(
             CaptureConfig(
-                out=str(out), track=opts.track, car=opts.car, laps=laps, disrupt_ai=False, cars=STATE_POLICY_CARS,
-                fps=sizes.capture_fps, image_hw_px=_image_hw_px(opts, sizes), seed=opts.seed, force=True,
+                out=str(out),
+                track=opts.track,
+                car=opts.car,
+                laps=laps,
+                disrupt_ai=False,
+                cars=STATE_POLICY_CARS,
+                fps=sizes.capture_fps,
+                image_hw_px=_image_hw_px(opts, sizes),
+                seed=opts.seed,
+                force=True,
                 max_frames=math.ceil(laps * TIME_LIMIT_LIMIT_LAPS * limit_lap_s * sizes.capture_fps),
             ),
             driver=driver,
-        )  # fmt: skip
+        )
     finally:
         driver.close()
     if captured["interrupted"]:
@@ -316,8 +400,9 @@ def _in_second_process(fn: Callable[..., Any], *args: Any, niceness: int = 0) ->
             ok, value = receive.recv()
         except EOFError:
             process.join()
-            raise RuntimeError(f"the pipeline's second process ({fn.__name__}) ended with exit code "
-                               f"{process.exitcode} and no result") from None  # fmt: skip
+            raise RuntimeError(
+                f"the pipeline's second process ({fn.__name__}) ended with exit code {process.exitcode} and no result"
+            ) from None
         if not ok:
             raise value
         return value
@@ -342,8 +427,9 @@ def sampler_processes(sizes: PipelineSizes) -> int:
     return sizes.vision_workers
 
 
-def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car: str, runs: str, seed: int,
-                  device: str) -> dict[str, Any]:  # fmt: skip
+def _policy_stage(
+    kind: str, encoder: str, sizes: PipelineSizes, track: str, car: str, runs: str, seed: int, device: str
+) -> dict[str, Any]:
     """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time its last weights by
     the protocol."""
     from vision_rl.phase2_rl.artifact import MODEL_NAME
@@ -356,14 +442,26 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
     out = Path(runs) / "policy" / f"pipeline-{kind}"
     trained = train_policy(
         TrainPolicyConfig(
-            encoder=encoder, track=track, car=car, cars=sizes.vision_cars if vision else sizes.state_cars,
-            steps=sizes.vision_steps if vision else sizes.state_steps, preset=sizes.sac_preset, out=str(out),
-            seed=seed, force=True, checkpoint_every_steps=0,
+            encoder=encoder,
+            track=track,
+            car=car,
+            cars=sizes.vision_cars if vision else sizes.state_cars,
+            steps=sizes.vision_steps if vision else sizes.state_steps,
+            preset=sizes.sac_preset,
+            out=str(out),
+            seed=seed,
+            force=True,
+            checkpoint_every_steps=0,
             eval_every_steps=sizes.eval_every_steps,
-            save_buffer=False, stats_steps=sizes.stats_steps,
+            save_buffer=False,
+            stats_steps=sizes.stats_steps,
             learning_starts=sizes.vision_learning_starts if vision else sizes.state_learning_starts,
-            gradient_steps=sizes.vision_gradient_steps if vision else 0, batch_size=sizes.batch_size,
-            buffer_size=sizes.buffer_size, device=device, steer_action=sizes.steer_action, workers=workers or None,
+            gradient_steps=sizes.vision_gradient_steps if vision else 0,
+            batch_size=sizes.batch_size,
+            buffer_size=sizes.buffer_size,
+            device=device,
+            steer_action=sizes.steer_action,
+            workers=workers or None,
             target_entropy=sizes.vision_target_entropy if vision else 0.0,
             learning_rate_final=sizes.vision_learning_rate_final if vision else 0.0,
             stuck_ends_episode=vision and sizes.vision_stuck_ends_episode,
@@ -371,7 +469,7 @@ def _policy_stage(kind: str, encoder: str, sizes: PipelineSizes, track: str, car
             steer_change_penalty_scale="usable",  # moot where c_s is 0
             critic_state=vision and sizes.vision_critic_state,
         )
-    )  # fmt: skip
+    )
     if trained["interrupted"]:
         raise KeyboardInterrupt
     t1 = time.perf_counter()
@@ -454,9 +552,11 @@ def _check_kept_encoder(opts: PipelineOptions) -> None:
     seen_laps = _capture_path(opts, "state_policy").name in files
     if seen_laps != bool(opts.state_policy_laps):
         seen = "with" if seen_laps else "without"
-        raise ValueError(f"{data_json.parent} holds an encoder trained {seen} the state policy's laps and "
-                         f"--state-policy-laps is {opts.state_policy_laps}: remove that folder to train it again, or "
-                         "run as before")  # fmt: skip
+        raise ValueError(
+            f"{data_json.parent} holds an encoder trained {seen} the state policy's laps and "
+            f"--state-policy-laps is {opts.state_policy_laps}: remove that folder to train it again, or "
+            "run as before"
+        )
 
 
 def run_pipeline_stages(opts: PipelineOptions) -> dict[str, Any]:
@@ -469,8 +569,9 @@ def run_pipeline_stages(opts: PipelineOptions) -> dict[str, Any]:
         return _stages_beside_the_state_policy(opts, sizes, state)
 
 
-def _stages_beside_the_state_policy(opts: PipelineOptions, sizes: PipelineSizes,
-                                    state: Callable[[], dict[str, Any]]) -> dict[str, Any]:  # fmt: skip
+def _stages_beside_the_state_policy(
+    opts: PipelineOptions, sizes: PipelineSizes, state: Callable[[], dict[str, Any]]
+) -> dict[str, Any]:
     from vision_rl.phase1_repr.train import TrainReprConfig, train_repr
 
     summary: dict[str, Any] = {"mode": opts.mode, "track": opts.track, "car": opts.car}
@@ -501,10 +602,16 @@ def _stages_beside_the_state_policy(opts: PipelineOptions, sizes: PipelineSizes,
     if not ckpt.is_file():
         result = train_repr(
             TrainReprConfig(
-                data=",".join(data), val=str(eval_h5), epochs=sizes.repr_epochs, max_steps=sizes.repr_max_steps,
-                out=str(repr_out), force=True, seed=opts.seed, num_workers=0 if opts.tiny else 2,
+                data=",".join(data),
+                val=str(eval_h5),
+                epochs=sizes.repr_epochs,
+                max_steps=sizes.repr_max_steps,
+                out=str(repr_out),
+                force=True,
+                seed=opts.seed,
+                num_workers=0 if opts.tiny else 2,
             )
-        )  # fmt: skip
+        )
         summary["train_repr"] = {k: result.get(k) for k in ("best_epoch", "val_r2", "n_train_frames", "n_val_frames")}
     summary["train_repr_seconds"] = time.perf_counter() - t0
 
@@ -545,8 +652,10 @@ def format_pipeline(summary: dict[str, Any]) -> list[str]:
     ]
     by_policy = summary.get("state_policy_capture")
     if by_policy:
-        lines.append(f"  the state policy's laps: {by_policy['seconds']:.0f} s -> {by_policy['path']} (after "
-                     f"{by_policy['waited_s']:.0f} s waiting for the state policy)")  # fmt: skip
+        lines.append(
+            f"  the state policy's laps: {by_policy['seconds']:.0f} s -> {by_policy['path']} (after "
+            f"{by_policy['waited_s']:.0f} s waiting for the state policy)"
+        )
     repr_result = summary.get("train_repr")
     if repr_result is None:
         lines.append(f"  train-repr: kept the existing encoder ({summary['train_repr_seconds']:.0f} s)")
@@ -564,9 +673,11 @@ def run_pipeline(opts: PipelineOptions) -> int:
     try:
         summary = run_pipeline_stages(opts)
     except KeyboardInterrupt:
-        emit({"interrupted": True, "resume": "run the same command again"}, opts.json,
-             lambda r: ["interrupted: the finished stages are kept (a policy trains again); run the same command "
-                        "again"])  # fmt: skip
+        emit(
+            {"interrupted": True, "resume": "run the same command again"},
+            opts.json,
+            lambda r: ["interrupted: the finished stages are kept (a policy trains again); run the same command again"],
+        )
         return 130
     finally:
         restore_sigterm(previous)

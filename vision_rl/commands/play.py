@@ -25,9 +25,11 @@ def format_play(result: dict[str, Any]) -> list[str]:
     if result.get("setting"):
         lines = [f"{result['name']} in setting {result['setting']}: {len(result['runs'])} runs"]
         for run in result["runs"]:
-            lines.append(f"  run {run['run']} (seed {run['seed']}): {run['overtaken']}/5 overtaken in "
-                         f"{run['travel_time_s']:.1f} s, car contact {run['car_contact_s']:.1f} s, wall "
-                         f"{run['wall_contact_s']:.1f} s ({run['end']})")  # fmt: skip
+            lines.append(
+                f"  run {run['run']} (seed {run['seed']}): {run['overtaken']}/5 overtaken in "
+                f"{run['travel_time_s']:.1f} s, car contact {run['car_contact_s']:.1f} s, wall "
+                f"{run['wall_contact_s']:.1f} s ({run['end']})"
+            )
         if result.get("setting_json"):
             lines.append(f"row: {result['setting_json']} (evaluate-overtaking --human)")
         return [*lines, "ended by the player"] if result["quit"] else lines
@@ -41,8 +43,11 @@ def format_play(result: dict[str, Any]) -> list[str]:
         return [*lines, f"no scored lap ({result['dnf_reason']}); row: {result['evaluation_json']}"]
     gap = 100.0 * (result["best_lap_time_s"] / result["limit_lap_time_s"] - 1.0)
     wall = result["best_lap"]["wall_contact_s"]
-    return [*lines, f"lap {format_lap_time(result['best_lap_time_s'])} ({gap:+.1f} % of the limit, wall "
-                    f"{wall:.1f} s); row: {result['evaluation_json']}"]  # fmt: skip
+    return [
+        *lines,
+        f"lap {format_lap_time(result['best_lap_time_s'])} ({gap:+.1f} % of the limit, wall "
+        f"{wall:.1f} s); row: {result['evaluation_json']}",
+    ]
 
 
 def run_play(opts: PlayOptions) -> int:

@@ -24,36 +24,50 @@ def _num(value: float | None, digits: int = 1) -> str:
 
 def format_table3(result: dict[str, Any]) -> list[str]:
     p = result["protocol"]
-    lines = [f"Table III (single-car race) on {result['track_name']} with {result['car']}: protocol v{p['version']}, "
-             f"best of {p['seeds']} seeds, lap {p['laps']} scored",
-             f"  {'':<32} {'lap s':>7} {'km/h':>7} {'lap/AI':>7} {'spd/AI':>7} | {'paper lap':>9} {'km/h':>6} "
-             f"{'lap/AI':>7} {'spd/AI':>7}"]  # fmt: skip
+    lines = [
+        f"Table III (single-car race) on {result['track_name']} with {result['car']}: protocol v{p['version']}, "
+        f"best of {p['seeds']} seeds, lap {p['laps']} scored",
+        f"  {'':<32} {'lap s':>7} {'km/h':>7} {'lap/AI':>7} {'spd/AI':>7} | {'paper lap':>9} {'km/h':>6} "
+        f"{'lap/AI':>7} {'spd/AI':>7}",
+    ]
     for row in result["rows"]:
         paper = row["paper"] or {}
         if row["status"] in ("timed", "DNF") and row.get("lap_time_s") is not None:
-            ours = (f"{_num(row['lap_time_s']):>7} {_num(row['avg_speed_kmh']):>7} "
-                    f"{_num(row['lap_ratio_to_ai'], 3):>7} {_num(row['speed_ratio_to_ai'], 3):>7}")  # fmt: skip
+            ours = (
+                f"{_num(row['lap_time_s']):>7} {_num(row['avg_speed_kmh']):>7} "
+                f"{_num(row['lap_ratio_to_ai'], 3):>7} {_num(row['speed_ratio_to_ai'], 3):>7}"
+            )
         else:
             word = "DNF" if row["status"] in ("timed", "DNF") else row["status"]
             ours = f"{word:>31}"
-        theirs = (f"{_num(paper.get('lap_time_s')):>9} {_num(paper.get('avg_speed_kmh')):>6} "
-                  f"{_num(paper.get('lap_ratio_to_ai'), 3):>7} {_num(paper.get('speed_ratio_to_ai'), 3):>7}"
-                  if paper else f"{'':>32}")  # fmt: skip
+        theirs = (
+            f"{_num(paper.get('lap_time_s')):>9} {_num(paper.get('avg_speed_kmh')):>6} "
+            f"{_num(paper.get('lap_ratio_to_ai'), 3):>7} {_num(paper.get('speed_ratio_to_ai'), 3):>7}"
+            if paper
+            else f"{'':>32}"
+        )
         lines.append(f"  {row['name']:<32} {ours} | {theirs}")
     for row in result["rows"]:
         if row["status"] == "DNF" or row.get("dnf_reasons"):
-            lines.append(f"  {row['name']}: {row.get('finished')}/{row.get('seeds')} starts finished; "
-                         + "; ".join(row.get("dnf_reasons") or []))  # fmt: skip
+            lines.append(
+                f"  {row['name']}: {row.get('finished')}/{row.get('seeds')} starts finished; "
+                + "; ".join(row.get("dnf_reasons") or [])
+            )
         if row.get("reason"):
             lines.append(f"  {row['name']}: {row['reason']}")
         over = row.get("over_training_seeds")
         if over:
             spread = "" if over["lap_time_std_s"] is None else f" +- {_num(over['lap_time_std_s'])}"
             mean_s = over["lap_time_mean_s"]
-            mean = ("no lap" if mean_s is None else
-                    f"lap mean {_num(mean_s)}{spread} s (of the {over['n_training_seeds_finished']} with a lap)")
-            lines.append(f"  {row['name']}: over {over['n_training_seeds']} training seed(s), {mean}, "
-                         f"starts finished {over['finished']}")  # fmt: skip
+            mean = (
+                "no lap"
+                if mean_s is None
+                else f"lap mean {_num(mean_s)}{spread} s (of the {over['n_training_seeds_finished']} with a lap)"
+            )
+            lines.append(
+                f"  {row['name']}: over {over['n_training_seeds']} training seed(s), {mean}, "
+                f"starts finished {over['finished']}"
+            )
         for run in row.get("runs") or []:
             lap = "DNF" if run["lap_time_s"] is None else f"{_num(run['lap_time_s'])} s"
             steps = f", {run['num_timesteps']} steps" if run["num_timesteps"] else ""  # bc trains on no env steps

@@ -42,8 +42,10 @@ def format_tracks(rows: list[dict]) -> list[str]:
         head += f"{'limit_lap_s':>13}{'ai_lap_s':>10}{'wall_s':>8}{'road_px':>9}  result"
     out = [head]
     for r in rows:
-        line = (f"{r['name']:<14}{r['source']:<20}{r['length_m']:>10.1f}{r['min_width_m']:>13.2f}{r['corners']:>9d}"
-                f"{r['wall_trim_m']:>13.2f}")  # fmt: skip
+        line = (
+            f"{r['name']:<14}{r['source']:<20}{r['length_m']:>10.1f}{r['min_width_m']:>13.2f}{r['corners']:>9d}"
+            f"{r['wall_trim_m']:>13.2f}"
+        )
         if check:
             result = "finished" if r["finished"] else f"DNF ({r['dnf_reason']})"
             if r.get("render_error"):

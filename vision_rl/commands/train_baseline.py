@@ -10,9 +10,19 @@ from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, 
 from vision_rl.phase2_rl.baselines import TrainBaselineConfig
 
 #: ``--quick``: tiny sizes (2 cars, a few hundred steps, short evaluations) where an option was left at its default.
-QUICK = dict(steps=300, cars=2, learning_starts=100, batch_size=32, buffer_size=5_000, eval_every_steps=200,
-             eval_laps=1, eval_time_limit_s=30.0, checkpoint_every_steps=0, bc_max_epochs=20,
-             gail_disc_every_steps=100)  # fmt: skip
+QUICK = dict(
+    steps=300,
+    cars=2,
+    learning_starts=100,
+    batch_size=32,
+    buffer_size=5_000,
+    eval_every_steps=200,
+    eval_laps=1,
+    eval_time_limit_s=30.0,
+    checkpoint_every_steps=0,
+    bc_max_epochs=20,
+    gail_disc_every_steps=100,
+)
 
 
 @dataclass(frozen=True)

@@ -38,16 +38,22 @@ def format_train_ddpg(result: dict[str, Any]) -> list[str]:
     lines = [
         f"agent: {result['agent']} ({result['variant']}, {result['track']}, {result['car']}), {result['num_steps']} "
         f"steps, {result['n_updates']} updates, {result['episodes']} episodes, {result['train_time_s']:.0f} s of "
-        "training" + (" (interrupted: saved, continue with --resume)" if result["interrupted"] else "")
-        + (" (its --train-minutes are up: continue with --resume and more)"
-           if result["stopped_by"] == "train_minutes" else ""),
+        "training"
+        + (" (interrupted: saved, continue with --resume)" if result["interrupted"] else "")
+        + (
+            " (its --train-minutes are up: continue with --resume and more)"
+            if result["stopped_by"] == "train_minutes"
+            else ""
+        ),
         f"metrics: {result['metrics_jsonl']}   episodes: {result['episodes_jsonl']}",
         *format_sampling(result.get("sampling")),
     ]
     last = result.get("last_eval")
     if last:
-        lines.append(f"last evaluation at {last['num_steps']} steps: lap {_lap(last['lap_time_s'])}, "
-                     f"{last['distance_m']:.0f} m driven")  # fmt: skip
+        lines.append(
+            f"last evaluation at {last['num_steps']} steps: lap {_lap(last['lap_time_s'])}, "
+            f"{last['distance_m']:.0f} m driven"
+        )
     return lines
 
 

@@ -9,9 +9,22 @@ from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, 
 from vision_rl.phase2_rl.overtaking import TrainOvertakingConfig
 
 #: ``--quick``: the whole chain at tiny sizes (2 cars, a few hundred steps per stage, short evaluations).
-QUICK = dict(cars=2, stage1_max_steps=200, stage2_steps=100, stage3_steps=100, standard_steps=400, learning_starts=50,
-             batch_size=32, buffer_size=5_000, eval_every_steps=100, eval_laps=1, eval_time_limit_s=40.0,
-             eval_episodes=2, eval_episode_s=5.0, checkpoint_every_steps=0)  # fmt: skip
+QUICK = dict(
+    cars=2,
+    stage1_max_steps=200,
+    stage2_steps=100,
+    stage3_steps=100,
+    standard_steps=400,
+    learning_starts=50,
+    batch_size=32,
+    buffer_size=5_000,
+    eval_every_steps=100,
+    eval_laps=1,
+    eval_time_limit_s=40.0,
+    eval_episodes=2,
+    eval_episode_s=5.0,
+    checkpoint_every_steps=0,
+)
 
 
 @dataclass(frozen=True)
@@ -27,17 +40,26 @@ class TrainOvertakingOptions(TrainOvertakingConfig):
 
 
 def format_train_overtaking(result: dict[str, Any]) -> list[str]:
-    lines = [f"agent {result['agent']}: policy {result['policy']}"
-             + (" (interrupted: saved; run the same command to continue)" if result["interrupted"] else "")]
+    lines = [
+        f"agent {result['agent']}: policy {result['policy']}"
+        + (" (interrupted: saved; run the same command to continue)" if result["interrupted"] else "")
+    ]
     for b in result["stages"]:
-        span = (f"steps {b['start_steps']}-{b['end_steps']}" if b["end_steps"] is not None
-                else f"from step {b['start_steps']}" if b["start_steps"] is not None else "")
+        span = (
+            f"steps {b['start_steps']}-{b['end_steps']}"
+            if b["end_steps"] is not None
+            else f"from step {b['start_steps']}"
+            if b["start_steps"] is not None
+            else ""
+        )
         crit = ""
         if b.get("criterion"):
             met = b["criterion"]["met"]
             crit = ", criterion " + (f"met at {b['criterion']['met_at_steps']} steps" if met else "not met (step cap)")
-        lines.append(f"  {b['stage']:<14} {b['status']:<12} {span}, c_w = c_c = {b['penalty_c']}, "
-                     f"buffer {b['buffer_size']}{crit}")
+        lines.append(
+            f"  {b['stage']:<14} {b['status']:<12} {span}, c_w = c_c = {b['penalty_c']}, "
+            f"buffer {b['buffer_size']}{crit}"
+        )
     if result.get("ai_lap_time_s") is not None:
         lines.append(f"built-in AI lap (stage-1 reference): {result['ai_lap_time_s']:.2f} s")
     return lines

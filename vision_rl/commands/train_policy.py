@@ -38,8 +38,10 @@ def format_train_policy(result: dict[str, Any]) -> list[str]:
     lines += format_sampling(result.get("sampling"))
     last = result.get("last_eval")
     if last:
-        lines.append(f"last evaluation at {last['num_timesteps']} steps: lap {format_lap_time(last['lap_time_s'])}, "
-                     f"{last['distance_m']:.0f} m driven")  # fmt: skip
+        lines.append(
+            f"last evaluation at {last['num_timesteps']} steps: lap {format_lap_time(last['lap_time_s'])}, "
+            f"{last['distance_m']:.0f} m driven"
+        )
     return lines
 
 

@@ -46,8 +46,9 @@ def format_tune(result: dict[str, Any]) -> list[str]:
         lines.append(f"  #{t['number']:<3} {t['state']:<8} score {score:>9}{extra}  {t['params']}")
     if result["best"] is not None:
         lines.append(f"best: trial {result['best']['number']}, score {result['best']['score_s']:.3f} s")
-        lines.append("  one training seed: confirm it with `vision-rl experiment --seeds 0,1,2 "
-                     f"{result['best_flags']}`")  # fmt: skip
+        lines.append(
+            f"  one training seed: confirm it with `vision-rl experiment --seeds 0,1,2 {result['best_flags']}`"
+        )
     if result["interrupted"]:
         lines.append("interrupted: run the same command again to continue the study")
     return lines
@@ -57,8 +58,14 @@ def run_tune_command(opts: TuneOptions) -> int:
     from vision_rl.phase2_rl.tune import TuneConfig, check_tune, run_tune
 
     base = TrainPolicyConfig(**{f.name: getattr(opts, f.name) for f in fields(TrainPolicyConfig)})
-    tune = TuneConfig(opts.trials, tuple(p.strip() for p in opts.space.split(",") if p.strip()), opts.eval_starts,
-                      opts.wall_weight, opts.prune_after_steps, opts.sampler_seed)  # fmt: skip
+    tune = TuneConfig(
+        opts.trials,
+        tuple(p.strip() for p in opts.space.split(",") if p.strip()),
+        opts.eval_starts,
+        opts.wall_weight,
+        opts.prune_after_steps,
+        opts.sampler_seed,
+    )
     check_tune(base, tune)
     previous = interrupt_on_sigterm()
     try:

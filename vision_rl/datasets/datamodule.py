@@ -69,8 +69,9 @@ class CaptureDataModule(L.LightningDataModule):
         if self.val_paths:
             val_catalogue = FrameCatalogue.open(self.val_paths)
             same_kind = (val_catalogue.image_hw_px, val_catalogue.target_names) == (
-                catalogue.image_hw_px, catalogue.target_names
-            )  # fmt: skip
+                catalogue.image_hw_px,
+                catalogue.target_names,
+            )
             if not same_kind:
                 raise CaptureFormatError(
                     f"{self.val_paths[0]}: validation frames {val_catalogue.image_hw_px} / targets do not match the "

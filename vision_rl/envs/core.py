@@ -440,8 +440,16 @@ class RacingCore:
         """An observer of this environment's vision vector with a frame ``encoder`` (frame size and the critic's state
         columns as its config says), for a trainer or a sampler to put in as :attr:`observer`."""
         cfg = self.config
-        return Observer("vision", self.track, self.car, self.groups, normalizer, encoder, cfg.image_hw_px,
-                        critic_state=cfg.critic_state)  # fmt: skip
+        return Observer(
+            "vision",
+            self.track,
+            self.car,
+            self.groups,
+            normalizer,
+            encoder,
+            cfg.image_hw_px,
+            critic_state=cfg.critic_state,
+        )
 
     def sample_raw_observations(self, observer: Observer, steps: int = 300) -> np.ndarray:
         """Raw observations by ``observer`` of the egos driven by the disrupted built-in AI from random starts over
@@ -481,8 +489,15 @@ class RacingCore:
         st = self.world.state
         s_prev = st.s_m[self.ego_ids].copy()
         ego_speed = np.hypot(st.vehicle.vx_mps[self.ego_ids], st.vehicle.vy_mps[self.ego_ids])
-        steer_rad = steering_command(actions[:, 0], self.steer_command_rad, cfg.steer_action, self.max_change_rad,
-                                     ego_speed, self.car.wheelbase_m, cfg.steer_change_share_of_range)  # fmt: skip
+        steer_rad = steering_command(
+            actions[:, 0],
+            self.steer_command_rad,
+            cfg.steer_action,
+            self.max_change_rad,
+            ego_speed,
+            self.car.wheelbase_m,
+            cfg.steer_change_share_of_range,
+        )
         omega = pedal_command(actions[:, 1], cfg.pedal_full_at)
         omega = np.where(self.throttle_cut_left > 0, np.minimum(omega, 0.0), omega)
         events = self.advance(steer_rad, omega)
@@ -514,8 +529,9 @@ class RacingCore:
     def label_with_ai(self, skill: float) -> None:
         """Let :meth:`ai_actions` ask the built-in AI at ``skill``: a driver of its own, so the skills of the
         opponents and of guided egos stay as they are."""
-        self.labeller = AIDriver(self.car, self.line, self.profile, self.world.n_cars, skill=skill,
-                                 groups=self.world.model.groups)  # fmt: skip
+        self.labeller = AIDriver(
+            self.car, self.line, self.profile, self.world.n_cars, skill=skill, groups=self.world.model.groups
+        )
 
     def ai_actions(self) -> np.ndarray:
         """(M, 2) actions of this environment's action space that ask, for the egos as they are now, for the
@@ -532,8 +548,15 @@ class RacingCore:
         """(M, 2) actions that ask :meth:`step` for the egos' steering commands ``command_rad`` and throttle/brake
         ``omega`` (see :func:`action_for_command`)."""
         cfg = self.config
-        steer = action_for_command(command_rad, self.steer_command_rad, cfg.steer_action, self.max_change_rad,
-                                   speed_mps, self.car.wheelbase_m, cfg.steer_change_share_of_range)  # fmt: skip
+        steer = action_for_command(
+            command_rad,
+            self.steer_command_rad,
+            cfg.steer_action,
+            self.max_change_rad,
+            speed_mps,
+            self.car.wheelbase_m,
+            cfg.steer_change_share_of_range,
+        )
         return np.column_stack([steer, action_for_pedal(omega, cfg.pedal_full_at)])
 
     def _after_step(self, s_prev: np.ndarray, ego_speed: np.ndarray, steer_rad: np.ndarray, events, autoreset: bool):
@@ -563,9 +586,15 @@ class RacingCore:
         if self.group_size > 1:
             gap_now = self._gaps()
             reward = overtaking_reward(
-                reward, st.car_contact[ego], speed, self.gap_m, gap_now, cfg.car_penalty_c_c,
-                cfg.overtake_gain_c_r, cfg.detection_range_c_d_m,
-            )  # fmt: skip
+                reward,
+                st.car_contact[ego],
+                speed,
+                self.gap_m,
+                gap_now,
+                cfg.car_penalty_c_c,
+                cfg.overtake_gain_c_r,
+                cfg.detection_range_c_d_m,
+            )
             self.gap_m = gap_now
         touching = st.wall_contact[ego]
         cut = np.maximum(self.throttle_cut_left - 1, 0)
@@ -632,8 +661,14 @@ def _statistics_sample(config: RacingConfig) -> np.ndarray:
     :data:`STATS_GROUPS` groups: the statistics (and so the normalised observations) must not depend on which
     environment happened to compute them first (so they are sampled at the default control step too)."""
     dt = RacingConfig.control_dt_s
-    pinned = dataclasses.replace(config, n_groups=STATS_GROUPS, normalize=False, control_dt_s=dt,
-                                 episode_s=max(config.episode_s, dt), restart_before_stuck_share=0.0)  # fmt: skip
+    pinned = dataclasses.replace(
+        config,
+        n_groups=STATS_GROUPS,
+        normalize=False,
+        control_dt_s=dt,
+        episode_s=max(config.episode_s, dt),
+        restart_before_stuck_share=0.0,
+    )
     core = RacingCore(pinned)
     try:
         return core.sample_raw_observations(core.observer)

@@ -53,6 +53,7 @@ def vector_dim(kind: str, rep_dim: int = 64, critic_state: bool = False) -> int:
         return rep_dim + len(sensors.DEDICATED_NAMES) + (len(STATE_OBS_NAMES) if critic_state else 0)
     return len(OBS_NAMES[kind])
 
+
 #: Bump when an observation's definition or its statistics' sampling changes: cached statistics of older versions
 #: are then ignored. 3: statistics always come from a 20-group world, whatever the environment that asks.
 OBS_VERSION = 3

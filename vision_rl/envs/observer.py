@@ -191,9 +191,11 @@ class Observer:
             height, width = self.image_hw_px
             views = min(len(np.unique(self.groups)), self.batch_cars or len(self.groups))
             self.renderer = Renderer(
-                self.track, RenderConfig(width_px=width, height_px=height, max_views=views),
-                car_length_m=self.car.length_m, car_width_m=self.car.width_m,
-            )  # fmt: skip
+                self.track,
+                RenderConfig(width_px=width, height_px=height, max_views=views),
+                car_length_m=self.car.length_m,
+                car_width_m=self.car.width_m,
+            )
         if self.pose_history is not None:
             x_m, y_m, yaw_rad = self.pose_history.delayed(state)
         else:

@@ -44,9 +44,22 @@ ACTOR_HW_PX = (89, 120)
 #: Share of the frame's rows, from the top, that is black.
 MASK_TOP_SHARE = 1.0 / 3.0
 MOTION_NAMES = (
-    "x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad", "vx_mps", "vy_mps", "vz_mps",
-    "roll_rate_radps", "pitch_rate_radps", "yaw_rate_radps", "ax_mps2", "ay_mps2", "az_mps2",
-)  # fmt: skip
+    "x_m",
+    "y_m",
+    "z_m",
+    "roll_rad",
+    "pitch_rad",
+    "yaw_rad",
+    "vx_mps",
+    "vy_mps",
+    "vz_mps",
+    "roll_rate_radps",
+    "pitch_rate_radps",
+    "yaw_rate_radps",
+    "ax_mps2",
+    "ay_mps2",
+    "az_mps2",
+)
 GOAL_NAMES = ("goal_x_m", "goal_y_m", "goal_z_m")
 #: The actor's four outputs, in order (the paper's keys up, left, right, down).
 KEY_NAMES = ("accelerate", "left", "right", "brake")
@@ -257,8 +270,7 @@ def goal_line(track: Track, car: VehicleParams, which: str, track_spec: str = ""
     proj = track.project(ref)
     order = np.argsort(proj.s_m)
     s, lateral = proj.s_m[order], proj.lateral_m[order]
-    lateral_at = np.interp(track.s_m, np.concatenate([s - track.length_m, s, s + track.length_m]),
-                           np.tile(lateral, 3))  # fmt: skip
+    lateral_at = np.interp(track.s_m, np.concatenate([s - track.length_m, s, s + track.length_m]), np.tile(lateral, 3))
     return racing_line_from_offsets(track, lateral_at)
 
 
@@ -301,7 +313,11 @@ class PixelObserver:
         self.line = goal_line(track, car, config.racing_line, config.track)
         hw = config.image_hw_px
         self._frames = Observer(  # batch_cars: the renderer's views per pass (see Observer)
-            "vision", track, car, groups, image_hw_px=(hw[0] * config.render_scale, hw[1] * config.render_scale),
+            "vision",
+            track,
+            car,
+            groups,
+            image_hw_px=(hw[0] * config.render_scale, hw[1] * config.render_scale),
             batch_cars=batch_cars,
         )
         self._spin_rad = math.radians(config.spin_slip_deg)
@@ -408,8 +424,9 @@ class PixelRacingCore:
         cfg = self.config
         keys = np.asarray(keys, dtype=np.float64)
         if keys.shape != (cfg.n_cars, 4):
-            raise PixelRacingError(f"actions must have shape ({cfg.n_cars}, 4) [accelerate, left, right, brake], "
-                                   f"got {keys.shape}")  # fmt: skip
+            raise PixelRacingError(
+                f"actions must have shape ({cfg.n_cars}, 4) [accelerate, left, right, brake], got {keys.shape}"
+            )
         action = keys_to_action(keys)
         s_prev = self.world.state.s_m.copy()
         events = self.world.step(action[:, 0], action[:, 1])

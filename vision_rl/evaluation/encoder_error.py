@@ -59,12 +59,16 @@ def encoder_error(predicted: np.ndarray, true: np.ndarray, wall_contact: np.ndar
     error = np.abs(np.asarray(predicted, dtype=np.float64) - np.asarray(true, dtype=np.float64))
     nearer_edge_m = true[:, TARGET_GROUPS["min_edge_distance"][0]].min(axis=1)
     out: dict[str, Any] = {"units": {name: unit for name, (_, unit) in TARGET_GROUPS.items()}}
-    for subset, mask in (("all", np.ones(len(error), dtype=bool)), ("near_wall", nearer_edge_m < NEAR_WALL_M),
-                         ("wall_contact", np.asarray(wall_contact, dtype=bool))):  # fmt: skip
+    for subset, mask in (
+        ("all", np.ones(len(error), dtype=bool)),
+        ("near_wall", nearer_edge_m < NEAR_WALL_M),
+        ("wall_contact", np.asarray(wall_contact, dtype=bool)),
+    ):
         rows = error[mask]
-        out[subset] = {"frames": int(mask.sum()), **{
-            name: float(rows[:, cols].mean()) if len(rows) else None for name, (cols, _) in TARGET_GROUPS.items()
-        }}  # fmt: skip
+        out[subset] = {
+            "frames": int(mask.sum()),
+            **{name: float(rows[:, cols].mean()) if len(rows) else None for name, (cols, _) in TARGET_GROUPS.items()},
+        }
     return out
 
 
@@ -72,8 +76,14 @@ def encoder_error_on_lap(timing: LapTiming, run: int, encoder, image_hw_px: tupl
     """:func:`encoder_error` of ``encoder`` (a frozen encoder with ``predict_targets``) on seed ``run``'s scored lap
     of ``timing``, rendered at ``image_hw_px`` (the encoder's input size)."""
     frames, true, wall_contact = lap_frames_and_targets(timing, run, image_hw_px)
-    predicted = np.concatenate([
-        np.asarray(encoder.predict_targets(frames[k : k + BATCH_FRAMES]), dtype=np.float64)
-        for k in range(0, len(frames), BATCH_FRAMES)
-    ]) if len(frames) else np.zeros((0, true.shape[1]))  # fmt: skip
+    predicted = (
+        np.concatenate(
+            [
+                np.asarray(encoder.predict_targets(frames[k : k + BATCH_FRAMES]), dtype=np.float64)
+                for k in range(0, len(frames), BATCH_FRAMES)
+            ]
+        )
+        if len(frames)
+        else np.zeros((0, true.shape[1]))
+    )
     return encoder_error(predicted, true, wall_contact)

@@ -173,9 +173,11 @@ class HumanDriver:
         pygame.display.set_caption(f"vision-rl play: {world.track.name} / {world.car.name}")
         self._font = pygame.font.Font(None, 28)
         self._renderer = Renderer(
-            world.track, RenderConfig(width_px=width, height_px=height, max_views=1, camera=CameraConfig(self.camera)),
-            car_length_m=world.car.length_m, car_width_m=world.car.width_m,
-        )  # fmt: skip
+            world.track,
+            RenderConfig(width_px=width, height_px=height, max_views=1, camera=CameraConfig(self.camera)),
+            car_length_m=world.car.length_m,
+            car_width_m=world.car.width_m,
+        )
         self._pygame = pygame
         self._joystick = None
         if self.input == "gamepad":
@@ -201,8 +203,16 @@ class HumanDriver:
 
     def _read_input(self) -> None:
         pg = self._pygame
-        names = {pg.K_UP: "up", pg.K_w: "up", pg.K_DOWN: "down", pg.K_s: "down", pg.K_LEFT: "left", pg.K_a: "left",
-                 pg.K_RIGHT: "right", pg.K_d: "right"}  # fmt: skip
+        names = {
+            pg.K_UP: "up",
+            pg.K_w: "up",
+            pg.K_DOWN: "down",
+            pg.K_s: "down",
+            pg.K_LEFT: "left",
+            pg.K_a: "left",
+            pg.K_RIGHT: "right",
+            pg.K_d: "right",
+        }
         for event in self.events() if self.events is not None else pg.event.get():
             if event.type == pg.QUIT or (event.type == pg.KEYDOWN and event.key == pg.K_ESCAPE):
                 raise HumanQuit("the player ended the run")
@@ -239,8 +249,7 @@ class HumanDriver:
             if self.observer is not None:
                 if rec.actions:  # the held command's step is over: its reward, as the environment gives it
                     progress = self.world.track.progress_delta(np.array([self._s_m]), state.s_m[i : i + 1])
-                    reward = racing_reward(progress, np.array([self.wall_any]), np.array([speed_mps]),
-                                           WALL_PENALTY_C_W)  # fmt: skip
+                    reward = racing_reward(progress, np.array([self.wall_any]), np.array([speed_mps]), WALL_PENALTY_C_W)
                     rec.rewards.append(float(reward[0]))
                 rec.observations.append(np.asarray(self.observer(state, np.array([i])))[0])
             self.command = self._new_command(speed_mps)

@@ -150,30 +150,33 @@ def leaderboard(track: str = "expressway", car: str = "hatchback", runs: str = "
         if record["track_geometry_hash"] == ai.track.geometry_hash and record["car"] == ai.car.name:
             driver = record["driver"]
             kind = "human" if driver.get("driver") == "human" else f"policy ({driver.get('observation', '?')})"
-            rows.append({**row(record, kind),
-                         "evaluation_json": record["evaluation_json"]})  # fmt: skip
+            rows.append({**row(record, kind), "evaluation_json": record["evaluation_json"]})
     for e in experiments:
         # The weights chosen by held-out starts get a row of their own, beside the last weights'.
         for summary, chosen in ((e["summary"], ""), ((e.get("selected") or {}).get("summary"), ", selected")):
             ours = summary is not None and (summary["track_geometry_hash"], summary["car"]) == (
-                ai.track.geometry_hash, ai.car.name)
+                ai.track.geometry_hash,
+                ai.car.name,
+            )
             if not ours:
                 continue
-            rows.append({
-                "name": f"{e['name']} ({summary['n_training_seeds']} seeds{chosen})",
-                "kind": f"experiment ({e['observation']})",
-                "lap_time_s": summary["best_lap_time_s"],
-                "median_lap_time_s": None,
-                "lap_time_mean_s": summary["lap_time_mean_s"],
-                "lap_time_std_s": summary["lap_time_std_s"],
-                "finished": summary["finished"],
-                "clean": summary["clean"],
-                "wall_contact_s": summary["wall_contact_mean_s"],
-                "protocol_version": summary["protocol_version"],
-                "track_geometry_hash": summary["track_geometry_hash"],
-                "car": summary["car"],
-                "experiment_json": e["experiment_json"],
-            })  # fmt: skip
+            rows.append(
+                {
+                    "name": f"{e['name']} ({summary['n_training_seeds']} seeds{chosen})",
+                    "kind": f"experiment ({e['observation']})",
+                    "lap_time_s": summary["best_lap_time_s"],
+                    "median_lap_time_s": None,
+                    "lap_time_mean_s": summary["lap_time_mean_s"],
+                    "lap_time_std_s": summary["lap_time_std_s"],
+                    "finished": summary["finished"],
+                    "clean": summary["clean"],
+                    "wall_contact_s": summary["wall_contact_mean_s"],
+                    "protocol_version": summary["protocol_version"],
+                    "track_geometry_hash": summary["track_geometry_hash"],
+                    "car": summary["car"],
+                    "experiment_json": e["experiment_json"],
+                }
+            )
     for r in rows:
         r.update(gap_to_limit_pct=gap_pct(r["lap_time_s"], limit_s), gap_to_ai_pct=gap_pct(r["lap_time_s"], ai_s))
     rows.sort(key=lambda r: (r["lap_time_s"] is None, r["lap_time_s"] or 0.0))

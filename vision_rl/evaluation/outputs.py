@@ -63,8 +63,19 @@ def plot_trajectory(timing: LapTiming, index: int, path: str | os.PathLike[str],
 
 
 #: Columns of :func:`write_trace`, with their units.
-TRACE_COLUMNS = ("seed", "time_s", "x_m", "y_m", "s_m", "lateral_m", "speed_kmh", "heading_error_deg", "steer_rad",
-                 "pedal", "wall_contact")  # fmt: skip
+TRACE_COLUMNS = (
+    "seed",
+    "time_s",
+    "x_m",
+    "y_m",
+    "s_m",
+    "lateral_m",
+    "speed_kmh",
+    "heading_error_deg",
+    "steer_rad",
+    "pedal",
+    "wall_contact",
+)
 
 
 def write_trace(timing: LapTiming, path: str | os.PathLike[str]) -> Path:
@@ -83,15 +94,31 @@ def write_trace(timing: LapTiming, path: str | os.PathLike[str]) -> Path:
         heading_error = wrap_angle(timing.yaw_rad[rows, i] - where.heading_rad)
         seeds.append(np.full(rows.sum(), run.seed))
         times.append(timing.time_s[rows])
-        columns.append(np.column_stack([
-            xy, where.s_m, where.lateral_m, 3.6 * timing.speed_mps[rows, i], np.degrees(heading_error),
-            timing.steer_rad[rows, i], timing.omega[rows, i], timing.wall_contact[rows, i],
-        ]))  # fmt: skip
+        columns.append(
+            np.column_stack(
+                [
+                    xy,
+                    where.s_m,
+                    where.lateral_m,
+                    3.6 * timing.speed_mps[rows, i],
+                    np.degrees(heading_error),
+                    timing.steer_rad[rows, i],
+                    timing.omega[rows, i],
+                    timing.wall_contact[rows, i],
+                ]
+            )
+        )
     table = np.column_stack([np.concatenate(seeds), np.concatenate(times), np.concatenate(columns)])
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savetxt(path, table, delimiter=",", header=",".join(TRACE_COLUMNS), comments="",
-               fmt=["%d", "%.2f", "%.3f", "%.3f", "%.2f", "%.3f", "%.2f", "%.2f", "%.4f", "%.3f", "%d"])  # fmt: skip
+    np.savetxt(
+        path,
+        table,
+        delimiter=",",
+        header=",".join(TRACE_COLUMNS),
+        comments="",
+        fmt=["%d", "%.2f", "%.3f", "%.3f", "%.2f", "%.3f", "%.2f", "%.2f", "%.4f", "%.3f", "%d"],
+    )
     return path
 
 
@@ -130,8 +157,15 @@ def driver_views(timing: LapTiming, index: int, steps: np.ndarray, image_hw_px: 
         for first in range(0, len(steps), batch):
             rows = steps[first : first + batch]
             # Each pose is its own group, so the views of one pass do not see each other's cars.
-            yield first, renderer.render(timing.x_m[rows, index], timing.y_m[rows, index], timing.yaw_rad[rows, index],
-                                         groups=np.arange(len(rows)))  # fmt: skip
+            yield (
+                first,
+                renderer.render(
+                    timing.x_m[rows, index],
+                    timing.y_m[rows, index],
+                    timing.yaw_rad[rows, index],
+                    groups=np.arange(len(rows)),
+                ),
+            )
 
 
 def write_video(

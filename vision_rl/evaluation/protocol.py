@@ -338,9 +338,17 @@ def time_laps(
             off_track_s += dt * (active & track.beyond_edge_line(st.s_m, st.lateral_m))
             distance_m += dt * active * np.hypot(veh.vx_mps, veh.vy_mps)
             for i in np.flatnonzero(events.lap_completed & active):
-                marks[i].append(np.array(
-                    [st.wall_contact_time_s[i], st.car_contact_time_s[i], off_track_s[i], distance_m[i], wall_hits[i]]
-                ))  # fmt: skip
+                marks[i].append(
+                    np.array(
+                        [
+                            st.wall_contact_time_s[i],
+                            st.car_contact_time_s[i],
+                            off_track_s[i],
+                            distance_m[i],
+                            wall_hits[i],
+                        ]
+                    )
+                )
                 fastest_hit_per_lap_mps[i].append(float(fastest_hit_mps[i]))
                 fastest_hit_mps[i] = 0.0
         st = world.state
@@ -376,12 +384,16 @@ def time_laps(
             wall, car_s, off, dist, hits = marks[i][k + 1] - marks[i][k]
             lap_records.append(
                 LapRecord(
-                    lap_time_s=float(lap_time_s), wall_contact_s=float(wall), car_contact_s=float(car_s),
-                    off_track_s=float(off), avg_speed_kmh=float(3.6 * track.length_m / lap_time_s),
-                    distance_m=float(dist), wall_hits=round(float(hits)),
+                    lap_time_s=float(lap_time_s),
+                    wall_contact_s=float(wall),
+                    car_contact_s=float(car_s),
+                    off_track_s=float(off),
+                    avg_speed_kmh=float(3.6 * track.length_m / lap_time_s),
+                    distance_m=float(dist),
+                    wall_hits=round(float(hits)),
                     fastest_wall_hit_kmh=3.6 * fastest_hit_per_lap_mps[i][k],
                 )
-            )  # fmt: skip
+            )
         runs.append(SeedRun(seed, lap_records, dnf[i], float(distance_m[i]), float(end_time_s[i])))
     timing = LapTiming(track, car, laps, runs, float(limit_lap_s), float(limit_s), speed)
     if record and rec["t"]:

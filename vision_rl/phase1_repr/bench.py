@@ -180,8 +180,10 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
                 fn = build()
                 fn(frame)  # compile or export here, outside the timing
                 setup_s = time.perf_counter() - t0
-                variants[name] = {**_percentiles(_time_calls(fn, frame, cfg.runs, cfg.warmup, sync)),
-                                  "setup_s": setup_s}  # fmt: skip
+                variants[name] = {
+                    **_percentiles(_time_calls(fn, frame, cfg.runs, cfg.warmup, sync)),
+                    "setup_s": setup_s,
+                }
             except Exception as exc:  # a variant that does not work on this machine is reported, not fatal
                 variants[name] = {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200]}"}
     result["variants"] = variants
@@ -244,8 +246,11 @@ def bench_train_step(cfg: BenchTrainStepConfig) -> dict[str, Any]:
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     h, w = cfg.image_hw_px
-    rows = [_time_train_step(cfg, device, batch_size, precision) for batch_size in cfg.batch_sizes
-            for precision in cfg.precisions]  # fmt: skip
+    rows = [
+        _time_train_step(cfg, device, batch_size, precision)
+        for batch_size in cfg.batch_sizes
+        for precision in cfg.precisions
+    ]
     return {
         "device": str(device),
         "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else _cpu_name(),
@@ -263,12 +268,18 @@ def _time_train_step(cfg: BenchTrainStepConfig, device: torch.device, batch_size
     h, w = cfg.image_hw_px
     n_targets = EncoderConfig().n_targets
     torch.manual_seed(0)
-    module = ReprModule(
-        encoder_config=EncoderConfig(input_height_px=h, input_width_px=w).to_dict(),
-        target_names=[f"t{k}" for k in range(n_targets)], target_units=["1"] * n_targets,
-        target_mean=[0.0] * n_targets, target_std=[1.0] * n_targets,
-        augmentation=dataclasses.asdict(FrameAugmentation()),
-    ).to(device).train()  # fmt: skip
+    module = (
+        ReprModule(
+            encoder_config=EncoderConfig(input_height_px=h, input_width_px=w).to_dict(),
+            target_names=[f"t{k}" for k in range(n_targets)],
+            target_units=["1"] * n_targets,
+            target_mean=[0.0] * n_targets,
+            target_std=[1.0] * n_targets,
+            augmentation=dataclasses.asdict(FrameAugmentation()),
+        )
+        .to(device)
+        .train()
+    )
     optimiser = torch.optim.AdamW(module.parameters(), lr=module.hparams.lr, weight_decay=module.hparams.weight_decay)
     images = torch.randint(0, 256, (batch_size, h, w, 3), dtype=torch.uint8, device=device)
     targets = torch.randn(batch_size, n_targets, device=device)
@@ -295,7 +306,11 @@ def _time_train_step(cfg: BenchTrainStepConfig, device: torch.device, batch_size
         times.append((time.perf_counter() - t0) / cfg.steps)
     step_s = float(np.median(times))
     return {
-        "batch_size": batch_size, "precision": precision, "step_ms": 1e3 * step_s, "frames_per_s": batch_size / step_s,
+        "batch_size": batch_size,
+        "precision": precision,
+        "step_ms": 1e3 * step_s,
+        "frames_per_s": batch_size / step_s,
         "frames_per_s_spread": [batch_size / max(times), batch_size / min(times)],
-        "loss_first": loss_first, "loss_last": float(loss),
-    }  # fmt: skip
+        "loss_first": loss_first,
+        "loss_last": float(loss),
+    }

@@ -42,9 +42,19 @@ from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, export_embedding, 
 CKPT_FORMAT = "vision_rl.encoder"
 CKPT_FORMAT_VERSION = 2
 _REQUIRED_KEYS = (
-    "format", "format_version", "encoder_config", "state_dict", "target_names", "target_units", "target_mean",
-    "target_std", "dataset", "tensor_sha256", "field_sha256", "content_sha256",
-)  # fmt: skip
+    "format",
+    "format_version",
+    "encoder_config",
+    "state_dict",
+    "target_names",
+    "target_units",
+    "target_mean",
+    "target_std",
+    "dataset",
+    "tensor_sha256",
+    "field_sha256",
+    "content_sha256",
+)
 #: Entries covered by ``tensor_sha256`` (besides the state dict's tensors) and those that are checksums themselves.
 _TENSOR_KEYS = ("target_mean", "target_std")
 _CHECKSUM_KEYS = ("tensor_sha256", "field_sha256", "content_sha256")
@@ -123,8 +133,9 @@ def save_checkpoint(
         os.replace(tmp, path)  # a crash mid-write never leaves a half checkpoint under the real name
     except (OSError, RuntimeError) as exc:  # torch reports a failed write as RuntimeError too
         tmp.unlink(missing_ok=True)
-        error = OSError(f"{path}: cannot write the checkpoint ({getattr(exc, 'strerror', None) or exc}); no partial "
-                        "file was left")  # fmt: skip
+        error = OSError(
+            f"{path}: cannot write the checkpoint ({getattr(exc, 'strerror', None) or exc}); no partial file was left"
+        )
         error.errno = getattr(exc, "errno", None) or (errno.ENOSPC if "No space left" in str(exc) else errno.EIO)
         raise error from exc
     return path
@@ -187,8 +198,11 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise EncoderCheckpointError(f"{path}: bad encoder_config: {exc}") from exc
     n = cfg.n_targets
     sizes = (
-        len(ckpt["target_names"]), len(ckpt["target_units"]), ckpt["target_mean"].numel(), ckpt["target_std"].numel()
-    )  # fmt: skip
+        len(ckpt["target_names"]),
+        len(ckpt["target_units"]),
+        ckpt["target_mean"].numel(),
+        ckpt["target_std"].numel(),
+    )
     if set(sizes) != {n}:
         raise EncoderCheckpointError(
             f"{path}: the network predicts {n} targets but names/units/mean/std have {sizes} entries"
@@ -339,8 +353,9 @@ def load_encoder(
         except Exception as exc:  # the exporter's and ONNX Runtime's errors have many types
             if requested_runtime != "auto":
                 raise
-            warnings.warn(f"{path}: ONNX Runtime cannot run this encoder, torch will ({exc})", RuntimeWarning,
-                          stacklevel=2)  # fmt: skip
+            warnings.warn(
+                f"{path}: ONNX Runtime cannot run this encoder, torch will ({exc})", RuntimeWarning, stacklevel=2
+            )
     return FrozenEncoder(net, ckpt, path, onnx).to(device)
 
 

@@ -59,9 +59,13 @@ def export_embedding(net: ReprNet) -> bytes:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             program = torch.onnx.export(
-                _Embed(net).cpu().eval(), (example,), None, input_names=["frames"], verbose=False,
+                _Embed(net).cpu().eval(),
+                (example,),
+                None,
+                input_names=["frames"],
+                verbose=False,
                 dynamic_shapes=({0: torch.export.Dim("batch", min=1, max=65536)},),
-            )  # fmt: skip
+            )
     finally:
         export_logger.setLevel(level)
     return program.model_proto.SerializeToString()

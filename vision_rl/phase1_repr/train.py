@@ -149,8 +149,15 @@ class ReprModule(L.LightningModule):
         if self.hparams.mirror:
             images, targets = self.mirror_half(images, targets)
         loss = self.loss(self.predict_standardised(images, augment=True), targets)
-        self.log("train_loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=len(images),
-                 sync_dist=self.trainer.world_size > 1)  # fmt: skip
+        self.log(
+            "train_loss",
+            loss,
+            on_step=True,
+            on_epoch=True,
+            prog_bar=True,
+            batch_size=len(images),
+            sync_dist=self.trainer.world_size > 1,
+        )
         self._train_loss_sum += float(loss.detach()) * len(images)
         self._train_loss_count += len(images)
         return loss
@@ -159,8 +166,9 @@ class ReprModule(L.LightningModule):
         images, targets = batch
         pred = self.predict_standardised(images)
         # sync_dist: every process keeps the same best epoch (the mean over all of them; a no-op on one device).
-        self.log("val_loss", self.loss(pred, targets), on_epoch=True, prog_bar=True, batch_size=len(images),
-                 sync_dist=True)  # fmt: skip
+        self.log(
+            "val_loss", self.loss(pred, targets), on_epoch=True, prog_bar=True, batch_size=len(images), sync_dist=True
+        )
         self._val_pred.append((pred * self.target_std + self.target_mean).detach().cpu())
         self._val_true.append((targets * self.target_std + self.target_mean).detach().cpu())
 
@@ -361,16 +369,20 @@ class TrainReprConfig:
             _positive(self.space2depth_block_px, "--space2depth-block-px"),
             _positive(self.shift_px, "--shift-px", 0),
             _positive(self.weight_decay, "--weight-decay", 0),
-            (self.max_steps == -1 or self.max_steps >= 1, f"--max-steps must be >= 1 or -1 (no limit), got "
-             f"{self.max_steps}"),
+            (
+                self.max_steps == -1 or self.max_steps >= 1,
+                f"--max-steps must be >= 1 or -1 (no limit), got {self.max_steps}",
+            ),
             (math.isfinite(self.lr) and self.lr > 0, f"--lr must be > 0, got {self.lr}"),
-            (math.isfinite(self.width_mult) and self.width_mult > 0, f"--width-mult must be > 0, got "
-             f"{self.width_mult}"),
+            (
+                math.isfinite(self.width_mult) and self.width_mult > 0,
+                f"--width-mult must be > 0, got {self.width_mult}",
+            ),
             (0 < self.val_fraction < 1, f"--val-fraction must be within (0, 1), got {self.val_fraction}"),
             _positive(self.devices, "--devices"),
             (self.strategy in STRATEGIES, f"--strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}"),
             (self.devices == 1 or self.strategy == "ddp", f"--devices {self.devices} needs --strategy ddp"),
-        )  # fmt: skip
+        )
         for ok, message in checks:
             if not ok:
                 raise ValueError(message)

@@ -301,9 +301,14 @@ class PolicyDriver:
 
     @classmethod
     def for_config(
-        cls, predict, kind: str, normalizer: ObsNormalizer | None, encoder, config: RacingConfig,
+        cls,
+        predict,
+        kind: str,
+        normalizer: ObsNormalizer | None,
+        encoder,
+        config: RacingConfig,
         identity: dict[str, Any] | None = None,
-    ) -> PolicyDriver:  # fmt: skip
+    ) -> PolicyDriver:
         """A driver that observes and steers as the environment ``config`` did in training (frame size, control
         step, frame delay, steering and pedal actions). A policy with a state-reading critic observes as a vision
         policy (:func:`vision_rl.phase2_rl.critic_state.actor_only`)."""
@@ -311,15 +316,31 @@ class PolicyDriver:
             from vision_rl.phase2_rl.critic_state import actor_only
 
             normalizer, predict = actor_only(normalizer, predict)
-        return cls(predict, kind, normalizer, encoder, config.image_hw_px, config.control_dt_s, identity,
-                   config.frame_delay_s, config.steer_action, config.pedal_full_at,
-                   config.steer_change_share_of_range)  # fmt: skip
+        return cls(
+            predict,
+            kind,
+            normalizer,
+            encoder,
+            config.image_hw_px,
+            config.control_dt_s,
+            identity,
+            config.frame_delay_s,
+            config.steer_action,
+            config.pedal_full_at,
+            config.steer_change_share_of_range,
+        )
 
     def reset(self, world: World, car_ids: np.ndarray) -> None:
         if self.observer is not None:
             self.observer.close()
         self.observer = Observer(
-            self.kind, world.track, world.car, world.model.groups, self.normalizer, self.encoder, self.image_hw_px,
+            self.kind,
+            world.track,
+            world.car,
+            world.model.groups,
+            self.normalizer,
+            self.encoder,
+            self.image_hw_px,
             batch_cars=DRIVER_BATCH_CARS,
         )
         self.observer.delay_frames(self.frame_delay_s, self.control_dt_s)
@@ -336,7 +357,12 @@ class PolicyDriver:
         action = in_batches_of(DRIVER_BATCH_CARS, self.predict, obs).astype(np.float64).reshape(len(self.car_ids), 2)
         speed = np.hypot(state.vehicle.vx_mps[self.car_ids], state.vehicle.vy_mps[self.car_ids])
         action[:, 0] = self.steer_command_rad = steering_command(
-            action[:, 0], self.steer_command_rad, self.steer_action, self.max_steer_change_rad, speed, self.wheelbase_m,
+            action[:, 0],
+            self.steer_command_rad,
+            self.steer_action,
+            self.max_steer_change_rad,
+            speed,
+            self.wheelbase_m,
             self.steer_change_share_of_range,
         )
         action[:, 1] = pedal_command(action[:, 1], self.pedal_full_at)
@@ -441,8 +467,10 @@ def load_policy(
     except ArtifactError as exc:
         raise PolicyError(str(exc)) from None
     except RuntimeError as exc:
-        raise PolicyError(f"{weights_path}: the weights do not fit a {spec.hidden_units} network of {dim} inputs: "
-                          f"{str(exc).splitlines()[0]}") from None  # fmt: skip
+        raise PolicyError(
+            f"{weights_path}: the weights do not fit a {spec.hidden_units} network of {dim} inputs: "
+            f"{str(exc).splitlines()[0]}"
+        ) from None
     policy.set_training_mode(False)
     return LoadedPolicy(policy, spec, weights_path, spec_path, module, encoder_path)
 
@@ -476,8 +504,14 @@ def convert_sb3_run(run: str | os.PathLike[str]) -> list[Path]:
         fingerprint = policy_fingerprint(config, data["observation"], state.pop("input_dim"), encoder_sha)
         weights = zip_path.with_suffix(".pt")
         sha = write_agent_state(state, weights, fingerprint)
-        entry = {**data, "format_version": POLICY_FORMAT_VERSION, "model": weights.name, "weights_sha256": sha,
-                 "fingerprint": fingerprint, "num_timesteps": state["counters"]["num_timesteps"]}  # fmt: skip
+        entry = {
+            **data,
+            "format_version": POLICY_FORMAT_VERSION,
+            "model": weights.name,
+            "weights_sha256": sha,
+            "fingerprint": fingerprint,
+            "num_timesteps": state["counters"]["num_timesteps"],
+        }
         sidecar = spec_path if zip_path.parent == run else snapshot_sidecar(weights)
         PolicySpec.from_dict(entry, str(sidecar)).write(sidecar)
         written += [weights, sidecar]

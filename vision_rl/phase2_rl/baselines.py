@@ -203,26 +203,39 @@ def check_config(cfg: TrainBaselineConfig) -> None:
     if cfg.preset not in PRESETS:
         raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
     checks = {
-        "steps": cfg.steps >= 0, "cars": 1 <= cfg.cars <= 1000, "episode_s": cfg.episode_s >= 0.1,
-        "learning_rate": cfg.learning_rate >= 0, "batch_size": cfg.batch_size >= 0,
-        "buffer_size": cfg.buffer_size >= 0, "eval_every_steps": cfg.eval_every_steps >= 0,
-        "eval_seeds": cfg.eval_seeds >= 1, "eval_laps": cfg.eval_laps >= 1,
-        "eval_time_limit_s": cfg.eval_time_limit_s >= 0, "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "bc_patience": cfg.bc_patience >= 1,
-        "bc_min_improvement": 0 <= cfg.bc_min_improvement < 1, "bc_max_epochs": cfg.bc_max_epochs >= 1,
-        "gail_disc_every_steps": cfg.gail_disc_every_steps >= 1, "gail_disc_updates": cfg.gail_disc_updates >= 0,
-        "gail_disc_batch": cfg.gail_disc_batch >= 1, "gail_disc_lr": cfg.gail_disc_lr > 0,
-        "td3_noise": cfg.td3_noise >= 0, "dreamer_train_every_steps": cfg.dreamer_train_every_steps >= 1,
+        "steps": cfg.steps >= 0,
+        "cars": 1 <= cfg.cars <= 1000,
+        "episode_s": cfg.episode_s >= 0.1,
+        "learning_rate": cfg.learning_rate >= 0,
+        "batch_size": cfg.batch_size >= 0,
+        "buffer_size": cfg.buffer_size >= 0,
+        "eval_every_steps": cfg.eval_every_steps >= 0,
+        "eval_seeds": cfg.eval_seeds >= 1,
+        "eval_laps": cfg.eval_laps >= 1,
+        "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
+        "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
+        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
+        "bc_patience": cfg.bc_patience >= 1,
+        "bc_min_improvement": 0 <= cfg.bc_min_improvement < 1,
+        "bc_max_epochs": cfg.bc_max_epochs >= 1,
+        "gail_disc_every_steps": cfg.gail_disc_every_steps >= 1,
+        "gail_disc_updates": cfg.gail_disc_updates >= 0,
+        "gail_disc_batch": cfg.gail_disc_batch >= 1,
+        "gail_disc_lr": cfg.gail_disc_lr > 0,
+        "td3_noise": cfg.td3_noise >= 0,
+        "dreamer_train_every_steps": cfg.dreamer_train_every_steps >= 1,
         "dreamer_sequence_steps": cfg.dreamer_sequence_steps >= 2,
-    }  # fmt: skip
+    }
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
         raise ValueError(f"--{bad[0].replace('_', '-')} {getattr(cfg, bad[0])} is out of range")
     if cfg.algo in ONLINE:
         preset = resolve_recipe(cfg)
         if total_steps(cfg) <= preset.learning_starts:
-            raise ValueError(f"--steps {total_steps(cfg)} is not above the {preset.learning_starts} random start "
-                             "steps (--learning-starts): it would make no update")  # fmt: skip
+            raise ValueError(
+                f"--steps {total_steps(cfg)} is not above the {preset.learning_starts} random start "
+                "steps (--learning-starts): it would make no update"
+            )
         if preset.buffer_size < cfg.cars:
             raise ValueError(f"--buffer-size {preset.buffer_size} holds less than one step of {cfg.cars} cars")
 
@@ -231,17 +244,24 @@ def resolve_recipe(cfg: TrainBaselineConfig) -> SACPreset:
     """The online recipe: the preset with the options' overrides, always the paper's 2 x 256 network."""
     base = PRESETS[cfg.preset]
     return dataclasses.replace(
-        base, hidden_units=HIDDEN_UNITS, learning_rate=cfg.learning_rate or base.learning_rate,
-        batch_size=cfg.batch_size or base.batch_size, buffer_size=cfg.buffer_size or base.buffer_size,
+        base,
+        hidden_units=HIDDEN_UNITS,
+        learning_rate=cfg.learning_rate or base.learning_rate,
+        batch_size=cfg.batch_size or base.batch_size,
+        buffer_size=cfg.buffer_size or base.buffer_size,
         learning_starts=base.learning_starts if cfg.learning_starts < 0 else cfg.learning_starts,
-    )  # fmt: skip
+    )
 
 
 def dreamer_recipe(cfg: TrainBaselineConfig) -> DreamerRecipe:
     """Dreamer's recipe with the options' overrides (sequences per update, the world model's step size)."""
     base = DreamerRecipe(hidden_units=HIDDEN_UNITS)
-    return dataclasses.replace(base, batch_sequences=cfg.batch_size or base.batch_sequences,
-                               sequence_steps=cfg.dreamer_sequence_steps, model_lr=cfg.learning_rate or base.model_lr)
+    return dataclasses.replace(
+        base,
+        batch_sequences=cfg.batch_size or base.batch_sequences,
+        sequence_steps=cfg.dreamer_sequence_steps,
+        model_lr=cfg.learning_rate or base.model_lr,
+    )
 
 
 def total_steps(cfg: TrainBaselineConfig) -> int:
@@ -280,8 +300,11 @@ def _read_json(path: Path) -> dict[str, Any]:
 def _eval_figures(summary: dict[str, Any]) -> dict[str, Any]:
     """A periodic evaluation's protocol figures in metrics.jsonl: the best lap, the starts finished and why each
     start did not (None where it finished)."""
-    return {"lap_time_s": summary["best_lap_time_s"], "finished": summary["n_finished"],
-            "dnf_reasons": [seed["dnf_reason"] for seed in summary["seeds"]]}  # fmt: skip
+    return {
+        "lap_time_s": summary["best_lap_time_s"],
+        "finished": summary["n_finished"],
+        "dnf_reasons": [seed["dnf_reason"] for seed in summary["seeds"]],
+    }
 
 
 def _append_metrics(folder: Path, record: dict[str, Any]) -> None:
@@ -311,8 +334,10 @@ class _RunFolder:
             recorded = record.get("settings") or {}
             for key, want in self.settings.items():
                 if recorded.get(key) != want:
-                    raise BaselineError(f"{path} was started with {key} = {recorded.get(key)!r}, not {want!r}: use "
-                                        "its settings, another --out, or --force to start over")  # fmt: skip
+                    raise BaselineError(
+                        f"{path} was started with {key} = {recorded.get(key)!r}, not {want!r}: use "
+                        "its settings, another --out, or --force to start over"
+                    )
             self.record = record
         else:
             if self.out.exists() and any(self.out.iterdir()):
@@ -337,11 +362,19 @@ def _spec(
     settings: dict[str, Any],
 ) -> PolicySpec:
     return PolicySpec(
-        observation=OBSERVATION, racing_config=racing_config_to_dict(racing), obs_normalizer=normalizer.to_dict(),
-        fingerprint=fingerprint, weights_sha256=sha256, model=MODEL_NAME, preset=cfg.preset,
-        sac={**recipe, "hidden_units": list(HIDDEN_UNITS)}, seed=cfg.seed, num_timesteps=int(num_timesteps),
-        train_time_s=round(train_time_s, 2), train_config={**settings, "algo": cfg.algo},
-    )  # fmt: skip
+        observation=OBSERVATION,
+        racing_config=racing_config_to_dict(racing),
+        obs_normalizer=normalizer.to_dict(),
+        fingerprint=fingerprint,
+        weights_sha256=sha256,
+        model=MODEL_NAME,
+        preset=cfg.preset,
+        sac={**recipe, "hidden_units": list(HIDDEN_UNITS)},
+        seed=cfg.seed,
+        num_timesteps=int(num_timesteps),
+        train_time_s=round(train_time_s, 2),
+        train_config={**settings, "algo": cfg.algo},
+    )
 
 
 # ------------------------------------------------------------------------------------------------- bc
@@ -370,10 +403,22 @@ def split_episodes(demos: Demos, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return train, val
 
 
-def fit_bc(policy, observations: np.ndarray, actions_scaled: np.ndarray, train_idx: np.ndarray, val_idx: np.ndarray,
-           *, learning_rate: float, batch_size: int, max_updates: int, max_epochs: int, patience: int,
-           min_improvement: float, seed: int,
-           on_epoch: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:  # fmt: skip
+def fit_bc(
+    policy,
+    observations: np.ndarray,
+    actions_scaled: np.ndarray,
+    train_idx: np.ndarray,
+    val_idx: np.ndarray,
+    *,
+    learning_rate: float,
+    batch_size: int,
+    max_updates: int,
+    max_epochs: int,
+    patience: int,
+    min_improvement: float,
+    seed: int,
+    on_epoch: Callable[[dict[str, Any]], None] | None = None,
+) -> dict[str, Any]:
     """Regress ``actions_scaled`` (in [-1, 1]) on ``observations`` with the actor of ``policy`` (MSE, Adam) until
     the held-out error stops improving; ``policy`` ends with the best held-out epoch's weights. Returns the fit's
     figures (epochs, updates, best and last errors, why it stopped)."""
@@ -410,8 +455,14 @@ def fit_bc(policy, observations: np.ndarray, actions_scaled: np.ndarray, train_i
                 break
         per_action = held_out_mse()
         val = float(per_action.mean())
-        record = {"epoch": epoch, "updates": updates, "train_mse": float(np.mean(losses)), "held_out_mse": val,
-                  "held_out_mse_steer": float(per_action[0]), "held_out_mse_omega": float(per_action[1])}  # fmt: skip
+        record = {
+            "epoch": epoch,
+            "updates": updates,
+            "train_mse": float(np.mean(losses)),
+            "held_out_mse": val,
+            "held_out_mse_steer": float(per_action[0]),
+            "held_out_mse_omega": float(per_action[1]),
+        }
         if val < (1.0 - min_improvement) * best:
             best, best_epoch, since_best = val, epoch, 0
             best_state = {k: v.clone() for k, v in policy.state_dict().items()}
@@ -428,8 +479,7 @@ def fit_bc(policy, observations: np.ndarray, actions_scaled: np.ndarray, train_i
             break
     policy.load_state_dict(best_state)
     policy.set_training_mode(False)
-    return {"epochs": epoch, "updates": updates, "best_epoch": best_epoch, "best_held_out_mse": best,
-            "stopped": stop}  # fmt: skip
+    return {"epochs": epoch, "updates": updates, "best_epoch": best_epoch, "best_held_out_mse": best, "stopped": stop}
 
 
 def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict[str, Any]:
@@ -456,10 +506,21 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
 
     interrupted = False
     try:
-        fit = fit_bc(policy, demos.observations, scaled, train_idx, val_idx,
-                     learning_rate=cfg.learning_rate or 1e-3, batch_size=cfg.batch_size or 256,
-                     max_updates=total_steps(cfg), max_epochs=max_epochs, patience=cfg.bc_patience,
-                     min_improvement=cfg.bc_min_improvement, seed=cfg.seed, on_epoch=on_epoch)  # fmt: skip
+        fit = fit_bc(
+            policy,
+            demos.observations,
+            scaled,
+            train_idx,
+            val_idx,
+            learning_rate=cfg.learning_rate or 1e-3,
+            batch_size=cfg.batch_size or 256,
+            max_updates=total_steps(cfg),
+            max_epochs=max_epochs,
+            patience=cfg.bc_patience,
+            min_improvement=cfg.bc_min_improvement,
+            seed=cfg.seed,
+            on_epoch=on_epoch,
+        )
     except KeyboardInterrupt:
         interrupted = True
         fit = {"stopped": "interrupted"}
@@ -468,21 +529,37 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
         run.update(status="interrupted")
         return {**run.record, "out": str(run.out), "trained_now": True, "interrupted": True}
     fingerprint = baseline_fingerprint(racing, "bc")
-    state = {"policy": policy.state_dict(), "optimizers": {},
-             "counters": {"num_timesteps": 0, "n_updates": int(fit["updates"]), "episode_num": 0}}  # fmt: skip
+    state = {
+        "policy": policy.state_dict(),
+        "optimizers": {},
+        "counters": {"num_timesteps": 0, "n_updates": int(fit["updates"]), "episode_num": 0},
+    }
     sha = write_agent_state(state, run.out / MODEL_NAME, fingerprint)
     normalizer = _demo_normalizer(demos)
-    recipe = {"learning_rate": cfg.learning_rate or 1e-3, "batch_size": cfg.batch_size or 256,
-              "loss": "mse of tanh actions in [-1, 1]"}  # fmt: skip
+    recipe = {
+        "learning_rate": cfg.learning_rate or 1e-3,
+        "batch_size": cfg.batch_size or 256,
+        "loss": "mse of tanh actions in [-1, 1]",
+    }
     _spec(cfg, racing, normalizer, fingerprint, sha, recipe, 0, train_time_s, run.settings).write(
         run.out / SIDECAR_NAME
     )
     rmse = np.sqrt(fit["best_held_out_mse"])
-    run.update(status="done", steps=total_steps(cfg), fit=fit, train_time_s=round(train_time_s, 2),
-               demos={"path": str(demos.path), "sha256": demos.sha256, "n_transitions": demos.n_transitions,
-                      "n_train": len(train_idx), "n_held_out": len(val_idx)},
-               held_out_rmse_scaled=float(rmse),
-               updates_per_s=round(fit["updates"] / max(train_time_s, 1e-9), 1))  # fmt: skip
+    run.update(
+        status="done",
+        steps=total_steps(cfg),
+        fit=fit,
+        train_time_s=round(train_time_s, 2),
+        demos={
+            "path": str(demos.path),
+            "sha256": demos.sha256,
+            "n_transitions": demos.n_transitions,
+            "n_train": len(train_idx),
+            "n_held_out": len(val_idx),
+        },
+        held_out_rmse_scaled=float(rmse),
+        updates_per_s=round(fit["updates"] / max(train_time_s, 1e-9), 1),
+    )
     return {**run.record, "out": str(run.out), "policy": str(run.out), "trained_now": True, "interrupted": False}
 
 
@@ -533,8 +610,11 @@ def discriminator_step(
     optimizer.zero_grad()
     loss.backward()
     optimizer.step()
-    return {"disc_loss": float(loss.detach()), "disc_acc_expert": float((logits_e > 0).float().mean()),
-            "disc_acc_learner": float((logits_l < 0).float().mean())}  # fmt: skip
+    return {
+        "disc_loss": float(loss.detach()),
+        "disc_acc_expert": float((logits_e > 0).float().mean()),
+        "disc_acc_learner": float((logits_l < 0).float().mean()),
+    }
 
 
 class GAILReplayBuffer(ReplayBuffer):
@@ -562,9 +642,18 @@ class GAILUpdater:
         hidden_units: the discriminator's MLP.
     """
 
-    def __init__(self, expert_obs: np.ndarray, expert_actions_scaled: np.ndarray, *, batch: int, updates: int,
-                 learning_rate: float, seed: int, device: str = "cpu",
-                 hidden_units: tuple[int, ...] = HIDDEN_UNITS) -> None:  # fmt: skip
+    def __init__(
+        self,
+        expert_obs: np.ndarray,
+        expert_actions_scaled: np.ndarray,
+        *,
+        batch: int,
+        updates: int,
+        learning_rate: float,
+        seed: int,
+        device: str = "cpu",
+        hidden_units: tuple[int, ...] = HIDDEN_UNITS,
+    ) -> None:
         self.batch, self.updates, self.device = batch, updates, device
         torch.manual_seed(seed)
         self.disc = Discriminator(expert_obs.shape[1], expert_actions_scaled.shape[1], hidden_units).to(device)
@@ -671,12 +760,19 @@ class _OnlineSession:
         self.normalizer = self.venv.core.observer.normalizer
         self.env = VecMonitor(self.venv)
         common = dict(
-            learning_rate=recipe.learning_rate, buffer_size=recipe.buffer_size, learning_starts=recipe.learning_starts,
-            batch_size=recipe.batch_size, tau=recipe.tau, gamma=recipe.gamma,
-            train_freq=(recipe.train_freq_steps, "step"), gradient_steps=recipe.gradient_steps,
-            policy_kwargs={"net_arch": list(HIDDEN_UNITS)}, seed=cfg.seed + steps_before, device=self.device,
+            learning_rate=recipe.learning_rate,
+            buffer_size=recipe.buffer_size,
+            learning_starts=recipe.learning_starts,
+            batch_size=recipe.batch_size,
+            tau=recipe.tau,
+            gamma=recipe.gamma,
+            train_freq=(recipe.train_freq_steps, "step"),
+            gradient_steps=recipe.gradient_steps,
+            policy_kwargs={"net_arch": list(HIDDEN_UNITS)},
+            seed=cfg.seed + steps_before,
+            device=self.device,
             verbose=0,
-        )  # fmt: skip
+        )
         if cfg.algo == "td3":
             # SB3 adds the noise to the action in the policy's [-1, 1] units: a share of each half range.
             noise = NormalActionNoise(np.zeros(2), cfg.td3_noise * np.ones(2))
@@ -690,9 +786,15 @@ class _OnlineSession:
         if cfg.algo == "gail":
             assert self.demos is not None
             scaled = model.policy.scale_action(self.demos.expert_actions.astype(np.float64))
-            self.gail = GAILUpdater(self.demos.observations, scaled, batch=cfg.gail_disc_batch,
-                                    updates=cfg.gail_disc_updates, learning_rate=cfg.gail_disc_lr, seed=cfg.seed,
-                                    device=self.device)  # fmt: skip
+            self.gail = GAILUpdater(
+                self.demos.observations,
+                scaled,
+                batch=cfg.gail_disc_batch,
+                updates=cfg.gail_disc_updates,
+                learning_rate=cfg.gail_disc_lr,
+                seed=cfg.seed,
+                device=self.device,
+            )
             model.replay_buffer.discriminator = self.gail.disc
         self.train_time_before_s = spec.train_time_s if spec is not None else 0.0
         self.buffer_restored = 0
@@ -723,19 +825,23 @@ class _OnlineSession:
         cfg = self.cfg
         t0 = time.perf_counter()
         if self.eval_driver is None:
-            self.eval_driver = PolicyDriver.for_config(lambda obs: model.predict(obs, deterministic=True)[0],
-                                                       OBSERVATION, self.normalizer, None, self.racing)  # fmt: skip
-        summary = time_laps(self.eval_driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps,
-                            cfg.eval_time_limit_s).summary()  # fmt: skip
+            self.eval_driver = PolicyDriver.for_config(
+                lambda obs: model.predict(obs, deterministic=True)[0], OBSERVATION, self.normalizer, None, self.racing
+            )
+        summary = time_laps(
+            self.eval_driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps, cfg.eval_time_limit_s
+        ).summary()
         eval_time_s = time.perf_counter() - t0
         self.session_start += eval_time_s  # evaluation time is not training time
         episodes = list(model.ep_info_buffer or [])
         record = {
-            "num_timesteps": int(model.num_timesteps), "train_time_s": round(self.train_time_s, 2),
-            "n_updates": int(getattr(model, "_n_updates", 0)), **_eval_figures(summary),
+            "num_timesteps": int(model.num_timesteps),
+            "train_time_s": round(self.train_time_s, 2),
+            "n_updates": int(getattr(model, "_n_updates", 0)),
+            **_eval_figures(summary),
             "ep_rew_mean": float(np.mean([e["r"] for e in episodes])) if episodes else None,
             "eval_time_s": round(eval_time_s, 2),
-        }  # fmt: skip
+        }
         if self.gail is not None:
             record.update(self.gail.last)
         _append_metrics(self.run.out, record)
@@ -751,12 +857,22 @@ class _OnlineSession:
         recipe = json.loads(json.dumps(dataclasses.asdict(self.recipe)))
         if self.cfg.algo == "td3":
             recipe["action_noise_std_share"] = self.cfg.td3_noise
-        _spec(self.cfg, self.racing, self.normalizer, self.fingerprint, sha, recipe, model.num_timesteps,
-              self.train_time_s, self.run.settings).write(out / SIDECAR_NAME)  # fmt: skip
+        _spec(
+            self.cfg,
+            self.racing,
+            self.normalizer,
+            self.fingerprint,
+            sha,
+            recipe,
+            model.num_timesteps,
+            self.train_time_s,
+            self.run.settings,
+        ).write(out / SIDECAR_NAME)
         if buffer and model.replay_buffer is not None:
             save_buffer(model.replay_buffer, out / BUFFER_NAME, self.fingerprint)
-        self.run.update(status="running", num_timesteps=int(model.num_timesteps),
-                        train_time_s=round(self.train_time_s, 2))  # fmt: skip
+        self.run.update(
+            status="running", num_timesteps=int(model.num_timesteps), train_time_s=round(self.train_time_s, 2)
+        )
 
     def close(self) -> None:
         self.env.close()
@@ -773,15 +889,21 @@ def train_online(cfg: TrainBaselineConfig, progress: Progress | None = None) -> 
     t0, steps0, updates0 = time.perf_counter(), int(model.num_timesteps), int(getattr(model, "_n_updates", 0))
     if remaining <= 0:  # already done up to these steps
         session.close()
-        return {**session.run.record, "out": str(session.run.out), "policy": str(session.run.out),
-                "interrupted": False, "trained_now": False}  # fmt: skip
+        return {
+            **session.run.record,
+            "out": str(session.run.out),
+            "policy": str(session.run.out),
+            "interrupted": False,
+            "trained_now": False,
+        }
     try:
         if remaining > 0:
             if session.start_steps == 0:
                 session.save(model, buffer=False)  # the run folder holds a loadable policy from the start
             loop = _OnlineLoop(session, progress)
-            learn_between_interrupts(model, loop, total_timesteps=remaining, reset_num_timesteps=False,
-                                     log_interval=None)  # fmt: skip
+            learn_between_interrupts(
+                model, loop, total_timesteps=remaining, reset_num_timesteps=False, log_interval=None
+            )
             loop.evaluate_held_back()
     except KeyboardInterrupt:
         interrupted = True
@@ -794,12 +916,20 @@ def train_online(cfg: TrainBaselineConfig, progress: Progress | None = None) -> 
     session.run.update(status=status, steps=session.end_steps, num_timesteps=int(model.num_timesteps))
     session.close()
     return {
-        **session.run.record, "out": str(session.run.out), "policy": str(session.run.out), "interrupted": interrupted,
-        "trained_now": steps_now > 0, "buffer_restored": int(session.buffer_restored) * cfg.cars,
-        "session": {"steps": steps_now, "updates": updates_now, "wall_s": round(wall_s, 2),
-                    "transitions_per_s": round(steps_now / wall_s, 1) if wall_s > 0 else None,
-                    "updates_per_s": round(updates_now / wall_s, 2) if wall_s > 0 else None},
-    }  # fmt: skip
+        **session.run.record,
+        "out": str(session.run.out),
+        "policy": str(session.run.out),
+        "interrupted": interrupted,
+        "trained_now": steps_now > 0,
+        "buffer_restored": int(session.buffer_restored) * cfg.cars,
+        "session": {
+            "steps": steps_now,
+            "updates": updates_now,
+            "wall_s": round(wall_s, 2),
+            "transitions_per_s": round(steps_now / wall_s, 1) if wall_s > 0 else None,
+            "updates_per_s": round(updates_now / wall_s, 2) if wall_s > 0 else None,
+        },
+    }
 
 
 # ------------------------------------------------------------------------------------------------- dreamer
@@ -809,8 +939,7 @@ SEQUENCE_BUFFER_FORMAT = "vision_rl.sequence_replay"
 
 def save_sequence_replay(replay: SequenceReplay, path: Path, fingerprint: dict[str, Any]) -> str:
     """The replay's filled rows (oldest first per car) as ``.npz`` without pickle; returns the file's SHA-256."""
-    meta = {"format": SEQUENCE_BUFFER_FORMAT, "format_version": 1, "fingerprint": fingerprint,
-            "n_cars": replay.n_cars}  # fmt: skip
+    meta = {"format": SEQUENCE_BUFFER_FORMAT, "format_version": 1, "fingerprint": fingerprint, "n_cars": replay.n_cars}
     arrays = replay.arrays()
 
     def write(tmp: Path) -> None:
@@ -848,9 +977,19 @@ class DreamerDriver(PolicyDriver):
     """A Dreamer agent as a protocol driver: its recurrent state restarts with every protocol run."""
 
     def __init__(self, agent: DreamerAgent, config: RacingConfig, normalizer, identity: dict[str, Any]) -> None:
-        super().__init__(self._predict, OBSERVATION, normalizer, None, config.image_hw_px, config.control_dt_s,
-                         identity, config.frame_delay_s, config.steer_action, config.pedal_full_at,
-                         config.steer_change_share_of_range)  # fmt: skip
+        super().__init__(
+            self._predict,
+            OBSERVATION,
+            normalizer,
+            None,
+            config.image_hw_px,
+            config.control_dt_s,
+            identity,
+            config.frame_delay_s,
+            config.steer_action,
+            config.pedal_full_at,
+            config.steer_change_share_of_range,
+        )
         self.agent = agent
 
     def reset(self, world, car_ids: np.ndarray) -> None:
@@ -879,15 +1018,23 @@ class LoadedDreamer:
 
     def driver(self) -> DreamerDriver:
         spec = self.spec
-        identity = {"driver": "policy", "observation": spec.observation, "policy": str(self.weights_path),
-                    "policy_sha256": spec.weights_sha256, "num_timesteps": spec.num_timesteps,
-                    "train_time_s": spec.train_time_s, "seed": spec.seed, "algo": "dreamer"}  # fmt: skip
+        identity = {
+            "driver": "policy",
+            "observation": spec.observation,
+            "policy": str(self.weights_path),
+            "policy_sha256": spec.weights_sha256,
+            "num_timesteps": spec.num_timesteps,
+            "train_time_s": spec.train_time_s,
+            "seed": spec.seed,
+            "algo": "dreamer",
+        }
         return DreamerDriver(self.agent, self.config, spec.normalizer, identity)
 
 
 def _dreamer_from_spec(spec: PolicySpec, device: str = "cpu") -> DreamerAgent:
-    recipe = DreamerRecipe(**{k: tuple(v) if isinstance(v, list) else v
-                              for k, v in spec.train_config["dreamer"].items()})  # fmt: skip
+    recipe = DreamerRecipe(
+        **{k: tuple(v) if isinstance(v, list) else v for k, v in spec.train_config["dreamer"].items()}
+    )
     return DreamerAgent(OBS_DIM, 2, recipe, seed=spec.seed, device=device)
 
 
@@ -914,8 +1061,9 @@ def train_dreamer(cfg: TrainBaselineConfig, progress: Progress | None = None) ->
         except ArtifactError as exc:
             raise BaselineError(f"cannot continue {out}: {exc}") from None
         except (KeyError, RuntimeError, ValueError) as exc:
-            raise BaselineError(f"cannot continue {out}: its weights do not fit this recipe's networks: "
-                                f"{str(exc).splitlines()[0]}") from None  # fmt: skip
+            raise BaselineError(
+                f"cannot continue {out}: its weights do not fit this recipe's networks: {str(exc).splitlines()[0]}"
+            ) from None
         steps, agent.n_updates = int(state["counters"]["num_timesteps"]), int(state["counters"]["n_updates"])
         train_time_before_s = spec.train_time_s
     if steps >= end_steps:
@@ -941,11 +1089,15 @@ def train_dreamer(cfg: TrainBaselineConfig, progress: Progress | None = None) ->
     def save(buffer: bool) -> None:
         counters = {"num_timesteps": steps, "n_updates": agent.n_updates, "episode_num": 0}
         sha = write_agent_state({**agent.state_dict(), "counters": counters}, out / MODEL_NAME, fingerprint)
-        recipe_record = {**json.loads(json.dumps(dataclasses.asdict(preset))), "hidden_units": list(HIDDEN_UNITS),
-                         "dreamer": json.loads(json.dumps(dataclasses.asdict(recipe))),
-                         "train_every_steps": cfg.dreamer_train_every_steps}  # fmt: skip
-        _spec(cfg, racing, normalizer, fingerprint, sha, recipe_record, steps, train_time_s(),
-              run.settings).write(out / SIDECAR_NAME)  # fmt: skip
+        recipe_record = {
+            **json.loads(json.dumps(dataclasses.asdict(preset))),
+            "hidden_units": list(HIDDEN_UNITS),
+            "dreamer": json.loads(json.dumps(dataclasses.asdict(recipe))),
+            "train_every_steps": cfg.dreamer_train_every_steps,
+        }
+        _spec(cfg, racing, normalizer, fingerprint, sha, recipe_record, steps, train_time_s(), run.settings).write(
+            out / SIDECAR_NAME
+        )
         if buffer:
             save_sequence_replay(replay, out / BUFFER_NAME, fingerprint)
         run.update(status="running", num_timesteps=steps, train_time_s=round(train_time_s(), 2))
@@ -955,15 +1107,21 @@ def train_dreamer(cfg: TrainBaselineConfig, progress: Progress | None = None) ->
         t0 = time.perf_counter()
         driver = DreamerDriver(agent, racing, normalizer, {"driver": "policy", "algo": "dreamer"})
         try:
-            summary = time_laps(driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps,
-                                cfg.eval_time_limit_s).summary()  # fmt: skip
+            summary = time_laps(
+                driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps, cfg.eval_time_limit_s
+            ).summary()
         finally:
             driver.close()
         eval_time_s += time.perf_counter() - t0
-        last_eval = {"num_timesteps": steps, "train_time_s": round(train_time_s(), 2), "n_updates": agent.n_updates,
-                     **_eval_figures(summary),
-                     "ep_rew_mean": float(np.mean(episode_returns[-100:])) if episode_returns else None,
-                     "eval_time_s": round(time.perf_counter() - t0, 2), **last_terms}  # fmt: skip
+        last_eval = {
+            "num_timesteps": steps,
+            "train_time_s": round(train_time_s(), 2),
+            "n_updates": agent.n_updates,
+            **_eval_figures(summary),
+            "ep_rew_mean": float(np.mean(episode_returns[-100:])) if episode_returns else None,
+            "eval_time_s": round(time.perf_counter() - t0, 2),
+            **last_terms,
+        }
         _append_metrics(out, last_eval)
 
     next_eval = next_multiple(steps, cfg.eval_every_steps)
@@ -991,8 +1149,14 @@ def train_dreamer(cfg: TrainBaselineConfig, progress: Progress | None = None) ->
             replay.add(all_cars, rows, action, rewards, continues, np.zeros(n_cars))
             running_return += rewards
             if len(done_cars):
-                replay.add(done_cars, next_obs[done_cars], np.zeros((len(done_cars), 2)), np.zeros(len(done_cars)),
-                           np.ones(len(done_cars)), np.ones(len(done_cars)))  # fmt: skip
+                replay.add(
+                    done_cars,
+                    next_obs[done_cars],
+                    np.zeros((len(done_cars), 2)),
+                    np.zeros(len(done_cars)),
+                    np.ones(len(done_cars)),
+                    np.ones(len(done_cars)),
+                )
                 episode_returns.extend(running_return[done_cars].tolist())
                 running_return[done_cars] = 0.0
             first, obs = dones.astype(np.float64), next_obs
@@ -1018,12 +1182,20 @@ def train_dreamer(cfg: TrainBaselineConfig, progress: Progress | None = None) ->
     run.update(status="interrupted" if interrupted else "done", steps=end_steps, num_timesteps=steps)
     steps_now, updates_now = steps - steps_at_start, agent.n_updates - updates_at_start
     return {
-        **run.record, "out": str(out), "policy": str(out), "interrupted": interrupted, "trained_now": steps_now > 0,
+        **run.record,
+        "out": str(out),
+        "policy": str(out),
+        "interrupted": interrupted,
+        "trained_now": steps_now > 0,
         "buffer_restored": rows_restored,
-        "session": {"steps": steps_now, "updates": updates_now, "wall_s": round(wall_s, 2),
-                    "transitions_per_s": round(steps_now / wall_s, 1) if wall_s > 0 else None,
-                    "updates_per_s": round(updates_now / wall_s, 2) if wall_s > 0 else None},
-    }  # fmt: skip
+        "session": {
+            "steps": steps_now,
+            "updates": updates_now,
+            "wall_s": round(wall_s, 2),
+            "transitions_per_s": round(steps_now / wall_s, 1) if wall_s > 0 else None,
+            "updates_per_s": round(updates_now / wall_s, 2) if wall_s > 0 else None,
+        },
+    }
 
 
 def train_baseline(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict[str, Any]:
@@ -1054,8 +1226,10 @@ def load_baseline(
     weights, sidecar = resolve_policy_paths(path)
     spec = PolicySpec.read(sidecar)
     if spec.observation != OBSERVATION:
-        raise BaselineError(f"{sidecar}: the policy observes {spec.observation!r}, not the {OBS_DIM}-D {OBSERVATION!r} "
-                            "observation of the single-car race; give a train-baseline run")  # fmt: skip
+        raise BaselineError(
+            f"{sidecar}: the policy observes {spec.observation!r}, not the {OBS_DIM}-D {OBSERVATION!r} "
+            "observation of the single-car race; give a train-baseline run"
+        )
     recorded = baseline_algo(spec)
     if recorded not in ALGOS:
         raise BaselineError(f"{sidecar}: algorithm {recorded!r} is not one of {', '.join(ALGOS)}")
@@ -1073,8 +1247,9 @@ def load_baseline(
         except ArtifactError as exc:
             raise PolicyError(str(exc)) from None
         except (RuntimeError, KeyError, TypeError) as exc:
-            raise PolicyError(f"{weights}: the weights do not fit the recorded Dreamer recipe: "
-                              f"{str(exc).splitlines()[0]}") from None  # fmt: skip
+            raise PolicyError(
+                f"{weights}: the weights do not fit the recorded Dreamer recipe: {str(exc).splitlines()[0]}"
+            ) from None
         return LoadedDreamer(agent, spec, weights, sidecar)
     if recorded != "td3":
         return load_policy(path, device=device)
@@ -1091,8 +1266,10 @@ def load_baseline(
     except ArtifactError as exc:
         raise PolicyError(str(exc)) from None
     except (RuntimeError, KeyError) as exc:
-        raise PolicyError(f"{weights}: the weights do not fit a TD3 {list(HIDDEN_UNITS)} network of {OBS_DIM} inputs: "
-                          f"{str(exc).splitlines()[0]}") from None  # fmt: skip
+        raise PolicyError(
+            f"{weights}: the weights do not fit a TD3 {list(HIDDEN_UNITS)} network of {OBS_DIM} inputs: "
+            f"{str(exc).splitlines()[0]}"
+        ) from None
     policy.set_training_mode(False)
     return LoadedPolicy(policy, spec, weights, sidecar)
 
@@ -1102,9 +1279,11 @@ def check_table_track(loaded: LoadedPolicy, track: str, car: str) -> None:
     fp = loaded.spec.fingerprint
     want = load_track(track).geometry_hash
     if fp.get("track_geometry_hash") != want or fp.get("car") != car:
-        raise BaselineError(f"{loaded.spec_path}: trained on track {loaded.spec.racing_config.get('track')!r} "
-                            f"({str(fp.get('track_geometry_hash'))[:12]}...) with car {fp.get('car')!r}, not {track!r} "
-                            f"({want[:12]}...) with {car!r}")  # fmt: skip
+        raise BaselineError(
+            f"{loaded.spec_path}: trained on track {loaded.spec.racing_config.get('track')!r} "
+            f"({str(fp.get('track_geometry_hash'))[:12]}...) with car {fp.get('car')!r}, not {track!r} "
+            f"({want[:12]}...) with {car!r}"
+        )
 
 
 __all__ = [

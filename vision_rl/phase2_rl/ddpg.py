@@ -172,8 +172,10 @@ class ConvTrunk(nn.Module):
             layers += [nn.Conv2d(c_in, c_out, 2, 1), nn.MaxPool2d(2), nn.ReLU(inplace=True), nn.BatchNorm2d(c_out)]
             c_in, h, w = c_out, (h - 1) // 2, (w - 1) // 2
         if h < 1 or w < 1:
-            raise FrameSizeError(f"frames of {self.image_hw_px[0]}x{self.image_hw_px[1]} px are too small for four "
-                                 "2x2 convolutions with 2x2 pooling: use at least 31x31")  # fmt: skip
+            raise FrameSizeError(
+                f"frames of {self.image_hw_px[0]}x{self.image_hw_px[1]} px are too small for four "
+                "2x2 convolutions with 2x2 pooling: use at least 31x31"
+            )
         self.net = nn.Sequential(*layers)
         self.out_dim = c_in * h * w
         self.channels_last = True
@@ -241,8 +243,9 @@ class PixelActor(nn.Module):
 class StateActor(nn.Module):
     """Motion and goal -> keys (n, 4): the state-only actor of the ablation."""
 
-    def __init__(self, offset: np.ndarray, scale: np.ndarray, init_scale: float = 1e-2,
-                 pedal_activation: str = "relu") -> None:  # fmt: skip
+    def __init__(
+        self, offset: np.ndarray, scale: np.ndarray, init_scale: float = 1e-2, pedal_activation: str = "relu"
+    ) -> None:
         super().__init__()
         self.scaled = _Scaled(offset, scale)
         self.dense = _dense_pathway(18)
@@ -290,8 +293,9 @@ class PixelCritic(nn.Module):
 class OUNoise:
     """Ornstein-Uhlenbeck noise per car and output: ``x <- x + theta (mu - x) dt + sigma sqrt(dt) N(0, 1)``."""
 
-    def __init__(self, n: int, dim: int, theta: float, sigma: float, mu: float = 0.0, dt: float = 1.0,
-                 seed: int | None = None) -> None:  # fmt: skip
+    def __init__(
+        self, n: int, dim: int, theta: float, sigma: float, mu: float = 0.0, dt: float = 1.0, seed: int | None = None
+    ) -> None:
         self.theta, self.sigma, self.mu, self.dt = theta, sigma, mu, dt
         self.rng = np.random.default_rng(seed)
         self.x = np.full((n, dim), mu, dtype=np.float64)
@@ -322,8 +326,10 @@ class FrameReplay:
         self.n_cars = int(n_cars)
         self.rows = int(capacity) // self.n_cars
         if self.rows < 4:
-            raise DDPGError(f"a replay buffer of {capacity} rows leaves {self.rows} per car for {n_cars} cars; "
-                            "give at least 4 per car")  # fmt: skip
+            raise DDPGError(
+                f"a replay buffer of {capacity} rows leaves {self.rows} per car for {n_cars} cars; "
+                "give at least 4 per car"
+            )
         self.image_hw_px = None if image_hw_px is None else (int(image_hw_px[0]), int(image_hw_px[1]))
         shape = (self.n_cars, self.rows)
         # np.zeros maps untouched pages lazily: an unfilled 3.2 GB buffer costs only what has been written.
@@ -358,9 +364,16 @@ class FrameReplay:
         cars = self._cars if cars is None else np.asarray(cars)
         self._write_obs(cars, self.pos[cars], obs)
 
-    def add(self, action: np.ndarray, reward: np.ndarray, terminated: np.ndarray, next_obs: Mapping[str, np.ndarray],
-            done: np.ndarray, reset_obs: Mapping[str, np.ndarray] | None = None,
-            cars: np.ndarray | None = None) -> None:  # fmt: skip
+    def add(
+        self,
+        action: np.ndarray,
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        next_obs: Mapping[str, np.ndarray],
+        done: np.ndarray,
+        reset_obs: Mapping[str, np.ndarray] | None = None,
+        cars: np.ndarray | None = None,
+    ) -> None:
         """One step of every car (or of ``cars``, the columns of one sampler's world, in its order): its action,
         reward and termination on its pending row, then ``next_obs`` (the final observation where ``done``) in the
         next row and, where ``done``, ``reset_obs`` (the new episode's first observation, rows of the done cars in
@@ -394,8 +407,13 @@ class FrameReplay:
                 out["image"] = self.image[cars, r]
             return out
 
-        return {"obs": obs(rows), "action": self.action[cars, rows], "reward": self.reward[cars, rows],
-                "terminated": self.terminated[cars, rows], "next_obs": obs(nxt)}  # fmt: skip
+        return {
+            "obs": obs(rows),
+            "action": self.action[cars, rows],
+            "reward": self.reward[cars, rows],
+            "terminated": self.terminated[cars, rows],
+            "next_obs": obs(nxt),
+        }
 
 
 def save_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint: Mapping[str, Any]) -> int:
@@ -412,8 +430,9 @@ def save_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint
         if not buffer.dirty[j] and str(j) in chunks:
             continue
         a, b = j * buffer.chunk_rows, min((j + 1) * buffer.chunk_rows, buffer.rows)
-        arrays = {name: getattr(buffer, name)[:, a:b] for name in FrameReplay.ARRAYS
-                  if getattr(buffer, name) is not None}  # fmt: skip
+        arrays = {
+            name: getattr(buffer, name)[:, a:b] for name in FrameReplay.ARRAYS if getattr(buffer, name) is not None
+        }
         name = f"chunk_{j:05d}_g{generation}.npz"
 
         def write(tmp: Path, arrays=arrays) -> None:
@@ -422,10 +441,18 @@ def save_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint
 
         chunks[str(j)] = {"file": name, "sha256": atomic_write(folder / name, write)}
         written += 1
-    index = {"format": REPLAY_FORMAT, "format_version": FORMAT_VERSION, "fingerprint": dict(fingerprint),
-             "generation": generation, "n_cars": buffer.n_cars, "rows": buffer.rows, "chunk_rows": buffer.chunk_rows,
-             "image_hw_px": None if buffer.image_hw_px is None else list(buffer.image_hw_px),
-             "pos": buffer.pos.tolist(), "chunks": chunks}  # fmt: skip
+    index = {
+        "format": REPLAY_FORMAT,
+        "format_version": FORMAT_VERSION,
+        "fingerprint": dict(fingerprint),
+        "generation": generation,
+        "n_cars": buffer.n_cars,
+        "rows": buffer.rows,
+        "chunk_rows": buffer.chunk_rows,
+        "image_hw_px": None if buffer.image_hw_px is None else list(buffer.image_hw_px),
+        "pos": buffer.pos.tolist(),
+        "chunks": chunks,
+    }
     atomic_write(index_path, lambda tmp: tmp.write_text(json.dumps(index)))
     buffer.dirty[:] = False
     keep = {c["file"] for c in chunks.values()}
@@ -460,8 +487,10 @@ def load_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint
     for j, entry in index["chunks"].items():
         path = folder / entry["file"]
         if not path.is_file() or file_sha256(path) != entry["sha256"]:
-            raise ArtifactError(f"{path}: replay chunk missing or changed after it was written (SHA-256); delete "
-                                f"{folder} to resume without the buffer")  # fmt: skip
+            raise ArtifactError(
+                f"{path}: replay chunk missing or changed after it was written (SHA-256); delete "
+                f"{folder} to resume without the buffer"
+            )
         a = int(j) * buffer.chunk_rows
         try:
             with np.load(path, allow_pickle=False) as data:
@@ -493,8 +522,9 @@ class DDPGAgent:
         seed: torch's and the noise's seed.
     """
 
-    def __init__(self, hyper: DDPGHyper, env: PixelRacingConfig, n_cars: int = 1, seed: int = 0,
-                 device: str = "cpu") -> None:  # fmt: skip
+    def __init__(
+        self, hyper: DDPGHyper, env: PixelRacingConfig, n_cars: int = 1, seed: int = 0, device: str = "cpu"
+    ) -> None:
         self.hyper, self.env = hyper, env
         if (hyper.pixel_actor or hyper.pixel_critic) and not env.frames:
             raise DDPGError(f"the {hyper.variant} agent reads frames: the environment must render them (frames=True)")
@@ -593,12 +623,13 @@ class DDPGAgent:
     def state(self) -> dict[str, Any]:
         """Everything needed to go on: weights, targets, optimisers, noise state, counters (tensors, plain values)."""
         return {
-            "networks": {name: getattr(self, name).state_dict()
-                         for name in ("actor", "critic", "actor_target", "critic_target")},
+            "networks": {
+                name: getattr(self, name).state_dict() for name in ("actor", "critic", "actor_target", "critic_target")
+            },
             "optimizers": {"actor": self.actor_opt.state_dict(), "critic": self.critic_opt.state_dict()},
             "noise": torch.as_tensor(self.noise.x),
             "n_updates": int(self.n_updates),
-        }  # fmt: skip
+        }
 
     def load_state(self, state: Mapping[str, Any], source: str = "agent") -> None:
         try:
@@ -628,12 +659,19 @@ def ddpg_fingerprint(hyper: DDPGHyper, env: PixelRacingConfig) -> dict[str, Any]
     }
 
 
-def save_agent_file(agent: DDPGAgent, path: str | os.PathLike[str], fingerprint: Mapping[str, Any],
-                    counters: Mapping[str, Any]) -> str:  # fmt: skip
+def save_agent_file(
+    agent: DDPGAgent, path: str | os.PathLike[str], fingerprint: Mapping[str, Any], counters: Mapping[str, Any]
+) -> str:
     """Write the agent (no pickled objects) with its fingerprint; returns the file's SHA-256."""
-    payload = {"format": AGENT_FORMAT, "format_version": FORMAT_VERSION, "fingerprint": dict(fingerprint),
-               "hyper": asdict(agent.hyper), "env": agent.env.to_dict(), "counters": dict(counters),
-               **agent.state()}  # fmt: skip
+    payload = {
+        "format": AGENT_FORMAT,
+        "format_version": FORMAT_VERSION,
+        "fingerprint": dict(fingerprint),
+        "hyper": asdict(agent.hyper),
+        "env": agent.env.to_dict(),
+        "counters": dict(counters),
+        **agent.state(),
+    }
     return atomic_write(path, lambda tmp: torch.save(payload, tmp))
 
 
@@ -646,8 +684,9 @@ def read_agent_file(path: str | os.PathLike[str], sha256: str | None = None) -> 
         state = torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError, OSError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ArtifactError(f"{path}: not a DDPG agent file (it holds more than tensors and plain values, or is "
-                            f"damaged): {first}") from None  # fmt: skip
+        raise ArtifactError(
+            f"{path}: not a DDPG agent file (it holds more than tensors and plain values, or is damaged): {first}"
+        ) from None
     if not isinstance(state, dict) or state.get("format") != AGENT_FORMAT:
         raise ArtifactError(f"{path}: not a DDPG agent file (no format {AGENT_FORMAT!r})")
     if int(state.get("format_version", 0)) != FORMAT_VERSION:
@@ -684,8 +723,10 @@ def load_agent(path: str | os.PathLike[str], variant: str | None = None, device:
     except (TypeError, KeyError) as exc:
         raise ArtifactError(f"{path}: bad hyper-parameters or environment in the agent file: {exc}") from None
     if variant is not None and variant != hyper.variant:
-        raise DDPGError(f"{path} holds an agent of variant {hyper.variant!r}, not {variant!r}: load it as --variant "
-                        f"{hyper.variant} or train a {variant} one")  # fmt: skip
+        raise DDPGError(
+            f"{path} holds an agent of variant {hyper.variant!r}, not {variant!r}: load it as --variant "
+            f"{hyper.variant} or train a {variant} one"
+        )
     check_fingerprint(state["fingerprint"], ddpg_fingerprint(hyper, env), str(path))
     agent = DDPGAgent(hyper, env, n_cars=1, device=device)
     agent.load_state(state, str(path))
@@ -711,8 +752,9 @@ class DDPGDriver:
     def reset(self, world: World, car_ids: np.ndarray) -> None:
         env = self.agent.env
         # The pixel observer draws only what the actor reads: the state actor needs no renderer.
-        config = PixelRacingConfig(**{**env.to_dict(), "image_hw_px": env.image_hw_px,
-                                      "frames": self.agent.hyper.pixel_actor})  # fmt: skip
+        config = PixelRacingConfig(
+            **{**env.to_dict(), "image_hw_px": env.image_hw_px, "frames": self.agent.hyper.pixel_actor}
+        )
         key = (id(world.track), world.car.name, tuple(world.model.groups.tolist()))
         if self.observer is None or key != self._key:
             if self.observer is not None:
@@ -743,8 +785,15 @@ class DDPGDriver:
 BENCH_LAYOUTS = ("eager", "channels_last", "compiled")
 
 
-def bench_updates(hyper: DDPGHyper, env: PixelRacingConfig, updates: int = 10, warmup: int = 2,
-                  seed: int = 0, layout: str = "", device: str = "cpu") -> dict[str, float]:  # fmt: skip
+def bench_updates(
+    hyper: DDPGHyper,
+    env: PixelRacingConfig,
+    updates: int = 10,
+    warmup: int = 2,
+    seed: int = 0,
+    layout: str = "",
+    device: str = "cpu",
+) -> dict[str, float]:
     """Updates per second at ``hyper.batch_size`` on random frames and states (what the network costs, no sim).
 
     ``layout`` overrides ``hyper.channels_last``: ``eager`` (NCHW), ``channels_last``, or ``compiled`` (channels-last
@@ -763,14 +812,21 @@ def bench_updates(hyper: DDPGHyper, env: PixelRacingConfig, updates: int = 10, w
     n = hyper.batch_size
 
     def obs() -> dict[str, np.ndarray]:
-        out = {"motion": rng.normal(size=(n, 15)).astype(np.float32),
-               "goal": rng.normal(size=(n, 3)).astype(np.float32)}  # fmt: skip
+        out = {
+            "motion": rng.normal(size=(n, 15)).astype(np.float32),
+            "goal": rng.normal(size=(n, 3)).astype(np.float32),
+        }
         if env.frames:
             out["image"] = rng.integers(0, 256, (n, *env.image_hw_px, 3), dtype=np.uint8)
         return out
 
-    batch = {"obs": obs(), "next_obs": obs(), "action": rng.uniform(0, 1, (n, 4)).astype(np.float32),
-             "reward": rng.normal(size=n).astype(np.float32), "terminated": np.zeros(n, bool)}  # fmt: skip
+    batch = {
+        "obs": obs(),
+        "next_obs": obs(),
+        "action": rng.uniform(0, 1, (n, 4)).astype(np.float32),
+        "reward": rng.normal(size=n).astype(np.float32),
+        "terminated": np.zeros(n, bool),
+    }
     sync = torch.cuda.synchronize if agent.device.type == "cuda" else (lambda: None)
     for _ in range(warmup):
         agent.update(batch)

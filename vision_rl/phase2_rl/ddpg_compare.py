@@ -44,8 +44,9 @@ def read_episodes(run: str | os.PathLike[str]) -> tuple[dict[str, Any], list[dic
     return sidecar, records
 
 
-def compare_runs(runs: Sequence[str | os.PathLike[str]], names: Sequence[str] = (),
-                 bin_min: float = 5.0) -> dict[str, Any]:  # fmt: skip
+def compare_runs(
+    runs: Sequence[str | os.PathLike[str]], names: Sequence[str] = (), bin_min: float = 5.0
+) -> dict[str, Any]:
     """Distance per episode of each run in bins of ``bin_min`` training minutes up to the common time, with a
     summary per run: episodes, mean and best distance over the last third of the common time, first lap. Episodes
     and distances count to the common time; the counters (minutes, steps, updates and their rate) are the run's."""
@@ -73,26 +74,37 @@ def compare_runs(runs: Sequence[str | os.PathLike[str]], names: Sequence[str] = 
         last = t > (1 - LAST_SHARE) * common_s
         lapped = np.flatnonzero(laps >= 1)
         counters = sidecar["counters"]
-        rows.append({
-            "name": name or f"{sidecar['hyper']['variant']} s{sidecar.get('seed', 0)}",
-            "run": str(run), "variant": sidecar["hyper"]["variant"], "seed": sidecar.get("seed"),
-            "train_minutes": round(float(counters["train_time_s"]) / 60.0, 2),
-            "steps": int(counters["num_steps"]), "updates": int(counters["n_updates"]),
-            "updates_per_s": int(counters["n_updates"]) / max(float(counters["train_time_s"]), 1e-9),
-            "episodes": len(t),
-            "mean_distance_last_m": round(float(distance[last].mean()), 1) if last.any() else None,
-            "best_distance_m": round(float(distance.max()), 1) if len(t) else None,
-            "first_lap_episode": int(lapped[0]) + 1 if len(lapped) else None,
-            "first_lap_minutes": round(float(t[lapped[0]]) / 60.0, 2) if len(lapped) else None,
-            "episode_minutes": np.round(t / 60.0, 3).tolist(),
-            "episode_distance_m": np.round(distance, 1).tolist(),
-            "bin_mean_distance_m": [round(float(d.mean()), 1) if len(d) else None for d in per_bin],
-            "bin_episodes": [len(d) for d in per_bin],
-        })  # fmt: skip
-    (track_name, car), = tracks
-    return {"track": track_name, "car": car, "common_minutes": round(common_s / 60.0, 2),
-            "bin_minutes": bin_min, "bin_start_minutes": (edges_s[:-1] / 60.0).tolist(),
-            "last_share": LAST_SHARE, "runs": rows}  # fmt: skip
+        rows.append(
+            {
+                "name": name or f"{sidecar['hyper']['variant']} s{sidecar.get('seed', 0)}",
+                "run": str(run),
+                "variant": sidecar["hyper"]["variant"],
+                "seed": sidecar.get("seed"),
+                "train_minutes": round(float(counters["train_time_s"]) / 60.0, 2),
+                "steps": int(counters["num_steps"]),
+                "updates": int(counters["n_updates"]),
+                "updates_per_s": int(counters["n_updates"]) / max(float(counters["train_time_s"]), 1e-9),
+                "episodes": len(t),
+                "mean_distance_last_m": round(float(distance[last].mean()), 1) if last.any() else None,
+                "best_distance_m": round(float(distance.max()), 1) if len(t) else None,
+                "first_lap_episode": int(lapped[0]) + 1 if len(lapped) else None,
+                "first_lap_minutes": round(float(t[lapped[0]]) / 60.0, 2) if len(lapped) else None,
+                "episode_minutes": np.round(t / 60.0, 3).tolist(),
+                "episode_distance_m": np.round(distance, 1).tolist(),
+                "bin_mean_distance_m": [round(float(d.mean()), 1) if len(d) else None for d in per_bin],
+                "bin_episodes": [len(d) for d in per_bin],
+            }
+        )
+    ((track_name, car),) = tracks
+    return {
+        "track": track_name,
+        "car": car,
+        "common_minutes": round(common_s / 60.0, 2),
+        "bin_minutes": bin_min,
+        "bin_start_minutes": (edges_s[:-1] / 60.0).tolist(),
+        "last_share": LAST_SHARE,
+        "runs": rows,
+    }
 
 
 def plot_comparison(result: dict[str, Any], path: str | os.PathLike[str], window: int = 20) -> Path:

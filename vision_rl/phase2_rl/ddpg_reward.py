@@ -60,14 +60,22 @@ def lap_reward_profile(
         core.close()
     mean = np.where(count > 0, reward_sum / np.maximum(count, 1), np.nan)
     return {
-        "track": env.track, "car": env.car, "lap_length_m": length_m, "bin_m": bin_m,
-        "bin_start_m": (np.arange(n_bins) * bin_m).tolist(), "end": end,
+        "track": env.track,
+        "car": env.car,
+        "lap_length_m": length_m,
+        "bin_m": bin_m,
+        "bin_start_m": (np.arange(n_bins) * bin_m).tolist(),
+        "end": end,
         "laps": [
-            {"lap": k + 1, "steps": int(count[k].sum()), "reward": float(reward_sum[k].sum()),
-             "mean_reward": [None if math.isnan(x) else float(x) for x in mean[k]]}
+            {
+                "lap": k + 1,
+                "steps": int(count[k].sum()),
+                "reward": float(reward_sum[k].sum()),
+                "mean_reward": [None if math.isnan(x) else float(x) for x in mean[k]],
+            }
             for k in range(laps)
         ],
-    }  # fmt: skip
+    }
 
 
 def plot_lap_reward(profile: dict[str, Any], path: str | os.PathLike[str], title: str) -> Path:

@@ -44,8 +44,14 @@ def episode_record(info: Mapping[str, np.ndarray], i: int, terminated: bool, max
         end = "line distance"
     else:
         end = "stuck"
-    return {"car": int(i), "return": round(float(info["episode_return"][i]), 3), "steps": int(info["episode_steps"][i]),
-            "distance_m": round(float(info["progress_m"][i]), 2), "laps": int(info["laps_completed"][i]), "end": end}
+    return {
+        "car": int(i),
+        "return": round(float(info["episode_return"][i]), 3),
+        "steps": int(info["episode_steps"][i]),
+        "distance_m": round(float(info["progress_m"][i]), 2),
+        "laps": int(info["laps_completed"][i]),
+        "end": end,
+    }
 
 
 @dataclass(frozen=True)
@@ -110,9 +116,12 @@ class DDPGSampler:
             self.version = version
         n = self.core.config.n_cars
         out: dict[str, Any] = {
-            "keys": np.empty((steps, n, 4), np.float32), "reward": np.empty((steps, n), np.float32),
-            "terminated": np.empty((steps, n), bool), "done": np.empty((steps, n), bool), "episodes": [],
-        }  # fmt: skip
+            "keys": np.empty((steps, n, 4), np.float32),
+            "reward": np.empty((steps, n), np.float32),
+            "terminated": np.empty((steps, n), bool),
+            "done": np.empty((steps, n), bool),
+            "episodes": [],
+        }
         for key, value in self.obs.items():
             out[f"next_{key}"] = np.empty((steps, *value.shape), value.dtype)
             out[f"reset_{key}"] = np.zeros((steps, *value.shape), value.dtype)
@@ -148,8 +157,15 @@ class DDPGLearner(Learner):
     records of the episodes that ended in it; it counts the step and does what the single-process loop does after
     one (evaluations, checkpoints, progress), and returns False to end the session (the run's time is up)."""
 
-    def __init__(self, agent: Any, buffer: Any, cars: int, rng: np.random.Generator, restored: bool,
-                 on_vector_step: Callable[[int, list[dict[str, Any]]], bool]) -> None:  # fmt: skip
+    def __init__(
+        self,
+        agent: Any,
+        buffer: Any,
+        cars: int,
+        rng: np.random.Generator,
+        restored: bool,
+        on_vector_step: Callable[[int, list[dict[str, Any]]], bool],
+    ) -> None:
         self.agent, self.buffer, self.cars, self.rng = agent, buffer, cars, rng
         self.restored, self.on_vector_step = restored, on_vector_step
         self.steps = 0
@@ -177,8 +193,15 @@ class DDPGLearner(Learner):
             done = chunk["done"][k]
             ended = np.flatnonzero(done)
             reset = {key: chunk[f"reset_{key}"][k, ended] for key in keys} if len(ended) else None
-            self.buffer.add(chunk["keys"][k], chunk["reward"][k], chunk["terminated"][k],
-                            {key: chunk[f"next_{key}"][k] for key in keys}, done, reset, cars=cols)  # fmt: skip
+            self.buffer.add(
+                chunk["keys"][k],
+                chunk["reward"][k],
+                chunk["terminated"][k],
+                {key: chunk[f"next_{key}"][k] for key in keys},
+                done,
+                reset,
+                cars=cols,
+            )
             self.steps += self.cars
             ended_here = [{**e, "car": int(cols[e["car"]]), "worker": worker} for e in episodes if e["step"] == k]
             if not self.on_vector_step(worker, ended_here):

@@ -160,32 +160,57 @@ class TrainDDPGConfig:
     """With --workers: learner updates per weight version sent to the samplers."""
 
     def hyper(self) -> DDPGHyper:
-        return DDPGHyper(variant=self.variant, actor_lr=self.actor_lr, critic_lr=self.critic_lr, tau=self.tau,
-                         gamma=self.gamma, batch_size=self.batch_size, buffer_size=self.buffer_size,
-                         ou_theta=self.ou_theta, ou_sigma=self.ou_sigma, reward_scale=self.reward_scale,
-                         channels_last=self.channels_last, pedal_activation=self.pedal_activation)  # fmt: skip
+        return DDPGHyper(
+            variant=self.variant,
+            actor_lr=self.actor_lr,
+            critic_lr=self.critic_lr,
+            tau=self.tau,
+            gamma=self.gamma,
+            batch_size=self.batch_size,
+            buffer_size=self.buffer_size,
+            ou_theta=self.ou_theta,
+            ou_sigma=self.ou_sigma,
+            reward_scale=self.reward_scale,
+            channels_last=self.channels_last,
+            pedal_activation=self.pedal_activation,
+        )
 
     def env(self) -> PixelRacingConfig:
         return PixelRacingConfig(
-            track=self.track, car=self.car, n_cars=self.cars, episode_s=self.episode_s, image_hw_px=self.image_hw_px,
-            render_scale=self.render_scale, frames=self.variant != "state-actor", goal_frame=self.goal_frame,
-            racing_line=self.racing_line, line_distance_alpha=self.line_distance_alpha,
-            crash_penalty_beta=self.crash_penalty_beta, max_line_distance_m=self.max_line_distance_m, start=self.start,
+            track=self.track,
+            car=self.car,
+            n_cars=self.cars,
+            episode_s=self.episode_s,
+            image_hw_px=self.image_hw_px,
+            render_scale=self.render_scale,
+            frames=self.variant != "state-actor",
+            goal_frame=self.goal_frame,
+            racing_line=self.racing_line,
+            line_distance_alpha=self.line_distance_alpha,
+            crash_penalty_beta=self.crash_penalty_beta,
+            max_line_distance_m=self.max_line_distance_m,
+            start=self.start,
             start_skill=self.start_speed_share,
-        )  # fmt: skip
+        )
 
 
 def check_bounds(cfg: TrainDDPGConfig) -> None:
     """One clear line for an option out of range, before anything is built or written."""
     checks = {
-        "cars": 1 <= cfg.cars <= MAX_CARS, "steps": cfg.steps >= 1, "learning_starts": cfg.learning_starts >= 0,
-        "updates_per_step": cfg.updates_per_step >= 0, "eval_every_steps": cfg.eval_every_steps >= 0,
-        "eval_seeds": cfg.eval_seeds >= 0, "eval_laps": cfg.eval_laps >= 1,
+        "cars": 1 <= cfg.cars <= MAX_CARS,
+        "steps": cfg.steps >= 1,
+        "learning_starts": cfg.learning_starts >= 0,
+        "updates_per_step": cfg.updates_per_step >= 0,
+        "eval_every_steps": cfg.eval_every_steps >= 0,
+        "eval_seeds": cfg.eval_seeds >= 0,
+        "eval_laps": cfg.eval_laps >= 1,
         "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "train_minutes": cfg.train_minutes >= 0,
+        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
+        "train_minutes": cfg.train_minutes >= 0,
         "start_speed_share": 0 <= cfg.start_speed_share <= 1,
-        "torch_threads": cfg.torch_threads >= 0, "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
-    }  # fmt: skip
+        "torch_threads": cfg.torch_threads >= 0,
+        "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
+    }
     for name, ok in checks.items():
         if not ok:
             raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
@@ -275,8 +300,12 @@ class _Run:
         return self.cfg.train_minutes > 0 and self.train_time_s >= 60.0 * self.cfg.train_minutes
 
     def counters(self, agent: DDPGAgent) -> dict[str, Any]:
-        return {"num_steps": self.num_steps, "n_updates": agent.n_updates, "episodes": self.episodes,
-                "train_time_s": round(self.train_time_s, 2)}  # fmt: skip
+        return {
+            "num_steps": self.num_steps,
+            "n_updates": agent.n_updates,
+            "episodes": self.episodes,
+            "train_time_s": round(self.train_time_s, 2),
+        }
 
     def save(self, agent: DDPGAgent, buffer: FrameReplay | None) -> None:
         """The agent, then its sidecar (which names the agent's SHA-256), then the buffer's changed chunks."""
@@ -284,11 +313,17 @@ class _Run:
         train_config = json.loads(json.dumps(dataclasses.asdict(self.cfg)))
         sha = save_agent_file(agent, self.out / AGENT_NAME, self.fingerprint, counters)
         sidecar = {
-            "format": SIDECAR_FORMAT, "format_version": 1, "weights": AGENT_NAME, "weights_sha256": sha,
-            "fingerprint": self.fingerprint, "hyper": dataclasses.asdict(self.hyper), "env": self.env.to_dict(),
-            "counters": counters, "seed": (self.previous or {}).get("seed", self.cfg.seed),
+            "format": SIDECAR_FORMAT,
+            "format_version": 1,
+            "weights": AGENT_NAME,
+            "weights_sha256": sha,
+            "fingerprint": self.fingerprint,
+            "hyper": dataclasses.asdict(self.hyper),
+            "env": self.env.to_dict(),
+            "counters": counters,
+            "seed": (self.previous or {}).get("seed", self.cfg.seed),
             "train_config": (self.previous or {}).get("train_config", train_config),
-        }  # fmt: skip
+        }
         atomic_write(self.out / SIDECAR_NAME, lambda tmp: tmp.write_text(json.dumps(sidecar, indent=2)))
         if buffer is not None:
             save_replay(buffer, self.out / REPLAY_DIR, self.fingerprint)
@@ -298,19 +333,30 @@ class _Run:
         t0 = time.perf_counter()
         if self.driver is None:
             self.driver = DDPGDriver(agent)
-        timing = time_laps(self.driver, self.env.track, self.env.car, range(max(cfg.eval_seeds, 1)), cfg.eval_laps,
-                           time_limit_s=cfg.eval_time_limit_s)  # fmt: skip
+        timing = time_laps(
+            self.driver,
+            self.env.track,
+            self.env.car,
+            range(max(cfg.eval_seeds, 1)),
+            cfg.eval_laps,
+            time_limit_s=cfg.eval_time_limit_s,
+        )
         summary = timing.summary()
         eval_time = time.perf_counter() - t0
         self.session_start += eval_time  # evaluation time is not training time
         record = {
-            "num_steps": self.num_steps, "n_updates": agent.n_updates, "episodes": self.episodes,
-            "train_time_s": round(self.train_time_s, 2), "lap_time_s": summary["best_lap_time_s"],
-            "finished": summary["n_finished"], "dnf_reasons": [s["dnf_reason"] for s in summary["seeds"]],
+            "num_steps": self.num_steps,
+            "n_updates": agent.n_updates,
+            "episodes": self.episodes,
+            "train_time_s": round(self.train_time_s, 2),
+            "lap_time_s": summary["best_lap_time_s"],
+            "finished": summary["n_finished"],
+            "dnf_reasons": [s["dnf_reason"] for s in summary["seeds"]],
             "distance_m": float(np.mean([s["distance_m"] for s in summary["seeds"]])),
             "wall_contact_s": None if summary["best_lap"] is None else summary["best_lap"]["wall_contact_s"],
-            "limit_lap_time_s": summary["limit_lap_time_s"], "eval_time_s": round(eval_time, 2),
-        }  # fmt: skip
+            "limit_lap_time_s": summary["limit_lap_time_s"],
+            "eval_time_s": round(eval_time, 2),
+        }
         with open(self.out / METRICS_NAME, "a") as f:
             f.write(json.dumps(record) + "\n")
         self.last_eval = record
@@ -340,8 +386,10 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
     workers = cfg.workers or 0
     trained_with = (run.previous or {}).get("train_config", {}).get("workers") or 0
     if run.previous is not None and trained_with != workers:
-        raise DDPGError(f"{run.out} was trained with --workers {trained_with or 'left out'}: its replay buffer has "
-                        f"a column per car of every sampler; resume it with the same --workers")  # fmt: skip
+        raise DDPGError(
+            f"{run.out} was trained with --workers {trained_with or 'left out'}: its replay buffer has "
+            f"a column per car of every sampler; resume it with the same --workers"
+        )
     # A resumed session draws new start points and noise: reusing the first session's would replay its episodes.
     session_seed = cfg.seed + run.num_steps
     agent = DDPGAgent(hyper, env, n_cars=n, seed=session_seed, device=cfg.device)
@@ -363,8 +411,11 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
             learning_starts = 0
     rng = np.random.default_rng(session_seed + 1)
     next_eval = (run.num_steps // cfg.eval_every_steps + 1) * cfg.eval_every_steps if cfg.eval_every_steps else None
-    next_ckpt = (run.num_steps // cfg.checkpoint_every_steps + 1) * cfg.checkpoint_every_steps \
-        if cfg.checkpoint_every_steps else None  # fmt: skip
+    next_ckpt = (
+        (run.num_steps // cfg.checkpoint_every_steps + 1) * cfg.checkpoint_every_steps
+        if cfg.checkpoint_every_steps
+        else None
+    )
     last_light = time.perf_counter()
     interrupted = False
     sampling = None
@@ -388,8 +439,17 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
             progress(run.num_steps, cfg.steps, run.last_eval)
 
     def log_episode(record: dict[str, Any]) -> None:
-        episodes_file.write(json.dumps({"episode": run.episodes, "num_steps": run.num_steps, **record,
-                                        "train_time_s": round(run.train_time_s, 2)}) + "\n")  # fmt: skip
+        episodes_file.write(
+            json.dumps(
+                {
+                    "episode": run.episodes,
+                    "num_steps": run.num_steps,
+                    **record,
+                    "train_time_s": round(run.train_time_s, 2),
+                }
+            )
+            + "\n"
+        )
         episodes_file.flush()
         run.episodes += 1
 
@@ -397,11 +457,13 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
     try:
         with held.installed():
             if workers:
-                sampling = _learn_with_samplers(run, agent, buffer, rng, restored > 0, learning_starts, cluster,
-                                                log_episode, after_vector_step)  # fmt: skip
+                sampling = _learn_with_samplers(
+                    run, agent, buffer, rng, restored > 0, learning_starts, cluster, log_episode, after_vector_step
+                )
             else:
-                _learn_here(run, agent, buffer, rng, restored > 0, learning_starts, session_seed, log_episode,
-                            after_vector_step)  # fmt: skip
+                _learn_here(
+                    run, agent, buffer, rng, restored > 0, learning_starts, session_seed, log_episode, after_vector_step
+                )
         if cfg.eval_seeds > 0 and (run.last_eval is None or run.last_eval["num_steps"] != run.num_steps):
             run.evaluate(agent)
     except KeyboardInterrupt:
@@ -431,9 +493,17 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
     }
 
 
-def _learn_here(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: np.random.Generator, restored: bool,
-                learning_starts: int, session_seed: int, log_episode: Callable[[dict[str, Any]], None],
-                after_vector_step: Callable[[], None]) -> None:  # fmt: skip
+def _learn_here(
+    run: _Run,
+    agent: DDPGAgent,
+    buffer: FrameReplay,
+    rng: np.random.Generator,
+    restored: bool,
+    learning_starts: int,
+    session_seed: int,
+    log_episode: Callable[[dict[str, Any]], None],
+    after_vector_step: Callable[[], None],
+) -> None:
     """The session's steps in this process: the world, then an update, one step of all cars at a time."""
     cfg, env, hyper = run.cfg, run.env, run.hyper
     n = env.n_cars
@@ -475,10 +545,17 @@ def _learn_here(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: np.random
         core.close()
 
 
-def _learn_with_samplers(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: np.random.Generator,
-                         restored: bool, learning_starts: int, cluster: Any,
-                         log_episode: Callable[[dict[str, Any]], None],
-                         after_vector_step: Callable[[], None]) -> dict[str, Any]:  # fmt: skip
+def _learn_with_samplers(
+    run: _Run,
+    agent: DDPGAgent,
+    buffer: FrameReplay,
+    rng: np.random.Generator,
+    restored: bool,
+    learning_starts: int,
+    cluster: Any,
+    log_episode: Callable[[dict[str, Any]], None],
+    after_vector_step: Callable[[], None],
+) -> dict[str, Any]:
     """The session's steps from ``cfg.workers`` sampler actors (:mod:`vision_rl.phase2_rl.ddpg_sampling`), the same
     updates per step, evaluations and checkpoints as :func:`_learn_here`. A lost sampler is a line of
     metrics.jsonl; when none is left, the run is saved and the error raised."""
@@ -501,11 +578,15 @@ def _learn_with_samplers(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: 
             f.write(json.dumps(record) + "\n")
 
     pacing = Pacing(
-        workers=int(cfg.workers or 0), n_cars=n, gradient_steps=cfg.updates_per_step,
+        workers=int(cfg.workers or 0),
+        n_cars=n,
+        gradient_steps=cfg.updates_per_step,
         learning_starts=learning_starts if restored else max(learning_starts, run.hyper.batch_size),
-        start_timesteps=0, total_timesteps=max(0, cfg.steps - run.num_steps),
-        version_every_updates=cfg.version_every_updates, max_staleness=cfg.max_staleness,
-    )  # fmt: skip
+        start_timesteps=0,
+        total_timesteps=max(0, cfg.steps - run.num_steps),
+        version_every_updates=cfg.version_every_updates,
+        max_staleness=cfg.max_staleness,
+    )
     setup = sampler_setup(run.hyper, env, run.fingerprint, cfg.seed + run.num_steps)
     learner = DDPGLearner(agent, buffer, n, rng, restored, on_vector_step)
     run.session_start = time.perf_counter()  # training time starts with the samplers, after the set-up
@@ -517,9 +598,16 @@ def _learn_with_samplers(run: _Run, agent: DDPGAgent, buffer: FrameReplay, rng: 
         raise SamplersLostError(f"{exc}; the run in {run.out} was saved: continue it with --resume") from None
 
 
-def evaluate_ddpg(path: str | os.PathLike[str], seeds: int = 3, laps: int = 2, variant: str | None = None,
-                  time_limit_s: float = 0.0, write: bool = True, video: str = "",
-                  plot: str = "") -> dict[str, Any]:  # fmt: skip
+def evaluate_ddpg(
+    path: str | os.PathLike[str],
+    seeds: int = 3,
+    laps: int = 2,
+    variant: str | None = None,
+    time_limit_s: float = 0.0,
+    write: bool = True,
+    video: str = "",
+    plot: str = "",
+) -> dict[str, Any]:
     """Time a saved agent (a run folder or its ddpg.pt) with the lap-time protocol on its own track and car; with
     ``write``, the record goes to ``evaluation.json`` beside it, where the leaderboard finds it. ``video`` / ``plot``:
     an MP4 of the best start's driver view (at the game screen's size, not the actor's 89x120) / a PNG of its
@@ -532,13 +620,25 @@ def evaluate_ddpg(path: str | os.PathLike[str], seeds: int = 3, laps: int = 2, v
     agent = load_agent(path, variant=variant)
     driver = DDPGDriver(agent)
     try:
-        timing = time_laps(driver, agent.env.track, agent.env.car, range(seeds), laps, time_limit_s=time_limit_s,
-                           record=bool(video or plot))  # fmt: skip
+        timing = time_laps(
+            driver,
+            agent.env.track,
+            agent.env.car,
+            range(seeds),
+            laps,
+            time_limit_s=time_limit_s,
+            record=bool(video or plot),
+        )
     finally:
         driver.close()
     variant = agent.hyper.variant
-    identity = {"driver": "ddpg", "variant": variant, "observation": f"ddpg {variant}", "agent": str(path),
-                "counters": getattr(agent, "counters", {})}  # fmt: skip
+    identity = {
+        "driver": "ddpg",
+        "variant": variant,
+        "observation": f"ddpg {variant}",
+        "agent": str(path),
+        "counters": getattr(agent, "counters", {}),
+    }
     record = evaluation_record(timing, identity, f"ddpg {variant}")
     best = timing.best_index()
     record["video"] = str(write_video(timing, best, video)) if video else None

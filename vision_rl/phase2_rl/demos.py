@@ -133,8 +133,15 @@ def environment_normalizer(track: str, car: str) -> ObsNormalizer:
 
 def race_config(track: str, car: str, n_groups: int = 1, episode_s: float = 100.0) -> RacingConfig:
     """The single-car race of Table III: ``stage1`` (alone), the 96-D observation, Eq. 1 with ``c_w`` 0.005."""
-    return RacingConfig(track=track, car=car, observation=OBSERVATION, scenario=SCENARIO, n_groups=n_groups,
-                        episode_s=episode_s, wall_penalty_c_w=0.005)  # fmt: skip
+    return RacingConfig(
+        track=track,
+        car=car,
+        observation=OBSERVATION,
+        scenario=SCENARIO,
+        n_groups=n_groups,
+        episode_s=episode_s,
+        wall_penalty_c_w=0.005,
+    )
 
 
 def demo_fingerprint(track: str, car: str, normalizer: ObsNormalizer | None = None) -> dict[str, Any]:
@@ -204,8 +211,12 @@ def write_demos(path: str | os.PathLike[str], arrays: Mapping[str, np.ndarray], 
     the file's SHA-256."""
     path = Path(path)
     checked = {name: np.asarray(arrays[name]) for name in ARRAYS}
-    record = {**meta, "format": DEMO_FORMAT, "format_version": DEMO_FORMAT_VERSION,
-              "arrays_sha256": arrays_sha256(checked)}  # fmt: skip
+    record = {
+        **meta,
+        "format": DEMO_FORMAT,
+        "format_version": DEMO_FORMAT_VERSION,
+        "arrays_sha256": arrays_sha256(checked),
+    }
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
@@ -232,8 +243,10 @@ def load_demos(path: str | os.PathLike[str], fingerprint: Mapping[str, Any] | No
             if not isinstance(meta, dict) or meta.get("format") != DEMO_FORMAT:
                 raise DemoError(f"{path}: not a vision_rl demonstrations file (no format {DEMO_FORMAT!r})")
             if int(meta.get("format_version", 0)) != DEMO_FORMAT_VERSION:
-                raise DemoError(f"{path}: demonstrations format {meta.get('format_version')}, this code reads "
-                                f"{DEMO_FORMAT_VERSION}; record them again with `vision-rl record-demos`")  # fmt: skip
+                raise DemoError(
+                    f"{path}: demonstrations format {meta.get('format_version')}, this code reads "
+                    f"{DEMO_FORMAT_VERSION}; record them again with `vision-rl record-demos`"
+                )
             missing = [name for name in ARRAYS if name not in data.files]
             if missing:
                 raise DemoError(f"{path}: the demonstrations lack the array {missing[0]!r}")
@@ -244,17 +257,26 @@ def load_demos(path: str | os.PathLike[str], fingerprint: Mapping[str, Any] | No
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise DemoError(f"{path}: damaged demonstrations file ({first}); record them again") from None
     n = len(arrays["actions"])
-    shapes = {"observations": (n, OBS_DIM), "actions": (n, 2), "expert_actions": (n, 2), "rewards": (n,),
-              "episode_starts": (n,)}  # fmt: skip
+    shapes = {
+        "observations": (n, OBS_DIM),
+        "actions": (n, 2),
+        "expert_actions": (n, 2),
+        "rewards": (n,),
+        "episode_starts": (n,),
+    }
     for name, shape in shapes.items():
         if arrays[name].shape != shape:
-            raise DemoError(f"{path}: {name} has shape {arrays[name].shape}, not {shape}: not demonstrations of the "
-                            f"{OBS_DIM}-D {OBSERVATION} observation")  # fmt: skip
+            raise DemoError(
+                f"{path}: {name} has shape {arrays[name].shape}, not {shape}: not demonstrations of the "
+                f"{OBS_DIM}-D {OBSERVATION} observation"
+            )
     if n == 0 or not bool(arrays["episode_starts"][0]):
         raise DemoError(f"{path}: holds no transitions, or does not start with an episode start")
     if arrays_sha256(arrays) != meta.get("arrays_sha256"):
-        raise DemoError(f"{path}: its arrays do not match their recorded SHA-256: the file was edited or damaged "
-                        "after it was recorded; record them again")  # fmt: skip
+        raise DemoError(
+            f"{path}: its arrays do not match their recorded SHA-256: the file was edited or damaged "
+            "after it was recorded; record them again"
+        )
     if not all(np.isfinite(arrays[name]).all() for name in ("observations", "actions", "expert_actions", "rewards")):
         raise DemoError(f"{path}: holds values that are not finite")
     if fingerprint is not None:
@@ -264,8 +286,11 @@ def load_demos(path: str | os.PathLike[str], fingerprint: Mapping[str, Any] | No
         actions=arrays["actions"].astype(np.float32, copy=False),
         expert_actions=arrays["expert_actions"].astype(np.float32, copy=False),
         rewards=arrays["rewards"].astype(np.float32),
-        episode_starts=arrays["episode_starts"].astype(bool), meta=meta, path=path, sha256=checkpoint_sha256(path),
-    )  # fmt: skip
+        episode_starts=arrays["episode_starts"].astype(bool),
+        meta=meta,
+        path=path,
+        sha256=checkpoint_sha256(path),
+    )
 
 
 def load_demos_for(path: str | os.PathLike[str], track: str, car: str) -> Demos:
@@ -320,10 +345,17 @@ DemoProgress = Callable[[float, float], None]
 def check_record_config(cfg: RecordDemosConfig) -> None:
     """One clear line for a bad option, before anything is built."""
     if cfg.driver not in DRIVERS:
-        raise ValueError(f"--driver must be one of {', '.join(DRIVERS)} (human demonstrations need a human driver, "
-                         f"which does not exist yet), got {cfg.driver!r}")  # fmt: skip
-    for name, ok in (("laps", cfg.laps > 0), ("cars", 1 <= cfg.cars <= 1000), ("episode_s", cfg.episode_s >= 0.1),
-                     ("skill", 0 < cfg.skill <= 1), ("noise", 0 <= cfg.noise <= 1)):  # fmt: skip
+        raise ValueError(
+            f"--driver must be one of {', '.join(DRIVERS)} (human demonstrations need a human driver, "
+            f"which does not exist yet), got {cfg.driver!r}"
+        )
+    for name, ok in (
+        ("laps", cfg.laps > 0),
+        ("cars", 1 <= cfg.cars <= 1000),
+        ("episode_s", cfg.episode_s >= 0.1),
+        ("skill", 0 < cfg.skill <= 1),
+        ("noise", 0 <= cfg.noise <= 1),
+    ):
         if not ok:
             raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
     if not cfg.out:
@@ -386,8 +418,10 @@ def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -
     ep = np.stack(episode_ids).ravel()
     t = np.repeat(np.arange(n_steps), cfg.cars)
     order = np.lexsort((t, ep, group))
-    arrays = {name: np.stack(values).reshape(n_steps * cfg.cars, *np.shape(values[0])[1:])[order]
-              for name, values in steps.items()}  # fmt: skip
+    arrays = {
+        name: np.stack(values).reshape(n_steps * cfg.cars, *np.shape(values[0])[1:])[order]
+        for name, values in steps.items()
+    }
     arrays["observations"] = arrays["observations"].astype(np.float32)
     arrays["episode_starts"] = arrays["episode_starts"].astype(bool)
     record_s = time.perf_counter() - t0
@@ -395,19 +429,37 @@ def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -
 
     meta = {
         "fingerprint": demo_fingerprint(cfg.track, cfg.car, normalizer),
-        "track": cfg.track, "track_name": load_track(cfg.track).name,
+        "track": cfg.track,
+        "track_name": load_track(cfg.track).name,
         "demonstrator": expert.identity,
         "settings": dataclasses.asdict(cfg),
         "normalizer": normalizer.to_dict(),
-        "n_transitions": len(arrays["actions"]), "n_episodes": int(arrays["episode_starts"].sum()),
-        "laps_driven": round(laps_driven, 3), "wall_contact_s_in_finished_episodes": round(wall_s, 2),
+        "n_transitions": len(arrays["actions"]),
+        "n_episodes": int(arrays["episode_starts"].sum()),
+        "laps_driven": round(laps_driven, 3),
+        "wall_contact_s_in_finished_episodes": round(wall_s, 2),
         "mean_reward": float(arrays["rewards"].mean()),
-        "record_time_s": round(record_s, 2), "package_version": package_version(),
-    }  # fmt: skip
+        "record_time_s": round(record_s, 2),
+        "package_version": package_version(),
+    }
     sha = write_demos(cfg.out, arrays, meta)
-    return {"out": str(cfg.out), "sha256": sha, "transitions_per_s": round(len(arrays["actions"]) / record_s, 1),
-            **{k: meta[k] for k in ("n_transitions", "n_episodes", "laps_driven", "mean_reward", "record_time_s",
-                                    "demonstrator", "fingerprint")}}  # fmt: skip
+    return {
+        "out": str(cfg.out),
+        "sha256": sha,
+        "transitions_per_s": round(len(arrays["actions"]) / record_s, 1),
+        **{
+            k: meta[k]
+            for k in (
+                "n_transitions",
+                "n_episodes",
+                "laps_driven",
+                "mean_reward",
+                "record_time_s",
+                "demonstrator",
+                "fingerprint",
+            )
+        },
+    }
 
 
 __all__ = [

@@ -389,7 +389,10 @@ class Sampler:
         dim = self.env.observation_space.shape[0]
         policy_class, policy_kwargs = sac_policy_class(dim, config.critic_state)
         self.policy = policy_class(
-            self.env.observation_space, self.env.action_space, lambda _: 0.0, net_arch=list(setup.hidden_units),
+            self.env.observation_space,
+            self.env.action_space,
+            lambda _: 0.0,
+            net_arch=list(setup.hidden_units),
             **policy_kwargs,
         )
         self.policy.set_training_mode(False)
@@ -579,8 +582,7 @@ class SamplingLearner:
         self.stopped = False
         self.inflight: dict[Any, tuple[int, int, int]] = {}  # object ref -> (worker, chunk id, steps)
         self.next_chunk_id = 0
-        self.counts = {"chunks": 0, "transitions": 0, "sampler_busy_s": 0.0, "learner_wait_s": 0.0,
-                       "duration_s": 0.0}  # fmt: skip
+        self.counts = {"chunks": 0, "transitions": 0, "sampler_busy_s": 0.0, "learner_wait_s": 0.0, "duration_s": 0.0}
         self.t_session = time.perf_counter()
         self.weights = [self.ray.put(learner.weights())]
         try:
@@ -604,8 +606,13 @@ class SamplingLearner:
         self.alive.pop(worker, None)
         self.busy.pop(worker, None)
         self.ray.kill(self.handles[worker], no_restart=True)
-        record = {"event": "sampler_lost", "worker": worker, "num_timesteps": self.learner.num_steps(),
-                  "reason": reason, "samplers_alive": len(self.alive)}  # fmt: skip
+        record = {
+            "event": "sampler_lost",
+            "worker": worker,
+            "num_timesteps": self.learner.num_steps(),
+            "reason": reason,
+            "samplers_alive": len(self.alive),
+        }
         self.lost.append(record)
         if self.log_event is not None:
             self.log_event(record)
@@ -656,8 +663,9 @@ class SamplingLearner:
                 if self.inflight:
                     refs = list(self.inflight)
                     t_wait = time.perf_counter()
-                    ready, _ = ray.wait(refs, num_returns=len(refs) if can_update else 1,
-                                        timeout=0 if can_update else WAIT_SLICE_S)  # fmt: skip
+                    ready, _ = ray.wait(
+                        refs, num_returns=len(refs) if can_update else 1, timeout=0 if can_update else WAIT_SLICE_S
+                    )
                     if not can_update:
                         counts["learner_wait_s"] += time.perf_counter() - t_wait
                     if ready:
@@ -677,13 +685,21 @@ class SamplingLearner:
         """The session's sampling figures so far."""
         c, p = self.counts, self.pacing
         return {
-            "workers": p.workers, "samplers_alive": len(self.alive), "samplers_lost": list(self.lost),
-            "chunks": c["chunks"], "chunk_steps": p.chunk_steps, "transitions": c["transitions"],
-            "updates": self.pacer.updates, "duration_s": round(c["duration_s"], 3),
-            "learner_wait_s": round(c["learner_wait_s"], 3), "sampler_busy_s": round(c["sampler_busy_s"], 3),
-            "max_staleness": p.max_staleness, "max_staleness_seen": self.pacer.max_staleness_seen,
-            "version_every_updates": p.version_every_updates, "weight_versions": self.pacer.version,
-        }  # fmt: skip
+            "workers": p.workers,
+            "samplers_alive": len(self.alive),
+            "samplers_lost": list(self.lost),
+            "chunks": c["chunks"],
+            "chunk_steps": p.chunk_steps,
+            "transitions": c["transitions"],
+            "updates": self.pacer.updates,
+            "duration_s": round(c["duration_s"], 3),
+            "learner_wait_s": round(c["learner_wait_s"], 3),
+            "sampler_busy_s": round(c["sampler_busy_s"], 3),
+            "max_staleness": p.max_staleness,
+            "max_staleness_seen": self.pacer.max_staleness_seen,
+            "version_every_updates": p.version_every_updates,
+            "weight_versions": self.pacer.version,
+        }
 
     def close(self) -> None:
         for handle in self.handles:
@@ -724,11 +740,16 @@ def learn_like_sb3(
     step, on the same step counts (its False ends the session); TensorBoard's rollout figures every
     :data:`LOG_EVERY_S`. Returns the session's :meth:`SamplingLearner.stats`."""
     pacing = Pacing(
-        workers=workers, n_cars=model.n_envs, gradient_steps=model.gradient_steps,
+        workers=workers,
+        n_cars=model.n_envs,
+        gradient_steps=model.gradient_steps,
         train_freq_steps=model.train_freq.frequency,
-        learning_starts=int(model.learning_starts), start_timesteps=int(model.num_timesteps),
-        total_timesteps=total_timesteps, version_every_updates=version_every_updates, max_staleness=max_staleness,
-    )  # fmt: skip
+        learning_starts=int(model.learning_starts),
+        start_timesteps=int(model.num_timesteps),
+        total_timesteps=total_timesteps,
+        version_every_updates=version_every_updates,
+        max_staleness=max_staleness,
+    )
     callback.init_callback(model)
     last_dump = [time.perf_counter(), model.num_timesteps]
 
@@ -765,8 +786,15 @@ def _first_line(exc: BaseException) -> str:
 #: Seconds of one slice of :func:`bench_sampling` (standalone and with samplers alternate).
 BENCH_SLICE_S = 5.0
 #: The learner of :func:`bench_sampling`: train-policy's ``cpu`` preset (a test checks that they agree).
-BENCH_SAC: dict[str, Any] = {"hidden_units": (256, 256), "batch_size": 256, "learning_rate": 1e-3, "gamma": 0.99,
-                             "tau": 0.005, "gradient_steps": 1, "torch_threads": 1}  # fmt: skip
+BENCH_SAC: dict[str, Any] = {
+    "hidden_units": (256, 256),
+    "batch_size": 256,
+    "learning_rate": 1e-3,
+    "gamma": 0.99,
+    "tau": 0.005,
+    "gradient_steps": 1,
+    "torch_threads": 1,
+}
 
 
 def bench_sampling(
@@ -808,11 +836,19 @@ def bench_sampling(
     racing = RacingConfig(track=track, n_groups=cars)
     venv = make_sb3_vec_env(racing, seed=seed)
     model = SAC(
-        "MlpPolicy", venv, learning_rate=BENCH_SAC["learning_rate"], buffer_size=4 * prefill_transitions
-        + int(2 * seconds * 5_000), learning_starts=0, batch_size=BENCH_SAC["batch_size"], tau=BENCH_SAC["tau"],
-        gamma=BENCH_SAC["gamma"], policy_kwargs={"net_arch": list(BENCH_SAC["hidden_units"])}, seed=seed,
-        device="cpu", verbose=0,
-    )  # fmt: skip
+        "MlpPolicy",
+        venv,
+        learning_rate=BENCH_SAC["learning_rate"],
+        buffer_size=4 * prefill_transitions + int(2 * seconds * 5_000),
+        learning_starts=0,
+        batch_size=BENCH_SAC["batch_size"],
+        tau=BENCH_SAC["tau"],
+        gamma=BENCH_SAC["gamma"],
+        policy_kwargs={"net_arch": list(BENCH_SAC["hidden_units"])},
+        seed=seed,
+        device="cpu",
+        verbose=0,
+    )
     model.set_logger(Logger(folder=None, output_formats=[]))  # configure(None) leaves an empty SB3-<date> folder
     # Random transitions from a local world, untimed, so that the standalone updates sample a real buffer.
     rng = np.random.default_rng(seed)
@@ -826,15 +862,23 @@ def bench_sampling(
         model.num_timesteps += cars
     normalizer = venv.core.observer.normalizer
     setup = SamplerSetup(
-        racing_config=racing_config_to_dict(racing), observation="state", obs_normalizer=normalizer.to_dict(),
+        racing_config=racing_config_to_dict(racing),
+        observation="state",
+        obs_normalizer=normalizer.to_dict(),
         fingerprint=policy_fingerprint(racing, "state", venv.observation_space.shape[0], None),
-        hidden_units=tuple(BENCH_SAC["hidden_units"]), seed=seed,
-    )  # fmt: skip
+        hidden_units=tuple(BENCH_SAC["hidden_units"]),
+        seed=seed,
+    )
     pacing = Pacing(
-        workers=workers, n_cars=cars, gradient_steps=BENCH_SAC["gradient_steps"],
-        learning_starts=0, start_timesteps=int(model.num_timesteps), total_timesteps=None,
-        version_every_updates=version_every_updates, max_staleness=max_staleness,
-    )  # fmt: skip
+        workers=workers,
+        n_cars=cars,
+        gradient_steps=BENCH_SAC["gradient_steps"],
+        learning_starts=0,
+        start_timesteps=int(model.num_timesteps),
+        total_timesteps=None,
+        version_every_updates=version_every_updates,
+        max_staleness=max_staleness,
+    )
     venv.close()
     # The two are timed in alternating slices, so that a change of the machine's load (other processes) falls on
     # both alike; during a standalone slice the samplers finish their chunk and then idle.

@@ -139,8 +139,14 @@ class WorldModel(nn.Module):
         h = self.gru(self.pre_gru(torch.cat([state.z, action], dim=-1)), state.h)
         return h, _gaussian(self.prior_net(h))
 
-    def observe_step(self, state: LatentState, prev_action: torch.Tensor, embed: torch.Tensor, is_first: torch.Tensor,
-                     sample: bool = True) -> tuple[LatentState, Normal, Normal]:  # fmt: skip
+    def observe_step(
+        self,
+        state: LatentState,
+        prev_action: torch.Tensor,
+        embed: torch.Tensor,
+        is_first: torch.Tensor,
+        sample: bool = True,
+    ) -> tuple[LatentState, Normal, Normal]:
         """Filter one observation: the state (reset where ``is_first``; ``z`` drawn from the posterior, or its mean
         when not ``sample``), its prior and its posterior."""
         keep = (1.0 - is_first).unsqueeze(-1)
@@ -156,8 +162,9 @@ class WorldModel(nn.Module):
         state = self.initial(n_seq)
         hs, zs, kls = [], [], []
         for t in range(length):
-            state, prior, posterior = self.observe_step(state, batch.prev_actions[:, t], embed[:, t],
-                                                        batch.is_first[:, t])  # fmt: skip
+            state, prior, posterior = self.observe_step(
+                state, batch.prev_actions[:, t], embed[:, t], batch.is_first[:, t]
+            )
             hs.append(state.h)
             zs.append(state.z)
             kls.append(kl_divergence(posterior, prior).sum(-1))
@@ -170,8 +177,12 @@ class WorldModel(nn.Module):
         )
         kl = torch.stack(kls, 1).mean()
         loss = observation_nll + reward_nll + continue_nll + torch.clamp(kl, min=free_nats)
-        terms = {"observation_nll": float(observation_nll.detach()), "reward_nll": float(reward_nll.detach()),
-                 "continue_nll": float(continue_nll.detach()), "kl": float(kl.detach())}  # fmt: skip
+        terms = {
+            "observation_nll": float(observation_nll.detach()),
+            "reward_nll": float(reward_nll.detach()),
+            "continue_nll": float(continue_nll.detach()),
+            "kl": float(kl.detach()),
+        }
         flat = LatentState(states.h.reshape(n_seq * length, -1), states.z.reshape(n_seq * length, -1))
         return loss, flat, terms
 
@@ -199,8 +210,9 @@ class Actor(nn.Module):
         return torch.tanh(self._mean_std(feature)[0])
 
 
-def lambda_returns(rewards: torch.Tensor, values: torch.Tensor, discounts: torch.Tensor, lambda_: float
-                   ) -> torch.Tensor:  # fmt: skip
+def lambda_returns(
+    rewards: torch.Tensor, values: torch.Tensor, discounts: torch.Tensor, lambda_: float
+) -> torch.Tensor:
     """Lambda-returns of an imagined rollout (Dreamer's Eq. 6), time first.
 
     ``rewards`` and ``discounts`` (H, N) are those on arriving at states 1..H; ``values`` (H + 1, N) those of
@@ -287,16 +299,22 @@ class DreamerAgent:
             for target, source in zip(self.value_target.parameters(), self.value.parameters(), strict=True):
                 target.lerp_(source, r.value_target_tau)
         self.n_updates += 1
-        return {**terms, "model_loss": float(model_loss.detach()), "actor_loss": float(actor_loss.detach()),
-                "value_loss": float(value_loss.detach()), "imagined_return": float(returns[0].mean().detach())}
+        return {
+            **terms,
+            "model_loss": float(model_loss.detach()),
+            "actor_loss": float(actor_loss.detach()),
+            "value_loss": float(value_loss.detach()),
+            "imagined_return": float(returns[0].mean().detach()),
+        }
 
     def initial(self, n: int) -> tuple[LatentState, torch.Tensor]:
         """The recurrent state and the previous action (zeros) of ``n`` cars before their first observation."""
         return self.world_model.initial(n), torch.zeros(n, self.action_dim, device=self.device)
 
     @torch.no_grad()
-    def act(self, carry: tuple[LatentState, torch.Tensor], observations: np.ndarray, is_first: np.ndarray,
-            explore: bool) -> tuple[np.ndarray, tuple[LatentState, torch.Tensor]]:  # fmt: skip
+    def act(
+        self, carry: tuple[LatentState, torch.Tensor], observations: np.ndarray, is_first: np.ndarray, explore: bool
+    ) -> tuple[np.ndarray, tuple[LatentState, torch.Tensor]]:
         """Actions (N, action_dim) in [-1, 1] for N cars' observations, and their new recurrent carry. ``is_first``
         marks cars whose observation starts an episode (their state restarts). ``explore``: sampled states and
         actions plus Gaussian noise, clipped; otherwise the posterior's mean and the actor's mode (deterministic)."""
@@ -314,9 +332,13 @@ class DreamerAgent:
         return action.cpu().numpy().astype(np.float64), (state, action.float())
 
     def state_dict(self) -> dict[str, Any]:
-        return {"world_model": self.world_model.state_dict(), "actor": self.actor.state_dict(),
-                "value": self.value.state_dict(), "value_target": self.value_target.state_dict(),
-                "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()}}  # fmt: skip
+        return {
+            "world_model": self.world_model.state_dict(),
+            "actor": self.actor.state_dict(),
+            "value": self.value.state_dict(),
+            "value_target": self.value_target.state_dict(),
+            "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
+        }
 
     def load_state_dict(self, state: dict[str, Any], optimizers: bool = True) -> None:
         """Load weights (and optimisers); raises KeyError/RuntimeError on weights of another shape."""
@@ -351,8 +373,15 @@ class SequenceReplay:
     def filled(self) -> np.ndarray:
         return np.minimum(self.written, self.capacity)
 
-    def add(self, cars: np.ndarray, observations: np.ndarray, prev_actions: np.ndarray, rewards: np.ndarray,
-            continues: np.ndarray, is_first: np.ndarray) -> None:  # fmt: skip
+    def add(
+        self,
+        cars: np.ndarray,
+        observations: np.ndarray,
+        prev_actions: np.ndarray,
+        rewards: np.ndarray,
+        continues: np.ndarray,
+        is_first: np.ndarray,
+    ) -> None:
         """Append one row to each of ``cars`` (distinct car indices)."""
         cars = np.asarray(cars, dtype=np.int64)
         rows = self.written[cars] % self.capacity
@@ -366,8 +395,9 @@ class SequenceReplay:
     def can_sample(self, length: int) -> bool:
         return bool((self.filled >= length).any())
 
-    def sample(self, rng: np.random.Generator, batch: int, length: int, device: str | torch.device = "cpu"
-               ) -> SequenceBatch:  # fmt: skip
+    def sample(
+        self, rng: np.random.Generator, batch: int, length: int, device: str | torch.device = "cpu"
+    ) -> SequenceBatch:
         """``batch`` sequences of ``length`` consecutive rows, each from one car, uniformly over their starts."""
         filled = self.filled
         eligible = np.flatnonzero(filled >= length)

@@ -74,8 +74,9 @@ def evaluate_policy(
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds}")
     if sections_m < 0 or not 0.0 < reference_skill <= 1.0:
-        raise ValueError(f"--sections-m must be >= 0 and --reference-skill in (0, 1], got {sections_m}, "
-                         f"{reference_skill}")  # fmt: skip
+        raise ValueError(
+            f"--sections-m must be >= 0 and --reference-skill in (0, 1], got {sections_m}, {reference_skill}"
+        )
     for flag, out in (("--plot", plot), ("--video", video), ("--trace", trace)):
         if out and Path(out).is_dir():  # found now, not after the whole evaluation
             raise ValueError(f"{flag} {out} is a folder: give the file to write")
@@ -87,14 +88,23 @@ def evaluate_policy(
     config = loaded.config
     driver = loaded.driver()
     try:
-        timing = time_laps(driver, config.track, config.car, range(seed, seed + seeds), laps, time_limit_s,
-                           record=bool(plot or video or sections_m or encoder_error or trace))  # fmt: skip
+        timing = time_laps(
+            driver,
+            config.track,
+            config.car,
+            range(seed, seed + seeds),
+            laps,
+            time_limit_s,
+            record=bool(plot or video or sections_m or encoder_error or trace),
+        )
     finally:
         driver.close()
     result = evaluation_record(timing, driver.identity, name or default_policy_name(loaded.weights_path))
     best = timing.best_index()
-    title = (f"{result['name']}: lap {laps} {format_lap_time(result['best_lap_time_s'])} "
-             f"(seed {result['best_seed']}, {timing.track.name}, {timing.car.name})")  # fmt: skip
+    title = (
+        f"{result['name']}: lap {laps} {format_lap_time(result['best_lap_time_s'])} "
+        f"(seed {result['best_seed']}, {timing.track.name}, {timing.car.name})"
+    )
     result["plot"] = str(plot_trajectory(timing, best, plot, title)) if plot else None
     result["video"] = str(write_video(timing, best, video, config.image_hw_px)) if video else None
     result["trace"] = str(write_trace(timing, trace)) if trace else None
@@ -122,8 +132,14 @@ def _sections(timing: LapTiming, best: int, section_m: float, reference_skill: f
     reference: dict[str, Any] = {"driver": "built-in AI", "skill": reference_skill, "lap_time_s": None}
     rows = controls = None
     if timing.scored(best) is not None:
-        ai = time_laps(BuiltinAI(skill=reference_skill), timing.track, timing.car,
-                       [run.seed for run in timing.runs], timing.laps, record=True)  # fmt: skip
+        ai = time_laps(
+            BuiltinAI(skill=reference_skill),
+            timing.track,
+            timing.car,
+            [run.seed for run in timing.runs],
+            timing.laps,
+            record=True,
+        )
         ai_best = ai.best_index()
         if ai.scored(ai_best) is None:
             raise ValueError(f"the built-in AI at skill {reference_skill:g} finished no lap: no reference")

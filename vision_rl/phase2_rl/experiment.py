@@ -103,12 +103,19 @@ def _seed_is_done(run: Path, steps: int) -> bool:
 
 def _seed_rows(seeds: Sequence[int], evaluations: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     return [
-        {"seed": seed, "lap_time_s": e["best_lap_time_s"], "median_lap_time_s": e["median_lap_time_s"],
-         "finished": f"{e['n_finished']}/{e['n_seeds']}", "clean": e["clean"],
-         **{key: None if e["best_lap"] is None else e["best_lap"].get(key)
-            for key in ("wall_contact_s", "wall_hits", "fastest_wall_hit_kmh")}}
+        {
+            "seed": seed,
+            "lap_time_s": e["best_lap_time_s"],
+            "median_lap_time_s": e["median_lap_time_s"],
+            "finished": f"{e['n_finished']}/{e['n_seeds']}",
+            "clean": e["clean"],
+            **{
+                key: None if e["best_lap"] is None else e["best_lap"].get(key)
+                for key in ("wall_contact_s", "wall_hits", "fastest_wall_hit_kmh")
+            },
+        }
         for seed, e in zip(seeds, evaluations, strict=True)
-    ]  # fmt: skip
+    ]
 
 
 def _selected(root: Path, seeds: Sequence[int], last: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -164,8 +171,13 @@ def run_experiment(
                 raise ValueError(f"{root} holds an experiment made for another {key}: use another --out")
     root.mkdir(parents=True, exist_ok=True)
     name = name or root.name
-    record: dict[str, Any] = {"format": EXPERIMENT_FORMAT, "name": name, **plan, "seeds": list(seeds),
-                              "seeds_at_once": seeds_at_once}  # fmt: skip
+    record: dict[str, Any] = {
+        "format": EXPERIMENT_FORMAT,
+        "name": name,
+        **plan,
+        "seeds": list(seeds),
+        "seeds_at_once": seeds_at_once,
+    }
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
     steps_done = {seed: cfg.steps if _seed_is_done(_seed_run(root, seed), cfg.steps) else 0 for seed in seeds}
     todo = [seed for seed in seeds if steps_done[seed] < cfg.steps]
@@ -189,8 +201,9 @@ def run_experiment(
         record["selected"] = _selected(root, seeds, evaluations)
     if cfg.eval_every_steps > 0:  # without periodic evaluations the runs have no curve to draw
         ai = time_laps(BuiltinAI(), cfg.track, cfg.car, seeds=AI_SEEDS).summary()["best_lap_time_s"]
-        record["learning_curves"] = write_learning_curves(root, seeds, evaluations[0]["limit_lap_time_s"], ai,
-                                                          cfg.control_dt_s)
+        record["learning_curves"] = write_learning_curves(
+            root, seeds, evaluations[0]["limit_lap_time_s"], ai, cfg.control_dt_s
+        )
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
     return {**record, "experiment_json": str(path)}
 
@@ -208,15 +221,17 @@ class _SeedJob:
         """Train and evaluate ``seed``; True when training was interrupted (the run saved, not evaluated)."""
         run = _seed_run(self.root, seed)
         resume = (run / SIDECAR_NAME).is_file()
-        result = train_policy(dataclasses.replace(self.cfg, seed=seed, out=str(run), resume=resume, force=False),
-                              progress)  # fmt: skip
+        result = train_policy(
+            dataclasses.replace(self.cfg, seed=seed, out=str(run), resume=resume, force=False), progress
+        )
         if result["interrupted"]:
             return True
         evaluate_policy(run, seeds=self.eval_seeds, name=f"{self.name}/seed-{seed}", encoder=self.cfg.encoder)
         best = chosen_weights(run)
         if best:
-            evaluate_policy(best, seeds=self.eval_seeds, name=f"{self.name}/seed-{seed}/selected",
-                            encoder=self.cfg.encoder)  # fmt: skip
+            evaluate_policy(
+                best, seeds=self.eval_seeds, name=f"{self.name}/seed-{seed}/selected", encoder=self.cfg.encoder
+            )
         return False
 
 
@@ -262,16 +277,19 @@ def _run_side_by_side(
         while waiting or running:
             while waiting and len(running) < seeds_at_once:
                 seed = waiting.pop(0)
-                running[seed] = context.Process(target=_seed_process, args=(job, seed, messages),
-                                                name=f"experiment-seed-{seed}")  # fmt: skip
+                running[seed] = context.Process(
+                    target=_seed_process, args=(job, seed, messages), name=f"experiment-seed-{seed}"
+                )
                 running[seed].start()
             try:
                 kind, seed, value = messages.get(timeout=1.0)
             except queue.Empty:
                 for seed, process in running.items():
                     if process.exitcode not in (None, 0):
-                        raise RuntimeError(f"training seed {seed}'s process ended with exit code {process.exitcode} "
-                                           "before it reported; run the experiment again to resume it") from None
+                        raise RuntimeError(
+                            f"training seed {seed}'s process ended with exit code {process.exitcode} "
+                            "before it reported; run the experiment again to resume it"
+                        ) from None
                 continue
             if kind == "steps":
                 seed_steps(seed, value)
@@ -322,12 +340,22 @@ def summarise_curves(per_seed: dict[str, dict[str, list]], control_dt_s: float =
     """At each evaluated step: epochs (:data:`EPOCH_CAR_S`; steps of ``control_dt_s``), mean and standard deviation
     of the lap over the seeds that finished it, how many did, and the seeds' mean training time (s)."""
     steps = sorted({n for c in per_seed.values() for n in c["num_timesteps"]})
-    out: dict[str, Any] = {"control_dt_s": control_dt_s, "num_timesteps": steps,
-                           "epochs": [n * epochs_per_step(control_dt_s) for n in steps], "mean_lap_time_s": [],
-                           "std_lap_time_s": [], "seeds_finished": [], "mean_train_time_s": []}  # fmt: skip
+    out: dict[str, Any] = {
+        "control_dt_s": control_dt_s,
+        "num_timesteps": steps,
+        "epochs": [n * epochs_per_step(control_dt_s) for n in steps],
+        "mean_lap_time_s": [],
+        "std_lap_time_s": [],
+        "seeds_finished": [],
+        "mean_train_time_s": [],
+    }
     for n in steps:
-        at = [(c["lap_time_s"][i], c["train_time_s"][i]) for c in per_seed.values()
-              for i in [c["num_timesteps"].index(n)] if n in c["num_timesteps"]]  # fmt: skip
+        at = [
+            (c["lap_time_s"][i], c["train_time_s"][i])
+            for c in per_seed.values()
+            for i in [c["num_timesteps"].index(n)]
+            if n in c["num_timesteps"]
+        ]
         done = [lap for lap, _ in at if lap is not None]
         out["mean_lap_time_s"].append(float(np.mean(done)) if done else None)
         out["std_lap_time_s"].append(float(np.std(done, ddof=1)) if len(done) > 1 else None)
@@ -371,8 +399,12 @@ def plot_learning_curves(
         mean = np.array([np.nan if v is None else v for v in curves["mean_lap_time_s"]])
         std = np.array([0.0 if v is None else v for v in curves["std_lap_time_s"]])
         beat = None if ai_lap_time_s is None else time_to_beat(curves, ai_lap_time_s)
-        when = "" if ai_lap_time_s is None else (" (never beats the AI)" if beat is None else
-                f" (beats the AI at {beat['num_timesteps'] / 1000:.0f}k steps, {beat['train_time_s'] / 60:.0f} min)")
+        if ai_lap_time_s is None:
+            when = ""
+        elif beat is None:
+            when = " (never beats the AI)"
+        else:
+            when = f" (beats the AI at {beat['num_timesteps'] / 1000:.0f}k steps, {beat['train_time_s'] / 60:.0f} min)"
         n_seeds = len(curves["per_seed"])
         scale = 1.0 if by_steps else epochs_per_step(curves["control_dt_s"])  # steps or epochs on the first axes
         first = np.array(curves["num_timesteps"]) * scale
@@ -410,15 +442,21 @@ def plot_learning_curves(
 
 
 def write_learning_curves(
-    root: str | os.PathLike[str], seeds: tuple[int, ...], limit_lap_time_s: float, ai_lap_time_s: float | None = None,
+    root: str | os.PathLike[str],
+    seeds: tuple[int, ...],
+    limit_lap_time_s: float,
+    ai_lap_time_s: float | None = None,
     control_dt_s: float = 0.1,
 ) -> dict:
     """:func:`learning_curves` as ``learning_curves.json`` (with the limit, the AI's lap and when the mean beat it)
     and ``learning_curves.png`` in the experiment folder."""
     root = Path(root)
     curves = learning_curves(root, seeds, control_dt_s)
-    curves.update(limit_lap_time_s=limit_lap_time_s, ai_lap_time_s=ai_lap_time_s,
-                  time_to_beat_ai=None if ai_lap_time_s is None else time_to_beat(curves, ai_lap_time_s))  # fmt: skip
+    curves.update(
+        limit_lap_time_s=limit_lap_time_s,
+        ai_lap_time_s=ai_lap_time_s,
+        time_to_beat_ai=None if ai_lap_time_s is None else time_to_beat(curves, ai_lap_time_s),
+    )
     png = root / "learning_curves.png"
     plot_learning_curves([("SAC", curves)], limit_lap_time_s, ai_lap_time_s, png, seeds_drawn=True)
     data = root / "learning_curves.json"
@@ -427,7 +465,10 @@ def write_learning_curves(
 
 
 def compare_learning_curves(
-    files: Sequence[str | os.PathLike[str]], names: Sequence[str], limit_lap_time_s: float, ai_lap_time_s: float,
+    files: Sequence[str | os.PathLike[str]],
+    names: Sequence[str],
+    limit_lap_time_s: float,
+    ai_lap_time_s: float,
     out: str | os.PathLike[str],
 ) -> dict[str, Any]:
     """Several experiments' ``learning_curves.json`` on one figure (the paper's Fig. 3 right: state and vision
@@ -447,7 +488,10 @@ def compare_learning_curves(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     plot_learning_curves(series, limit_lap_time_s, ai_lap_time_s, out / "compare.png")
-    record = {"limit_lap_time_s": limit_lap_time_s, "ai_lap_time_s": ai_lap_time_s,
-              "series": [{"name": n, "file": str(f), **c} for (n, c), f in zip(series, files, strict=True)]}
+    record = {
+        "limit_lap_time_s": limit_lap_time_s,
+        "ai_lap_time_s": ai_lap_time_s,
+        "series": [{"name": n, "file": str(f), **c} for (n, c), f in zip(series, files, strict=True)],
+    }
     atomic_write(out / "compare.json", lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
     return {**record, "files": {"png": str(out / "compare.png"), "json": str(out / "compare.json")}}

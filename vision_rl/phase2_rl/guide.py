@@ -36,8 +36,10 @@ def add_guided_transitions(model, venv, n_transitions: int) -> int:
         if added + len(reward) >= n_transitions:
             # The learner resets the world after this step: every guided episode ends here, cut short (so an n-step
             # return does not run on into the learner's first episode).
-            infos = [{**info, "TimeLimit.truncated": True} if not done else info
-                     for info, done in zip(infos, dones, strict=True)]  # fmt: skip
+            infos = [
+                {**info, "TimeLimit.truncated": True} if not done else info
+                for info, done in zip(infos, dones, strict=True)
+            ]
             dones = np.ones_like(dones)
         scaled = model.policy.scale_action(actions.astype(np.float32))
         model.replay_buffer.add(obs, last_obs, scaled, reward, dones, infos)
@@ -126,8 +128,15 @@ def guided_sac_class():
     return GuidedSAC
 
 
-def start_labels(model, venv, weight: float, skill: float = LABEL_SKILL, fade_steps: int = 0,
-                 end_steps: int = 0, steer_weight: float = 1.0) -> None:
+def start_labels(
+    model,
+    venv,
+    weight: float,
+    skill: float = LABEL_SKILL,
+    fade_steps: int = 0,
+    end_steps: int = 0,
+    steer_weight: float = 1.0,
+) -> None:
     """From the next transition on, ``venv``'s built-in AI at ``skill`` labels every state the policy visits with
     the action it would take there, the labels go beside the transitions into ``model`` (a ``GuidedSAC``), and the
     actor takes a cloning step of ``weight`` on a batch of them after each SAC update: DAgger's labels (Ross et al.

@@ -295,9 +295,10 @@ class Stage:
 def resolve_budget(cfg: TrainOvertakingConfig) -> CurriculumBudget:
     base = BUDGETS[cfg.preset]
     return CurriculumBudget(
-        cfg.stage1_max_steps or base.stage1_max_steps, cfg.stage2_steps or base.stage2_steps,
+        cfg.stage1_max_steps or base.stage1_max_steps,
+        cfg.stage2_steps or base.stage2_steps,
         cfg.stage3_steps or base.stage3_steps,
-    )  # fmt: skip
+    )
 
 
 def stages_of(cfg: TrainOvertakingConfig) -> list[Stage]:
@@ -306,16 +307,19 @@ def stages_of(cfg: TrainOvertakingConfig) -> list[Stage]:
     if cfg.agent == "standard":
         steps = cfg.standard_steps or budget.stage1_max_steps + budget.stage2_steps + budget.stage3_steps
         return [Stage("standard", "stage2", PENALTY_STAGE2, steps, sac.buffer_size, None)]
-    stage1 = Stage("stage1", "stage1", PENALTY_STAGE2, budget.stage1_max_steps, sac.buffer_size, None,
-                   until_criterion=True)  # fmt: skip
-    stage2 = Stage("stage2", "stage2", PENALTY_STAGE2, budget.stage2_steps, sac.buffer_size, "stage1",
-                   reinit_exploration=True)  # fmt: skip
+    stage1 = Stage(
+        "stage1", "stage1", PENALTY_STAGE2, budget.stage1_max_steps, sac.buffer_size, None, until_criterion=True
+    )
+    stage2 = Stage(
+        "stage2", "stage2", PENALTY_STAGE2, budget.stage2_steps, sac.buffer_size, "stage1", reinit_exploration=True
+    )
     if cfg.agent == "1":
         return [stage1, stage2]
     penalty = PENALTY_STAGE2 if cfg.agent == "2" else PENALTY_AGENT3
     fifo = cfg.stage3_buffer_size or max(budget.stage3_steps // 2, cfg.cars)
-    stage3 = Stage(f"agent{cfg.agent}-stage3", "stage2", penalty, budget.stage3_steps, fifo, "stage2",
-                   fifo_from_previous=True)  # fmt: skip
+    stage3 = Stage(
+        f"agent{cfg.agent}-stage3", "stage2", penalty, budget.stage3_steps, fifo, "stage2", fifo_from_previous=True
+    )
     return [stage1, stage2, stage3]
 
 
@@ -323,14 +327,23 @@ def shared_settings(cfg: TrainOvertakingConfig) -> dict[str, Any]:
     """What every agent of one run folder must agree on (``run.json``)."""
     budget = resolve_budget(cfg)
     return {
-        "track": cfg.track, "car": cfg.car, "cars": cfg.cars, "seed": cfg.seed, "preset": cfg.preset,
+        "track": cfg.track,
+        "car": cfg.car,
+        "cars": cfg.cars,
+        "seed": cfg.seed,
+        "preset": cfg.preset,
         "sac": json.loads(json.dumps(dataclasses.asdict(resolve_preset(cfg)))),
-        "stage1_max_steps": budget.stage1_max_steps, "stage1_margin": cfg.stage1_margin,
-        "stage2_steps": budget.stage2_steps, "episode_s": cfg.episode_s,
-        "overtake_gain_c_r": cfg.overtake_gain_c_r, "detection_range_c_d_m": cfg.detection_range_c_d_m,
-        "eval_every_steps": cfg.eval_every_steps, "eval_seeds": cfg.eval_seeds, "eval_laps": cfg.eval_laps,
+        "stage1_max_steps": budget.stage1_max_steps,
+        "stage1_margin": cfg.stage1_margin,
+        "stage2_steps": budget.stage2_steps,
+        "episode_s": cfg.episode_s,
+        "overtake_gain_c_r": cfg.overtake_gain_c_r,
+        "detection_range_c_d_m": cfg.detection_range_c_d_m,
+        "eval_every_steps": cfg.eval_every_steps,
+        "eval_seeds": cfg.eval_seeds,
+        "eval_laps": cfg.eval_laps,
         "eval_time_limit_s": cfg.eval_time_limit_s,
-    }  # fmt: skip
+    }
 
 
 def check_config(cfg: TrainOvertakingConfig) -> None:
@@ -340,19 +353,29 @@ def check_config(cfg: TrainOvertakingConfig) -> None:
     if cfg.preset not in PRESETS or cfg.preset not in BUDGETS:
         raise ValueError(f"--preset must be one of {sorted(BUDGETS)}, got {cfg.preset!r}")
     checks = {
-        "cars": 1 <= cfg.cars <= MAX_CARS, "stage1_max_steps": cfg.stage1_max_steps >= 0,
-        "stage1_margin": cfg.stage1_margin >= 0, "stage2_steps": cfg.stage2_steps >= 0,
-        "stage3_steps": cfg.stage3_steps >= 0, "stage3_buffer_size": cfg.stage3_buffer_size >= 0,
-        "standard_steps": cfg.standard_steps >= 0, "episode_s": cfg.episode_s > 0,
-        "overtake_gain_c_r": cfg.overtake_gain_c_r >= 0, "detection_range_c_d_m": cfg.detection_range_c_d_m > 0,
-        "eval_every_steps": cfg.eval_every_steps >= 0, "eval_seeds": cfg.eval_seeds >= 1,
-        "eval_laps": cfg.eval_laps >= 1, "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
-        "eval_episodes": cfg.eval_episodes >= 0, "eval_episode_s": cfg.eval_episode_s >= 0,
+        "cars": 1 <= cfg.cars <= MAX_CARS,
+        "stage1_max_steps": cfg.stage1_max_steps >= 0,
+        "stage1_margin": cfg.stage1_margin >= 0,
+        "stage2_steps": cfg.stage2_steps >= 0,
+        "stage3_steps": cfg.stage3_steps >= 0,
+        "stage3_buffer_size": cfg.stage3_buffer_size >= 0,
+        "standard_steps": cfg.standard_steps >= 0,
+        "episode_s": cfg.episode_s > 0,
+        "overtake_gain_c_r": cfg.overtake_gain_c_r >= 0,
+        "detection_range_c_d_m": cfg.detection_range_c_d_m > 0,
+        "eval_every_steps": cfg.eval_every_steps >= 0,
+        "eval_seeds": cfg.eval_seeds >= 1,
+        "eval_laps": cfg.eval_laps >= 1,
+        "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
+        "eval_episodes": cfg.eval_episodes >= 0,
+        "eval_episode_s": cfg.eval_episode_s >= 0,
         "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "learning_rate": cfg.learning_rate >= 0,
-        "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
+        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
+        "learning_rate": cfg.learning_rate >= 0,
+        "batch_size": cfg.batch_size >= 0,
+        "buffer_size": cfg.buffer_size >= 0,
         "gradient_steps": cfg.gradient_steps >= 0,
-    }  # fmt: skip
+    }
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
         raise ValueError(f"--{bad[0].replace('_', '-')} {getattr(cfg, bad[0])} is out of range")
@@ -365,11 +388,14 @@ def check_config(cfg: TrainOvertakingConfig) -> None:
     sac = resolve_preset(cfg)
     for stage in stages_of(cfg):
         if stage.buffer_size < cfg.cars:
-            raise ValueError(f"{stage.name}: a buffer of {stage.buffer_size} transitions holds less than one step "
-                             f"of {cfg.cars} cars")  # fmt: skip
+            raise ValueError(
+                f"{stage.name}: a buffer of {stage.buffer_size} transitions holds less than one step of {cfg.cars} cars"
+            )
         if stage.previous is None and stage.steps <= sac.learning_starts:
-            raise ValueError(f"{stage.name}: {stage.steps} steps are not above the {sac.learning_starts} random "
-                             "start steps (--learning-starts): it would make no update")  # fmt: skip
+            raise ValueError(
+                f"{stage.name}: {stage.steps} steps are not above the {sac.learning_starts} random "
+                "start steps (--learning-starts): it would make no update"
+            )
 
 
 def default_out(cfg: TrainOvertakingConfig) -> Path:
@@ -470,10 +496,17 @@ class _StageSession:
     def racing(self) -> RacingConfig:
         cfg, stage = self.cfg, self.stage
         return RacingConfig(
-            track=cfg.track, car=cfg.car, observation=OBSERVATION, scenario=stage.scenario, n_groups=cfg.cars,
-            episode_s=cfg.episode_s, wall_penalty_c_w=stage.penalty_c, car_penalty_c_c=stage.penalty_c,
-            overtake_gain_c_r=cfg.overtake_gain_c_r, detection_range_c_d_m=cfg.detection_range_c_d_m,
-        )  # fmt: skip
+            track=cfg.track,
+            car=cfg.car,
+            observation=OBSERVATION,
+            scenario=stage.scenario,
+            n_groups=cfg.cars,
+            episode_s=cfg.episode_s,
+            wall_penalty_c_w=stage.penalty_c,
+            car_penalty_c_c=stage.penalty_c,
+            overtake_gain_c_r=cfg.overtake_gain_c_r,
+            detection_range_c_d_m=cfg.detection_range_c_d_m,
+        )
 
     # ------------------------------------------------------------------ set-up
     def build(self) -> SAC:
@@ -499,12 +532,21 @@ class _StageSession:
         self.normalizer: ObsNormalizer = self.venv.core.observer.normalizer
         self.env = VecMonitor(self.venv)
         model = SAC(
-            "MlpPolicy", self.env, learning_rate=sac.learning_rate, buffer_size=stage.buffer_size,
-            learning_starts=sac.learning_starts, batch_size=sac.batch_size, tau=sac.tau, gamma=sac.gamma,
-            train_freq=(sac.train_freq_steps, "step"), gradient_steps=sac.gradient_steps,
-            policy_kwargs={"net_arch": list(sac.hidden_units)}, seed=self.cfg.seed + steps_before,
-            device=run.device, verbose=0,
-        )  # fmt: skip
+            "MlpPolicy",
+            self.env,
+            learning_rate=sac.learning_rate,
+            buffer_size=stage.buffer_size,
+            learning_starts=sac.learning_starts,
+            batch_size=sac.batch_size,
+            tau=sac.tau,
+            gamma=sac.gamma,
+            train_freq=(sac.train_freq_steps, "step"),
+            gradient_steps=sac.gradient_steps,
+            policy_kwargs={"net_arch": list(sac.hidden_units)},
+            seed=self.cfg.seed + steps_before,
+            device=run.device,
+            verbose=0,
+        )
         self.buffer_restored = 0
         if spec is not None:
             assert source is not None
@@ -513,11 +555,17 @@ class _StageSession:
                 restore_agent(model, state, str(source / spec.model))
                 if resumed:
                     if (self.folder / BUFFER_NAME).is_file():
-                        self.buffer_restored = load_buffer(model.replay_buffer, self.folder / BUFFER_NAME,
-                                                           self.fingerprint)  # fmt: skip
+                        self.buffer_restored = load_buffer(
+                            model.replay_buffer, self.folder / BUFFER_NAME, self.fingerprint
+                        )
                 elif stage.fifo_from_previous:
-                    kept = ReplayBuffer(int(spec.sac["buffer_size"]), model.observation_space, model.action_space,
-                                        device="cpu", n_envs=self.cfg.cars)  # fmt: skip
+                    kept = ReplayBuffer(
+                        int(spec.sac["buffer_size"]),
+                        model.observation_space,
+                        model.action_space,
+                        device="cpu",
+                        n_envs=self.cfg.cars,
+                    )
                     load_buffer(kept, source / BUFFER_NAME, self.fingerprint)
                     self.buffer_restored = copy_newest(kept, model.replay_buffer)
                     del kept
@@ -536,11 +584,14 @@ class _StageSession:
             if stage.reinit_exploration:
                 reinit_exploration(model)
             self.record = {
-                "format": RUN_FORMAT, "stage": stage.to_dict(), "status": "running",
-                "start_steps": int(model.num_timesteps), "start_train_time_s": round(self.train_time_before_s, 2),
+                "format": RUN_FORMAT,
+                "stage": stage.to_dict(),
+                "status": "running",
+                "start_steps": int(model.num_timesteps),
+                "start_train_time_s": round(self.train_time_before_s, 2),
                 "buffer_at_start": int(self.buffer_restored) * self.cfg.cars,
                 "racing_config": racing_config_to_dict(self.racing_config),
-            }  # fmt: skip
+            }
         self.end_steps = int(self.record["start_steps"]) + stage.steps
         (self.folder / "tensorboard").mkdir(parents=True, exist_ok=True)
         model.set_logger(configure(str(self.folder / "tensorboard"), ["tensorboard"]))
@@ -563,10 +614,16 @@ class _StageSession:
         cfg, run = self.cfg, self.run
         t0 = time.perf_counter()
         if self.eval_driver is None:
-            self.eval_driver = PolicyDriver.for_config(lambda obs: model.predict(obs, deterministic=True)[0],
-                                                       OBSERVATION, self.normalizer, None, self.racing_config)
-        timing = time_laps(self.eval_driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps,
-                           cfg.eval_time_limit_s)  # fmt: skip
+            self.eval_driver = PolicyDriver.for_config(
+                lambda obs: model.predict(obs, deterministic=True)[0],
+                OBSERVATION,
+                self.normalizer,
+                None,
+                self.racing_config,
+            )
+        timing = time_laps(
+            self.eval_driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps, cfg.eval_time_limit_s
+        )
         summary = timing.summary()
         lap = summary["best_lap_time_s"]
         ai_lap = run.ai_lap_time_s()
@@ -600,12 +657,19 @@ class _StageSession:
 
     def spec(self, model: SAC, sha256: str) -> OvertakingPolicySpec:
         return OvertakingPolicySpec(
-            observation=OBSERVATION, racing_config=racing_config_to_dict(self.racing_config),
-            obs_normalizer=self.normalizer.to_dict(), fingerprint=self.fingerprint, weights_sha256=sha256,
-            model=MODEL_NAME, preset=self.cfg.preset, sac=self.run.settings["sac"], seed=self.cfg.seed,
-            num_timesteps=int(model.num_timesteps), train_time_s=round(self.train_time_s, 2),
+            observation=OBSERVATION,
+            racing_config=racing_config_to_dict(self.racing_config),
+            obs_normalizer=self.normalizer.to_dict(),
+            fingerprint=self.fingerprint,
+            weights_sha256=sha256,
+            model=MODEL_NAME,
+            preset=self.cfg.preset,
+            sac=self.run.settings["sac"],
+            seed=self.cfg.seed,
+            num_timesteps=int(model.num_timesteps),
+            train_time_s=round(self.train_time_s, 2),
             train_config={**self.run.settings, "agent_stage": self.stage.name},
-        )  # fmt: skip
+        )
 
     def save(self, model: SAC, buffer: bool) -> None:
         """Weights then sidecar (a kill between leaves the sidecar naming the previous weights, kept beside the new
@@ -620,18 +684,20 @@ class _StageSession:
         self.frozen_train_time_s = round(self.train_time_s, 2)
         self.save(model, buffer=True)
         self.record.update(
-            status="done", end_steps=int(model.num_timesteps), end_train_time_s=round(self.train_time_s, 2),
-        )  # fmt: skip
+            status="done",
+            end_steps=int(model.num_timesteps),
+            end_train_time_s=round(self.train_time_s, 2),
+        )
         if self.stage.until_criterion:
             ai = self.run.ai_lap_time_s()
             self.record["criterion"] = {
                 "rule": f"protocol lap time <= (1 + {self.cfg.stage1_margin}) x the built-in AI's "
-                        f"(evaluated every {self.cfg.eval_every_steps} steps)",
+                f"(evaluated every {self.cfg.eval_every_steps} steps)",
                 "met": self.criterion_met_at is not None,
                 "met_at_steps": self.criterion_met_at,
                 "ai_lap_time_s": ai,
                 "last_lap_time_s": self.last_eval["lap_time_s"] if self.last_eval else None,
-            }  # fmt: skip
+            }
         write_json(self.folder / STAGE_NAME, self.record)
         return self.record
 
@@ -641,18 +707,33 @@ class _StageSession:
         from vision_rl.phase2_rl.distributed import SamplersLostError, learn_like_sb3
 
         cfg = self.cfg
-        setup = sampler_setup(self.racing_config, OBSERVATION, self.normalizer, self.fingerprint,
-                              self.run.sac.hidden_units, cfg.seed + int(model.num_timesteps))  # fmt: skip
+        setup = sampler_setup(
+            self.racing_config,
+            OBSERVATION,
+            self.normalizer,
+            self.fingerprint,
+            self.run.sac.hidden_units,
+            cfg.seed + int(model.num_timesteps),
+        )
 
         def log_event(record: dict[str, Any]) -> None:
             with open(self.folder / METRICS_NAME, "a") as f:
-                f.write(json.dumps({**record, "stage": self.stage.name, "train_time_s": round(self.train_time_s, 2)})
-                        + "\n")  # fmt: skip
+                f.write(
+                    json.dumps({**record, "stage": self.stage.name, "train_time_s": round(self.train_time_s, 2)}) + "\n"
+                )
 
         try:
-            learn_like_sb3(model, setup, cluster, workers=int(cfg.workers or 0), max_staleness=cfg.max_staleness,
-                           version_every_updates=cfg.version_every_updates, total_timesteps=self.end_steps,
-                           callback=loop, log_event=log_event)  # fmt: skip
+            learn_like_sb3(
+                model,
+                setup,
+                cluster,
+                workers=int(cfg.workers or 0),
+                max_staleness=cfg.max_staleness,
+                version_every_updates=cfg.version_every_updates,
+                total_timesteps=self.end_steps,
+                callback=loop,
+                log_event=log_event,
+            )
         except SamplersLostError as exc:
             self.save(model, buffer=True)
             self.close()
@@ -667,8 +748,10 @@ class _StageSession:
 def _differs(path: Path, recorded: dict[str, Any], wanted: dict[str, Any]) -> str:
     for key, want in wanted.items():
         if recorded.get(key) != want:
-            return (f"{path} was started with {key} = {recorded.get(key)!r}, not {want!r}: use its settings, "
-                    "another --out, or --force to start over")  # fmt: skip
+            return (
+                f"{path} was started with {key} = {recorded.get(key)!r}, not {want!r}: use its settings, "
+                "another --out, or --force to start over"
+            )
     return f"{path} holds other settings: use another --out or --force"
 
 
@@ -677,10 +760,17 @@ def overtaking_return(model: SAC, normalizer: ObsNormalizer, cfg: TrainOvertakin
     fixed-seed stage-2 episodes of the deterministic policy (all episodes at once, one world)."""
     episode_s = cfg.eval_episode_s or cfg.episode_s
     config = RacingConfig(
-        track=cfg.track, car=cfg.car, observation=OBSERVATION, scenario="stage2", n_groups=cfg.eval_episodes,
-        episode_s=episode_s, wall_penalty_c_w=PENALTY_STAGE2, car_penalty_c_c=PENALTY_STAGE2,
-        overtake_gain_c_r=cfg.overtake_gain_c_r, detection_range_c_d_m=cfg.detection_range_c_d_m,
-    )  # fmt: skip
+        track=cfg.track,
+        car=cfg.car,
+        observation=OBSERVATION,
+        scenario="stage2",
+        n_groups=cfg.eval_episodes,
+        episode_s=episode_s,
+        wall_penalty_c_w=PENALTY_STAGE2,
+        car_penalty_c_c=PENALTY_STAGE2,
+        overtake_gain_c_r=cfg.overtake_gain_c_r,
+        detection_range_c_d_m=cfg.detection_range_c_d_m,
+    )
     core = RacingCore(config, seed=EVAL_EPISODE_SEED)
     core.observer.normalizer = normalizer
     try:
@@ -747,16 +837,18 @@ class OvertakingRun:
                 shutil.copy2(src, dst)
 
         shutil.copytree(source / "stage1", self.out / "stage1", copy_function=link)
-        self.record.update({k: theirs[k] for k in ("ai_lap_time_s", "ai_timing") if k in theirs},
-                           stage1_from=str(source))  # fmt: skip
+        self.record.update(
+            {k: theirs[k] for k in ("ai_lap_time_s", "ai_timing") if k in theirs}, stage1_from=str(source)
+        )
         write_json(self.out / RUN_NAME, self.record)
 
     def ai_lap_time_s(self) -> float | None:
         """The built-in AI's lap time on the evaluation's protocol (computed once per run folder)."""
         if "ai_timing" not in self.record:
             cfg = self.cfg
-            timing = time_laps(BuiltinAI(), cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps,
-                               cfg.eval_time_limit_s).summary()  # fmt: skip
+            timing = time_laps(
+                BuiltinAI(), cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps, cfg.eval_time_limit_s
+            ).summary()
             self.record.update(ai_lap_time_s=timing["best_lap_time_s"], ai_timing={"n_finished": timing["n_finished"]})
             write_json(self.out / RUN_NAME, self.record)
         return self.record["ai_lap_time_s"]
@@ -785,8 +877,9 @@ def _train_stages(cfg: TrainOvertakingConfig, cluster: Any, progress: Progress |
     for stage in run.stages:
         record = run.stage_record(stage)
         if record is not None and record.get("stage") != stage.to_dict():
-            raise OvertakingRunError(_differs(run.out / stage.name / STAGE_NAME, record.get("stage") or {},
-                                              stage.to_dict()))  # fmt: skip
+            raise OvertakingRunError(
+                _differs(run.out / stage.name / STAGE_NAME, record.get("stage") or {}, stage.to_dict())
+            )
         if record is not None and record.get("status") == "done":
             continue
         if stage.previous is not None:
@@ -801,8 +894,9 @@ def _train_stages(cfg: TrainOvertakingConfig, cluster: Any, progress: Progress |
             if remaining > 0 and cluster is not None:
                 session.learn_with_samplers(model, loop, cluster)
             elif remaining > 0:
-                learn_between_interrupts(model, loop, total_timesteps=remaining, reset_num_timesteps=False,
-                                         log_interval=4)  # fmt: skip
+                learn_between_interrupts(
+                    model, loop, total_timesteps=remaining, reset_num_timesteps=False, log_interval=4
+                )
         except KeyboardInterrupt:
             interrupted = True
         if interrupted:
@@ -815,21 +909,35 @@ def _train_stages(cfg: TrainOvertakingConfig, cluster: Any, progress: Progress |
     boundaries = []
     for stage in run.stages:
         record = run.stage_record(stage) or {}
-        boundaries.append({
-            "stage": stage.name, "status": record.get("status", "not started"),
-            "start_steps": record.get("start_steps"), "end_steps": record.get("end_steps"),
-            "start_train_time_s": record.get("start_train_time_s"), "end_train_time_s": record.get("end_train_time_s"),
-            "penalty_c": stage.penalty_c, "buffer_size": stage.buffer_size, "criterion": record.get("criterion"),
-        })  # fmt: skip
+        boundaries.append(
+            {
+                "stage": stage.name,
+                "status": record.get("status", "not started"),
+                "start_steps": record.get("start_steps"),
+                "end_steps": record.get("end_steps"),
+                "start_train_time_s": record.get("start_train_time_s"),
+                "end_train_time_s": record.get("end_train_time_s"),
+                "penalty_c": stage.penalty_c,
+                "buffer_size": stage.buffer_size,
+                "criterion": record.get("criterion"),
+            }
+        )
     policy = run.out / run.stages[-1].name
     result = {
-        "out": str(run.out), "agent": cfg.agent, "policy": str(policy), "stages": boundaries,
-        "trained_now": trained, "interrupted": interrupted, "ai_lap_time_s": run.record.get("ai_lap_time_s"),
+        "out": str(run.out),
+        "agent": cfg.agent,
+        "policy": str(policy),
+        "stages": boundaries,
+        "trained_now": trained,
+        "interrupted": interrupted,
+        "ai_lap_time_s": run.record.get("ai_lap_time_s"),
         "done": all(b["status"] == "done" for b in boundaries),
-    }  # fmt: skip
+    }
     if result["done"]:
-        write_json(run.out / f"agent{cfg.agent}.json" if cfg.agent != "standard" else run.out / "standard.json",
-                    {"agent": cfg.agent, "policy": str(policy), "stages": boundaries})  # fmt: skip
+        write_json(
+            run.out / f"agent{cfg.agent}.json" if cfg.agent != "standard" else run.out / "standard.json",
+            {"agent": cfg.agent, "policy": str(policy), "stages": boundaries},
+        )
     return result
 
 

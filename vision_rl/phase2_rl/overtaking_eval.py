@@ -139,8 +139,12 @@ def run_setting(
     fleet.place(np.arange(n), np.mod(s0, track.length_m))
     ego_s = np.zeros(runs)
     ego_speed = DEFAULT_SKILL * profile.speed_at(line.line_s_at(ego_s)) * (1.0 + jitter[:, 1] * START_JITTER_SPEED)
-    world.reset(s_m=ego_s, lateral_m=line.lateral_at(ego_s) + jitter[:, 0] * START_JITTER_LATERAL_M,
-                speed_mps=ego_speed, car_ids=ego)  # fmt: skip
+    world.reset(
+        s_m=ego_s,
+        lateral_m=line.lateral_at(ego_s) + jitter[:, 0] * START_JITTER_LATERAL_M,
+        speed_mps=ego_speed,
+        car_ids=ego,
+    )
     at_reset = world.state.unwrapped_s_m.copy()
     driver.reset(world, ego)
     stuck = StuckDetector(world.state.unwrapped_s_m[ego], AI_CONTROL_DT_S, STUCK_RULE)
@@ -155,18 +159,33 @@ def run_setting(
     trace_every = round(TRACE_DT_S / AI_CONTROL_DT_S)
     samples = np.zeros(runs, dtype=np.int64)
     rows_max = steps // trace_every + 2
-    trace = {name: np.zeros((rows_max, runs, *shape)) for name, shape in (
-        ("time_s", ()), ("x_m", (k,)), ("y_m", (k,)), ("yaw_rad", (k,)), ("speed_mps", ()), ("gap_m", (k - 1,)),
-        ("car_contact_s", ()), ("wall_contact_s", ()))}  # fmt: skip
+    trace = {
+        name: np.zeros((rows_max, runs, *shape))
+        for name, shape in (
+            ("time_s", ()),
+            ("x_m", (k,)),
+            ("y_m", (k,)),
+            ("yaw_rad", (k,)),
+            ("speed_mps", ()),
+            ("gap_m", (k - 1,)),
+            ("car_contact_s", ()),
+            ("wall_contact_s", ()),
+        )
+    }
 
     def record(which: np.ndarray) -> None:
         st, rows, ids = world.state, samples[which], ego[which]
         cars = ids[:, None] + np.arange(k)
-        for name, value in (("time_s", st.time_s[ids]), ("x_m", st.vehicle.x_m[cars]),
-                            ("y_m", st.vehicle.y_m[cars]), ("yaw_rad", st.vehicle.yaw_rad[cars]),
-                            ("speed_mps", np.hypot(st.vehicle.vx_mps[ids], st.vehicle.vy_mps[ids])),
-                            ("gap_m", gap[which]), ("car_contact_s", st.car_contact_time_s[ids]),
-                            ("wall_contact_s", st.wall_contact_time_s[ids])):  # fmt: skip
+        for name, value in (
+            ("time_s", st.time_s[ids]),
+            ("x_m", st.vehicle.x_m[cars]),
+            ("y_m", st.vehicle.y_m[cars]),
+            ("yaw_rad", st.vehicle.yaw_rad[cars]),
+            ("speed_mps", np.hypot(st.vehicle.vx_mps[ids], st.vehicle.vy_mps[ids])),
+            ("gap_m", gap[which]),
+            ("car_contact_s", st.car_contact_time_s[ids]),
+            ("wall_contact_s", st.wall_contact_time_s[ids]),
+        ):
             trace[name][rows, which] = value
         samples[which] += 1
 
@@ -205,13 +224,16 @@ def run_setting(
     traces = [RunTrace(**{name: values[: samples[r], r] for name, values in trace.items()}) for r in range(runs)]
     return [
         {
-            "run": r, "seed": seed + r, "opponent_skills": [round(float(x), 4) for x in skill[r, 1:]],
+            "run": r,
+            "seed": seed + r,
+            "opponent_skills": [round(float(x), 4) for x in skill[r, 1:]],
             **{name: round(float(end[name][r]), 3) for name in METRICS},
-            "overtaken": int(end["overtaken"][r]), "all_overtaken": reason[r] == "all overtaken",
+            "overtaken": int(end["overtaken"][r]),
+            "all_overtaken": reason[r] == "all overtaken",
             "end": reason[r],
         }
         for r in range(runs)
-    ], traces  # fmt: skip
+    ], traces
 
 
 def summarise_runs(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -262,9 +284,11 @@ def evaluate_overtaking(
         if track_obj is None:
             track_obj, car = policy_track, car or config.car
         if policy_track.geometry_hash != track_obj.geometry_hash:
-            raise PolicyError(f"policy {path} was trained on track {config.track!r} (geometry "
-                              f"{policy_track.geometry_hash[:12]}...), not {track_obj.name!r} "
-                              f"({track_obj.geometry_hash[:12]}...): evaluate it on its own track")  # fmt: skip
+            raise PolicyError(
+                f"policy {path} was trained on track {config.track!r} (geometry "
+                f"{policy_track.geometry_hash[:12]}...), not {track_obj.name!r} "
+                f"({track_obj.geometry_hash[:12]}...): evaluate it on its own track"
+            )
         if car and config.car != car:
             raise PolicyError(f"policy {path} drives the car {config.car!r}, not {car!r}")
     if track_obj is None:
@@ -284,16 +308,31 @@ def evaluate_overtaking(
         finally:
             if hasattr(driver, "close"):
                 driver.close()
-        rows.append({"name": name, "driver": identity, "reference": identity.get("driver") == "built-in AI",
-                     "runs": per_run, "summary": summarise_runs(per_run)})  # fmt: skip
+        rows.append(
+            {
+                "name": name,
+                "driver": identity,
+                "reference": identity.get("driver") == "built-in AI",
+                "runs": per_run,
+                "summary": summarise_runs(per_run),
+            }
+        )
     for path in humans:
         rows.append(_human_row(path, setting, track_obj, car))
     return {
-        "setting": setting, "separation_m": separation_m, "opponents": OPPONENTS, "runs": runs, "seed": seed,
+        "setting": setting,
+        "separation_m": separation_m,
+        "opponents": OPPONENTS,
+        "runs": runs,
+        "seed": seed,
         "time_limit_s": time_limit_s if time_limit_s > 0 else DEFAULT_TIME_LIMIT_S[setting],
-        "lead_margin_m": lead_margin_m, "track_name": track_obj.name, "track_geometry_hash": track_obj.geometry_hash,
-        "car": car, "opponent_skill_range": list(OPPONENT_SKILL_RANGE), "drivers": rows,
-    }  # fmt: skip
+        "lead_margin_m": lead_margin_m,
+        "track_name": track_obj.name,
+        "track_geometry_hash": track_obj.geometry_hash,
+        "car": car,
+        "opponent_skill_range": list(OPPONENT_SKILL_RANGE),
+        "drivers": rows,
+    }
 
 
 def _human_row(path: str | os.PathLike[str], setting: str, track: Track, car: str) -> dict[str, Any]:
@@ -304,8 +343,10 @@ def _human_row(path: str | os.PathLike[str], setting: str, track: Track, car: st
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise SettingError(f"--human {path}: not a setting.json of vision-rl play --setting ({exc})") from None
     if made_for != (setting, track.geometry_hash, car):
-        raise SettingError(f"--human {path} was driven in setting {row['setting']} on {row['track_name']} with the "
-                           f"{row['car']}, not setting {setting} on {track.name} with the {car}")  # fmt: skip
+        raise SettingError(
+            f"--human {path} was driven in setting {row['setting']} on {row['track_name']} with the "
+            f"{row['car']}, not setting {setting} on {track.name} with the {car}"
+        )
     return {k: row[k] for k in ("name", "driver", "reference", "runs", "summary")}
 
 
@@ -345,8 +386,11 @@ def write_setting_outputs(result: dict[str, Any], out: str | os.PathLike[str]) -
         ax.set_title(METRIC_LABELS[metric], fontsize=9)
     axes[0].legend(fontsize=7)
     counts = ", ".join(f"{r['name']}: {r['summary']['all_overtaken_runs']}/{r['summary']['runs']}" for r in rows)
-    fig.suptitle(f"setting {result['setting']} ({result['separation_m']:g} m apart, {result['track_name']}, "
-                 f"{result['car']}); all 5 overtaken in {counts}", fontsize=9)  # fmt: skip
+    fig.suptitle(
+        f"setting {result['setting']} ({result['separation_m']:g} m apart, {result['track_name']}, "
+        f"{result['car']}); all 5 overtaken in {counts}",
+        fontsize=9,
+    )
     fig.tight_layout()
     tmp = png_path.with_name(f".{png_path.name}.tmp.png")
     fig.savefig(tmp, dpi=110)
@@ -373,10 +417,17 @@ def overtake_moments(trace: RunTrace) -> list[dict[str, Any]]:
         behind = trace.gap_m[:, j] >= 0.0  # the opponent still leads
         i = int(np.flatnonzero(behind)[-1]) + 1 if behind.any() else 0
         ahead = np.flatnonzero(trace.gap_m[:i, j] >= APPROACH_GAP_M)
-        moments.append({"opponent": int(j) + 1, "sample": i, "time_s": float(trace.time_s[i]),
-                        "x_m": float(trace.x_m[i, 0]), "y_m": float(trace.y_m[i, 0]),
-                        "speed_kmh": float(3.6 * trace.speed_mps[i]),
-                        "approach_sample": int(ahead[-1]) if len(ahead) else i})  # fmt: skip
+        moments.append(
+            {
+                "opponent": int(j) + 1,
+                "sample": i,
+                "time_s": float(trace.time_s[i]),
+                "x_m": float(trace.x_m[i, 0]),
+                "y_m": float(trace.y_m[i, 0]),
+                "speed_kmh": float(3.6 * trace.speed_mps[i]),
+                "approach_sample": int(ahead[-1]) if len(ahead) else i,
+            }
+        )
     return sorted(moments, key=lambda m: m["time_s"])
 
 
@@ -385,26 +436,33 @@ def contact_intervals(time_s: np.ndarray, cumulative_s: np.ndarray) -> list[tupl
     merged."""
     grew = np.diff(cumulative_s) > 0.0
     edges = np.diff(np.concatenate([[0], grew.astype(np.int8), [0]]))
-    return [(float(time_s[a]), float(time_s[b])) for a, b in
-            zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True)]  # fmt: skip
+    return [
+        (float(time_s[a]), float(time_s[b]))
+        for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True)
+    ]
 
 
 def fastest_run(runs: Sequence[dict[str, Any]]) -> int:
     """Index of the fastest run that overtook all five; with none, the run that passed most, then the shortest."""
-    return min(range(len(runs)), key=lambda r: (not runs[r]["all_overtaken"], -runs[r]["overtaken"],
-                                                runs[r]["travel_time_s"]))  # fmt: skip
+    return min(
+        range(len(runs)), key=lambda r: (not runs[r]["all_overtaken"], -runs[r]["overtaken"], runs[r]["travel_time_s"])
+    )
 
 
 def _trace_record(name: str, run: dict[str, Any], trace: RunTrace) -> dict[str, Any]:
     overtaken = np.sum(trace.gap_m < 0.0, axis=1)
     return {
-        "name": name, "run": run, "moments": overtake_moments(trace),
+        "name": name,
+        "run": run,
+        "moments": overtake_moments(trace),
         "car_contacts": contact_intervals(trace.time_s, trace.car_contact_s),
         "wall_contacts": contact_intervals(trace.time_s, trace.wall_contact_s),
-        "time_s": np.round(trace.time_s, 2).tolist(), "overtaken": overtaken.tolist(),
+        "time_s": np.round(trace.time_s, 2).tolist(),
+        "overtaken": overtaken.tolist(),
         "speed_kmh": np.round(3.6 * trace.speed_mps, 1).tolist(),
-        "x_m": np.round(trace.x_m, 2).tolist(), "y_m": np.round(trace.y_m, 2).tolist(),
-    }  # fmt: skip
+        "x_m": np.round(trace.x_m, 2).tolist(),
+        "y_m": np.round(trace.y_m, 2).tolist(),
+    }
 
 
 def analyse_overtaking(
@@ -427,16 +485,27 @@ def analyse_overtaking(
     ai_rows, ai_traces = run_setting(BuiltinAI(), track, car, setting, 1, seed + best, time_limit_s, lead_margin_m)
     track = track if isinstance(track, Track) else load_track(track)
     return {
-        "setting": setting, "separation_m": SETTINGS[setting], "runs": runs, "seed": seed, "run": best,
-        "track_name": track.name, "car": car if isinstance(car, str) else car.name, "trace_dt_s": TRACE_DT_S,
+        "setting": setting,
+        "separation_m": SETTINGS[setting],
+        "runs": runs,
+        "seed": seed,
+        "run": best,
+        "track_name": track.name,
+        "car": car if isinstance(car, str) else car.name,
+        "trace_dt_s": TRACE_DT_S,
         "agent": _trace_record(name, rows[best], traces[best]),
         "reference": _trace_record("built-in AI", ai_rows[0], ai_traces[0]),
-    }, traces[best]  # fmt: skip
+    }, traces[best]
 
 
 def write_analysis_outputs(
-    analysis: dict[str, Any], trace: RunTrace, track: Track, out: str | os.PathLike[str], frames: bool = True,
-    car_length_m: float = 4.1, car_width_m: float = 1.7,
+    analysis: dict[str, Any],
+    trace: RunTrace,
+    track: Track,
+    out: str | os.PathLike[str],
+    frames: bool = True,
+    car_length_m: float = 4.1,
+    car_width_m: float = 1.7,
 ) -> dict[str, Any]:
     """``overtaking_analysis.json``; ``overtaking_timeline.png`` (cars overtaken against time, car collisions as
     long and wall collisions as short vertical lines, as the paper's Fig. 6); ``overtaking_paths.png`` (the agent's
@@ -469,9 +538,12 @@ def write_analysis_outputs(
         ax.set_ylim(-0.2, 5.5)
         ax.set_ylabel("cars overtaken")
         run = record["run"]
-        ax.set_title(f"{record['name']}: run {run['run']} (seed {run['seed']}), {run['overtaken']}/5 in "
-                     f"{run['travel_time_s']:.1f} s; car contact {run['car_contact_s']:.1f} s (long red), "
-                     f"wall {run['wall_contact_s']:.1f} s (short black)", fontsize=8)  # fmt: skip
+        ax.set_title(
+            f"{record['name']}: run {run['run']} (seed {run['seed']}), {run['overtaken']}/5 in "
+            f"{run['travel_time_s']:.1f} s; car contact {run['car_contact_s']:.1f} s (long red), "
+            f"wall {run['wall_contact_s']:.1f} s (short black)",
+            fontsize=8,
+        )
     axes[1].set_xlabel("time (s)")
     fig.suptitle(f"setting {analysis['setting']}, {analysis['track_name']}, {analysis['car']}", fontsize=9)
     fig.tight_layout()
@@ -508,8 +580,10 @@ def write_analysis_outputs(
 
         samples = [m["approach_sample"] for m in moments]
         with Renderer(track, car_length_m=car_length_m, car_width_m=car_width_m) as renderer:
-            views = [renderer.render(trace.x_m[i], trace.y_m[i], trace.yaw_rad[i], view_ids=np.array([0]))[0]
-                     for i in samples]  # fmt: skip
+            views = [
+                renderer.render(trace.x_m[i], trace.y_m[i], trace.yaw_rad[i], view_ids=np.array([0]))[0]
+                for i in samples
+            ]
         files["frames"] = []
         for moment, view in zip(moments, views, strict=True):
             path = out / f"overtake_{moment['opponent']}.png"
@@ -561,16 +635,22 @@ def learning_curves(
         with_data = [i for i, c in enumerate(curves) if c["records"]]
         n_seeds = np.isfinite(values).sum(axis=0)
         result[label] = {
-            "x": grid.tolist(), "mean": _nan_to_none(mean), "std": _nan_to_none(std),
-            "n_seeds": n_seeds.tolist(), "seeds_with_data": len(with_data),
+            "x": grid.tolist(),
+            "mean": _nan_to_none(mean),
+            "std": _nan_to_none(std),
+            "n_seeds": n_seeds.tolist(),
+            "seeds_with_data": len(with_data),
             "per_seed": [_nan_to_none(values[i]) for i in range(len(curves))],
             "stage_switches": [c["stage_switches"] for c in curves],
-        }  # fmt: skip
+        }
 
     def common(label: str) -> list[tuple[float, float]]:
         data = result[label]
-        return [(x, v) for x, v, n in zip(data["x"], data["mean"], data["n_seeds"], strict=True)
-                if v is not None and n == data["seeds_with_data"]]  # fmt: skip
+        return [
+            (x, v)
+            for x, v, n in zip(data["x"], data["mean"], data["n_seeds"], strict=True)
+            if v is not None and n == data["seeds_with_data"]
+        ]
 
     standard, curriculum = common("standard"), common("curriculum")
     result["standard_final_return"] = standard[-1][1] if standard else None
@@ -618,8 +698,12 @@ def write_learning_curves(result: dict[str, Any], out: str | os.PathLike[str]) -
         for seed_values in data["per_seed"]:
             ax.plot(x, [np.nan if v is None else v for v in seed_values], color=color, linewidth=0.6, alpha=0.4)
     if result["axis"] == "num_timesteps":
-        switches = [s["num_timesteps"] for seed in result["curriculum"]["stage_switches"] for s in seed
-                    if s["stage"] == "stage2" and s["num_timesteps"] is not None]  # fmt: skip
+        switches = [
+            s["num_timesteps"]
+            for seed in result["curriculum"]["stage_switches"]
+            for s in seed
+            if s["stage"] == "stage2" and s["num_timesteps"] is not None
+        ]
         for i, step in enumerate(switches):
             ax.axvline(step, color="r", linestyle="--", linewidth=1, label="stage 1 -> 2" if i == 0 else None)
     ax.set_xlabel("environment steps" if result["axis"] == "num_timesteps" else "training time (s)")

@@ -153,9 +153,11 @@ def read_sb3_zip(path: str | os.PathLike[str]) -> dict[str, Any]:
             names = set(archive.namelist())
             state: dict[str, Any] = {
                 "policy": tensors(archive, "policy.pth"),
-                "optimizers": {"actor": tensors(archive, "actor.optimizer.pth"),
-                               "critic": tensors(archive, "critic.optimizer.pth")},
-            }  # fmt: skip
+                "optimizers": {
+                    "actor": tensors(archive, "actor.optimizer.pth"),
+                    "critic": tensors(archive, "critic.optimizer.pth"),
+                },
+            }
             if "ent_coef_optimizer.pth" in names:
                 state["optimizers"]["ent_coef"] = tensors(archive, "ent_coef_optimizer.pth")
                 state["log_ent_coef"] = tensors(archive, "pytorch_variables.pth")["log_ent_coef"]
@@ -184,14 +186,17 @@ def read_agent(
             # Killed after the weights were replaced and before their sidecar was: the last complete pair.
             path, actual = previous, sha256
         if actual != sha256:
-            raise ArtifactError(f"{path}: its SHA-256 is {actual[:12]}..., not the recorded {sha256[:12]}...: the "
-                                "file changed after it was written")  # fmt: skip
+            raise ArtifactError(
+                f"{path}: its SHA-256 is {actual[:12]}..., not the recorded {sha256[:12]}...: the "
+                "file changed after it was written"
+            )
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ArtifactError(f"{path}: not a vision_rl agent file (it holds more than tensors and plain values, or "
-                            f"is damaged): {first}") from None  # fmt: skip
+        raise ArtifactError(
+            f"{path}: not a vision_rl agent file (it holds more than tensors and plain values, or is damaged): {first}"
+        ) from None
     if not isinstance(state, dict) or state.get("format") != AGENT_FORMAT:
         raise ArtifactError(f"{path}: not a vision_rl agent file (no format {AGENT_FORMAT!r})")
     if int(state.get("format_version", 0)) != FORMAT_VERSION:
@@ -227,9 +232,15 @@ def save_buffer(buffer: ReplayBuffer, path: str | os.PathLike[str], fingerprint:
     """Write the filled part of ``buffer`` (all of it once it wrapped round) with ``fingerprint``; returns the
     file's SHA-256."""
     n = buffer.buffer_size if buffer.full else buffer.pos
-    meta = {"format": BUFFER_FORMAT, "format_version": FORMAT_VERSION, "fingerprint": dict(fingerprint),
-            "pos": int(buffer.pos), "full": bool(buffer.full), "capacity": int(buffer.buffer_size),
-            "n_envs": int(buffer.n_envs)}  # fmt: skip
+    meta = {
+        "format": BUFFER_FORMAT,
+        "format_version": FORMAT_VERSION,
+        "fingerprint": dict(fingerprint),
+        "pos": int(buffer.pos),
+        "full": bool(buffer.full),
+        "capacity": int(buffer.buffer_size),
+        "n_envs": int(buffer.n_envs),
+    }
     arrays = {name: getattr(buffer, name)[:n] for name in _buffer_arrays(buffer)}
 
     def write(tmp: Path) -> None:
@@ -261,13 +272,15 @@ def load_buffer(buffer: ReplayBuffer, path: str | os.PathLike[str], fingerprint:
         raise ArtifactError(f"{path}: damaged replay-buffer file: {first}") from None
     n = len(arrays["observations"])
     if n > buffer.buffer_size:
-        raise ArtifactError(f"{path} holds {n} transitions per env, more than this buffer's capacity "
-                            f"{buffer.buffer_size}")  # fmt: skip
+        raise ArtifactError(
+            f"{path} holds {n} transitions per env, more than this buffer's capacity {buffer.buffer_size}"
+        )
     for name, values in arrays.items():
         target = getattr(buffer, name)
         if values.shape[1:] != target.shape[1:] or len(values) != n:
-            raise ArtifactError(f"{path}: {name} has shape {values.shape[1:]} per transition, this buffer "
-                                f"{target.shape[1:]}")  # fmt: skip
+            raise ArtifactError(
+                f"{path}: {name} has shape {values.shape[1:]} per transition, this buffer {target.shape[1:]}"
+            )
         target[:n] = values
     if n == buffer.buffer_size:  # the writing position of a wrapped buffer is kept: the oldest goes first
         buffer.full, buffer.pos = True, int(meta["pos"]) % n

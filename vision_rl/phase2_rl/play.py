@@ -81,9 +81,13 @@ def play(cfg: PlayConfig, events=None) -> dict[str, Any]:
     track = load_track(cfg.track)
     normalizer = environment_normalizer(cfg.track, cfg.car)
     driver = HumanDriver(
-        cfg.camera, cfg.window_hw_px, cfg.input, cfg.realtime,
-        lambda world: Observer(OBSERVATION, world.track, world.car, world.model.groups, normalizer), events,
-    )  # fmt: skip
+        cfg.camera,
+        cfg.window_hw_px,
+        cfg.input,
+        cfg.realtime,
+        lambda world: Observer(OBSERVATION, world.track, world.car, world.model.groups, normalizer),
+        events,
+    )
     out = Path(cfg.runs) / "human" / f"{cfg.name}-{track.name}-{cfg.car}"
     result: dict[str, Any] = {"name": f"human ({cfg.name})", "settings": asdict(cfg)}
     try:
@@ -98,11 +102,16 @@ def play(cfg: PlayConfig, events=None) -> dict[str, Any]:
     demos = Path(cfg.demos) if cfg.demos else out / "demos.npz"
     if len(arrays["actions"]):
         meta = {
-            "fingerprint": demo_fingerprint(cfg.track, cfg.car, normalizer), "track": cfg.track,
-            "track_name": track.name, "demonstrator": {**driver.identity, "alias": cfg.name},
-            "settings": asdict(cfg), "normalizer": normalizer.to_dict(), "n_transitions": len(arrays["actions"]),
-            "n_episodes": 1, "mean_reward": float(arrays["rewards"].mean()),
-        }  # fmt: skip
+            "fingerprint": demo_fingerprint(cfg.track, cfg.car, normalizer),
+            "track": cfg.track,
+            "track_name": track.name,
+            "demonstrator": {**driver.identity, "alias": cfg.name},
+            "settings": asdict(cfg),
+            "normalizer": normalizer.to_dict(),
+            "n_transitions": len(arrays["actions"]),
+            "n_episodes": 1,
+            "mean_reward": float(arrays["rewards"].mean()),
+        }
         write_demos(demos, arrays, meta)
         result["demos"] = str(demos)
     result["n_transitions"] = len(arrays["actions"])
@@ -111,8 +120,12 @@ def play(cfg: PlayConfig, events=None) -> dict[str, Any]:
         return result
     evaluation = out / "evaluation.json"
     atomic_write(evaluation, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
-    return {**result, **{k: record[k] for k in ("best_lap_time_s", "n_finished", "limit_lap_time_s", "best_lap")},
-            "dnf_reason": timing.runs[0].dnf_reason, "evaluation_json": str(evaluation)}  # fmt: skip
+    return {
+        **result,
+        **{k: record[k] for k in ("best_lap_time_s", "n_finished", "limit_lap_time_s", "best_lap")},
+        "dnf_reason": timing.runs[0].dnf_reason,
+        "evaluation_json": str(evaluation),
+    }
 
 
 #: The file of a human's runs of a setting, beside the time-trial row: RUNS/human/ALIAS-TRACK-CAR-setting-X/.
@@ -142,10 +155,16 @@ def play_setting(cfg: PlayConfig, events=None) -> dict[str, Any]:
     if not runs:
         return {"name": name, "setting": cfg.setting, "quit": True, "runs": []}
     row = {
-        "name": name, "driver": {**driver.identity, "alias": cfg.name}, "reference": True, "setting": cfg.setting,
-        "track_name": track.name, "track_geometry_hash": track.geometry_hash, "car": cfg.car, "runs": runs,
+        "name": name,
+        "driver": {**driver.identity, "alias": cfg.name},
+        "reference": True,
+        "setting": cfg.setting,
+        "track_name": track.name,
+        "track_geometry_hash": track.geometry_hash,
+        "car": cfg.car,
+        "runs": runs,
         "summary": summarise_runs(runs),
-    }  # fmt: skip
+    }
     out = Path(cfg.runs) / "human" / f"{cfg.name}-{track.name}-{cfg.car}-setting-{cfg.setting}" / SETTING_ROW_NAME
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(out, lambda tmp: tmp.write_text(json.dumps(row, indent=2)))

@@ -39,8 +39,15 @@ PAPER_TABLE3: dict[str, tuple[float, float]] = {
     "td3": (80.8, 196.3),
     "planet": (89.0, 178.2),
 }
-ROW_NAMES = {"ai": "Built-in AI", "bc": "BC", "gail": "GAIL", "sac": "SAC", "td3": "TD3",
-             "planet": "PlaNet (as Dreamer)", "demonstrator": "AI held at 10 Hz (demonstrator)"}  # fmt: skip
+ROW_NAMES = {
+    "ai": "Built-in AI",
+    "bc": "BC",
+    "gail": "GAIL",
+    "sac": "SAC",
+    "td3": "TD3",
+    "planet": "PlaNet (as Dreamer)",
+    "demonstrator": "AI held at 10 Hz (demonstrator)",
+}
 #: The row each train-baseline algorithm fills.
 ROW_OF_ALGO = {"bc": "bc", "gail": "gail", "sac": "sac", "td3": "td3", "dreamer": "planet"}
 
@@ -87,9 +94,12 @@ def _figures(summary: dict[str, Any]) -> dict[str, Any]:
         "lap_time_s": None if best is None else best["lap_time_s"],
         "avg_speed_kmh": None if best is None else best["avg_speed_kmh"],
         "median_lap_time_s": summary["median_lap_time_s"],
-        "finished": summary["n_finished"], "seeds": summary["n_seeds"], "clean": summary["clean"],
-        "wall_contact_s": None if best is None else best["wall_contact_s"], "dnf_reasons": reasons,
-    }  # fmt: skip
+        "finished": summary["n_finished"],
+        "seeds": summary["n_seeds"],
+        "clean": summary["clean"],
+        "wall_contact_s": None if best is None else best["wall_contact_s"],
+        "dnf_reasons": reasons,
+    }
 
 
 def _ratios(row: dict[str, Any], ai: dict[str, Any]) -> None:
@@ -150,17 +160,30 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
                 summaries.append(timed(driver))
             finally:
                 driver.close()
-            runs.append({"run": str(path), "num_timesteps": policy.spec.num_timesteps,
-                         "train_time_s": policy.spec.train_time_s, "seed": policy.spec.seed,
-                         **_figures(summaries[-1])})  # fmt: skip
+            runs.append(
+                {
+                    "run": str(path),
+                    "num_timesteps": policy.spec.num_timesteps,
+                    "train_time_s": policy.spec.train_time_s,
+                    "seed": policy.spec.seed,
+                    **_figures(summaries[-1]),
+                }
+            )
         if not runs:
-            rows.append({"key": key, "name": ROW_NAMES[key], "status": "not trained", "lap_time_s": None,
-                         "avg_speed_kmh": None})  # fmt: skip
+            rows.append(
+                {"key": key, "name": ROW_NAMES[key], "status": "not trained", "lap_time_s": None, "avg_speed_kmh": None}
+            )
             continue
         best = min(runs, key=lambda r: math.inf if r["lap_time_s"] is None else r["lap_time_s"])
-        row = {"key": key, "name": ROW_NAMES[key], "status": "timed" if best["lap_time_s"] is not None else "DNF",
-               **{k: v for k, v in best.items() if k != "run"}, "run": best["run"], "runs": runs,
-               "over_training_seeds": aggregate_seeds(summaries)}  # fmt: skip
+        row = {
+            "key": key,
+            "name": ROW_NAMES[key],
+            "status": "timed" if best["lap_time_s"] is not None else "DNF",
+            **{k: v for k, v in best.items() if k != "run"},
+            "run": best["run"],
+            "runs": runs,
+            "over_training_seeds": aggregate_seeds(summaries),
+        }
         rows.append(row)
     if cfg.demonstrator:
         if progress is not None:
@@ -170,18 +193,28 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
     for row in rows:
         _ratios(row, ai)
         paper = PAPER_TABLE3.get(row["key"])
-        row["paper"] = None if paper is None else {
-            "lap_time_s": paper[0], "avg_speed_kmh": paper[1], "lap_ratio_to_ai": paper[0] / paper_ai[0],
-            "speed_ratio_to_ai": paper[1] / paper_ai[1],
-        }  # fmt: skip
+        row["paper"] = (
+            None
+            if paper is None
+            else {
+                "lap_time_s": paper[0],
+                "avg_speed_kmh": paper[1],
+                "lap_ratio_to_ai": paper[0] / paper_ai[0],
+                "speed_ratio_to_ai": paper[1] / paper_ai[1],
+            }
+        )
     from vision_rl.evaluation.protocol import rules
 
     return {
         "table": "overtaking paper, Table III: a baseline comparison for the single-car race",
-        "track": cfg.track, "track_name": track.name, "track_geometry_hash": track.geometry_hash, "car": cfg.car,
+        "track": cfg.track,
+        "track_name": track.name,
+        "track_geometry_hash": track.geometry_hash,
+        "car": cfg.car,
         "protocol": {**rules(), "seeds": cfg.seeds, "laps": cfg.laps, "time_limit_s": cfg.time_limit_s},
-        "rows": rows, "skipped": skipped,
-    }  # fmt: skip
+        "rows": rows,
+        "skipped": skipped,
+    }
 
 
 __all__ = ["ALGOS", "PAPER_TABLE3", "ROW_OF_ALGO", "Table3Config", "find_runs", "table3"]

@@ -455,19 +455,29 @@ class _Run:
                 enc = read_checkpoint(self.encoder_path)["encoder_config"]
                 image_hw = (int(enc["input_height_px"]), int(enc["input_width_px"]))
             self.racing = RacingConfig(
-                track=cfg.track, car=cfg.car, observation=self.kind, n_groups=cfg.cars, episode_s=cfg.episode_s,
-                wall_penalty_c_w=cfg.wall_penalty_c_w, image_hw_px=image_hw,
-                steer_change_penalty_c_s=cfg.steer_change_penalty_c_s, frame_delay_s=cfg.frame_delay_s,
+                track=cfg.track,
+                car=cfg.car,
+                observation=self.kind,
+                n_groups=cfg.cars,
+                episode_s=cfg.episode_s,
+                wall_penalty_c_w=cfg.wall_penalty_c_w,
+                image_hw_px=image_hw,
+                steer_change_penalty_c_s=cfg.steer_change_penalty_c_s,
+                frame_delay_s=cfg.frame_delay_s,
                 critic_state=cfg.critic_state,
                 steer_change_penalty_scale=cfg.steer_change_penalty_scale,
-                steer_action=cfg.steer_action, terminate_on_wall=cfg.wall_ends_episode,
+                steer_action=cfg.steer_action,
+                terminate_on_wall=cfg.wall_ends_episode,
                 terminate_when_stuck=cfg.stuck_ends_episode,
                 restart_before_stuck_share=cfg.restart_before_stuck_share,
                 restart_before_stuck_m=cfg.restart_before_stuck_m,
-                off_track_penalty_c_o=cfg.off_track_penalty_c_o, wall_penalty_speed=cfg.wall_penalty_speed,
-                wall_hit_throttle_cut_s=cfg.wall_hit_throttle_cut_s, pedal_full_at=cfg.pedal_full_at,
-                steer_change_share_of_range=cfg.steer_change_share_of_range, control_dt_s=cfg.control_dt_s,
-            )  # fmt: skip
+                off_track_penalty_c_o=cfg.off_track_penalty_c_o,
+                wall_penalty_speed=cfg.wall_penalty_speed,
+                wall_hit_throttle_cut_s=cfg.wall_hit_throttle_cut_s,
+                pedal_full_at=cfg.pedal_full_at,
+                steer_change_share_of_range=cfg.steer_change_share_of_range,
+                control_dt_s=cfg.control_dt_s,
+            )
             self.start_steps = 0
             self.train_time_before_s = 0.0
         self.seed = self.previous.seed if self.previous is not None else cfg.seed  # a resumed run keeps its own
@@ -512,19 +522,32 @@ class _Run:
         self.env = env
         p = self.preset
         label_weight = self._kept("guide_label_weight")
-        cloning = (self._kept("guide_bc_weight") > 0 or label_weight > 0
-                   or (self.previous is None and self.cfg.guide_pretrain_steps > 0))  # fmt: skip
+        cloning = (
+            self._kept("guide_bc_weight") > 0
+            or label_weight > 0
+            or (self.previous is None and self.cfg.guide_pretrain_steps > 0)
+        )
         if cloning:
             from vision_rl.phase2_rl.guide import guided_sac_class
         policy_class, policy_kwargs = sac_policy_class(venv.observation_space.shape[0], self.racing.critic_state)
         model = (guided_sac_class() if cloning else SAC)(
-            policy_class, env, learning_rate=p.learning_rate_schedule(), buffer_size=p.buffer_size,
-            learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau,
+            policy_class,
+            env,
+            learning_rate=p.learning_rate_schedule(),
+            buffer_size=p.buffer_size,
+            learning_starts=p.learning_starts,
+            batch_size=p.batch_size,
+            tau=p.tau,
             gamma=gamma_per_step(p.gamma, self.racing.control_dt_s),
-            train_freq=(p.train_freq_steps, "step"), gradient_steps=p.gradient_steps,
-            policy_kwargs={"net_arch": list(p.hidden_units), **policy_kwargs}, seed=self.seed + self.start_steps,
-            target_entropy=p.target_entropy or "auto", device=self.device, verbose=0, n_steps=self.cfg.n_step,
-        )  # fmt: skip
+            train_freq=(p.train_freq_steps, "step"),
+            gradient_steps=p.gradient_steps,
+            policy_kwargs={"net_arch": list(p.hidden_units), **policy_kwargs},
+            seed=self.seed + self.start_steps,
+            target_entropy=p.target_entropy or "auto",
+            device=self.device,
+            verbose=0,
+            n_steps=self.cfg.n_step,
+        )
         model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
         encoder_sha = self.encoder_sha256 if self.kind == "vision" else None
         self.fingerprint = policy_fingerprint(self.racing, self.kind, venv.observation_space.shape[0], encoder_sha)
@@ -533,8 +556,14 @@ class _Run:
         if label_weight > 0:  # before a restore, which fills the labels' array too
             from vision_rl.phase2_rl.guide import start_labels
 
-            start_labels(model, venv, label_weight, fade_steps=int(self._kept("guide_label_fade_steps")),
-                         end_steps=self.cfg.steps, steer_weight=self._kept("guide_label_steer_weight", 1.0))
+            start_labels(
+                model,
+                venv,
+                label_weight,
+                fade_steps=int(self._kept("guide_label_fade_steps")),
+                end_steps=self.cfg.steps,
+                steer_weight=self._kept("guide_label_steer_weight", 1.0),
+            )
         if self.previous is not None:
             self._restore(model)
         elif self.cfg.guide_steps > 0:
@@ -583,7 +612,10 @@ class _Run:
         t0 = time.perf_counter()
         if self.eval_driver is None:
             self.eval_driver = PolicyDriver.for_config(
-                lambda obs: model.predict(obs, deterministic=True)[0], self.kind, self.normalizer, self.encoder,
+                lambda obs: model.predict(obs, deterministic=True)[0],
+                self.kind,
+                self.normalizer,
+                self.encoder,
                 self.racing,
             )
         timing = time_laps(self.eval_driver, self.racing.track, self.racing.car, range(cfg.eval_seeds), cfg.eval_laps)
@@ -597,8 +629,9 @@ class _Run:
             "lap_times_s": [[lap["lap_time_s"] for lap in s["laps"]] for s in summary["seeds"]],
             "finished": summary["n_finished"],
             "scored_lap_times_s": [s["lap_time_s"] for s in summary["seeds"]],
-            "scored_wall_contact_s": [s["laps"][-1]["wall_contact_s"] if s["finished"] else 0.0
-                                      for s in summary["seeds"]],
+            "scored_wall_contact_s": [
+                s["laps"][-1]["wall_contact_s"] if s["finished"] else 0.0 for s in summary["seeds"]
+            ],
             "limit_lap_time_s": summary["limit_lap_time_s"],
             "dnf_reasons": [s["dnf_reason"] for s in summary["seeds"]],
             "distance_m": float(np.mean([s["distance_m"] for s in summary["seeds"]])),
@@ -668,9 +701,16 @@ class _Run:
         kept = mean_lap_s is not None and (self.best_mean_lap_s is None or mean_lap_s < self.best_mean_lap_s)
         if kept:
             self.best_mean_lap_s = mean_lap_s
-            self._write_policy(model, self.out / BEST_DIR, selection={
-                "start_seeds": seeds, "laps": self.cfg.eval_laps, "mean_lap_time_s": mean_lap_s,
-                "clean_wall_contact_s": CLEAN_WALL_CONTACT_S if need_clean else None})  # fmt: skip
+            self._write_policy(
+                model,
+                self.out / BEST_DIR,
+                selection={
+                    "start_seeds": seeds,
+                    "laps": self.cfg.eval_laps,
+                    "mean_lap_time_s": mean_lap_s,
+                    "clean_wall_contact_s": CLEAN_WALL_CONTACT_S if need_clean else None,
+                },
+            )
         return {"mean_lap_time_s": mean_lap_s, "finished": summary["n_finished"], "clean": clean, "kept": kept}
 
     def _write_policy(self, model: SAC, folder: Path, selection: dict[str, Any] | None = None) -> PolicySpec:
@@ -703,39 +743,56 @@ class _Run:
 def check_bounds(cfg: TrainPolicyConfig) -> None:
     """One clear line for an option out of range, before anything is built or written."""
     checks = {
-        "cars": cfg.cars >= 1, "steps": cfg.steps >= 1, "eval_every_steps": cfg.eval_every_steps >= 0,
-        "eval_seeds": cfg.eval_seeds >= 1 or cfg.eval_every_steps == 0, "eval_laps": cfg.eval_laps >= 1,
+        "cars": cfg.cars >= 1,
+        "steps": cfg.steps >= 1,
+        "eval_every_steps": cfg.eval_every_steps >= 0,
+        "eval_seeds": cfg.eval_seeds >= 1 or cfg.eval_every_steps == 0,
+        "eval_laps": cfg.eval_laps >= 1,
         "select_starts": cfg.select_starts >= 0,
         "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoint_every_min >= 0, "episode_s": cfg.episode_s >= cfg.control_dt_s,
+        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
+        "episode_s": cfg.episode_s >= cfg.control_dt_s,
         "control_dt_s": 0 < cfg.control_dt_s <= 1,
         "wall_penalty_c_w": cfg.wall_penalty_c_w >= 0,
-        "steer_change_penalty_c_s": cfg.steer_change_penalty_c_s >= 0, "stats_steps": cfg.stats_steps >= 1,
+        "steer_change_penalty_c_s": cfg.steer_change_penalty_c_s >= 0,
+        "stats_steps": cfg.stats_steps >= 1,
         "off_track_penalty_c_o": cfg.off_track_penalty_c_o >= 0,
         "wall_hit_throttle_cut_s": 0 <= cfg.wall_hit_throttle_cut_s <= 60,
         "restart_before_stuck_share": 0 <= cfg.restart_before_stuck_share <= 1,
         "restart_before_stuck_m": cfg.restart_before_stuck_m >= 0,
-        "frame_delay_s": 0 <= cfg.frame_delay_s <= 1, "pedal_full_at": 0 < cfg.pedal_full_at <= 1,
+        "frame_delay_s": 0 <= cfg.frame_delay_s <= 1,
+        "pedal_full_at": 0 < cfg.pedal_full_at <= 1,
         "steer_change_share_of_range": cfg.steer_change_share_of_range >= 0,
-        "learning_rate": cfg.learning_rate >= 0, "learning_rate_final": cfg.learning_rate_final >= 0,
+        "learning_rate": cfg.learning_rate >= 0,
+        "learning_rate_final": cfg.learning_rate_final >= 0,
         "target_entropy": cfg.target_entropy <= 0,
-        "batch_size": cfg.batch_size >= 0, "buffer_size": cfg.buffer_size >= 0,
-        "gradient_steps": cfg.gradient_steps >= 0, "gamma": 0 <= cfg.gamma < 1, "n_step": 1 <= cfg.n_step <= 100,
-        "guide_steps": cfg.guide_steps >= 0, "guide_bc_weight": cfg.guide_bc_weight >= 0,
-        "guide_label_weight": cfg.guide_label_weight >= 0, "guide_label_fade_steps": cfg.guide_label_fade_steps >= 0,
+        "batch_size": cfg.batch_size >= 0,
+        "buffer_size": cfg.buffer_size >= 0,
+        "gradient_steps": cfg.gradient_steps >= 0,
+        "gamma": 0 <= cfg.gamma < 1,
+        "n_step": 1 <= cfg.n_step <= 100,
+        "guide_steps": cfg.guide_steps >= 0,
+        "guide_bc_weight": cfg.guide_bc_weight >= 0,
+        "guide_label_weight": cfg.guide_label_weight >= 0,
+        "guide_label_fade_steps": cfg.guide_label_fade_steps >= 0,
         "guide_label_steer_weight": cfg.guide_label_steer_weight >= 0,
         "guide_pretrain_steps": cfg.guide_pretrain_steps >= 0,
-    }  # fmt: skip
+    }
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
         name = bad[0]
         raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
     parse_hidden_units(cfg.hidden_units)
     if ai_ticks(cfg.control_dt_s) is None:
-        raise ValueError(f"--control-dt-s {cfg.control_dt_s} is not a whole multiple of the simulator's "
-                         f"{AI_CONTROL_DT_S} s step, e.g. 0.04 (25 Hz) or 0.1 (10 Hz)")
-    choices = {"steer_action": STEER_ACTIONS, "wall_penalty_speed": WALL_PENALTY_SPEEDS,
-               "steer_change_penalty_scale": STEER_CHANGE_PENALTY_SCALES}  # fmt: skip
+        raise ValueError(
+            f"--control-dt-s {cfg.control_dt_s} is not a whole multiple of the simulator's "
+            f"{AI_CONTROL_DT_S} s step, e.g. 0.04 (25 Hz) or 0.1 (10 Hz)"
+        )
+    choices = {
+        "steer_action": STEER_ACTIONS,
+        "wall_penalty_speed": WALL_PENALTY_SPEEDS,
+        "steer_change_penalty_scale": STEER_CHANGE_PENALTY_SCALES,
+    }
     for name, allowed in choices.items():
         value = getattr(cfg, name)
         if value not in allowed:
@@ -751,10 +808,18 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     if not cfg.select_clean and cfg.select_starts == 0:
         raise ValueError("--no-select-clean sets the rule of --select-starts: give --select-starts N too")
     if cfg.select_starts > 0 and cfg.eval_seeds > SELECT_SEED_BASE:
-        raise ValueError(f"--eval-seeds {cfg.eval_seeds} would time the held-out starts of --select-starts, which "
-                         f"begin at seed {SELECT_SEED_BASE}: give at most {SELECT_SEED_BASE}")  # fmt: skip
-    shaping = [name for name, given in (("--guide-label-fade-steps", cfg.guide_label_fade_steps > 0),
-                                        ("--guide-label-steer-weight", cfg.guide_label_steer_weight != 1)) if given]
+        raise ValueError(
+            f"--eval-seeds {cfg.eval_seeds} would time the held-out starts of --select-starts, which "
+            f"begin at seed {SELECT_SEED_BASE}: give at most {SELECT_SEED_BASE}"
+        )
+    shaping = [
+        name
+        for name, given in (
+            ("--guide-label-fade-steps", cfg.guide_label_fade_steps > 0),
+            ("--guide-label-steer-weight", cfg.guide_label_steer_weight != 1),
+        )
+        if given
+    ]
     if shaping and cfg.guide_label_weight == 0:
         raise ValueError(f"{shaping[0]} shapes the labels' cloning: give --guide-label-weight too")
     if cfg.restart_before_stuck_share > 0 and not cfg.stuck_ends_episode:
@@ -802,8 +867,9 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
             if remaining > 0 and cluster is not None:
                 sampling = _learn_with_samplers(run, model, loop, cluster)
             elif remaining > 0:
-                learn_between_interrupts(model, loop, total_timesteps=remaining, reset_num_timesteps=False,
-                                         log_interval=4)  # fmt: skip
+                learn_between_interrupts(
+                    model, loop, total_timesteps=remaining, reset_num_timesteps=False, log_interval=4
+                )
             loop.evaluate_held_back()
         except KeyboardInterrupt:
             interrupted = True
@@ -834,9 +900,17 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
     from vision_rl.phase2_rl.distributed import SamplersLostError, learn_like_sb3
 
     cfg = run.cfg
-    setup = sampler_setup(run.racing, run.kind, run.normalizer, run.fingerprint, run.preset.hidden_units,
-                          run.seed + run.start_steps, run.encoder_path, cfg.encoder_runtime,
-                          label_skill=getattr(model, "label_skill", None))  # fmt: skip
+    setup = sampler_setup(
+        run.racing,
+        run.kind,
+        run.normalizer,
+        run.fingerprint,
+        run.preset.hidden_units,
+        run.seed + run.start_steps,
+        run.encoder_path,
+        cfg.encoder_runtime,
+        label_skill=getattr(model, "label_skill", None),
+    )
 
     def log_event(record: dict[str, Any]) -> None:
         record = {**record, "train_time_s": round(run.train_time_s, 2)}
@@ -844,9 +918,17 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
             f.write(json.dumps(record) + "\n")
 
     try:
-        return learn_like_sb3(model, setup, cluster, workers=int(cfg.workers or 0), max_staleness=cfg.max_staleness,
-                              version_every_updates=cfg.version_every_updates, total_timesteps=cfg.steps,
-                              callback=loop, log_event=log_event)  # fmt: skip
+        return learn_like_sb3(
+            model,
+            setup,
+            cluster,
+            workers=int(cfg.workers or 0),
+            max_staleness=cfg.max_staleness,
+            version_every_updates=cfg.version_every_updates,
+            total_timesteps=cfg.steps,
+            callback=loop,
+            log_event=log_event,
+        )
     except SamplersLostError as exc:
         run.save(model, buffer=True)
         run.close()
@@ -870,11 +952,16 @@ def sampler_setup(
 
     config = {**racing_config_to_dict(racing), "track": portable_track(racing.track)}
     return SamplerSetup(
-        racing_config=config, observation=kind, obs_normalizer=normalizer.to_dict(), fingerprint=fingerprint,
-        hidden_units=tuple(hidden_units), seed=seed,
-        encoder_path=str(encoder_path.resolve()) if encoder_path is not None else "", encoder_runtime=encoder_runtime,
+        racing_config=config,
+        observation=kind,
+        obs_normalizer=normalizer.to_dict(),
+        fingerprint=fingerprint,
+        hidden_units=tuple(hidden_units),
+        seed=seed,
+        encoder_path=str(encoder_path.resolve()) if encoder_path is not None else "",
+        encoder_runtime=encoder_runtime,
         label_skill=label_skill,
-    )  # fmt: skip
+    )
 
 
 def read_metrics(path: str | os.PathLike[str], events: bool = False) -> list[dict[str, Any]]:

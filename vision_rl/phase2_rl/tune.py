@@ -93,8 +93,12 @@ class TuneError(ValueError):
     """A search that cannot run as asked; the message says why."""
 
 
-def score(scored_laps_s: Sequence[float | None], wall_contact_s: Sequence[float], limit_lap_time_s: float,
-          wall_weight: float = 0.0) -> float:  # fmt: skip
+def score(
+    scored_laps_s: Sequence[float | None],
+    wall_contact_s: Sequence[float],
+    limit_lap_time_s: float,
+    wall_weight: float = 0.0,
+) -> float:
     """The module's score of one protocol run: per start its scored lap (None: did not finish) and that lap's wall
     contact (s)."""
     if not scored_laps_s:
@@ -183,10 +187,19 @@ def run_tune(
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         url = f"sqlite:///{(root / STUDY_DB).resolve()}"
         storage = optuna.storages.RDBStorage(url, heartbeat_interval=HEARTBEAT_S, grace_period=HEARTBEAT_GRACE_S)
-    pruner = (optuna.pruners.MedianPruner(n_startup_trials=3, n_warmup_steps=tune.prune_after_steps)
-              if tune.prune_after_steps > 0 else optuna.pruners.NopPruner())  # fmt: skip
-    study = optuna.create_study(storage=storage, study_name="tune", direction="minimize", load_if_exists=True,
-                                sampler=optuna.samplers.TPESampler(seed=tune.sampler_seed), pruner=pruner)  # fmt: skip
+    pruner = (
+        optuna.pruners.MedianPruner(n_startup_trials=3, n_warmup_steps=tune.prune_after_steps)
+        if tune.prune_after_steps > 0
+        else optuna.pruners.NopPruner()
+    )
+    study = optuna.create_study(
+        storage=storage,
+        study_name="tune",
+        direction="minimize",
+        load_if_exists=True,
+        sampler=optuna.samplers.TPESampler(seed=tune.sampler_seed),
+        pruner=pruner,
+    )
     stopped = False
 
     def objective(trial: optuna.Trial) -> float:
@@ -216,8 +229,9 @@ def run_tune(
             stopped = True
             study.stop()
             raise optuna.TrialPruned  # a Ctrl-C: the trial did not run its course
-        evaluation = evaluate_policy(run, seeds=tune.eval_starts, name=f"{root.name}/trial-{trial.number}",
-                                     encoder=base.encoder)  # fmt: skip
+        evaluation = evaluate_policy(
+            run, seeds=tune.eval_starts, name=f"{root.name}/trial-{trial.number}", encoder=base.encoder
+        )
         trial.set_user_attr("lap_time_s", evaluation["median_lap_time_s"])
         trial.set_user_attr("finished", f"{evaluation['n_finished']}/{evaluation['n_seeds']}")
         trial.set_user_attr("train_time_s", result["train_time_s"])
@@ -235,13 +249,30 @@ def summarise_study(study: Any) -> dict[str, Any]:
     trials = []
     for t in study.trials:
         last_step = max(t.intermediate_values) if t.intermediate_values else None
-        trials.append({"number": t.number, "state": t.state.name, "params": t.params,
-                       "score_s": None if t.value is None or not math.isfinite(t.value) else t.value,
-                       "last_reported_step": last_step, **t.user_attrs})  # fmt: skip
+        trials.append(
+            {
+                "number": t.number,
+                "state": t.state.name,
+                "params": t.params,
+                "score_s": None if t.value is None or not math.isfinite(t.value) else t.value,
+                "last_reported_step": last_step,
+                **t.user_attrs,
+            }
+        )
     complete = [t for t in trials if t["state"] == "COMPLETE" and t["score_s"] is not None]
     best = min(complete, key=lambda t: t["score_s"]) if complete else None
     return {"trials": trials, "best": best, "best_flags": recipe_flags(best["params"]) if best else None}
 
 
-__all__ = ["DNF_LAP_FACTOR", "SEARCH_SPACE", "Param", "TuneConfig", "TuneError", "check_tune", "recipe_flags",
-           "run_tune", "score", "summarise_study"]  # fmt: skip
+__all__ = [
+    "DNF_LAP_FACTOR",
+    "SEARCH_SPACE",
+    "Param",
+    "TuneConfig",
+    "TuneError",
+    "check_tune",
+    "recipe_flags",
+    "run_tune",
+    "score",
+    "summarise_study",
+]

@@ -330,9 +330,20 @@ class WallRayCaster:
         out = np.empty(ang.shape, dtype=np.float64)
         x0, y0 = self.grid_origin_m
         _cast_walls(
-            ox, oy, ang, float(max_range_m), self.segments_m, float(x0), float(y0), self.cell_size_m,
-            self.nx, self.ny, self.cell_start, self.cell_items, out,
-        )  # fmt: skip
+            ox,
+            oy,
+            ang,
+            float(max_range_m),
+            self.segments_m,
+            float(x0),
+            float(y0),
+            self.cell_size_m,
+            self.nx,
+            self.ny,
+            self.cell_start,
+            self.cell_items,
+            out,
+        )
         if car_corners_xy_m is None:
             return out
         corners = np.ascontiguousarray(car_corners_xy_m, dtype=np.float64)

@@ -119,9 +119,7 @@ class Track:
         closed = np.vstack([xy, xy[:1]])
         chord = np.hypot(*np.diff(closed, axis=0).T)
         u = np.concatenate([[0.0], np.cumsum(chord)])
-        tck, _ = interpolate.splprep(
-            [closed[:, 0], closed[:, 1]], u=u, s=k * smoothing_m**2, per=1, k=3, quiet=2
-        )
+        tck, _ = interpolate.splprep([closed[:, 0], closed[:, 1]], u=u, s=k * smoothing_m**2, per=1, k=3, quiet=2)
         # Arc length of the spline by dense quadrature, then uniform resampling in arc length.
         u_dense = np.linspace(0.0, u[-1], 20 * k + 1)
         dx, dy = interpolate.splev(u_dense, tck, der=1)
@@ -154,9 +152,16 @@ class Track:
         track agree.
         """
         left, right = trimmed_widths(
-            self.centre_xy_m, self.normal_left, self.curvature_1pm, self.s_m, self.length_m, self.width_left_m,
-            self.width_right_m, share, max_arc_m,
-        )  # fmt: skip
+            self.centre_xy_m,
+            self.normal_left,
+            self.curvature_1pm,
+            self.s_m,
+            self.length_m,
+            self.width_left_m,
+            self.width_right_m,
+            share,
+            max_arc_m,
+        )
         cut = max(float((self.width_left_m - left).max()), float((self.width_right_m - right).max()))
         if cut <= 0.0:
             return self
@@ -267,8 +272,13 @@ class Track:
     def kernel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The arrays the numba kernels read: (centre_xy_m, tangent, heading unwrapped (n + 1), width_left_m,
         width_right_m); the spacing follows from them."""
-        return (self.centre_xy_m, np.ascontiguousarray(self.tangent), self._heading_unwrapped,
-                self.width_left_m, self.width_right_m)  # fmt: skip
+        return (
+            self.centre_xy_m,
+            np.ascontiguousarray(self.tangent),
+            self._heading_unwrapped,
+            self.width_left_m,
+            self.width_right_m,
+        )
 
     def progress_delta(self, s_prev_m: np.ndarray, s_now_m: np.ndarray) -> np.ndarray:
         """Signed arc length driven from ``s_prev_m`` to ``s_now_m`` (m), wrapped to half a lap.

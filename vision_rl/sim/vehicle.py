@@ -649,8 +649,22 @@ def _step_jit(p, s, steer_cmd, omega_cmd, dt, n_substeps):
     """
     out = np.empty_like(s)
     for i in range(s.shape[1]):
-        c = (s[0, i], s[1, i], s[2, i], s[3, i], s[4, i], s[5, i], s[6, i],
-             s[7, i], s[8, i], s[9, i], s[10, i], s[11, i], s[12, i], s[13, i])  # fmt: skip
+        c = (
+            s[0, i],
+            s[1, i],
+            s[2, i],
+            s[3, i],
+            s[4, i],
+            s[5, i],
+            s[6, i],
+            s[7, i],
+            s[8, i],
+            s[9, i],
+            s[10, i],
+            s[11, i],
+            s[12, i],
+            s[13, i],
+        )
         for _ in range(n_substeps):
             c = _car_step(p, *c, steer_cmd[i], omega_cmd[i], dt)
         for k in range(14):

@@ -33,9 +33,17 @@ _X, _Y, _YAW, _VX, _VY, _R = 0, 1, 2, 3, 4, 5
 _AX, _AY = 8, 9
 #: WorldState fields the kernel updates in place, in its argument order.
 _KERNEL_FIELDS = (
-    "s_m", "lateral_m", "unwrapped_s_m", "time_s", "line_crossings", "lap_start_time_s", "laps_completed",
-    "last_lap_time_s", "wall_contact_time_s", "car_contact_time_s",
-)  # fmt: skip
+    "s_m",
+    "lateral_m",
+    "unwrapped_s_m",
+    "time_s",
+    "line_crossings",
+    "lap_start_time_s",
+    "laps_completed",
+    "last_lap_time_s",
+    "wall_contact_time_s",
+    "car_contact_time_s",
+)
 
 
 #: Largest forward speed (either sign) a car may be placed at: beyond every car preset's top speed, so a larger one is
@@ -358,8 +366,21 @@ def _car_contacts(veh, pair_i, pair_j, offsets, radius, mass, inertia, restituti
         inv_n = 2.0 / mass + ((ri_x * n_y - ri_y * n_x) ** 2 + (rj_x * n_y - rj_y * n_x) ** 2) / inertia
         inv_t = 2.0 / mass + ((ri_x * t_y - ri_y * t_x) ** 2 + (rj_x * t_y - rj_y * t_x) ** 2) / inertia
         jx, jy, vjx2, vjy2, wj2 = _impulse(
-            vjx, vjy, wj, rj_x, rj_y, n_x, n_y, rel_x * n_x + rel_y * n_y, rel_x * t_x + rel_y * t_y, inv_n, inv_t,
-            restitution, friction, mass, inertia,
+            vjx,
+            vjy,
+            wj,
+            rj_x,
+            rj_y,
+            n_x,
+            n_y,
+            rel_x * n_x + rel_y * n_y,
+            rel_x * t_x + rel_y * t_y,
+            inv_n,
+            inv_t,
+            restitution,
+            friction,
+            mass,
+            inertia,
         )
         _set_world_velocity(veh, j, vjx2, vjy2, wj2, dt)
         _set_world_velocity(veh, i, vix - jx / mass, viy - jy / mass, wi - (ri_x * jy - ri_y * jx) / inertia, dt)
@@ -392,8 +413,21 @@ def _wall_contact(veh, i, lateral, heading, width_left, width_right, half_l, hal
     inv_n = 1.0 / mass + (r_x * n_y - r_y * n_x) ** 2 / inertia
     inv_t = 1.0 / mass + (r_x * t_y - r_y * t_x) ** 2 / inertia
     _, _, vx_w2, vy_w2, w2 = _impulse(
-        vx_w, vy_w, w, r_x, r_y, n_x, n_y, vc_x * n_x + vc_y * n_y, vc_x * t_x + vc_y * t_y, inv_n, inv_t, e, mu,
-        mass, inertia,
+        vx_w,
+        vy_w,
+        w,
+        r_x,
+        r_y,
+        n_x,
+        n_y,
+        vc_x * n_x + vc_y * n_y,
+        vc_x * t_x + vc_y * t_y,
+        inv_n,
+        inv_t,
+        e,
+        mu,
+        mass,
+        inertia,
     )
     _set_world_velocity(veh, i, vx_w2, vy_w2, w2, dt)
     return lateral - side * push, True
@@ -401,13 +435,45 @@ def _wall_contact(veh, i, lateral, heading, width_left, width_right, half_l, hal
 
 @numba.njit(cache=True, error_model="numpy")
 def _world_substeps(
-    p, veh, steer, omega, dt, n_substeps,
-    centre, tangent, heading_unwrapped, width_left, width_right, spacing,
-    half_l, half_w, mass, inertia, wall_e, wall_mu,
-    pair_i, pair_j, offsets, radius, car_e, car_mu,
-    s, lateral, unwrapped, time_s, crossings, lap_start, laps, last_lap, wall_time, car_time,
-    wall_any, car_any, lap_completed, lap_time,
-):  # fmt: skip
+    p,
+    veh,
+    steer,
+    omega,
+    dt,
+    n_substeps,
+    centre,
+    tangent,
+    heading_unwrapped,
+    width_left,
+    width_right,
+    spacing,
+    half_l,
+    half_w,
+    mass,
+    inertia,
+    wall_e,
+    wall_mu,
+    pair_i,
+    pair_j,
+    offsets,
+    radius,
+    car_e,
+    car_mu,
+    s,
+    lateral,
+    unwrapped,
+    time_s,
+    crossings,
+    lap_start,
+    laps,
+    last_lap,
+    wall_time,
+    car_time,
+    wall_any,
+    car_any,
+    lap_completed,
+    lap_time,
+):
     """``n_substeps`` physics substeps for every car; updates all the array arguments after ``n_substeps`` in place."""
     n = veh.shape[1]
     n_points = centre.shape[0]
@@ -415,8 +481,22 @@ def _world_substeps(
     car_hit = np.zeros(n, dtype=np.bool_)
     for _ in range(n_substeps):
         for i in range(n):
-            c = (veh[0, i], veh[1, i], veh[2, i], veh[3, i], veh[4, i], veh[5, i], veh[6, i],
-                 veh[7, i], veh[8, i], veh[9, i], veh[10, i], veh[11, i], veh[12, i], veh[13, i])  # fmt: skip
+            c = (
+                veh[0, i],
+                veh[1, i],
+                veh[2, i],
+                veh[3, i],
+                veh[4, i],
+                veh[5, i],
+                veh[6, i],
+                veh[7, i],
+                veh[8, i],
+                veh[9, i],
+                veh[10, i],
+                veh[11, i],
+                veh[12, i],
+                veh[13, i],
+            )
             c = _car_step(p, *c, steer[i], omega[i], dt)
             for k in range(14):
                 veh[k, i] = c[k]
@@ -494,13 +574,36 @@ def world_step(
     lap_completed, lap_time = np.zeros(n, dtype=bool), np.full(n, np.nan)
     centre, tangent, heading_unwrapped, width_left, width_right = track.kernel_arrays
     _world_substeps(
-        car._packed, veh, steer, omega, cfg.physics_dt_s, cfg.substeps * control_steps,
-        centre, tangent, heading_unwrapped, width_left, width_right, track.spacing_m,
-        0.5 * car.length_m, 0.5 * car.width_m, car.mass_kg, car.yaw_inertia_kgm2, cfg.wall_restitution,
-        cfg.wall_friction, model.pair_i, model.pair_j, model.circle_offsets_m, model.circle_radius_m,
-        cfg.car_restitution, cfg.car_friction,
-        *(out[f] for f in _KERNEL_FIELDS), wall_any, car_any, lap_completed, lap_time,
-    )  # fmt: skip
+        car._packed,
+        veh,
+        steer,
+        omega,
+        cfg.physics_dt_s,
+        cfg.substeps * control_steps,
+        centre,
+        tangent,
+        heading_unwrapped,
+        width_left,
+        width_right,
+        track.spacing_m,
+        0.5 * car.length_m,
+        0.5 * car.width_m,
+        car.mass_kg,
+        car.yaw_inertia_kgm2,
+        cfg.wall_restitution,
+        cfg.wall_friction,
+        model.pair_i,
+        model.pair_j,
+        model.circle_offsets_m,
+        model.circle_radius_m,
+        cfg.car_restitution,
+        cfg.car_friction,
+        *(out[f] for f in _KERNEL_FIELDS),
+        wall_any,
+        car_any,
+        lap_completed,
+        lap_time,
+    )
     new_state = state._replace(
         vehicle=VehicleState(*veh), wall_contact=wall_any, car_contact=car_any, prev_steer_cmd_rad=steer, **out
     )
