@@ -41,6 +41,7 @@ faults: setup
 	$(BIN)/python -m pytest -q tests/faults --fault-table docs/faults.md
 
 lint: setup
+	$(BIN)/ruff format --check vision_rl tests
 	$(BIN)/ruff check vision_rl tests
 
 bench: setup
