@@ -14,12 +14,7 @@ import numpy as np
 import pytest
 
 from vision_rl.capture import h5format
-from vision_rl.capture.h5format import (
-    CaptureDiskFullError,
-    CaptureFormatError,
-    CaptureWriter,
-    open_capture,
-)
+from vision_rl.capture.h5format import CaptureDiskFullError, CaptureFormatError, CaptureWriter, open_capture
 
 HW_PX = (12, 20)
 NAMES = tuple(f"t{i}" for i in range(27))

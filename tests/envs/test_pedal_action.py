@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from vision_rl.envs.core import RacingConfig, RacingCore, action_for_pedal, pedal_command
-from vision_rl.phase2_rl.artifact import PolicyDriver
+from vision_rl.training.artifact import PolicyDriver
 
 
 def test_pedal_command_by_hand():

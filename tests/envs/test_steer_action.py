@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from vision_rl.envs.core import RacingConfig, RacingCore, action_for_command, steering_command
-from vision_rl.phase2_rl.artifact import PolicyDriver
 from vision_rl.sim.vehicle import ACTION_STEER_LIMIT_RAD, get_preset
+from vision_rl.training.artifact import PolicyDriver
 
 LIMIT = ACTION_STEER_LIMIT_RAD
 

@@ -16,17 +16,17 @@ import numpy as np
 import pytest
 
 from tests.phase2_rl import test_baselines
-from vision_rl.phase2_rl.artifact import PolicyError, PolicySpec, sac_policy
-from vision_rl.phase2_rl.baselines import (
+from vision_rl.overtaking.baselines import (
     BaselineError,
     TrainBaselineConfig,
     check_config,
     load_baseline,
     train_baseline,
 )
-from vision_rl.phase2_rl.demos import DemoError, load_demos, load_demos_for, write_demos
-from vision_rl.phase2_rl.persist import write_agent_state
-from vision_rl.phase2_rl.table3 import Table3Config, table3
+from vision_rl.overtaking.demos import DemoError, load_demos, load_demos_for, write_demos
+from vision_rl.overtaking.table3 import Table3Config, table3
+from vision_rl.training.artifact import PolicyError, PolicySpec, sac_policy
+from vision_rl.training.persist import write_agent_state
 
 small_demos = test_baselines.small_demos  # the recorded demonstrations fixture, shared
 tiny = test_baselines.tiny_baseline_config

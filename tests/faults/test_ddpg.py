@@ -13,8 +13,7 @@ import torch
 
 from tests.phase2_rl.conftest import STADIUM, stadium_csv
 from tests.phase2_rl.test_ddpg_compare import hand_made_run
-from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingError, goal_line
-from vision_rl.phase2_rl.ddpg import (
+from vision_rl.ddpg.agent import (
     DDPGAgent,
     DDPGError,
     DDPGHyper,
@@ -27,9 +26,10 @@ from vision_rl.phase2_rl.ddpg import (
     save_agent_file,
     save_replay,
 )
-from vision_rl.phase2_rl.persist import ArtifactError
+from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingError, goal_line
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import get_preset
+from vision_rl.training.persist import ArtifactError
 
 HW = (32, 48)
 
@@ -66,7 +66,7 @@ def test_a_symmetric_checkpoint_loaded_as_asymmetric_is_refused(track, tmp_path,
 def test_resuming_a_symmetric_run_as_asymmetric_is_refused(track, tmp_path, fault):
     import json
 
-    from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig, train_ddpg
+    from vision_rl.ddpg.train import TrainDDPGConfig, train_ddpg
 
     out = tmp_path / "run"
     _saved(track, out, "symmetric")
@@ -125,7 +125,7 @@ def test_a_changed_replay_chunk_is_refused(tmp_path, fault):
 
 
 def test_episodes_logged_after_the_last_checkpoint_are_dropped_on_resume(track, tmp_path, fault):
-    from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig, train_ddpg
+    from vision_rl.ddpg.train import TrainDDPGConfig, train_ddpg
 
     base = dict(
         variant="state-actor",
@@ -159,7 +159,7 @@ def test_episodes_logged_after_the_last_checkpoint_are_dropped_on_resume(track, 
 
 
 def test_runs_compare_ddpg_cannot_compare_are_refused(tmp_path, fault):
-    from vision_rl.phase2_rl.ddpg_compare import compare_runs
+    from vision_rl.ddpg.compare import compare_runs
 
     a = hand_made_run(tmp_path / "a", "asymmetric", 10.0, [(1, 100, 0)])
     with pytest.raises(DDPGError, match="not a train-ddpg run folder") as excinfo:

@@ -9,9 +9,9 @@ import pytest
 from tests.faults.test_distributed_sampling import _killer
 from tests.phase2_rl.conftest import STADIUM, stadium_csv
 from tests.phase2_rl.test_ddpg_sampling import ddpg_config
-from vision_rl.phase2_rl.ddpg import DDPGError
-from vision_rl.phase2_rl.ddpg_train import train_ddpg
-from vision_rl.phase2_rl.distributed import DistributedError
+from vision_rl.ddpg.agent import DDPGError
+from vision_rl.ddpg.train import train_ddpg
+from vision_rl.training.distributed import DistributedError
 
 
 @pytest.fixture(scope="module")

@@ -10,9 +10,10 @@ import sys
 import pytest
 
 from tests.phase2_rl.conftest import tiny_train_config
-from vision_rl.phase2_rl.artifact import PolicySpec
-from vision_rl.phase2_rl.distributed import ACTOR_PREFIX, RAY_MISSING, DistributedError, SamplersLostError
-from vision_rl.phase2_rl.train import read_metrics, train_policy
+from vision_rl.phase2_rl.train import train_policy
+from vision_rl.training.artifact import PolicySpec
+from vision_rl.training.distributed import ACTOR_PREFIX, RAY_MISSING, DistributedError, SamplersLostError
+from vision_rl.training.sac import read_metrics
 
 
 def _killer(ray, at_steps: int, how_many: int):
@@ -107,7 +108,7 @@ def test_no_ray_is_one_line_naming_the_extra(small_track, tmp_path, monkeypatch,
 def test_a_sampler_with_another_track_refuses_to_start(ray_local, small_track, tmp_path, monkeypatch, fault):
     """A node whose copy of the track differs from the learner's (simulated by the fingerprint the learner sends):
     the sampler refuses to build, and with no sampler left the run stops with the reason."""
-    from vision_rl.phase2_rl import distributed
+    import vision_rl.training.distributed as distributed
 
     original = distributed.start_samplers
 

@@ -15,8 +15,7 @@ import pytest
 
 from tests.conftest import kill_and_read
 from tests.phase2_rl.test_overtaking import tiny_overtaking_config
-from vision_rl.phase2_rl.artifact import PolicyError
-from vision_rl.phase2_rl.overtaking import (
+from vision_rl.overtaking.curriculum import (
     OvertakingRunError,
     TrainOvertakingConfig,
     check_config,
@@ -24,7 +23,8 @@ from vision_rl.phase2_rl.overtaking import (
     read_overtaking_spec,
     train_overtaking,
 )
-from vision_rl.phase2_rl.overtaking_eval import SettingError, evaluate_overtaking
+from vision_rl.overtaking.settings import SettingError, evaluate_overtaking
+from vision_rl.training.artifact import PolicyError
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from vision_rl.evaluation.human import NoDisplayError
-from vision_rl.phase2_rl.play import PlayConfig, play
+from vision_rl.overtaking.play import PlayConfig, play
 
 pygame = pytest.importorskip("pygame", reason="pygame is not installed: pip install 'vision_rl[play]'")
 
@@ -33,7 +33,7 @@ def test_bad_alias(fault):
 
 
 def test_player_quits_midway(fault, monkeypatch, tmp_path, gl_available):
-    from vision_rl.phase2_rl.demos import load_demos
+    from vision_rl.overtaking.demos import load_demos
 
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
     pygame.init()

@@ -20,9 +20,10 @@ import torch
 
 from tests.conftest import kill_and_read
 from tests.phase2_rl.conftest import tiny_train_config
-from vision_rl.phase2_rl.artifact import PolicyError, PolicySpec, convert_sb3_run, load_policy
-from vision_rl.phase2_rl.persist import ArtifactWriteError, file_sha256
+from vision_rl.files import ArtifactWriteError
 from vision_rl.phase2_rl.train import train_policy
+from vision_rl.training.artifact import PolicyError, PolicySpec, convert_sb3_run, load_policy
+from vision_rl.training.persist import file_sha256
 
 
 class _WritesAMarker:

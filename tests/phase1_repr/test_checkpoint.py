@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import torch
 
+from vision_rl.files import file_sha256
 from vision_rl.phase1_repr import EncoderCheckpointError, load_encoder, read_checkpoint, save_checkpoint
-from vision_rl.phase1_repr.checkpoint import checkpoint_checksums, checkpoint_sha256
+from vision_rl.phase1_repr.checkpoint import checkpoint_checksums
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
 
 CFG = EncoderConfig(
@@ -72,7 +73,7 @@ def test_round_trip_gives_the_same_embedding(tmp_path: Path) -> None:
     unfused = load_encoder(path, fuse=False)
     torch.testing.assert_close(unfused(frames), rep_ref)
     assert enc.metrics == {"val_loss": 0.5} and enc.rep_dim == 64 and enc.input_hw_px == (32, 48)
-    assert len(checkpoint_sha256(path)) == 64
+    assert len(file_sha256(path)) == 64
 
 
 def test_frozen_module_stays_frozen(tmp_path: Path) -> None:

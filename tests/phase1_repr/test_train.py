@@ -16,13 +16,7 @@ from vision_rl.datasets import TargetStandardiser
 from vision_rl.datasets.augment import target_mirror
 from vision_rl.phase1_repr import load_encoder
 from vision_rl.phase1_repr.encoder import EncoderConfig
-from vision_rl.phase1_repr.train import (
-    ReprModule,
-    TrainReprConfig,
-    group_targets,
-    regression_metrics,
-    train_repr,
-)
+from vision_rl.phase1_repr.train import ReprModule, TrainReprConfig, group_targets, regression_metrics, train_repr
 
 
 def test_loss_falls_on_sixteen_frames(tmp_path: Path) -> None:

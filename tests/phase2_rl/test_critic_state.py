@@ -11,10 +11,10 @@ from vision_rl.envs import RacingConfig, make_sb3_vec_env
 from vision_rl.envs import observations as obs_lib
 from vision_rl.envs.observer import Observer
 from vision_rl.phase1_repr import load_encoder
-from vision_rl.phase2_rl.artifact import PolicySpec, load_policy, sac_policy
-from vision_rl.phase2_rl.critic_state import CRITIC_COLUMNS
-from vision_rl.phase2_rl.evaluate import evaluate_policy
 from vision_rl.phase2_rl.train import train_policy
+from vision_rl.training.artifact import PolicySpec, load_policy, sac_policy
+from vision_rl.training.critic_state import CRITIC_COLUMNS
+from vision_rl.training.evaluate import evaluate_policy
 
 _REASON = renderer_available()
 

@@ -219,7 +219,7 @@ def test_the_labels_are_saved_and_restored_with_the_buffer(small_track, tmp_path
 
     from vision_rl.envs.core import RacingConfig
     from vision_rl.envs.vector import make_sb3_vec_env
-    from vision_rl.phase2_rl.persist import load_buffer, save_buffer
+    from vision_rl.training.persist import load_buffer, save_buffer
 
     venv = make_sb3_vec_env(RacingConfig(track=small_track, n_groups=2), seed=0)
 
@@ -246,8 +246,8 @@ def test_the_labels_are_saved_and_restored_with_the_buffer(small_track, tmp_path
 
 
 def test_label_cloning_trains_saves_its_labels_and_resumes(small_track, tmp_path):
-    from vision_rl.phase2_rl.artifact import BUFFER_NAME
     from vision_rl.phase2_rl.train import train_policy
+    from vision_rl.training.artifact import BUFFER_NAME
 
     result = train_policy(tiny_train_config(small_track, tmp_path / "run", guide_label_weight=10.0, eval_every_steps=0))
     assert result["num_timesteps"] >= 200

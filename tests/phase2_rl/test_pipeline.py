@@ -24,10 +24,10 @@ from vision_rl.commands.pipeline import (
     run_pipeline_stages,
     sampler_processes,
 )
-from vision_rl.phase2_rl.artifact import SIDECAR_NAME, PolicySpec
 from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import get_preset
+from vision_rl.training.artifact import SIDECAR_NAME, PolicySpec
 
 
 def test_pipeline_tiny(small_track, tiny_encoders, tmp_path):

@@ -12,16 +12,10 @@ import pytest
 from tests.phase2_rl.conftest import script_held_out_laps, tiny_train_config
 from vision_rl.envs import RacingConfig
 from vision_rl.envs.observations import STATE_OBS_NAMES
-from vision_rl.phase2_rl.artifact import PolicySpec, load_policy
-from vision_rl.phase2_rl.evaluate import evaluate_policy
-from vision_rl.phase2_rl.train import (
-    PRESETS,
-    TrainPolicyConfig,
-    _TrainingLoop,
-    read_metrics,
-    resolve_preset,
-    train_policy,
-)
+from vision_rl.phase2_rl.train import TrainPolicyConfig, _TrainingLoop, train_policy
+from vision_rl.training.artifact import PolicySpec, load_policy
+from vision_rl.training.evaluate import evaluate_policy
+from vision_rl.training.sac import PRESETS, read_metrics, resolve_preset
 
 
 def test_train_writes_a_policy_that_evaluate_loads(state_run, small_track):
@@ -156,7 +150,7 @@ def test_presets_and_overrides():
 
 
 def test_the_learning_rate_falls_linearly_to_its_final_value_over_the_run(small_track, state_run, tmp_path):
-    from vision_rl.phase2_rl.persist import read_agent
+    from vision_rl.training.persist import read_agent
 
     def actor_lr(path) -> float:
         return read_agent(path)["optimizers"]["actor"]["param_groups"][0]["lr"]
@@ -334,7 +328,8 @@ def test_stuck_ends_episode_and_the_steering_penalty_scale_reach_the_training_en
 
 
 def test_a_finer_control_step_keeps_the_discount_per_second_and_is_timed_at_its_own_rate(small_track, tmp_path):
-    from vision_rl.phase2_rl.train import _Run, gamma_per_step
+    from vision_rl.phase2_rl.train import _Run
+    from vision_rl.training.sac import gamma_per_step
 
     assert gamma_per_step(0.99, 0.1) == 0.99
     assert gamma_per_step(0.99, 0.04) == pytest.approx(0.995988, abs=1e-6)  # 0.99 ** 0.4: one 0.1 s is 2.5 steps

@@ -9,10 +9,10 @@ from tests.phase2_rl.conftest import renderer_available, tiny_train_config
 from vision_rl.envs import RacingConfig, make_sb3_vec_env
 from vision_rl.envs.observations import ObsNormalizer
 from vision_rl.envs.observer import Observer
-from vision_rl.phase1_repr import checkpoint_sha256, load_encoder
-from vision_rl.phase2_rl.artifact import PolicyError, PolicySpec, load_policy
-from vision_rl.phase2_rl.evaluate import evaluate_policy
+from vision_rl.phase1_repr import file_sha256, load_encoder
 from vision_rl.phase2_rl.train import train_policy
+from vision_rl.training.artifact import PolicyError, PolicySpec, load_policy
+from vision_rl.training.evaluate import evaluate_policy
 
 _REASON = renderer_available()
 pytestmark = pytest.mark.skipif(bool(_REASON), reason=_REASON or "renderer available")
@@ -58,7 +58,7 @@ def test_vision_policy_records_its_encoder_and_refuses_another(small_track, tiny
     )
     assert result["observation"] == "vision" and result["num_timesteps"] == 120
     spec = PolicySpec.read(out / "policy.json")
-    assert spec.encoder["sha256"] == checkpoint_sha256(enc_a) and spec.encoder["input_hw_px"] == [64, 96]
+    assert spec.encoder["sha256"] == file_sha256(enc_a) and spec.encoder["input_hw_px"] == [64, 96]
     assert spec.config.image_hw_px == (64, 96) and len(spec.obs_normalizer["offset"]) == 75
     with pytest.raises(PolicyError, match="trained with encoder sha256"):
         load_policy(out, encoder=enc_b)

@@ -3,15 +3,7 @@
 import numpy as np
 import pytest
 
-from vision_rl.render import (
-    LABEL_NAMES,
-    CameraConfig,
-    Label,
-    RenderConfig,
-    Renderer,
-    RendererError,
-    labels_to_rgb,
-)
+from vision_rl.render import LABEL_NAMES, CameraConfig, Label, RenderConfig, Renderer, RendererError, labels_to_rgb
 from vision_rl.render.scene import _inside_other_branch, build_car_mesh, build_scene
 from vision_rl.render.textures import Layer, build_texture_layers
 from vision_rl.sim.track import Track

@@ -70,6 +70,8 @@ import hdf5plugin  # registers HDF5's Zstandard filter, so h5py reads zstd image
 import numpy as np
 import zstandard
 
+from vision_rl.files import package_version
+
 FORMAT_VERSION = 2
 #: The first format version whose files carry checksums; older files are refused.
 _CHECKSUMMED_SINCE = 2
@@ -247,18 +249,6 @@ class CaptureDiskFullError(OSError):
 
     def __str__(self) -> str:  # the message alone, without OSError's "[Errno 28]" prefix
         return str(self.strerror)
-
-
-def package_version() -> str:
-    """The installed vision_rl version, or the source tree's when it is run without installing."""
-    try:
-        from importlib.metadata import PackageNotFoundError, version
-
-        return version("vision_rl")
-    except PackageNotFoundError:
-        import vision_rl
-
-        return str(getattr(vision_rl, "__version__", "unknown"))
 
 
 def _encode_attr(value: Any) -> tuple[Any, bool]:

@@ -121,9 +121,9 @@ class BenchDDPGOptions:
 def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
     import torch
 
+    from vision_rl.ddpg.agent import BENCH_LAYOUTS, DDPGHyper, bench_updates
     from vision_rl.envs.pixel_racing import PixelRacingConfig
     from vision_rl.phase1_repr.bench import require_device
-    from vision_rl.phase2_rl.ddpg import BENCH_LAYOUTS, DDPGHyper, bench_updates
 
     if opts.updates < 1 or opts.torch_threads < 1:
         raise ValueError("--updates and --torch-threads must be >= 1")

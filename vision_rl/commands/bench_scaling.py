@@ -11,7 +11,7 @@ Rows (``--rows``, in this order):
   user runs it: training frames/s (validation excluded).
 - ``sampling``: distributed sampling for ``train-policy`` (sampled transitions/s, learner updates/s and the learner's
   share of its standalone rate, with 1 and 2 sampler workers), from
-  ``vision_rl.phase2_rl.distributed.bench_sampling`` when that exists; the row says so when it does not.
+  ``vision_rl.training.distributed.bench_sampling`` when that exists; the row says so when it does not.
 
 Each case is repeated ``--repeats`` times, 1 and 2 workers alternating so that a change of the machine's load hits
 both; the table shows medians, the spread (min..max) and the ratio of the medians, 2 workers over 1.
@@ -192,9 +192,9 @@ def _train_row(opts: BenchScalingOptions, data: str, folder: Path) -> dict[str, 
 def _sampling_row(opts: BenchScalingOptions) -> dict[str, Any]:
     """The distributed-sampling figures, or why there are none."""
     try:
-        from vision_rl.phase2_rl.distributed import bench_sampling
+        from vision_rl.training.distributed import bench_sampling
     except (ImportError, AttributeError) as exc:
-        return {"missing": f"vision_rl.phase2_rl.distributed.bench_sampling is not available ({exc})"}
+        return {"missing": f"vision_rl.training.distributed.bench_sampling is not available ({exc})"}
 
     def run(workers: int, repeat: int) -> dict[str, float]:
         return bench_sampling(workers=workers, seconds=opts.sampling_seconds, seed=opts.seed + repeat)

@@ -139,8 +139,8 @@ def run_capture(opts: CaptureOptions) -> int:
 
 def _policy_driver(opts: CaptureOptions):
     """The policy of ``--policy`` as a driver, refused on another track or car than it was trained on."""
-    from vision_rl.phase2_rl.artifact import load_policy
     from vision_rl.sim.track_library import load_track
+    from vision_rl.training.artifact import load_policy
 
     loaded = load_policy(opts.policy)
     trained = loaded.config

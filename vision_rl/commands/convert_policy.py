@@ -20,7 +20,7 @@ class ConvertPolicyOptions:
 
 
 def run_convert_policy(opts: ConvertPolicyOptions) -> int:
-    from vision_rl.phase2_rl.artifact import convert_sb3_run
+    from vision_rl.training.artifact import convert_sb3_run
 
     if not opts.run:
         raise ValueError("convert-policy needs --run: a train-policy run folder of format 2")

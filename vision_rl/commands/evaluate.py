@@ -133,7 +133,7 @@ TOP_SECTIONS = 8
 
 
 def run_evaluate(opts: EvaluateOptions) -> int:
-    from vision_rl.phase2_rl.evaluate import evaluate_policy
+    from vision_rl.training.evaluate import evaluate_policy
 
     if not opts.policy:
         raise ValueError("evaluate needs --policy: a train-policy run folder or its policy.pt")

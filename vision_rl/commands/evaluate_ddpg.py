@@ -42,7 +42,7 @@ class EvaluateDDPGOptions:
 
 def run_evaluate_ddpg(opts: EvaluateDDPGOptions) -> int:
     from vision_rl.commands.evaluate import format_timing
-    from vision_rl.phase2_rl.ddpg_train import evaluate_ddpg
+    from vision_rl.ddpg.train import evaluate_ddpg
 
     if not opts.agent:
         raise ValueError("--agent is required: a train-ddpg run folder or its ddpg.pt")
@@ -63,9 +63,9 @@ def run_evaluate_ddpg(opts: EvaluateDDPGOptions) -> int:
     if opts.reward_plot:
         from pathlib import Path
 
-        from vision_rl.phase2_rl.ddpg import load_agent
-        from vision_rl.phase2_rl.ddpg_reward import lap_reward_profile, plot_lap_reward
-        from vision_rl.phase2_rl.persist import write_json
+        from vision_rl.ddpg.agent import load_agent
+        from vision_rl.ddpg.reward import lap_reward_profile, plot_lap_reward
+        from vision_rl.files import write_json
 
         agent = load_agent(opts.agent, variant=opts.variant or None)
         profile = lap_reward_profile(agent.act, agent.env, opts.reward_laps, opts.reward_bin_m)
@@ -115,8 +115,8 @@ def format_compare(result: dict) -> list[str]:
 def run_compare_ddpg(opts: CompareDDPGOptions) -> int:
     from pathlib import Path
 
-    from vision_rl.phase2_rl.ddpg_compare import compare_runs, plot_comparison
-    from vision_rl.phase2_rl.persist import write_json
+    from vision_rl.ddpg.compare import compare_runs, plot_comparison
+    from vision_rl.files import write_json
 
     runs = [r.strip() for r in opts.runs.split(",") if r.strip()]
     names = [n.strip() for n in opts.names.split(",") if n.strip()]

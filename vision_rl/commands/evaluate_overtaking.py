@@ -135,7 +135,7 @@ def format_analysis(result: dict[str, Any]) -> list[str]:
 
 
 def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
-    from vision_rl.phase2_rl.overtaking_eval import (
+    from vision_rl.overtaking.settings import (
         check_setting,
         evaluate_overtaking,
         learning_curves,
@@ -171,8 +171,8 @@ def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
 
 
 def _analysis(opts: EvaluateOvertakingOptions, runs: int, limit_s: float) -> int:
-    from vision_rl.phase2_rl.overtaking import load_overtaking_policy
-    from vision_rl.phase2_rl.overtaking_eval import SettingError, analyse_overtaking, write_analysis_outputs
+    from vision_rl.overtaking.curriculum import load_overtaking_policy
+    from vision_rl.overtaking.settings import SettingError, analyse_overtaking, write_analysis_outputs
     from vision_rl.sim.track_library import load_track
     from vision_rl.sim.vehicle import get_preset
 

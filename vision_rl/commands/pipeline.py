@@ -342,10 +342,10 @@ def _capture_state_policy(opts: PipelineOptions, sizes: PipelineSizes) -> Path:
     trained again, and cut at the lap-time protocol's time limit, where a policy that does not lap would run on."""
     from vision_rl.capture.sim_capture import CaptureConfig, capture_sim
     from vision_rl.evaluation.protocol import TIME_LIMIT_LIMIT_LAPS
-    from vision_rl.phase2_rl.artifact import load_policy
     from vision_rl.sim.driving import line_and_profile
     from vision_rl.sim.track_library import load_track
     from vision_rl.sim.vehicle import get_preset
+    from vision_rl.training.artifact import load_policy
 
     out = _capture_path(opts, "state_policy")
     laps = opts.state_policy_laps
@@ -418,7 +418,7 @@ def _in_second_process(fn: Callable[..., Any], *args: Any, niceness: int = 0) ->
 def sampler_processes(sizes: PipelineSizes) -> int:
     """The vision policy's sampler processes: the mode's, or 0 (sampling in the learner's process) without Ray, the
     `ray` extra that the README's set-up installs."""
-    from vision_rl.phase2_rl.distributed import DistributedError, import_ray
+    from vision_rl.training.distributed import DistributedError, import_ray
 
     try:
         import_ray()
@@ -432,9 +432,9 @@ def _policy_stage(
 ) -> dict[str, Any]:
     """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time its last weights by
     the protocol."""
-    from vision_rl.phase2_rl.artifact import MODEL_NAME
-    from vision_rl.phase2_rl.evaluate import evaluate_policy
     from vision_rl.phase2_rl.train import TrainPolicyConfig, train_policy
+    from vision_rl.training.artifact import MODEL_NAME
+    from vision_rl.training.evaluate import evaluate_policy
 
     vision = kind == "vision"
     workers = sampler_processes(sizes) if vision else 0

@@ -6,7 +6,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from vision_rl.commands.output import emit
-from vision_rl.phase2_rl.play import PlayConfig
+from vision_rl.overtaking.play import PlayConfig
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ def format_play(result: dict[str, Any]) -> list[str]:
 
 
 def run_play(opts: PlayOptions) -> int:
-    from vision_rl.phase2_rl.play import play
+    from vision_rl.overtaking.play import play
 
     cfg = PlayConfig(**{k: v for k, v in asdict(opts).items() if k != "json"})
     emit(play(cfg), opts.json, format_play)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from vision_rl.commands.output import emit, progress_bar, show
-from vision_rl.phase2_rl.demos import RecordDemosConfig
+from vision_rl.overtaking.demos import RecordDemosConfig
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ def format_record_demos(result: dict[str, Any]) -> list[str]:
 def run_record_demos(opts: RecordDemosOptions) -> int:
     import dataclasses
 
-    from vision_rl.phase2_rl.demos import check_record_config, record_demos
+    from vision_rl.overtaking.demos import check_record_config, record_demos
 
     fields = {f.name for f in dataclasses.fields(RecordDemosConfig)}
     cfg = RecordDemosConfig(**{k: v for k, v in dataclasses.asdict(opts).items() if k in fields})

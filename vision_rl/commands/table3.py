@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from vision_rl.commands.output import emit
-from vision_rl.phase2_rl.table3 import Table3Config
+from vision_rl.overtaking.table3 import Table3Config
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ def format_table3(result: dict[str, Any]) -> list[str]:
 def run_table3(opts: Table3Options) -> int:
     import dataclasses
 
-    from vision_rl.phase2_rl.table3 import table3
+    from vision_rl.overtaking.table3 import table3
 
     fields = {f.name for f in dataclasses.fields(Table3Config)}
     cfg = Table3Config(**{k: v for k, v in dataclasses.asdict(opts).items() if k in fields})

@@ -6,15 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from vision_rl.commands.output import (
-    emit,
-    format_sampling,
-    interrupt_on_sigterm,
-    progress_bar,
-    restore_sigterm,
-    show,
-)
-from vision_rl.phase2_rl.ddpg_train import TrainDDPGConfig
+from vision_rl.commands.output import emit, format_sampling, interrupt_on_sigterm, progress_bar, restore_sigterm, show
+from vision_rl.ddpg.train import TrainDDPGConfig
 
 
 @dataclass(frozen=True)
@@ -60,7 +53,7 @@ def format_train_ddpg(result: dict[str, Any]) -> list[str]:
 def run_train_ddpg(opts: TrainDDPGOptions) -> int:
     """SIGTERM saves and exits like Ctrl-C (a background job of a non-interactive shell ignores SIGINT). Exit code
     130 after an interruption."""
-    from vision_rl.phase2_rl.ddpg_train import train_ddpg
+    from vision_rl.ddpg.train import train_ddpg
 
     previous = interrupt_on_sigterm()
     try:

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
-from vision_rl.phase2_rl.overtaking import TrainOvertakingConfig
+from vision_rl.overtaking.curriculum import TrainOvertakingConfig
 
 #: ``--quick``: the whole chain at tiny sizes (2 cars, a few hundred steps per stage, short evaluations).
 QUICK = dict(
@@ -69,7 +69,7 @@ def run_train_overtaking(opts: TrainOvertakingOptions) -> int:
     """SIGTERM saves and exits like Ctrl-C (exit 130); the same command continues the run."""
     import dataclasses
 
-    from vision_rl.phase2_rl.overtaking import check_config, stages_of, train_overtaking
+    from vision_rl.overtaking.curriculum import check_config, stages_of, train_overtaking
 
     fields = {f.name for f in dataclasses.fields(TrainOvertakingConfig)}
     values = {k: v for k, v in dataclasses.asdict(opts).items() if k in fields}

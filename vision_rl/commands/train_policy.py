@@ -5,14 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from vision_rl.commands.output import (
-    emit,
-    format_sampling,
-    interrupt_on_sigterm,
-    progress_bar,
-    restore_sigterm,
-    show,
-)
+from vision_rl.commands.output import emit, format_sampling, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.phase2_rl.train import TrainPolicyConfig
 
 

@@ -249,7 +249,7 @@ class RacingConfig:
     """Vision with an encoder: the observation vector carries the 38-D ``state`` observation after the actor's
     columns, for a critic that reads both (an asymmetric actor-critic, as the DDPG paper's critic reads state its
     actor cannot see; not in the GT Sport papers). The actor reads its own columns alone, and the lap-time
-    protocol's drivers never compute the state part (:mod:`vision_rl.phase2_rl.critic_state`)."""
+    protocol's drivers never compute the state part (:mod:`vision_rl.training.critic_state`)."""
     extra: dict = field(default_factory=dict, compare=False, hash=False)
     """Free-form notes carried with the config (not used by the environment)."""
 

@@ -5,10 +5,10 @@ Training is :func:`.train.train_repr` (``TrainReprConfig``), the latency bench :
 (``BenchLatencyConfig``); import those modules directly (train pulls in Lightning).
 """
 
+from vision_rl.files import file_sha256
 from vision_rl.phase1_repr.checkpoint import (
     EncoderCheckpointError,
     FrozenEncoder,
-    checkpoint_sha256,
     load_encoder,
     read_checkpoint,
     save_checkpoint,
@@ -20,7 +20,7 @@ __all__ = [
     "EncoderConfig",
     "FrozenEncoder",
     "ReprNet",
-    "checkpoint_sha256",
+    "file_sha256",
     "load_encoder",
     "read_checkpoint",
     "save_checkpoint",

@@ -36,6 +36,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from vision_rl.files import file_sha256
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
 from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, export_embedding, resolve_runtime
 
@@ -102,7 +103,7 @@ def save_checkpoint(
     """Write ``ckpt.pt`` for ``net`` (trained form, not fused) with its checksums; returns the path. ``dataset``
     describes the training data (see the module doc); plain JSON types only. A failed write (a full disk) raises
     an ``OSError`` naming the file and leaves neither a partial checkpoint nor a temporary file."""
-    from vision_rl.capture.h5format import package_version
+    from vision_rl.files import package_version
 
     if net.fused:
         raise ValueError("save the trained network, not the fused inference copy")
@@ -218,15 +219,6 @@ def build_network(ckpt: Mapping[str, Any], path: str | os.PathLike[str] = "<chec
     except RuntimeError as exc:
         raise EncoderCheckpointError(f"{path}: the weights do not fit the stored architecture: {exc}") from exc
     return net.eval()
-
-
-def checkpoint_sha256(path: str | os.PathLike[str]) -> str:
-    """Hex SHA-256 of the checkpoint file: Phase 2 records it beside a vision policy."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 class FrozenEncoder(nn.Module):
@@ -348,7 +340,7 @@ def load_encoder(
     onnx = None
     if runtime == "onnxruntime":
         try:
-            model = _exported_embedding(str(path.resolve()), checkpoint_sha256(path))
+            model = _exported_embedding(str(path.resolve()), file_sha256(path))
             onnx = OnnxEmbedding(model, threads=torch.get_num_threads())
         except Exception as exc:  # the exporter's and ONNX Runtime's errors have many types
             if requested_runtime != "auto":

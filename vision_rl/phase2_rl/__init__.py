@@ -1,18 +1,6 @@
-"""Phase 2: SAC (Stable-Baselines3) driving policies on the frozen frame embedding plus dedicated features, or on
-the privileged state, and the policy artifact.
+"""The vision paper's Phase 2: SAC on the 38-D state or on the frozen 64-D embedding plus 11 features.
 
-:func:`.train.train_policy` trains, :func:`.evaluate.evaluate_policy` times a policy with the lap-time protocol
-(:mod:`vision_rl.evaluation`). Import those modules directly (they pull in torch and Stable-Baselines3); this
-package root imports only the artifact helpers.
+:func:`.train.train_policy` trains one run, :mod:`.experiment` runs a recipe over training seeds, :mod:`.tune`
+searches recipes, :mod:`.guide` labels states with the built-in AI. The policy artifact they write is
+:mod:`vision_rl.training.artifact`'s.
 """
-
-from vision_rl.phase2_rl.artifact import (
-    LoadedPolicy,
-    PolicyDriver,
-    PolicyError,
-    PolicySpec,
-    check_encoder,
-    load_policy,
-)
-
-__all__ = ["LoadedPolicy", "PolicyDriver", "PolicyError", "PolicySpec", "check_encoder", "load_policy"]

@@ -35,18 +35,11 @@ import numpy as np
 
 from vision_rl.evaluation.leaderboard import AI_SEEDS, EXPERIMENT_FORMAT, aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
-from vision_rl.phase1_repr.checkpoint import checkpoint_sha256
-from vision_rl.phase2_rl.artifact import SIDECAR_NAME, PolicySpec, chosen_weights
-from vision_rl.phase2_rl.evaluate import EVALUATION_NAME, evaluate_policy
-from vision_rl.phase2_rl.persist import atomic_write
-from vision_rl.phase2_rl.train import (
-    METRICS_NAME,
-    Progress,
-    TrainPolicyConfig,
-    check_bounds,
-    read_metrics,
-    train_policy,
-)
+from vision_rl.files import atomic_write, file_sha256
+from vision_rl.phase2_rl.train import TrainPolicyConfig, check_bounds, train_policy
+from vision_rl.training.artifact import SIDECAR_NAME, PolicySpec, chosen_weights
+from vision_rl.training.evaluate import EVALUATION_NAME, evaluate_policy
+from vision_rl.training.sac import METRICS_NAME, Progress, read_metrics
 
 EXPERIMENT_NAME = "experiment.json"
 #: Options that may differ between sessions of one experiment (they change where and how, not what is trained).
@@ -80,7 +73,7 @@ def _plan(cfg: TrainPolicyConfig) -> dict[str, Any]:
         "track": cfg.track,
         "car": cfg.car,
         "observation": "vision" if cfg.encoder else "state",
-        "encoder_sha256": checkpoint_sha256(cfg.encoder) if cfg.encoder else None,
+        "encoder_sha256": file_sha256(cfg.encoder) if cfg.encoder else None,
         "steps": cfg.steps,
         "recipe": recipe,
     }

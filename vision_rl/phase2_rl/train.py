@@ -5,7 +5,7 @@
 A run folder holds ``policy.pt`` + ``policy.json`` (the artifact), ``replay_buffer.npz``, snapshots in
 ``checkpoints/``, ``metrics.jsonl`` (one line per periodic evaluation: the protocol's lap time of the current
 policy against environment steps and training time) and TensorBoard logs in ``tensorboard/``. No file is pickled
-(:mod:`vision_rl.phase2_rl.persist`).
+(:mod:`vision_rl.training.persist`).
 
 ``--select-starts N`` also times the policy at each periodic evaluation from N held-out starts
 (:data:`SELECT_SEED_BASE` on; the protocol's are 0, 1, 2) and keeps the weights with the fastest mean scored lap
@@ -19,7 +19,7 @@ snapshot; Ctrl-C (and SIGTERM, which the command maps to it) saves all of it and
 continues the step count with the stored weights, optimiser states and the last saved buffer; a run with no saved
 buffer collects ``learning_starts`` fresh random transitions before it updates again.
 
-``--workers N`` samples in N Ray actors (:mod:`vision_rl.phase2_rl.distributed`: the pacing, the staleness bound,
+``--workers N`` samples in N Ray actors (:mod:`vision_rl.training.distributed`: the pacing, the staleness bound,
 what is deterministic) while this process only learns; the run folder, evaluations, checkpoints, Ctrl-C and
 ``--resume`` are the same, and a run may switch between the two on resume.
 """
@@ -31,7 +31,6 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,7 +40,6 @@ import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
-from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecMonitor
 
 from vision_rl.envs.core import STEER_ACTIONS, STEER_CHANGE_PENALTY_SCALES, WALL_PENALTY_SPEEDS, RacingConfig
@@ -49,7 +47,8 @@ from vision_rl.envs.observations import ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import CLEAN_WALL_CONTACT_S, time_laps
 from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
-from vision_rl.phase2_rl.artifact import (
+from vision_rl.sim.fleet import AI_CONTROL_DT_S, ai_ticks
+from vision_rl.training.artifact import (
     BEST_DIR,
     BUFFER_NAME,
     MODEL_NAME,
@@ -63,66 +62,23 @@ from vision_rl.phase2_rl.artifact import (
     racing_config_to_dict,
     snapshot_sidecar,
 )
-from vision_rl.phase2_rl.critic_state import sac_policy_class
-from vision_rl.phase2_rl.interrupts import learn_between_interrupts
-from vision_rl.phase2_rl.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
-from vision_rl.sim.fleet import AI_CONTROL_DT_S, ai_ticks
+from vision_rl.training.critic_state import sac_policy_class
+from vision_rl.training.interrupts import learn_between_interrupts
+from vision_rl.training.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
+from vision_rl.training.sac import (
+    METRICS_NAME,
+    Progress,
+    SACPreset,
+    SaveClock,
+    gamma_per_step,
+    next_multiple,
+    parse_hidden_units,
+    resolve_preset,
+    sampler_setup,
+    torch_device,
+)
 
-METRICS_NAME = "metrics.jsonl"
 MAX_CARS = 1000
-
-
-@dataclass(frozen=True)
-class SACPreset:
-    """SAC hyper-parameters. Steps count transitions over all cars (SB3's ``num_timesteps``)."""
-
-    hidden_units: tuple[int, ...]
-    """Widths of the hidden layers of actor and critics (ReLU)."""
-    batch_size: int
-    """Transitions per gradient update."""
-    buffer_size: int
-    """Replay buffer capacity, transitions."""
-    learning_starts: int
-    """Transitions collected with random actions before the first update."""
-    learning_rate: float
-    """Adam step size of actor, critics and entropy coefficient."""
-    gamma: float
-    """Discount per 0.1 s (SAC's per-step discount is :func:`gamma_per_step` of it)."""
-    tau: float
-    """Polyak factor of the target critics."""
-    train_freq_steps: int
-    """Vector-env steps (n_cars transitions each) between training phases."""
-    gradient_steps: int
-    """Gradient updates per training phase."""
-    torch_threads: int
-    """torch intra-op threads (0: leave torch's default)."""
-    learning_rate_final: float = 0.0
-    """Adam step size at the run's last step, reached linearly from ``learning_rate`` (0: constant)."""
-    target_entropy: float = 0.0
-    """Entropy the policy is held at by the learned coefficient, nats (0: SB3's ``auto``, minus the action's
-    dimensions)."""
-
-    def learning_rate_schedule(self) -> float | LinearSchedule:
-        """SB3's ``learning_rate``: constant, or falling linearly to the run's last step (by SB3's progress, so a
-        run resumed to more steps spreads what is left of the fall over its new total)."""
-        if self.learning_rate_final <= 0:
-            return self.learning_rate
-        return LinearSchedule(self.learning_rate, self.learning_rate_final, end_fraction=1.0)
-
-
-PRESETS: dict[str, SACPreset] = {
-    # The vision paper, section 4, and Fuchs et al.: MLP 2 x 256 (ReLU), batch 4,096, buffer 1e6, 40k random
-    # start steps, lr 1e-3, gamma 0.99. One update per vector step of 20 cars is our choice (the papers update
-    # after each "epoch" of 20 trials on the console).
-    "paper": SACPreset((256, 256), 4096, 1_000_000, 40_000, 1e-3, 0.99, 0.005, 1, 1, 0),
-    # Chosen by measurement on the shared 2-core CPU: SB3 SAC 2 x 256 on one thread did 63 updates/s at batch 256,
-    # 42 at 512 and 24 at 1,024 (about 6 at 4,096), and a vector step of 20 state cars costs about
-    # 1.2 ms, so one update per vector step spends ~90 % of the time on updates and still collects ~1,100
-    # transitions/s. With lr 1e-3 (the paper's) the agent drove two whole laps of the expressway after 200k steps
-    # (3 min); with 3e-4 after 300k; both then stayed at 2:16-2:21 over 20-40 min of training. One torch
-    # thread leaves the other core to the simulator and to neighbours.
-    "cpu": SACPreset((256, 256), 256, 1_000_000, 10_000, 1e-3, 0.99, 0.005, 1, 1, 1),
-}
 
 
 @dataclass(frozen=True)
@@ -279,45 +235,6 @@ class TrainPolicyConfig:
     """With --workers: learner updates per weight version sent to the samplers."""
 
 
-def parse_hidden_units(text: str) -> tuple[int, ...]:
-    """``"128,128"`` -> (128, 128); empty -> (); a non-positive or non-integer width is refused."""
-    try:
-        units = tuple(int(part) for part in text.split(",") if part.strip())
-    except ValueError:
-        units = (0,)
-    if any(u < 1 for u in units):
-        raise ValueError(f"--hidden-units {text!r}: give positive layer widths separated by commas, e.g. 256,256")
-    return units
-
-
-def resolve_preset(cfg: Any) -> SACPreset:
-    """The preset ``cfg.preset`` with ``cfg``'s overrides (learning_rate, batch_size, buffer_size, learning_starts,
-    gradient_steps, and where the config has them gamma, hidden_units, learning_rate_final and target_entropy; 0, -1
-    or empty: the preset's); any trainer's config with those fields."""
-    if cfg.preset not in PRESETS:
-        raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
-    preset = PRESETS[cfg.preset]
-    gamma, hidden = getattr(cfg, "gamma", 0.0), parse_hidden_units(getattr(cfg, "hidden_units", ""))
-    overrides = {
-        "learning_rate": cfg.learning_rate if cfg.learning_rate > 0 else None,
-        "learning_rate_final": getattr(cfg, "learning_rate_final", 0.0) or None,
-        "target_entropy": getattr(cfg, "target_entropy", 0.0) or None,
-        "batch_size": cfg.batch_size if cfg.batch_size > 0 else None,
-        "buffer_size": cfg.buffer_size if cfg.buffer_size > 0 else None,
-        "learning_starts": cfg.learning_starts if cfg.learning_starts >= 0 else None,
-        "gradient_steps": cfg.gradient_steps if cfg.gradient_steps > 0 else None,
-        "gamma": gamma if gamma > 0 else None,
-        "hidden_units": hidden or None,
-    }
-    return dataclasses.replace(preset, **{k: v for k, v in overrides.items() if v is not None})
-
-
-def gamma_per_step(gamma_per_tenth_s: float, control_dt_s: float) -> float:
-    """The discount of one control step of ``control_dt_s`` seconds, given the discount per 0.1 s (the presets'
-    and --gamma's unit), so that a finer control step keeps the horizon in seconds."""
-    return gamma_per_tenth_s ** (control_dt_s / 0.1)
-
-
 def default_out(cfg: TrainPolicyConfig) -> Path:
     kind = "vision" if cfg.encoder else "state"
     track = cfg.track.replace("random:", "random-")
@@ -326,19 +243,9 @@ def default_out(cfg: TrainPolicyConfig) -> Path:
     return Path("runs") / "policy" / f"{kind}-{track}-{cfg.car}-s{cfg.seed}"
 
 
-def torch_device(name: str) -> str:
-    """``auto`` -> ``cuda`` when a GPU is visible, else ``cpu``; other names as given."""
-    if name == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    return name
-
-
 #: The first held-out start seed: apart from the protocol's (0, 1, 2, ...), so that the choice of weights does not
 #: look at the starts they are scored from.
 SELECT_SEED_BASE = 100
-
-#: ``progress(num_timesteps, total_steps, last_evaluation_or_None)``, called as training goes.
-Progress = Callable[[int, int, "dict[str, Any] | None"], None]
 
 
 class _TrainingLoop(BaseCallback):
@@ -377,33 +284,6 @@ class _TrainingLoop(BaseCallback):
             self.run.evaluate(self.model)
             if self.progress is not None:
                 self.progress(self.num_timesteps, self.run.cfg.steps, self.run.last_eval)
-
-
-def next_multiple(n: int, every: int) -> int | None:
-    """The first multiple of ``every`` after ``n`` (None when ``every`` is 0: never)."""
-    return None if every <= 0 else (n // every + 1) * every
-
-
-class SaveClock:
-    """When a trainer saves: all of it (the replay buffer too) every ``every_steps`` environment steps, weights and
-    counters alone every ``every_min`` minutes of wall-clock time; 0 turns either off."""
-
-    def __init__(self, start_steps: int, every_steps: int, every_min: float) -> None:
-        self.every_steps, self.every_s = every_steps, 60.0 * every_min
-        self.next_full = next_multiple(start_steps, every_steps)
-        self.last_save_s = time.perf_counter()
-
-    def due(self, n: int) -> str | None:
-        """``full``, ``light`` or None at step ``n``; a save restarts the minute count."""
-        kind = None
-        if self.next_full is not None and n >= self.next_full:
-            self.next_full = next_multiple(n, self.every_steps)
-            kind = "full"
-        elif self.every_s > 0 and time.perf_counter() - self.last_save_s >= self.every_s:
-            kind = "light"
-        if kind is not None:
-            self.last_save_s = time.perf_counter()
-        return kind
 
 
 class _Run:
@@ -492,7 +372,8 @@ class _Run:
 
     # ------------------------------------------------------------------ set-up
     def build(self) -> SAC:
-        from vision_rl.phase1_repr.checkpoint import checkpoint_sha256, load_encoder
+        from vision_rl.files import file_sha256
+        from vision_rl.phase1_repr.checkpoint import load_encoder
 
         # A resumed session draws new start points: reusing the first session's would replay its episodes.
         venv = make_sb3_vec_env(self.racing, seed=self.seed + self.start_steps)
@@ -501,7 +382,7 @@ class _Run:
         if self.kind == "vision":
             assert self.encoder_path is not None
             self.encoder = load_encoder(self.encoder_path, device=self.device, runtime=self.cfg.encoder_runtime)
-            self.encoder_sha256 = checkpoint_sha256(self.encoder_path)
+            self.encoder_sha256 = file_sha256(self.encoder_path)
             # The SAC input is the vision vector (with the critic's state after it): the env's observer embeds the
             # frames with the frozen encoder, so the replay buffer holds vectors, not images.
             observer = core.vision_observer(self.encoder)
@@ -829,7 +710,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     if cfg.critic_state and not cfg.encoder:
         raise ValueError("--critic-state gives a vision policy's critic the state observation: give --encoder")
     if cfg.workers is not None or cfg.address:
-        from vision_rl.phase2_rl.distributed import check_workers
+        from vision_rl.training.distributed import check_workers
 
         if cfg.workers is None:
             raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
@@ -852,7 +733,7 @@ def _preset_from_spec(spec: PolicySpec) -> SACPreset:
 def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Train (or resume) as configured; returns where things went and the last evaluation. A KeyboardInterrupt
     (Ctrl-C, or SIGTERM where the caller maps it) saves everything and returns with ``interrupted``."""
-    from vision_rl.phase2_rl.distributed import cluster_for
+    from vision_rl.training.distributed import cluster_for
 
     if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
         check_bounds(cfg)
@@ -894,10 +775,10 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
 
 
 def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: Any) -> dict[str, Any]:
-    """The session's steps from ``cfg.workers`` sampler actors (:mod:`vision_rl.phase2_rl.distributed`); the same
+    """The session's steps from ``cfg.workers`` sampler actors (:mod:`vision_rl.training.distributed`); the same
     evaluations, checkpoints and progress as the single-process loop, on the same step counts. A lost sampler is a
     line of metrics.jsonl; when none is left, the run is saved and the error raised."""
-    from vision_rl.phase2_rl.distributed import SamplersLostError, learn_like_sb3
+    from vision_rl.training.distributed import SamplersLostError, learn_like_sb3
 
     cfg = run.cfg
     setup = sampler_setup(
@@ -933,64 +814,3 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
         run.save(model, buffer=True)
         run.close()
         raise SamplersLostError(f"{exc}; the run in {run.out} was saved: continue it with --resume") from None
-
-
-def sampler_setup(
-    racing: RacingConfig,
-    kind: str,
-    normalizer: ObsNormalizer,
-    fingerprint: dict[str, Any],
-    hidden_units: tuple[int, ...],
-    seed: int,
-    encoder_path: Path | None = None,
-    encoder_runtime: str = "auto",
-    label_skill: float | None = None,
-) -> Any:
-    """What the sampler actors of a run build their world and policy from (``label_skill``: the built-in AI's skill
-    that labels the states they visit; None: no labels)."""
-    from vision_rl.phase2_rl.distributed import SamplerSetup, portable_track
-
-    config = {**racing_config_to_dict(racing), "track": portable_track(racing.track)}
-    return SamplerSetup(
-        racing_config=config,
-        observation=kind,
-        obs_normalizer=normalizer.to_dict(),
-        fingerprint=fingerprint,
-        hidden_units=tuple(hidden_units),
-        seed=seed,
-        encoder_path=str(encoder_path.resolve()) if encoder_path is not None else "",
-        encoder_runtime=encoder_runtime,
-        label_skill=label_skill,
-    )
-
-
-def read_metrics(path: str | os.PathLike[str], events: bool = False) -> list[dict[str, Any]]:
-    """The evaluation records of a run's metrics.jsonl (a torn last line, from a kill mid-write, is skipped); with
-    ``events`` also the lines that record events (a lost sampler: ``{"event": "sampler_lost", ...}``).
-
-    A run killed after an evaluation resumes from its last checkpoint, which may be older, and evaluates those steps
-    again with the policy that now exists: an evaluation at step N drops the earlier ones at N or later, so every
-    record left belongs to the run's history."""
-    records: list[dict[str, Any]] = []
-    for line in Path(path).read_text().splitlines():
-        try:
-            record = json.loads(line)
-        except ValueError:
-            continue
-        if "event" not in record and "num_timesteps" in record:
-            step = record["num_timesteps"]
-            records = [r for r in records if "event" in r or r.get("num_timesteps", -1) < step]
-            records.append(record)
-        elif events or "event" not in record:
-            records.append(record)
-    return records
-
-
-__all__ = [
-    "PRESETS",
-    "SACPreset",
-    "TrainPolicyConfig",
-    "read_metrics",
-    "resolve_preset",
-    "train_policy",
-]

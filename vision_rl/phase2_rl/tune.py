@@ -32,9 +32,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vision_rl.phase2_rl.evaluate import evaluate_policy
-from vision_rl.phase2_rl.persist import atomic_write
-from vision_rl.phase2_rl.train import STEER_ACTIONS, Progress, TrainPolicyConfig, train_policy
+from vision_rl.files import atomic_write
+from vision_rl.phase2_rl.train import STEER_ACTIONS, TrainPolicyConfig, train_policy
+from vision_rl.training.evaluate import evaluate_policy
+from vision_rl.training.sac import Progress
 
 STUDY_DB = "study.db"
 STUDY_JSON = "study.json"

@@ -24,14 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vision_rl.render.scene import (
-    GROUND_Z_M,
-    SUN_DIR,
-    Label,
-    Scene,
-    build_car_mesh,
-    build_scene,
-)
+from vision_rl.render.scene import GROUND_Z_M, SUN_DIR, Label, Scene, build_car_mesh, build_scene
 from vision_rl.render.textures import TEXTURE_SIZE_PX, build_texture_layers
 from vision_rl.sim.track import Track
 

@@ -1,0 +1,50 @@
+"""compare-ddpg on hand-made run folders: runs cut at the common training time, bin means, the first lap (its
+refusals: tests/faults/test_ddpg.py)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from vision_rl.ddpg.compare import compare_runs, plot_comparison
+
+
+def hand_made_run(
+    folder, variant: str, minutes: float, episodes: list[tuple[float, float, int]], track="Catalunya", updates=600
+):
+    """A run folder whose episodes end at (training minute, distance m, laps)."""
+    folder.mkdir()
+    sidecar = {
+        "hyper": {"variant": variant},
+        "env": {"track": track, "car": "gt3"},
+        "seed": 1,
+        "counters": {"train_time_s": 60.0 * minutes, "num_steps": 1000, "n_updates": updates},
+    }
+    (folder / "ddpg.json").write_text(json.dumps(sidecar))
+    lines = [
+        json.dumps({"train_time_s": 60.0 * m, "distance_m": d, "laps": laps, "return": d, "end": "crash 2"})
+        for m, d, laps in episodes
+    ]
+    (folder / "episodes.jsonl").write_text("".join(line + "\n" for line in lines))
+    return folder
+
+
+def test_runs_are_cut_at_the_common_time_and_binned(tmp_path):
+    a_episodes = [(1, 100, 0), (4, 300, 0), (12, 500, 0), (25, 5000, 1), (29, 900, 0), (30, 700, 0)]
+    a = hand_made_run(tmp_path / "a", "asymmetric", 30.0, a_episodes)
+    # Trained 40 minutes: its episodes after minute 30 are not compared.
+    s_episodes = [(2, 50, 0), (21, 150, 0), (28, 250, 0), (35, 9000, 1)]
+    s = hand_made_run(tmp_path / "s", "symmetric", 40.0, s_episodes, updates=1200)
+    result = compare_runs([a, s], bin_min=10.0)
+    assert result["common_minutes"] == 30.0 and result["bin_start_minutes"] == [0.0, 10.0, 20.0]
+    ra, rs = result["runs"]
+    # The episode ending at the common minute 30 counts in the last bin.
+    assert ra["name"] == "asymmetric s1" and ra["bin_mean_distance_m"] == [200.0, 500.0, 2200.0]
+    assert ra["bin_episodes"] == [2, 1, 3] and ra["mean_distance_last_m"] == 2200.0  # minutes 20-30
+    assert ra["first_lap_episode"] == 4 and ra["first_lap_minutes"] == 25.0 and ra["best_distance_m"] == 5000.0
+    assert rs["episodes"] == 3 and rs["bin_mean_distance_m"] == [50.0, None, 200.0]
+    assert rs["first_lap_episode"] is None and rs["best_distance_m"] == 250.0
+    assert ra["updates_per_s"] == pytest.approx(600 / 1800) and rs["updates_per_s"] == pytest.approx(1200 / 2400)
+    png = plot_comparison(result, tmp_path / "fig.png")
+    assert png.stat().st_size > 5000

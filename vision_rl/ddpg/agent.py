@@ -1,0 +1,840 @@
+"""DDPG with an asymmetric actor-critic (the Project CARS 2 paper): a pixel actor, a critic on motion and the
+racing line, Ornstein-Uhlenbeck exploration, a replay buffer that stores every frame once, and files without pickle.
+
+Networks (the paper's section IV-D; :class:`DDPGHyper` holds its Table 2):
+
+- actor (:class:`PixelActor`): four 2x2 stride-1 convolutions of 64, 64, 32, 32 filters, each followed by ReLU,
+  2x2 max-pooling and batch-norm, in the order the paper lists them (batch-norm after pooling costs a quarter of
+  batch-norm before it: measured 0.79 against 1.18 s per forward and backward of the trunk at batch 32); the
+  paper's "bottleneck on the third layer" is read as the third convolution halving the width 64 -> 32. Then
+  Dense 150, 300, 300 (ReLU, batch-norm) and four outputs: accelerate and brake ReLU, left and right tanh,
+  initialised by variance scaling of scale 1e-2 (fan-in, truncated normal, as Keras).
+- critic (:class:`Critic`): three pathways, motion (15), goal (3) and action (4), each Dense 150, 300, 300 (ReLU,
+  batch-norm), concatenated into Dense 600 (ReLU) and a linear Q.
+
+Variants, for the ablations: ``asymmetric`` (the paper), ``symmetric`` (the critic also on pixels: a CNN pathway
+like the actor's in place of motion and goal) and ``state-actor`` (the actor on the critic's motion and goal, no
+pixels at all). Motion and goal enter the networks scaled by fixed offsets and scales of the track and car
+(:func:`vision_rl.envs.pixel_racing.critic_input_scale`), stored in the weights.
+
+Why not Stable-Baselines3's DDPG: its dict replay buffer stores every observation twice (as obs and next obs), so
+100,000 frames would take 6.4 GB instead of 3.2 GB, and actor and critic cannot read different keys of the
+observation without replacing its policy class; batch-norm's train/eval modes per network and per-car episode
+streams in one buffer are simpler in the ~300 lines here.
+
+Replay (:class:`FrameReplay`): one row per car and step holding the observation (frame uint8, motion, goal) and,
+once taken, the action, reward and termination; the next observation is the car's following row. An episode's last
+observation gets a row of its own (it has no action), then the next episode starts. Capacity 100,000 rows (the
+paper's buffer; 3.2 GB of 89x120 frames) by default.
+
+Files (:func:`save_agent_file`, :func:`save_replay`): ``torch.save`` of tensors and plain values read with
+``torch.load(weights_only=True)``; the buffer in chunk files (``numpy.savez``, read with ``allow_pickle=False``),
+only those changed since the last save rewritten, named by generation, listed with their SHA-256 in an index that
+is replaced last: a kill at any point leaves the previous complete set.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import pickle
+import time
+import zipfile
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from vision_rl.envs.observer import in_batches_of
+from vision_rl.envs.pixel_racing import (
+    PixelObserver,
+    PixelRacingConfig,
+    action_space,
+    critic_input_scale,
+    keys_to_action,
+)
+from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
+from vision_rl.files import atomic_write
+from vision_rl.sim.track_library import load_track
+from vision_rl.sim.vehicle import get_preset
+from vision_rl.sim.world import World, WorldState
+from vision_rl.training.persist import ArtifactError, check_fingerprint, file_sha256
+
+VARIANTS = ("asymmetric", "symmetric", "state-actor")
+PEDAL_ACTIVATIONS = ("relu", "sigmoid")
+AGENT_FORMAT = "vision_rl.ddpg_agent"
+REPLAY_FORMAT = "vision_rl.ddpg_replay"
+FORMAT_VERSION = 1
+AGENT_NAME = "ddpg.pt"
+SIDECAR_NAME = "ddpg.json"
+REPLAY_DIR = "replay"
+#: Frames per buffer chunk file (about 64 MB of 89x120 frames).
+CHUNK_FRAMES = 2048
+_ACTION_LOW = torch.as_tensor(action_space().low)
+_ACTION_HIGH = torch.as_tensor(action_space().high)
+
+
+class DDPGError(ValueError):
+    """An agent, checkpoint or input that does not fit (another variant, frame size, track); the message says why."""
+
+
+class FrameSizeError(DDPGError):
+    """Frames of a size the network was not built for."""
+
+
+@dataclass(frozen=True)
+class DDPGHyper:
+    """DDPG hyper-parameters (the paper's Table 2 by default)."""
+
+    variant: str = "asymmetric"
+    """asymmetric (pixel actor, motion + goal critic), symmetric (the critic on pixels too), state-actor."""
+    actor_lr: float = 1e-3
+    """Adam step size of the actor."""
+    critic_lr: float = 1e-4
+    """Adam step size of the critic."""
+    tau: float = 0.01
+    """Soft update of the target networks."""
+    gamma: float = 0.98
+    """Discount per control step."""
+    batch_size: int = 32
+    """Transitions per update."""
+    buffer_size: int = 100_000
+    """Replay capacity, rows (frames) over all cars: 100,000 89x120 frames take 3.2 GB."""
+    ou_theta: float = 0.8
+    """Ornstein-Uhlenbeck mean reversion per unit time."""
+    ou_sigma: float = 0.3
+    """Ornstein-Uhlenbeck noise scale."""
+    ou_mu: float = 0.0
+    """Ornstein-Uhlenbeck mean."""
+    ou_dt: float = 1.0
+    """Ornstein-Uhlenbeck time step per control step (1: x <- x + theta (mu - x) + sigma N, the Keras DDPG code's)."""
+    output_init_scale: float = 1e-2
+    """Variance-scaling scale of the actor's output layer."""
+    pedal_activation: str = "relu"
+    """Output activation of the accelerate and brake keys: relu (the paper's; a pedal whose pre-activation turns
+    negative passes no gradient, so the actor can never press it again) or sigmoid (never without a gradient; a fresh
+    actor holds both pedals half the step, as it holds both steering keys)."""
+    reward_scale: float = 1.0
+    """Rewards are multiplied by this in the critic's targets (1: the paper's)."""
+    channels_last: bool = True
+    """Run the convolutions in channels-last memory format (faster on CPUs; the frames already are)."""
+
+    def __post_init__(self) -> None:
+        if self.variant not in VARIANTS:
+            raise DDPGError(f"variant must be one of {VARIANTS}, got {self.variant!r}")
+        if self.pedal_activation not in PEDAL_ACTIVATIONS:
+            raise DDPGError(f"pedal_activation must be one of {PEDAL_ACTIVATIONS}, got {self.pedal_activation!r}")
+        for name in ("actor_lr", "critic_lr", "ou_sigma", "ou_theta", "ou_dt", "output_init_scale", "reward_scale"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise DDPGError(f"{name} = {value} must be a finite number >= 0")
+        if not 0 < self.tau <= 1 or not 0 <= self.gamma < 1:
+            raise DDPGError(f"need 0 < tau <= 1 and 0 <= gamma < 1, got tau {self.tau}, gamma {self.gamma}")
+        if self.batch_size < 1 or self.buffer_size < 1:
+            raise DDPGError(f"batch_size and buffer_size must be >= 1, got {self.batch_size}, {self.buffer_size}")
+
+    @property
+    def pixel_actor(self) -> bool:
+        return self.variant != "state-actor"
+
+    @property
+    def pixel_critic(self) -> bool:
+        return self.variant == "symmetric"
+
+
+# ------------------------------------------------------------------------------------------------ networks
+
+
+def _dense_pathway(n_in: int) -> nn.Sequential:
+    """Dense 150, 300, 300, each ReLU then batch-norm."""
+    layers: list[nn.Module] = []
+    for n_out in (150, 300, 300):
+        layers += [nn.Linear(n_in, n_out), nn.ReLU(), nn.BatchNorm1d(n_out)]
+        n_in = n_out
+    return nn.Sequential(*layers)
+
+
+class ConvTrunk(nn.Module):
+    """The paper's four 2x2 stride-1 convolutions (64, 64, 32, 32), each ReLU, batch-norm, 2x2 max-pool; input
+    uint8 frames (n, H, W, 3) of exactly ``image_hw_px``."""
+
+    def __init__(self, image_hw_px: tuple[int, int]) -> None:
+        super().__init__()
+        self.image_hw_px = (int(image_hw_px[0]), int(image_hw_px[1]))
+        layers: list[nn.Module] = []
+        c_in, (h, w) = 3, self.image_hw_px
+        for c_out in (64, 64, 32, 32):
+            # Pooling before the ReLU gives the same values as after it (both are monotone) on a quarter of them.
+            layers += [nn.Conv2d(c_in, c_out, 2, 1), nn.MaxPool2d(2), nn.ReLU(inplace=True), nn.BatchNorm2d(c_out)]
+            c_in, h, w = c_out, (h - 1) // 2, (w - 1) // 2
+        if h < 1 or w < 1:
+            raise FrameSizeError(
+                f"frames of {self.image_hw_px[0]}x{self.image_hw_px[1]} px are too small for four "
+                "2x2 convolutions with 2x2 pooling: use at least 31x31"
+            )
+        self.net = nn.Sequential(*layers)
+        self.out_dim = c_in * h * w
+        self.channels_last = True
+        """Feed the convolutions the channels-last view of the frames (False: a contiguous NCHW copy)."""
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        if frames.ndim != 4 or tuple(frames.shape[1:]) != (*self.image_hw_px, 3):
+            raise FrameSizeError(
+                f"frames of shape {tuple(frames.shape[1:])} (height, width, channels), but this network was built "
+                f"for {self.image_hw_px[0]}x{self.image_hw_px[1]}x3: render frames at its image_hw_px"
+            )
+        x = frames.permute(0, 3, 1, 2).float().div_(255.0)  # a channels-last view of the NHWC frames
+        if not self.channels_last:
+            x = x.contiguous()
+        return self.net(x).flatten(1)
+
+
+def _variance_scaling_(linear: nn.Linear, scale: float) -> None:
+    """Keras VarianceScaling(scale, fan_in, truncated_normal): std sqrt(scale / fan_in) / 0.8796, cut at 2 std."""
+    std = math.sqrt(scale / linear.in_features) / 0.87962566103423978
+    nn.init.trunc_normal_(linear.weight, std=std, a=-2 * std, b=2 * std)
+    nn.init.zeros_(linear.bias)
+
+
+class _KeyHead(nn.Module):
+    """Four outputs: accelerate and brake through ``pedal_activation`` (the paper's relu, or sigmoid), left and right
+    tanh."""
+
+    def __init__(self, n_in: int, init_scale: float, pedal_activation: str = "relu") -> None:
+        super().__init__()
+        self.out = nn.Linear(n_in, 4)
+        _variance_scaling_(self.out, init_scale)
+        self.pedal = torch.relu if pedal_activation == "relu" else torch.sigmoid
+
+    def forward(self, h: torch.Tensor) -> torch.Tensor:
+        z = self.out(h)
+        return torch.stack([self.pedal(z[:, 0]), torch.tanh(z[:, 1]), torch.tanh(z[:, 2]), self.pedal(z[:, 3])], 1)
+
+
+class _Scaled(nn.Module):
+    """Motion and goal (n, 18) scaled by fixed offsets and scales (kept in the weights)."""
+
+    def __init__(self, offset: np.ndarray, scale: np.ndarray) -> None:
+        super().__init__()
+        self.register_buffer("offset", torch.as_tensor(offset, dtype=torch.float32))
+        self.register_buffer("scale", torch.as_tensor(scale, dtype=torch.float32))
+
+    def forward(self, motion: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        return (torch.cat([motion, goal], 1) - self.offset) / self.scale
+
+
+class PixelActor(nn.Module):
+    """Frames (n, H, W, 3) uint8 -> keys (n, 4)."""
+
+    def __init__(self, image_hw_px: tuple[int, int], init_scale: float = 1e-2, pedal_activation: str = "relu") -> None:
+        super().__init__()
+        self.trunk = ConvTrunk(image_hw_px)
+        self.dense = _dense_pathway(self.trunk.out_dim)
+        self.head = _KeyHead(300, init_scale, pedal_activation)
+
+    def forward(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        return self.head(self.dense(self.trunk(obs["image"])))
+
+
+class StateActor(nn.Module):
+    """Motion and goal -> keys (n, 4): the state-only actor of the ablation."""
+
+    def __init__(
+        self, offset: np.ndarray, scale: np.ndarray, init_scale: float = 1e-2, pedal_activation: str = "relu"
+    ) -> None:
+        super().__init__()
+        self.scaled = _Scaled(offset, scale)
+        self.dense = _dense_pathway(18)
+        self.head = _KeyHead(300, init_scale, pedal_activation)
+
+    def forward(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        return self.head(self.dense(self.scaled(obs["motion"], obs["goal"])))
+
+
+class Critic(nn.Module):
+    """Q(motion, goal, action): three pathways merged into Dense 600 and Q."""
+
+    def __init__(self, offset: np.ndarray, scale: np.ndarray) -> None:
+        super().__init__()
+        self.scaled = _Scaled(offset, scale)
+        self.motion = _dense_pathway(15)
+        self.goal = _dense_pathway(3)
+        self.action = _dense_pathway(4)
+        self.merge = nn.Sequential(nn.Linear(900, 600), nn.ReLU(), nn.Linear(600, 1))
+
+    def forward(self, obs: Mapping[str, torch.Tensor], action: torch.Tensor) -> torch.Tensor:
+        x = self.scaled(obs["motion"], obs["goal"])
+        h = torch.cat([self.motion(x[:, :15]), self.goal(x[:, 15:]), self.action(action)], 1)
+        return self.merge(h).squeeze(1)
+
+
+class PixelCritic(nn.Module):
+    """Q(frame, action) of the symmetric ablation: a CNN pathway like the actor's in place of motion and goal."""
+
+    def __init__(self, image_hw_px: tuple[int, int]) -> None:
+        super().__init__()
+        self.trunk = ConvTrunk(image_hw_px)
+        self.image = _dense_pathway(self.trunk.out_dim)
+        self.action = _dense_pathway(4)
+        self.merge = nn.Sequential(nn.Linear(600, 600), nn.ReLU(), nn.Linear(600, 1))
+
+    def forward(self, obs: Mapping[str, torch.Tensor], action: torch.Tensor) -> torch.Tensor:
+        h = torch.cat([self.image(self.trunk(obs["image"])), self.action(action)], 1)
+        return self.merge(h).squeeze(1)
+
+
+# ------------------------------------------------------------------------------------------------ noise
+
+
+class OUNoise:
+    """Ornstein-Uhlenbeck noise per car and output: ``x <- x + theta (mu - x) dt + sigma sqrt(dt) N(0, 1)``."""
+
+    def __init__(
+        self, n: int, dim: int, theta: float, sigma: float, mu: float = 0.0, dt: float = 1.0, seed: int | None = None
+    ) -> None:
+        self.theta, self.sigma, self.mu, self.dt = theta, sigma, mu, dt
+        self.rng = np.random.default_rng(seed)
+        self.x = np.full((n, dim), mu, dtype=np.float64)
+
+    def reset(self, rows: np.ndarray | None = None) -> None:
+        """Back to the mean (all rows, or ``rows``: cars starting a new episode)."""
+        if rows is None:
+            self.x[:] = self.mu
+        else:
+            self.x[rows] = self.mu
+
+    def __call__(self) -> np.ndarray:
+        shock = self.rng.standard_normal(self.x.shape)
+        self.x += self.theta * (self.mu - self.x) * self.dt + self.sigma * math.sqrt(self.dt) * shock
+        return self.x.copy()
+
+
+# ------------------------------------------------------------------------------------------------ replay
+
+
+class FrameReplay:
+    """Per-car streams of observation rows; a row with an action is a transition whose next observation is the
+    car's following row. ``capacity`` rows in all (``capacity // n_cars`` per car, at least 4)."""
+
+    ARRAYS = ("image", "motion", "goal", "action", "reward", "terminated", "valid")
+
+    def __init__(self, capacity: int, n_cars: int, image_hw_px: tuple[int, int] | None) -> None:
+        self.n_cars = int(n_cars)
+        self.rows = int(capacity) // self.n_cars
+        if self.rows < 4:
+            raise DDPGError(
+                f"a replay buffer of {capacity} rows leaves {self.rows} per car for {n_cars} cars; "
+                "give at least 4 per car"
+            )
+        self.image_hw_px = None if image_hw_px is None else (int(image_hw_px[0]), int(image_hw_px[1]))
+        shape = (self.n_cars, self.rows)
+        # np.zeros maps untouched pages lazily: an unfilled 3.2 GB buffer costs only what has been written.
+        self.image = None if image_hw_px is None else np.zeros((*shape, *self.image_hw_px, 3), dtype=np.uint8)
+        self.motion = np.zeros((*shape, 15), dtype=np.float32)
+        self.goal = np.zeros((*shape, 3), dtype=np.float32)
+        self.action = np.zeros((*shape, 4), dtype=np.float32)
+        self.reward = np.zeros(shape, dtype=np.float32)
+        self.terminated = np.zeros(shape, dtype=bool)
+        self.valid = np.zeros(shape, dtype=bool)
+        self.pos = np.zeros(self.n_cars, dtype=np.int64)
+        per_chunk = max(1, CHUNK_FRAMES // self.n_cars)
+        self.chunk_rows = min(per_chunk, self.rows)
+        self.dirty = np.ones(-(-self.rows // self.chunk_rows), dtype=bool)
+        self._cars = np.arange(self.n_cars)
+
+    @property
+    def size(self) -> int:
+        """Transitions that can be sampled."""
+        return int(self.valid.sum())
+
+    def _write_obs(self, cars: np.ndarray, rows: np.ndarray, obs: Mapping[str, np.ndarray]) -> None:
+        if self.image is not None:
+            self.image[cars, rows] = obs["image"]
+        self.motion[cars, rows] = obs["motion"]
+        self.goal[cars, rows] = obs["goal"]
+        self.valid[cars, rows] = False
+        self.dirty[rows // self.chunk_rows] = True
+
+    def start(self, obs: Mapping[str, np.ndarray], cars: np.ndarray | None = None) -> None:
+        """The first observation of every car, or of ``cars`` (after a reset of those cars)."""
+        cars = self._cars if cars is None else np.asarray(cars)
+        self._write_obs(cars, self.pos[cars], obs)
+
+    def add(
+        self,
+        action: np.ndarray,
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        next_obs: Mapping[str, np.ndarray],
+        done: np.ndarray,
+        reset_obs: Mapping[str, np.ndarray] | None = None,
+        cars: np.ndarray | None = None,
+    ) -> None:
+        """One step of every car (or of ``cars``, the columns of one sampler's world, in its order): its action,
+        reward and termination on its pending row, then ``next_obs`` (the final observation where ``done``) in the
+        next row and, where ``done``, ``reset_obs`` (the new episode's first observation, rows of the done cars in
+        order) in the row after."""
+        cars = self._cars if cars is None else np.asarray(cars)
+        rows = self.pos[cars]
+        self.action[cars, rows] = action
+        self.reward[cars, rows] = reward
+        self.terminated[cars, rows] = terminated
+        self.valid[cars, rows] = True
+        self.pos[cars] = (rows + 1) % self.rows
+        self._write_obs(cars, self.pos[cars], next_obs)
+        done_cars = cars[np.flatnonzero(done)]
+        if len(done_cars):
+            assert reset_obs is not None, "finished cars need their new episode's first observation"
+            self.pos[done_cars] = (self.pos[done_cars] + 1) % self.rows
+            self._write_obs(done_cars, self.pos[done_cars], reset_obs)
+
+    def sample(self, batch: int, rng: np.random.Generator) -> dict[str, Any]:
+        """``batch`` transitions drawn uniformly: {obs, action, reward, terminated, next_obs}."""
+        flat = np.flatnonzero(self.valid.reshape(-1))
+        if len(flat) == 0:
+            raise DDPGError("the replay buffer holds no transition yet")
+        pick = flat[rng.integers(0, len(flat), batch)]
+        cars, rows = np.divmod(pick, self.rows)
+        nxt = (rows + 1) % self.rows
+
+        def obs(r: np.ndarray) -> dict[str, np.ndarray]:
+            out = {"motion": self.motion[cars, r], "goal": self.goal[cars, r]}
+            if self.image is not None:
+                out["image"] = self.image[cars, r]
+            return out
+
+        return {
+            "obs": obs(rows),
+            "action": self.action[cars, rows],
+            "reward": self.reward[cars, rows],
+            "terminated": self.terminated[cars, rows],
+            "next_obs": obs(nxt),
+        }
+
+
+def save_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint: Mapping[str, Any]) -> int:
+    """Write the chunks changed since the last save (new files, named by generation), then the index that lists
+    every chunk with its SHA-256, then remove the files it no longer lists. Returns the chunks written."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    index_path = folder / "index.json"
+    old = _read_index(index_path) if index_path.is_file() else None
+    chunks = dict(old["chunks"]) if old is not None and old.get("fingerprint") == dict(fingerprint) else {}
+    generation = int(old["generation"]) + 1 if old is not None else 1
+    written = 0
+    for j in range(len(buffer.dirty)):
+        if not buffer.dirty[j] and str(j) in chunks:
+            continue
+        a, b = j * buffer.chunk_rows, min((j + 1) * buffer.chunk_rows, buffer.rows)
+        arrays = {
+            name: getattr(buffer, name)[:, a:b] for name in FrameReplay.ARRAYS if getattr(buffer, name) is not None
+        }
+        name = f"chunk_{j:05d}_g{generation}.npz"
+
+        def write(tmp: Path, arrays=arrays) -> None:
+            with open(tmp, "wb") as f:
+                np.savez(f, **arrays)
+
+        chunks[str(j)] = {"file": name, "sha256": atomic_write(folder / name, write)}
+        written += 1
+    index = {
+        "format": REPLAY_FORMAT,
+        "format_version": FORMAT_VERSION,
+        "fingerprint": dict(fingerprint),
+        "generation": generation,
+        "n_cars": buffer.n_cars,
+        "rows": buffer.rows,
+        "chunk_rows": buffer.chunk_rows,
+        "image_hw_px": None if buffer.image_hw_px is None else list(buffer.image_hw_px),
+        "pos": buffer.pos.tolist(),
+        "chunks": chunks,
+    }
+    atomic_write(index_path, lambda tmp: tmp.write_text(json.dumps(index)))
+    buffer.dirty[:] = False
+    keep = {c["file"] for c in chunks.values()}
+    for stale in folder.glob("chunk_*.npz"):
+        if stale.name not in keep:
+            stale.unlink(missing_ok=True)
+    return written
+
+
+def _read_index(path: Path) -> dict[str, Any]:
+    try:
+        index = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ArtifactError(f"{path}: unreadable replay index: {exc}") from None
+    if index.get("format") != REPLAY_FORMAT or int(index.get("format_version", 0)) != FORMAT_VERSION:
+        raise ArtifactError(f"{path}: not a DDPG replay index of format {FORMAT_VERSION}")
+    return index
+
+
+def load_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint: Mapping[str, Any]) -> int:
+    """Fill a fresh ``buffer`` from :func:`save_replay`'s folder, checking the fingerprint, the layout and every
+    chunk's SHA-256; returns the transitions restored."""
+    folder = Path(folder)
+    index = _read_index(folder / "index.json")
+    check_fingerprint(index["fingerprint"], fingerprint, str(folder / "index.json"))
+    layout = (index["n_cars"], index["rows"], index["chunk_rows"])
+    if layout != (buffer.n_cars, buffer.rows, buffer.chunk_rows):
+        raise ArtifactError(
+            f"{folder}: the buffer was saved as {layout[0]} cars x {layout[1]} rows, this one is {buffer.n_cars} x "
+            f"{buffer.rows}: resume with the same --cars and --buffer-size"
+        )
+    for j, entry in index["chunks"].items():
+        path = folder / entry["file"]
+        if not path.is_file() or file_sha256(path) != entry["sha256"]:
+            raise ArtifactError(
+                f"{path}: replay chunk missing or changed after it was written (SHA-256); delete "
+                f"{folder} to resume without the buffer"
+            )
+        a = int(j) * buffer.chunk_rows
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                for name in FrameReplay.ARRAYS:
+                    target = getattr(buffer, name)
+                    if target is not None:
+                        target[:, a : a + data[name].shape[1]] = data[name]
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
+            raise ArtifactError(f"{path}: damaged replay chunk: {exc}") from None
+    buffer.pos[:] = np.asarray(index["pos"], dtype=np.int64)
+    buffer.dirty[:] = False
+    return buffer.size
+
+
+# ------------------------------------------------------------------------------------------------ the agent
+
+
+def _to_torch(obs: Mapping[str, np.ndarray], device: torch.device) -> dict[str, torch.Tensor]:
+    return {k: torch.as_tensor(np.ascontiguousarray(v), device=device) for k, v in obs.items()}
+
+
+class DDPGAgent:
+    """Actor, critic, their targets and optimisers, and the exploration noise, for ``env``'s track, car and frames.
+
+    Args:
+        hyper: the hyper-parameters and variant.
+        env: the environment the agent acts in (its frame size, goal frame, track and car).
+        n_cars: exploration processes (one per car).
+        seed: torch's and the noise's seed.
+    """
+
+    def __init__(
+        self, hyper: DDPGHyper, env: PixelRacingConfig, n_cars: int = 1, seed: int = 0, device: str = "cpu"
+    ) -> None:
+        self.hyper, self.env = hyper, env
+        if (hyper.pixel_actor or hyper.pixel_critic) and not env.frames:
+            raise DDPGError(f"the {hyper.variant} agent reads frames: the environment must render them (frames=True)")
+        self.device = torch.device(device)
+        torch.manual_seed(seed)
+        offset, scale = critic_input_scale(load_track(env.track), get_preset(env.car), env.goal_frame)
+        hw = env.image_hw_px
+        init, pedal = hyper.output_init_scale, hyper.pedal_activation
+        self.actor = PixelActor(hw, init, pedal) if hyper.pixel_actor else StateActor(offset, scale, init, pedal)
+        self.critic = PixelCritic(hw) if hyper.pixel_critic else Critic(offset, scale)
+        self.actor_target = self._copy(self.actor)
+        self.critic_target = self._copy(self.critic)
+        for net in (self.actor, self.critic, self.actor_target, self.critic_target):
+            net.to(self.device)
+            if hyper.channels_last:
+                net.to(memory_format=torch.channels_last)
+            for trunk in net.modules():
+                if isinstance(trunk, ConvTrunk):
+                    trunk.channels_last = hyper.channels_last
+        self.actor_target.eval()
+        self.critic_target.eval()
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=hyper.actor_lr)
+        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=hyper.critic_lr)
+        self.noise = OUNoise(n_cars, 4, hyper.ou_theta, hyper.ou_sigma, hyper.ou_mu, hyper.ou_dt, seed=seed)
+        self.n_updates = 0
+        self._pairs = [
+            (list(target.state_dict().values()), list(online.state_dict().values()))
+            for target, online in ((self.actor_target, self.actor), (self.critic_target, self.critic))
+        ]
+
+    @staticmethod
+    def _copy(net: nn.Module) -> nn.Module:
+        import copy
+
+        clone = copy.deepcopy(net)
+        for p in clone.parameters():
+            p.requires_grad_(False)
+        return clone
+
+    def actor_inputs(self, obs: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The keys of an observation that the actor reads."""
+        return {"image": obs["image"]} if self.hyper.pixel_actor else {"motion": obs["motion"], "goal": obs["goal"]}
+
+    @torch.no_grad()
+    def act(self, obs: Mapping[str, np.ndarray], explore: bool = False) -> np.ndarray:
+        """Keys (n, 4) for observations of n cars (eval-mode batch-norm); ``explore`` adds the OU noise (one
+        process per car: n must be the agent's n_cars) and clips to the action space."""
+        self.actor.eval()
+        keys = self.actor(_to_torch(self.actor_inputs(obs), self.device)).cpu().numpy().astype(np.float64)
+        if explore:
+            keys = keys + self.noise()
+        return np.clip(keys, action_space().low, action_space().high)
+
+    def update(self, batch: Mapping[str, Any]) -> dict[str, float]:
+        """One critic and one actor step on a sampled batch, then the soft target update."""
+        h = self.hyper
+        dev = self.device
+        obs, nxt = _to_torch(batch["obs"], dev), _to_torch(batch["next_obs"], dev)
+        action = torch.as_tensor(batch["action"], device=dev)
+        reward = torch.as_tensor(batch["reward"], device=dev) * h.reward_scale
+        alive = 1.0 - torch.as_tensor(batch["terminated"], device=dev).float()
+        with torch.no_grad():
+            target_q = reward + h.gamma * alive * self.critic_target(nxt, self.actor_target(nxt))
+        self.critic.train()
+        critic_loss = torch.nn.functional.mse_loss(self.critic(obs, action), target_q)
+        self.critic_opt.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        self.critic_opt.step()
+
+        self.actor.train()
+        for p in self.critic.parameters():
+            p.requires_grad_(False)
+        try:
+            actor_loss = -self.critic(obs, self.actor(obs)).mean()
+            self.actor_opt.zero_grad(set_to_none=True)
+            actor_loss.backward()
+            self.actor_opt.step()
+        finally:
+            for p in self.critic.parameters():
+                p.requires_grad_(True)
+        self.soft_update(h.tau)
+        self.n_updates += 1
+        return {"critic_loss": critic_loss.item(), "actor_loss": actor_loss.item(), "q_mean": target_q.mean().item()}
+
+    @torch.no_grad()
+    def soft_update(self, tau: float) -> None:
+        """Targets <- tau online + (1 - tau) targets; batch-norm running statistics too, counters copied."""
+        for targets, online in self._pairs:
+            for t, o in zip(targets, online, strict=True):
+                if t.dtype.is_floating_point:
+                    t.lerp_(o, tau)
+                else:
+                    t.copy_(o)
+
+    # ------------------------------------------------------------------ state
+    def state(self) -> dict[str, Any]:
+        """Everything needed to go on: weights, targets, optimisers, noise state, counters (tensors, plain values)."""
+        return {
+            "networks": {
+                name: getattr(self, name).state_dict() for name in ("actor", "critic", "actor_target", "critic_target")
+            },
+            "optimizers": {"actor": self.actor_opt.state_dict(), "critic": self.critic_opt.state_dict()},
+            "noise": torch.as_tensor(self.noise.x),
+            "n_updates": int(self.n_updates),
+        }
+
+    def load_state(self, state: Mapping[str, Any], source: str = "agent") -> None:
+        try:
+            for name, weights in state["networks"].items():
+                getattr(self, name).load_state_dict(weights)
+            self.actor_opt.load_state_dict(state["optimizers"]["actor"])
+            self.critic_opt.load_state_dict(state["optimizers"]["critic"])
+        except (RuntimeError, KeyError, ValueError, AttributeError) as exc:
+            first = str(exc).strip().splitlines()[0]
+            raise DDPGError(f"{source}: its weights do not fit this agent's networks: {first}") from None
+        noise = np.asarray(state["noise"], dtype=np.float64)
+        if noise.shape == self.noise.x.shape:
+            self.noise.x[:] = noise
+        self.n_updates = int(state["n_updates"])
+
+
+def ddpg_fingerprint(hyper: DDPGHyper, env: PixelRacingConfig) -> dict[str, Any]:
+    """What an agent's weights belong to: checked on every load and resume."""
+    return {
+        "variant": hyper.variant,
+        "track_geometry_hash": load_track(env.track).geometry_hash,
+        "car": env.car,
+        "image_hw_px": list(env.image_hw_px) if (hyper.pixel_actor or hyper.pixel_critic) else None,
+        "mask_rows": env.mask_rows,
+        "goal_frame": env.goal_frame,
+        "racing_line": env.racing_line,
+    }
+
+
+def save_agent_file(
+    agent: DDPGAgent, path: str | os.PathLike[str], fingerprint: Mapping[str, Any], counters: Mapping[str, Any]
+) -> str:
+    """Write the agent (no pickled objects) with its fingerprint; returns the file's SHA-256."""
+    payload = {
+        "format": AGENT_FORMAT,
+        "format_version": FORMAT_VERSION,
+        "fingerprint": dict(fingerprint),
+        "hyper": asdict(agent.hyper),
+        "env": agent.env.to_dict(),
+        "counters": dict(counters),
+        **agent.state(),
+    }
+    return atomic_write(path, lambda tmp: torch.save(payload, tmp))
+
+
+def read_agent_file(path: str | os.PathLike[str], sha256: str | None = None) -> dict[str, Any]:
+    """An agent file's contents, refusing a changed file (``sha256``) or one that is not a DDPG agent file."""
+    path = Path(path)
+    if sha256 is not None and file_sha256(path) != sha256:
+        raise ArtifactError(f"{path}: its SHA-256 is not the recorded one: the file changed after it was written")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError, OSError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ArtifactError(
+            f"{path}: not a DDPG agent file (it holds more than tensors and plain values, or is damaged): {first}"
+        ) from None
+    if not isinstance(state, dict) or state.get("format") != AGENT_FORMAT:
+        raise ArtifactError(f"{path}: not a DDPG agent file (no format {AGENT_FORMAT!r})")
+    if int(state.get("format_version", 0)) != FORMAT_VERSION:
+        version = state.get("format_version")
+        raise ArtifactError(f"{path}: DDPG agent format {version}, this code reads {FORMAT_VERSION}")
+    return state
+
+
+def resolve_agent_path(path: str | os.PathLike[str]) -> Path:
+    """The agent file of a run folder, or the file itself."""
+    path = Path(path)
+    candidate = path / AGENT_NAME if path.is_dir() else path
+    if not candidate.is_file():
+        raise DDPGError(f"{path}: no DDPG agent here (expected a train-ddpg run folder or its {AGENT_NAME})")
+    return candidate
+
+
+def load_agent(path: str | os.PathLike[str], variant: str | None = None, device: str = "cpu") -> DDPGAgent:
+    """A saved agent, ready to act. ``variant`` (when given) must be the one it was trained as; its fingerprint
+    must match its own environment (the track's geometry now, the frame size); a run folder's sidecar checksum is
+    checked when there."""
+    path = resolve_agent_path(path)
+    sidecar = path.with_name(SIDECAR_NAME)
+    sha = None
+    if sidecar.is_file() and path.name == AGENT_NAME:
+        try:
+            sha = json.loads(sidecar.read_text()).get("weights_sha256")
+        except (OSError, ValueError):
+            sha = None
+    state = read_agent_file(path, sha)
+    try:
+        hyper = DDPGHyper(**state["hyper"])
+        env = PixelRacingConfig.from_dict(state["env"])
+    except (TypeError, KeyError) as exc:
+        raise ArtifactError(f"{path}: bad hyper-parameters or environment in the agent file: {exc}") from None
+    if variant is not None and variant != hyper.variant:
+        raise DDPGError(
+            f"{path} holds an agent of variant {hyper.variant!r}, not {variant!r}: load it as --variant "
+            f"{hyper.variant} or train a {variant} one"
+        )
+    check_fingerprint(state["fingerprint"], ddpg_fingerprint(hyper, env), str(path))
+    agent = DDPGAgent(hyper, env, n_cars=1, device=device)
+    agent.load_state(state, str(path))
+    agent.counters = dict(state.get("counters", {}))
+    return agent
+
+
+# ------------------------------------------------------------------------------------------------ protocol driver
+
+
+class DDPGDriver:
+    """A DDPG actor as a driver of the lap-time protocol: each car observed by a
+    :class:`~vision_rl.envs.pixel_racing.PixelObserver` built like its training environment's, deterministic keys
+    (no noise) mapped to ``[steer rad, omega]``."""
+
+    def __init__(self, agent: DDPGAgent, identity: dict[str, Any] | None = None) -> None:
+        self.agent = agent
+        self.control_dt_s = agent.env.control_dt_s
+        self.identity = identity or {"driver": "ddpg", "variant": agent.hyper.variant}
+        self.observer: PixelObserver | None = None
+        self._key: tuple | None = None
+
+    def reset(self, world: World, car_ids: np.ndarray) -> None:
+        env = self.agent.env
+        # The pixel observer draws only what the actor reads: the state actor needs no renderer.
+        config = PixelRacingConfig(
+            **{**env.to_dict(), "image_hw_px": env.image_hw_px, "frames": self.agent.hyper.pixel_actor}
+        )
+        key = (id(world.track), world.car.name, tuple(world.model.groups.tolist()))
+        if self.observer is None or key != self._key:
+            if self.observer is not None:
+                self.observer.close()
+            self.observer = PixelObserver(config, world.track, world.car, world.model.groups, DRIVER_BATCH_CARS)
+            self._key = key
+        self.car_ids = np.asarray(car_ids)
+
+    def act(self, state: WorldState) -> np.ndarray:
+        assert self.observer is not None, "reset() first"
+        obs = self.observer(state, self.car_ids)
+
+        def act(rows: np.ndarray) -> np.ndarray:
+            return self.agent.act({k: v[rows] for k, v in obs.items()}, explore=False)
+
+        return keys_to_action(in_batches_of(DRIVER_BATCH_CARS, act, np.arange(len(self.car_ids))))
+
+    def close(self) -> None:
+        if self.observer is not None:
+            self.observer.close()
+            self.observer = None
+
+
+# ------------------------------------------------------------------------------------------------ bench
+
+
+#: Memory layouts and compilation of the convolutions that :func:`bench_updates` times.
+BENCH_LAYOUTS = ("eager", "channels_last", "compiled")
+
+
+def bench_updates(
+    hyper: DDPGHyper,
+    env: PixelRacingConfig,
+    updates: int = 10,
+    warmup: int = 2,
+    seed: int = 0,
+    layout: str = "",
+    device: str = "cpu",
+) -> dict[str, float]:
+    """Updates per second at ``hyper.batch_size`` on random frames and states (what the network costs, no sim).
+
+    ``layout`` overrides ``hyper.channels_last``: ``eager`` (NCHW), ``channels_last``, or ``compiled`` (channels-last
+    with every conv trunk through ``torch.compile``; its compilation happens in the untimed warm-up updates). On a
+    GPU the batch is copied from the host in every update, as in training, and the clock waits for the GPU."""
+    if layout and layout not in BENCH_LAYOUTS:
+        raise DDPGError(f"layout must be one of {BENCH_LAYOUTS}, got {layout!r}")
+    if layout:
+        hyper = replace(hyper, channels_last=layout != "eager")
+    agent = DDPGAgent(hyper, env, seed=seed, device=device)
+    if layout == "compiled":
+        for net in (agent.actor, agent.critic, agent.actor_target, agent.critic_target):
+            if isinstance(getattr(net, "trunk", None), ConvTrunk):
+                net.trunk.net = torch.compile(net.trunk.net)
+    rng = np.random.default_rng(seed)
+    n = hyper.batch_size
+
+    def obs() -> dict[str, np.ndarray]:
+        out = {
+            "motion": rng.normal(size=(n, 15)).astype(np.float32),
+            "goal": rng.normal(size=(n, 3)).astype(np.float32),
+        }
+        if env.frames:
+            out["image"] = rng.integers(0, 256, (n, *env.image_hw_px, 3), dtype=np.uint8)
+        return out
+
+    batch = {
+        "obs": obs(),
+        "next_obs": obs(),
+        "action": rng.uniform(0, 1, (n, 4)).astype(np.float32),
+        "reward": rng.normal(size=n).astype(np.float32),
+        "terminated": np.zeros(n, bool),
+    }
+    sync = torch.cuda.synchronize if agent.device.type == "cuda" else (lambda: None)
+    for _ in range(warmup):
+        agent.update(batch)
+    sync()
+    t0 = time.perf_counter()
+    for _ in range(updates):
+        agent.update(batch)
+    sync()
+    dt = time.perf_counter() - t0
+    return {"updates_per_s": updates / dt, "ms_per_update": 1000 * dt / updates}

@@ -1,0 +1,651 @@
+"""`train-ddpg`: DDPG with an asymmetric actor-critic on ``vision_rl/PixelRacing-v0`` (the Project CARS 2 paper), and
+its ablations (``--variant symmetric``, ``state-actor``).
+
+A run folder holds ``ddpg.pt`` (weights, targets, optimisers, noise, counters; no pickle) and ``ddpg.json`` (its
+sidecar: variant, environment, hyper-parameters, fingerprint, the weights' SHA-256, counters), ``replay/`` (the
+buffer in chunk files, only changed chunks rewritten), ``metrics.jsonl`` (one line per periodic evaluation through
+the lap-time protocol) and ``episodes.jsonl`` (one line per finished training episode: return, steps, distance,
+laps, why it ended).
+
+What survives a kill: the agent is saved every ``checkpoint_every_min`` minutes (light: no buffer) and, with the
+buffer, every ``checkpoint_every_steps``; Ctrl-C (and SIGTERM, which the command maps to it) saves everything and
+returns. ``--resume`` continues with the stored agent and buffer (without a saved buffer it collects
+``learning_starts`` transitions before updating again) and cuts ``episodes.jsonl`` back to the checkpoint's episodes.
+``--train-minutes`` bounds the run's training time over all its sessions, for comparisons at equal wall-clock.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from vision_rl.ddpg.agent import (
+    AGENT_NAME,
+    REPLAY_DIR,
+    SIDECAR_NAME,
+    DDPGAgent,
+    DDPGDriver,
+    DDPGError,
+    DDPGHyper,
+    FrameReplay,
+    ddpg_fingerprint,
+    load_replay,
+    read_agent_file,
+    save_agent_file,
+    save_replay,
+)
+from vision_rl.ddpg.sampling import episode_record
+from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
+from vision_rl.evaluation.leaderboard import evaluation_record
+from vision_rl.evaluation.protocol import time_laps
+from vision_rl.files import atomic_write
+from vision_rl.sim.ai_driver import DEFAULT_SKILL
+from vision_rl.training.interrupts import HeldSignal
+from vision_rl.training.persist import ArtifactError, check_fingerprint
+
+METRICS_NAME = "metrics.jsonl"
+EPISODES_NAME = "episodes.jsonl"
+SIDECAR_FORMAT = "vision_rl.ddpg_run"
+MAX_CARS = 64
+
+Progress = Callable[[int, int, dict[str, Any] | None], None]
+
+
+@dataclass(frozen=True)
+class TrainDDPGConfig:
+    """What `train-ddpg` trains, for how long, and where it writes."""
+
+    variant: str = "asymmetric"
+    """asymmetric (pixel actor; critic on motion + racing line), symmetric (critic on pixels too), state-actor."""
+    track: str = "Catalunya"
+    """Track (the paper's Barcelona-Catalunya)."""
+    car: str = "gt3"
+    """Car preset (the paper's Porsche 911 GT3 R)."""
+    cars: int = 1
+    """Cars driving at once, each alone (one frame each per step, rendered in one call)."""
+    steps: int = 100_000
+    """Transitions to train on (all cars together), including those of a resumed run."""
+    train_minutes: float = 0.0
+    """Also stop once the run's training time (all its sessions, evaluations excluded) reaches this many minutes
+    (0: no limit): the equal wall-clock budget of a comparison of variants, trained in chunks with --resume."""
+    seed: int = 0
+    """Seed of the networks, the noise and the episodes' start points."""
+    out: str = ""
+    """Run folder (default runs/ddpg/<variant>-<track>-<car>-s<seed>)."""
+    resume: bool = False
+    """Continue the run in --out (its variant, track, car and settings win)."""
+    force: bool = False
+    """Start over in a folder that holds a run."""
+    image_hw_px: tuple[int, int] = (89, 120)
+    """The actor's frame, height and width px (the paper's 89x120)."""
+    render_scale: int = 1
+    """Render at this multiple of the frame size and box-average down (antialiasing)."""
+    goal_frame: str = "world"
+    """The critic's goal: world (the racing-line point, the paper) or body (its offset from the car)."""
+    racing_line: str = "car"
+    """car (the car's minimum-curvature line) or reference (the racetrack-database's race line)."""
+    line_distance_alpha: float = 1.0
+    """alpha of the reward V - alpha |racing-line distance| - beta crashState, (m/s) per m."""
+    crash_penalty_beta: float = 0.0
+    """beta of the reward (0: the paper's simple reward)."""
+    max_line_distance_m: float = 5.0
+    """An episode ends farther than this from the racing line, m."""
+    episode_s: float = 300.0
+    """Episode time limit, s."""
+    start: str = "random"
+    """Episodes start at a random point (random) or on the start/finish line (line)."""
+    start_speed_share: float = DEFAULT_SKILL
+    """Episodes start at this share of the limit speed there (the built-in AI's; 0: from standstill, as a race in
+    the game restarts)."""
+    buffer_size: int = 100_000
+    """Replay capacity, frames over all cars (100,000 89x120 frames: 3.2 GB)."""
+    batch_size: int = 32
+    """Transitions per update."""
+    learning_starts: int = 1_000
+    """Transitions collected before the first update."""
+    updates_per_step: int = 1
+    """Updates after each step of all cars."""
+    actor_lr: float = 1e-3
+    """Adam step size of the actor."""
+    critic_lr: float = 1e-4
+    """Adam step size of the critic."""
+    tau: float = 0.01
+    """Soft target update."""
+    gamma: float = 0.98
+    """Discount per 0.1 s step."""
+    ou_theta: float = 0.8
+    """OU noise mean reversion."""
+    ou_sigma: float = 0.3
+    """OU noise scale."""
+    reward_scale: float = 1.0
+    """Rewards are multiplied by this in the critic's targets."""
+    pedal_activation: str = "relu"
+    """Output activation of the accelerate and brake keys: relu (the paper's) or sigmoid (a pedal never loses its
+    gradient; not in the paper)."""
+    channels_last: bool = True
+    """Channels-last convolutions (faster on CPUs)."""
+    eval_every_steps: int = 10_000
+    """Time the deterministic actor with the lap-time protocol every this many transitions (0: only at the end)."""
+    eval_seeds: int = 1
+    """Protocol seeds per evaluation."""
+    eval_laps: int = 2
+    """Protocol laps per evaluation (the last is scored)."""
+    eval_time_limit_s: float = 0.0
+    """Time limit of an evaluation run, s (0: the protocol's 3 limit laps per lap)."""
+    checkpoint_every_steps: int = 10_000
+    """Save the agent and the buffer every this many transitions (0: only at the end)."""
+    checkpoint_every_min: float = 10.0
+    """Save the agent (no buffer) every this many minutes of wall-clock time (0: never)."""
+    torch_threads: int = 1
+    """torch threads (0: torch's default); the renderer and the simulator use the other core."""
+    device: str = "cpu"
+    """torch device."""
+    workers: int | None = None
+    """Sampler actors (Ray), each a world of --cars cars in its own process, while this process learns; leave it
+    out to sample in this process."""
+    address: str = ""
+    """With --workers: the Ray cluster to join (auto, host:port or ray://host:port); empty: start one here."""
+    max_staleness: int = 1
+    """With --workers: weight versions a sampler's actor may lag the learner's (0: synchronous)."""
+    version_every_updates: int = 20
+    """With --workers: learner updates per weight version sent to the samplers."""
+
+    def hyper(self) -> DDPGHyper:
+        return DDPGHyper(
+            variant=self.variant,
+            actor_lr=self.actor_lr,
+            critic_lr=self.critic_lr,
+            tau=self.tau,
+            gamma=self.gamma,
+            batch_size=self.batch_size,
+            buffer_size=self.buffer_size,
+            ou_theta=self.ou_theta,
+            ou_sigma=self.ou_sigma,
+            reward_scale=self.reward_scale,
+            channels_last=self.channels_last,
+            pedal_activation=self.pedal_activation,
+        )
+
+    def env(self) -> PixelRacingConfig:
+        return PixelRacingConfig(
+            track=self.track,
+            car=self.car,
+            n_cars=self.cars,
+            episode_s=self.episode_s,
+            image_hw_px=self.image_hw_px,
+            render_scale=self.render_scale,
+            frames=self.variant != "state-actor",
+            goal_frame=self.goal_frame,
+            racing_line=self.racing_line,
+            line_distance_alpha=self.line_distance_alpha,
+            crash_penalty_beta=self.crash_penalty_beta,
+            max_line_distance_m=self.max_line_distance_m,
+            start=self.start,
+            start_skill=self.start_speed_share,
+        )
+
+
+def check_bounds(cfg: TrainDDPGConfig) -> None:
+    """One clear line for an option out of range, before anything is built or written."""
+    checks = {
+        "cars": 1 <= cfg.cars <= MAX_CARS,
+        "steps": cfg.steps >= 1,
+        "learning_starts": cfg.learning_starts >= 0,
+        "updates_per_step": cfg.updates_per_step >= 0,
+        "eval_every_steps": cfg.eval_every_steps >= 0,
+        "eval_seeds": cfg.eval_seeds >= 0,
+        "eval_laps": cfg.eval_laps >= 1,
+        "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
+        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
+        "train_minutes": cfg.train_minutes >= 0,
+        "start_speed_share": 0 <= cfg.start_speed_share <= 1,
+        "torch_threads": cfg.torch_threads >= 0,
+        "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
+    }
+    for name, ok in checks.items():
+        if not ok:
+            raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
+    columns = cfg.cars * (cfg.workers or 1)
+    if cfg.buffer_size < 4 * columns:
+        raise ValueError(f"--buffer-size {cfg.buffer_size} leaves fewer than 4 rows per car for {columns} cars")
+    if cfg.workers is not None or cfg.address:
+        from vision_rl.training.distributed import check_workers
+
+        if cfg.workers is None:
+            raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
+        check_workers(cfg.workers, cfg.max_staleness, cfg.version_every_updates)
+
+
+def _read_sidecar(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise DDPGError(f"{path}: cannot read the run's sidecar: {exc}") from None
+    if data.get("format") != SIDECAR_FORMAT:
+        raise DDPGError(f"{path}: not a train-ddpg sidecar (no format {SIDECAR_FORMAT!r})")
+    return data
+
+
+def _drop_lost_episodes(path: Path, num_steps: int) -> None:
+    """Keep the lines of episodes.jsonl that end before ``num_steps``, the resumed checkpoint's step count: those
+    after it were lost with the kill and are driven again, and a line torn by the kill is no record."""
+    if not path.is_file():
+        return
+    lines = path.read_text().splitlines()
+    kept = []
+    for line in lines:
+        try:
+            if json.loads(line)["num_steps"] < num_steps:
+                kept.append(line)
+        except (ValueError, KeyError, TypeError):
+            continue
+    if len(kept) != len(lines):
+        atomic_write(path, lambda tmp: tmp.write_text("".join(line + "\n" for line in kept)))
+
+
+class _Run:
+    def __init__(self, cfg: TrainDDPGConfig) -> None:
+        check_bounds(cfg)
+        self.cfg = cfg
+        default = f"runs/ddpg/{cfg.variant}-{cfg.track}-{cfg.car}-s{cfg.seed}".replace(os.sep, "_")
+        self.out = Path(cfg.out or default)
+        self.previous: dict[str, Any] | None = None
+        if cfg.resume:
+            if not (self.out / SIDECAR_NAME).is_file():
+                raise DDPGError(f"{self.out}: no train-ddpg run to resume (no {SIDECAR_NAME})")
+            self.previous = _read_sidecar(self.out / SIDECAR_NAME)
+            if self.previous["hyper"]["variant"] != cfg.variant:
+                raise DDPGError(
+                    f"{self.out} holds a run of variant {self.previous['hyper']['variant']!r}, not {cfg.variant!r}: "
+                    f"resume it with --variant {self.previous['hyper']['variant']} or start a new run in another --out"
+                )
+            self.hyper = DDPGHyper(**self.previous["hyper"])
+            self.env = PixelRacingConfig.from_dict(self.previous["env"])
+        else:
+            self.hyper, self.env = cfg.hyper(), cfg.env()
+            if (self.out / SIDECAR_NAME).exists() or (self.out / AGENT_NAME).exists():
+                if not cfg.force:
+                    raise FileExistsError(
+                        f"{self.out} holds a run: pass --resume to continue it or --force to start over"
+                    )
+                shutil.rmtree(self.out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.fingerprint = ddpg_fingerprint(self.hyper, self.env)
+        counters = (self.previous or {}).get("counters", {})
+        self.num_steps = int(counters.get("num_steps", 0))
+        self.episodes = int(counters.get("episodes", 0))
+        self.train_time_before_s = float(counters.get("train_time_s", 0.0))
+        if cfg.resume:
+            _drop_lost_episodes(self.out / EPISODES_NAME, self.num_steps)
+        self.session_start = time.perf_counter()
+        self.last_eval: dict[str, Any] | None = None
+        self.driver: DDPGDriver | None = None
+
+    @property
+    def train_time_s(self) -> float:
+        return self.train_time_before_s + time.perf_counter() - self.session_start
+
+    @property
+    def out_of_time(self) -> bool:
+        """The run has had its --train-minutes."""
+        return self.cfg.train_minutes > 0 and self.train_time_s >= 60.0 * self.cfg.train_minutes
+
+    def counters(self, agent: DDPGAgent) -> dict[str, Any]:
+        return {
+            "num_steps": self.num_steps,
+            "n_updates": agent.n_updates,
+            "episodes": self.episodes,
+            "train_time_s": round(self.train_time_s, 2),
+        }
+
+    def save(self, agent: DDPGAgent, buffer: FrameReplay | None) -> None:
+        """The agent, then its sidecar (which names the agent's SHA-256), then the buffer's changed chunks."""
+        counters = self.counters(agent)
+        train_config = json.loads(json.dumps(dataclasses.asdict(self.cfg)))
+        sha = save_agent_file(agent, self.out / AGENT_NAME, self.fingerprint, counters)
+        sidecar = {
+            "format": SIDECAR_FORMAT,
+            "format_version": 1,
+            "weights": AGENT_NAME,
+            "weights_sha256": sha,
+            "fingerprint": self.fingerprint,
+            "hyper": dataclasses.asdict(self.hyper),
+            "env": self.env.to_dict(),
+            "counters": counters,
+            "seed": (self.previous or {}).get("seed", self.cfg.seed),
+            "train_config": (self.previous or {}).get("train_config", train_config),
+        }
+        atomic_write(self.out / SIDECAR_NAME, lambda tmp: tmp.write_text(json.dumps(sidecar, indent=2)))
+        if buffer is not None:
+            save_replay(buffer, self.out / REPLAY_DIR, self.fingerprint)
+
+    def evaluate(self, agent: DDPGAgent) -> dict[str, Any]:
+        cfg = self.cfg
+        t0 = time.perf_counter()
+        if self.driver is None:
+            self.driver = DDPGDriver(agent)
+        timing = time_laps(
+            self.driver,
+            self.env.track,
+            self.env.car,
+            range(max(cfg.eval_seeds, 1)),
+            cfg.eval_laps,
+            time_limit_s=cfg.eval_time_limit_s,
+        )
+        summary = timing.summary()
+        eval_time = time.perf_counter() - t0
+        self.session_start += eval_time  # evaluation time is not training time
+        record = {
+            "num_steps": self.num_steps,
+            "n_updates": agent.n_updates,
+            "episodes": self.episodes,
+            "train_time_s": round(self.train_time_s, 2),
+            "lap_time_s": summary["best_lap_time_s"],
+            "finished": summary["n_finished"],
+            "dnf_reasons": [s["dnf_reason"] for s in summary["seeds"]],
+            "distance_m": float(np.mean([s["distance_m"] for s in summary["seeds"]])),
+            "wall_contact_s": None if summary["best_lap"] is None else summary["best_lap"]["wall_contact_s"],
+            "limit_lap_time_s": summary["limit_lap_time_s"],
+            "eval_time_s": round(eval_time, 2),
+        }
+        with open(self.out / METRICS_NAME, "a") as f:
+            f.write(json.dumps(record) + "\n")
+        self.last_eval = record
+        return record
+
+    def close(self) -> None:
+        if self.driver is not None:
+            self.driver.close()
+
+
+def train_ddpg(cfg: TrainDDPGConfig, progress: Progress | None = None) -> dict[str, Any]:
+    """Train (or resume) as configured; returns where things went and the last evaluation. A KeyboardInterrupt
+    (Ctrl-C, or SIGTERM where the caller maps it) saves everything and returns with ``interrupted``."""
+    from vision_rl.training.distributed import cluster_for
+
+    check_bounds(cfg)  # options, Ray's cluster and the worker count are checked before the run folder is touched
+    with cluster_for(cfg.workers, cfg.address) as cluster:
+        return _train(cfg, cluster, progress)
+
+
+def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dict[str, Any]:
+    run = _Run(cfg)
+    if cfg.torch_threads > 0:
+        torch.set_num_threads(cfg.torch_threads)
+    hyper, env = run.hyper, run.env
+    n = env.n_cars
+    workers = cfg.workers or 0
+    trained_with = (run.previous or {}).get("train_config", {}).get("workers") or 0
+    if run.previous is not None and trained_with != workers:
+        raise DDPGError(
+            f"{run.out} was trained with --workers {trained_with or 'left out'}: its replay buffer has "
+            f"a column per car of every sampler; resume it with the same --workers"
+        )
+    # A resumed session draws new start points and noise: reusing the first session's would replay its episodes.
+    session_seed = cfg.seed + run.num_steps
+    agent = DDPGAgent(hyper, env, n_cars=n, seed=session_seed, device=cfg.device)
+    buffer = FrameReplay(hyper.buffer_size, n * max(workers, 1), env.image_hw_px if env.frames else None)
+    learning_starts = cfg.learning_starts
+    restored = 0
+    if run.previous is not None:
+        try:
+            state = read_agent_file(run.out / AGENT_NAME, run.previous["weights_sha256"])
+            check_fingerprint(state["fingerprint"], run.fingerprint, str(run.out / AGENT_NAME))
+            agent.load_state(state, str(run.out / AGENT_NAME))
+            if (run.out / REPLAY_DIR / "index.json").is_file():
+                restored = load_replay(buffer, run.out / REPLAY_DIR, run.fingerprint)
+        except ArtifactError as exc:
+            raise DDPGError(f"cannot resume: {exc}") from None
+        if restored == 0:  # never update on an empty buffer: refill it first
+            learning_starts = cfg.learning_starts
+        else:
+            learning_starts = 0
+    rng = np.random.default_rng(session_seed + 1)
+    next_eval = (run.num_steps // cfg.eval_every_steps + 1) * cfg.eval_every_steps if cfg.eval_every_steps else None
+    next_ckpt = (
+        (run.num_steps // cfg.checkpoint_every_steps + 1) * cfg.checkpoint_every_steps
+        if cfg.checkpoint_every_steps
+        else None
+    )
+    last_light = time.perf_counter()
+    interrupted = False
+    sampling = None
+    episodes_file = open(run.out / EPISODES_NAME, "a")  # closed in the finally below
+
+    def after_vector_step() -> None:
+        """What follows every step of all cars, here or from a sampler: evaluation, checkpoints, progress."""
+        nonlocal next_eval, next_ckpt, last_light
+        held.release()  # the step is counted and stored: an interrupt held since acts here
+        if next_eval is not None and run.num_steps >= next_eval and cfg.eval_seeds > 0:
+            run.evaluate(agent)
+            next_eval += cfg.eval_every_steps
+        if next_ckpt is not None and run.num_steps >= next_ckpt:
+            run.save(agent, buffer)
+            next_ckpt += cfg.checkpoint_every_steps
+            last_light = time.perf_counter()
+        elif cfg.checkpoint_every_min and time.perf_counter() - last_light >= 60.0 * cfg.checkpoint_every_min:
+            run.save(agent, None)
+            last_light = time.perf_counter()
+        if progress is not None:
+            progress(run.num_steps, cfg.steps, run.last_eval)
+
+    def log_episode(record: dict[str, Any]) -> None:
+        episodes_file.write(
+            json.dumps(
+                {
+                    "episode": run.episodes,
+                    "num_steps": run.num_steps,
+                    **record,
+                    "train_time_s": round(run.train_time_s, 2),
+                }
+            )
+            + "\n"
+        )
+        episodes_file.flush()
+        run.episodes += 1
+
+    held = HeldSignal()
+    try:
+        with held.installed():
+            if workers:
+                sampling = _learn_with_samplers(
+                    run, agent, buffer, rng, restored > 0, learning_starts, cluster, log_episode, after_vector_step
+                )
+            else:
+                _learn_here(
+                    run, agent, buffer, rng, restored > 0, learning_starts, session_seed, log_episode, after_vector_step
+                )
+        if cfg.eval_seeds > 0 and (run.last_eval is None or run.last_eval["num_steps"] != run.num_steps):
+            run.evaluate(agent)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        episodes_file.close()
+    run.save(agent, buffer)
+    run.close()
+    return {
+        "out": str(run.out),
+        "agent": str(run.out / AGENT_NAME),
+        "variant": hyper.variant,
+        "track": env.track,
+        "car": env.car,
+        "num_steps": run.num_steps,
+        "n_updates": agent.n_updates,
+        "episodes": run.episodes,
+        "train_time_s": round(run.train_time_s, 2),
+        "stopped_by": "interrupt" if interrupted else "steps" if run.num_steps >= cfg.steps else "train_minutes",
+        "interrupted": interrupted,
+        "resumed": cfg.resume,
+        "buffer_restored": restored if cfg.resume else None,
+        "last_eval": run.last_eval,
+        "metrics_jsonl": str(run.out / METRICS_NAME),
+        "episodes_jsonl": str(run.out / EPISODES_NAME),
+        "sampling": sampling,
+    }
+
+
+def _learn_here(
+    run: _Run,
+    agent: DDPGAgent,
+    buffer: FrameReplay,
+    rng: np.random.Generator,
+    restored: bool,
+    learning_starts: int,
+    session_seed: int,
+    log_episode: Callable[[dict[str, Any]], None],
+    after_vector_step: Callable[[], None],
+) -> None:
+    """The session's steps in this process: the world, then an update, one step of all cars at a time."""
+    cfg, env, hyper = run.cfg, run.env, run.hyper
+    n = env.n_cars
+    core = PixelRacingCore(env, seed=session_seed)
+    try:
+        core.reset_cars(core.ids)
+        obs = core.observation()
+        if restored:
+            # The restored rows end with each car's pending observation; this session starts new episodes after.
+            buffer.pos = (buffer.pos + 1) % buffer.rows
+        buffer.start(obs)
+        agent.noise.reset()
+        collected = 0
+        run.session_start = time.perf_counter()  # training time starts with the first step, after the set-up
+        while run.num_steps < cfg.steps and not run.out_of_time:
+            keys = agent.act(obs, explore=True)
+            next_obs, reward, terminated, truncated, info = core.step(keys)
+            done = terminated | truncated
+            reset_obs = None
+            if done.any():
+                ids = np.flatnonzero(done)
+                for i in ids:  # one line per finished episode (episode ends, not steps)
+                    log_episode(episode_record(info, i, bool(terminated[i]), env.max_line_distance_m))
+                core.reset_cars(ids)
+                reset_obs = core.observation(ids)
+                agent.noise.reset(ids)
+            buffer.add(keys, reward, terminated, next_obs, done, reset_obs)
+            if reset_obs is not None:
+                for key in next_obs:
+                    next_obs[key][ids] = reset_obs[key]
+            obs = next_obs
+            run.num_steps += n
+            collected += n
+            if collected >= learning_starts and buffer.size >= hyper.batch_size:
+                for _ in range(cfg.updates_per_step):
+                    agent.update(buffer.sample(hyper.batch_size, rng))
+            after_vector_step()
+    finally:
+        core.close()
+
+
+def _learn_with_samplers(
+    run: _Run,
+    agent: DDPGAgent,
+    buffer: FrameReplay,
+    rng: np.random.Generator,
+    restored: bool,
+    learning_starts: int,
+    cluster: Any,
+    log_episode: Callable[[dict[str, Any]], None],
+    after_vector_step: Callable[[], None],
+) -> dict[str, Any]:
+    """The session's steps from ``cfg.workers`` sampler actors (:mod:`vision_rl.ddpg.sampling`), the same
+    updates per step, evaluations and checkpoints as :func:`_learn_here`. A lost sampler is a line of
+    metrics.jsonl; when none is left, the run is saved and the error raised."""
+    from vision_rl.ddpg.sampling import DDPGLearner, sampler_setup
+    from vision_rl.training.distributed import Pacing, SamplersLostError, learn_with_samplers
+
+    cfg, env = run.cfg, run.env
+    n = env.n_cars
+
+    def on_vector_step(worker: int, episodes: list[dict[str, Any]]) -> bool:
+        for record in episodes:
+            log_episode({k: v for k, v in record.items() if k != "step"})
+        run.num_steps += n
+        after_vector_step()
+        return not run.out_of_time
+
+    def log_event(record: dict[str, Any]) -> None:
+        record = {**record, "num_steps": run.num_steps, "train_time_s": round(run.train_time_s, 2)}
+        with open(run.out / METRICS_NAME, "a") as f:
+            f.write(json.dumps(record) + "\n")
+
+    pacing = Pacing(
+        workers=int(cfg.workers or 0),
+        n_cars=n,
+        gradient_steps=cfg.updates_per_step,
+        learning_starts=learning_starts if restored else max(learning_starts, run.hyper.batch_size),
+        start_timesteps=0,
+        total_timesteps=max(0, cfg.steps - run.num_steps),
+        version_every_updates=cfg.version_every_updates,
+        max_staleness=cfg.max_staleness,
+    )
+    setup = sampler_setup(run.hyper, env, run.fingerprint, cfg.seed + run.num_steps)
+    learner = DDPGLearner(agent, buffer, n, rng, restored, on_vector_step)
+    run.session_start = time.perf_counter()  # training time starts with the samplers, after the set-up
+    try:
+        return learn_with_samplers(learner, setup, pacing, cluster, log_event=log_event)
+    except SamplersLostError as exc:
+        run.save(agent, buffer)
+        run.close()
+        raise SamplersLostError(f"{exc}; the run in {run.out} was saved: continue it with --resume") from None
+
+
+def evaluate_ddpg(
+    path: str | os.PathLike[str],
+    seeds: int = 3,
+    laps: int = 2,
+    variant: str | None = None,
+    time_limit_s: float = 0.0,
+    write: bool = True,
+    video: str = "",
+    plot: str = "",
+) -> dict[str, Any]:
+    """Time a saved agent (a run folder or its ddpg.pt) with the lap-time protocol on its own track and car; with
+    ``write``, the record goes to ``evaluation.json`` beside it, where the leaderboard finds it. ``video`` / ``plot``:
+    an MP4 of the best start's driver view (at the game screen's size, not the actor's 89x120) / a PNG of its
+    trajectory."""
+    from vision_rl.ddpg.agent import load_agent, resolve_agent_path
+    from vision_rl.evaluation.outputs import check_video_dependencies, plot_trajectory, write_video
+
+    if video:
+        check_video_dependencies()
+    agent = load_agent(path, variant=variant)
+    driver = DDPGDriver(agent)
+    try:
+        timing = time_laps(
+            driver,
+            agent.env.track,
+            agent.env.car,
+            range(seeds),
+            laps,
+            time_limit_s=time_limit_s,
+            record=bool(video or plot),
+        )
+    finally:
+        driver.close()
+    variant = agent.hyper.variant
+    identity = {
+        "driver": "ddpg",
+        "variant": variant,
+        "observation": f"ddpg {variant}",
+        "agent": str(path),
+        "counters": getattr(agent, "counters", {}),
+    }
+    record = evaluation_record(timing, identity, f"ddpg {variant}")
+    best = timing.best_index()
+    record["video"] = str(write_video(timing, best, video)) if video else None
+    record["plot"] = str(plot_trajectory(timing, best, plot, f"ddpg {variant}")) if plot else None
+    if write:
+        out = resolve_agent_path(path).with_name("evaluation.json")
+        atomic_write(out, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
+        record["evaluation_json"] = str(out)
+    return record

@@ -1,0 +1,83 @@
+"""Files on disk, once for the whole package: the one atomic write, JSON records, SHA-256 of files, the version.
+
+The lowest layer: any layer that writes or checks a file imports it; it imports nothing of vision_rl.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+
+class ArtifactWriteError(OSError):
+    """A file that could not be written (a full disk, no permission); nothing was replaced."""
+
+
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    """Hex SHA-256 of a file's bytes, read in 1 MiB blocks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def temporary_path(path: str | os.PathLike[str]) -> Path:
+    """A hidden name beside ``path``, on its filesystem, unique to this process: where a write is staged."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None]) -> str:
+    """``write(tmp)``, flush it to disk, then rename ``tmp`` to ``path``: a kill or a full disk leaves the previous
+    file whole. Returns the SHA-256 of what was written; a failed write raises :class:`ArtifactWriteError`."""
+    path = Path(path)
+    tmp = temporary_path(path)
+    try:
+        write(tmp)
+        sha256 = file_sha256(tmp)
+        _fsync(tmp)
+        os.replace(tmp, path)
+        _fsync(path.parent)
+    except (OSError, RuntimeError) as exc:  # torch reports a failed write (a full disk) as RuntimeError
+        tmp.unlink(missing_ok=True)
+        reason = getattr(exc, "strerror", None) or str(exc).strip().splitlines()[0]
+        error = ArtifactWriteError(f"cannot write {path}: {reason}; the previous file is kept")
+        error.errno = getattr(exc, "errno", None) or (errno.ENOSPC if "space" in str(exc) else errno.EIO)
+        raise error from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return sha256
+
+
+def write_json(path: str | os.PathLike[str], data: Mapping[str, Any] | list[Any], indent: int | None = 2) -> str:
+    """``data`` as JSON, written atomically (folders made); returns the file's SHA-256."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return atomic_write(path, lambda tmp: tmp.write_text(json.dumps(data, indent=indent)))
+
+
+def package_version() -> str:
+    """The installed vision_rl version, or the source tree's when it is run without installing."""
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+
+        return version("vision_rl")
+    except PackageNotFoundError:
+        import vision_rl
+
+        return str(getattr(vision_rl, "__version__", "unknown"))

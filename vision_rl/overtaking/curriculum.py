@@ -1,0 +1,965 @@
+"""`train-overtaking`: the overtaking paper's curriculum SAC (section III-C) and standard SAC, on the 96-D
+``overtaking`` observation (72-beam lidar) with Stable-Baselines3.
+
+The curriculum (one run folder per training seed, ``--out``):
+
+- **stage 1** (``stage1/``): a fresh policy races alone (Eq. 1, ``c_w`` 0.005) until it "drives at very high
+  speed": the stage ends at the first periodic evaluation whose protocol lap time
+  (:func:`vision_rl.evaluation.protocol.time_laps`, the scored lap of ``eval_laps``) is within
+  ``stage1_margin`` of the built-in AI's lap time on the same protocol (``lap <= (1 + margin) x AI lap``), or at
+  ``stage1_max_steps`` when that never happens (``stage.json`` then says the criterion was not met).
+- **stage 2** (``stage2/``): the same policy and optimisers with the *kept* replay buffer; the exploration term is
+  re-initialised (SAC's entropy coefficient back to 1 with a fresh optimiser, the actor's log-std layer drawn anew
+  with its Adam moments cleared); one built-in AI car 200 m ahead along the centre line; Eq. 2 with
+  ``c_w = c_c = 0.005``; ``stage2_steps`` steps. Agent 1 is this stage's policy.
+- **stage 3** (``agent2-stage3/``, ``agent3-stage3/``): the stage-2 policy goes on with a fixed-size FIFO replay
+  buffer of ``stage3_buffer_size`` transitions (default half of ``stage3_steps``), filled at the start with the
+  newest transitions of the kept buffer: every transition from before stage 3, stage 1's racing data first, is
+  evicted by the middle of stage 3, and its second half learns from its own overtaking samples only. Agent 2 keeps
+  ``c_w = c_c = 0.005``, Agent 3 raises them to 0.01.
+- **standard SAC** (``standard/``): a fresh policy on Eq. 2 in the stage-2 setting from the first step, for as many
+  steps as the curriculum's budget (stage-1 cap + stage 2 + stage 3).
+
+Agents 1-3 branch from one shared stage-1/2 run: ``--agent 2`` after ``--agent 1`` in the same ``--out`` trains
+only stage 3 (``run.json`` holds the settings they share; a run with other shared settings is refused, naming the
+field). Every ego car has its own opponents (its own collision group) and the ``cars`` egos share one world: 20
+cars as in the paper means 20 groups (20 egos plus 20 opponents in stage 2).
+
+What a stage folder holds: ``policy.pt`` + ``policy.json`` (:class:`OvertakingPolicySpec`; no pickle,
+:mod:`vision_rl.training.persist`), ``replay_buffer.npz``, ``stage.json`` (its settings, status, and its
+boundaries in cumulative environment steps and training seconds), ``metrics.jsonl`` (one line per periodic
+evaluation) and ``tensorboard/``. A stage saves its starting point (weights and buffer) before it trains, light
+checkpoints (weights, optimisers, counters) every ``checkpoint_every_min`` minutes, full ones (with the buffer)
+every ``checkpoint_every_steps``; Ctrl-C or SIGTERM saves everything. Running the same command again continues the
+unfinished stage from what it saved (with its buffer), and skips finished ones.
+
+Periodic evaluation (every ``eval_every_steps`` cumulative steps, all stages and standard SAC alike): the protocol
+lap time of the deterministic policy racing alone, and the *overtaking return*: the mean over ``eval_episodes``
+fixed-seed episodes of the stage-2 setting of the summed Eq. 2 reward (``c_w = c_c = 0.005``), so that curriculum
+and standard SAC are measured on one scale whatever their own stage's reward (the paper's Fig. 3).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.vec_env import VecMonitor
+
+from vision_rl.envs.core import RacingConfig, RacingCore
+from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
+from vision_rl.envs.vector import make_sb3_vec_env
+from vision_rl.evaluation.protocol import BuiltinAI, time_laps
+from vision_rl.files import write_json
+from vision_rl.training.artifact import (
+    BUFFER_NAME,
+    MODEL_NAME,
+    SIDECAR_NAME,
+    LoadedPolicy,
+    PolicyDriver,
+    PolicyError,
+    PolicySpec,
+    load_policy,
+    policy_fingerprint,
+    racing_config_to_dict,
+    resolve_policy_paths,
+)
+from vision_rl.training.interrupts import learn_between_interrupts
+from vision_rl.training.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
+from vision_rl.training.sac import PRESETS, SaveClock, next_multiple, resolve_preset, sampler_setup, torch_device
+from vision_rl.training.sac import read_metrics as read_train_metrics
+
+OBSERVATION = "overtaking"
+OBS_DIM = len(OBS_NAMES[OBSERVATION])
+AGENTS = ("1", "2", "3", "standard")
+RUN_NAME = "run.json"
+STAGE_NAME = "stage.json"
+METRICS_NAME = "metrics.jsonl"
+RUN_FORMAT = "vision_rl.overtaking_run"
+#: The paper's collision weights: stages 1-2 and Agent 2's stage 3 (0.005), Agent 3's stage 3 (0.01).
+PENALTY_STAGE2 = 0.005
+PENALTY_AGENT3 = 0.01
+#: Seed of the overtaking-return evaluation episodes: the same episodes for every run and every evaluation.
+EVAL_EPISODE_SEED = 20_000
+MAX_CARS = 1000
+
+
+@dataclass(frozen=True)
+class CurriculumBudget:
+    """Environment steps (transitions over all cars) of each stage."""
+
+    stage1_max_steps: int
+    """Stage 1 ends here at the latest (earlier when the lap-time criterion is met)."""
+    stage2_steps: int
+    """Steps of stage 2."""
+    stage3_steps: int
+    """Steps of stage 3 (Agents 2 and 3)."""
+
+
+#: The paper gives Table II (the SAC recipe of ``train.PRESETS``) but no step counts per stage: the budgets are
+#: ours. ``cpu``: train-policy's cpu recipe learned to lap the expressway within 200k-300k steps at about 1,100
+#: transitions/s on the shared 2 cores, so 1M steps per stage keeps each agent within the 2-hour target.
+BUDGETS: dict[str, CurriculumBudget] = {
+    "paper": CurriculumBudget(2_000_000, 2_000_000, 2_000_000),
+    "cpu": CurriculumBudget(1_000_000, 1_000_000, 1_000_000),
+}
+
+
+#: Shared settings that stage 1 (racing alone) does not depend on: a run may start from another's stage 1 across them.
+STAGE1_FREE_SETTINGS = ("overtake_gain_c_r", "detection_range_c_d_m")
+
+
+class OvertakingRunError(ValueError):
+    """A run folder that cannot be continued as asked (other settings, missing stages); the message says why."""
+
+
+@dataclass(frozen=True)
+class TrainOvertakingConfig:
+    """Curriculum SAC (stages 1-3, Agents 1-3) or standard SAC on the overtaking task."""
+
+    agent: str = "1"
+    """1 (stages 1-2), 2 (1-3, c 0.005 in stage 3), 3 (1-3, c 0.01 in stage 3) or standard (Eq. 2 from scratch)."""
+    track: str = "expressway"
+    """Track: built-in name, random:SEED or CSV path."""
+    car: str = "tt_cup"
+    """Car preset (the paper's Audi TT Cup: tt_cup)."""
+    cars: int = 20
+    """Ego cars in the one world, each with its own opponents (the paper's 20)."""
+    preset: str = "cpu"
+    """`paper` (Table II) or `cpu` (learns on 2 cores); also sets the stage budgets."""
+    out: str = ""
+    """Run folder shared by Agents 1-3 and standard SAC of one seed (default runs/overtaking/<track>-<car>-s<seed>)."""
+    seed: int = 0
+    """Seed of the networks, exploration and start points."""
+    force: bool = False
+    """Delete the run folder and start over."""
+    stage1_max_steps: int = 0
+    """Stage 1's step cap (0: the preset's)."""
+    stage1_margin: float = 0.05
+    """Stage 1 ends once the protocol lap time is within this share of the built-in AI's."""
+    stage2_steps: int = 0
+    """Steps of stage 2 (0: the preset's)."""
+    stage3_steps: int = 0
+    """Steps of stage 3 (0: the preset's)."""
+    stage3_buffer_size: int = 0
+    """FIFO buffer of stage 3, transitions (0: half of --stage3-steps, so older data is gone mid-stage)."""
+    stage1_from: str = ""
+    """A run folder whose finished stage 1 this one starts from (hard-linked in when this one has none): the c_r
+    ablation, since racing alone does not depend on c_r or c_d; every other shared setting must agree."""
+    standard_steps: int = 0
+    """Steps of standard SAC (0: stage-1 cap + stage 2 + stage 3, the curriculum's budget)."""
+    episode_s: float = 100.0
+    """Training episode length, s (the paper's 1,000 steps at 10 Hz)."""
+    overtake_gain_c_r: float = 1.0
+    """c_r of Eq. 2 (the paper gives none)."""
+    detection_range_c_d_m: float = 50.0
+    """c_d of Eq. 2, m (the paper gives none)."""
+    eval_every_steps: int = 100_000
+    """Evaluate every N cumulative steps (0: off; stage 1 then runs to its cap)."""
+    eval_seeds: int = 1
+    """Start seeds of the protocol lap of each evaluation."""
+    eval_laps: int = 2
+    """Laps of that protocol run (the last is scored)."""
+    eval_time_limit_s: float = 0.0
+    """Time limit of that protocol run, s (0: the protocol's)."""
+    eval_episodes: int = 4
+    """Stage-2 episodes of the overtaking return of each evaluation (0: none)."""
+    eval_episode_s: float = 0.0
+    """Length of those episodes, s (0: --episode-s)."""
+    checkpoint_every_steps: int = 200_000
+    """Save weights and buffer every N steps (0: off)."""
+    checkpoint_every_min: float = 10.0
+    """Save weights, optimisers and counters every N minutes (0: off)."""
+    learning_rate: float = 0.0
+    """Override the preset's learning rate (0: preset)."""
+    batch_size: int = 0
+    """Override the preset's batch size (0: preset)."""
+    buffer_size: int = 0
+    """Override the preset's buffer size of stages 1-2 and standard SAC (0: preset)."""
+    learning_starts: int = -1
+    """Override the preset's random start steps (-1: preset)."""
+    gradient_steps: int = 0
+    """Override the preset's updates per vector step (0: preset)."""
+    device: str = "auto"
+    """Torch device: auto, cpu or cuda."""
+    workers: int | None = None
+    """Sampler actors (Ray), each a world of --cars ego cars in its own process, while this process learns; leave
+    it out to sample in this process."""
+    address: str = ""
+    """With --workers: the Ray cluster to join (auto, host:port or ray://host:port); empty: start one here."""
+    max_staleness: int = 1
+    """With --workers: weight versions a sampler's policy may lag the learner's (0: synchronous)."""
+    version_every_updates: int = 20
+    """With --workers: learner updates per weight version sent to the samplers."""
+
+
+# ------------------------------------------------------------------------------------------------- the sidecar
+
+
+@dataclass(frozen=True)
+class OvertakingPolicySpec(PolicySpec):
+    """``policy.json`` of an overtaking policy: the fields of :class:`PolicySpec`, observation ``overtaking``."""
+
+    def __post_init__(self) -> None:
+        if self.observation != OBSERVATION:
+            raise PolicyError(
+                f"this policy observes {self.observation!r}, not the 96-D {OBSERVATION!r} observation: an overtaking "
+                "policy comes from train-overtaking"
+            )
+
+
+def read_overtaking_spec(path: str | os.PathLike[str]) -> OvertakingPolicySpec:
+    """Read a sidecar, refusing one of another observation with one line that says so."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except OSError as exc:
+        raise PolicyError(f"{path}: cannot read the policy sidecar: {exc.strerror or exc}") from None
+    except ValueError as exc:
+        raise PolicyError(f"{path}: the policy sidecar is not valid JSON: {exc}") from None
+    if isinstance(data, dict) and data.get("observation") not in (None, OBSERVATION):
+        raise PolicyError(
+            f"{path}: the policy observes {data.get('observation')!r}, not the 96-D {OBSERVATION!r} observation; "
+            "give a policy of train-overtaking"
+        )
+    if not isinstance(data, dict):
+        raise PolicyError(f"{path}: not a vision_rl policy sidecar")
+    return OvertakingPolicySpec.from_dict(data, str(path))
+
+
+def load_overtaking_policy(path: str | os.PathLike[str], device: str = "cpu") -> LoadedPolicy:
+    """Load a policy of train-overtaking (a stage folder, its ``policy.pt`` or ``policy.json``) with
+    :func:`~vision_rl.training.artifact.load_policy`'s checks, refusing one of another observation."""
+    _, sidecar = resolve_policy_paths(path)
+    read_overtaking_spec(sidecar)
+    return load_policy(path, device=device)
+
+
+# ------------------------------------------------------------------------------------------------- stages
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One training stage: what it trains on, how long, and how it starts from the stage before it."""
+
+    name: str
+    """Its folder in the run."""
+    scenario: str
+    """``stage1`` (alone) or ``stage2`` (one AI car 200 m ahead)."""
+    penalty_c: float
+    """c_w = c_c of its reward."""
+    steps: int
+    """Steps it adds (stage 1: at most)."""
+    buffer_size: int
+    """Replay buffer capacity, transitions."""
+    previous: str | None
+    """The stage it continues from (None: a fresh policy)."""
+    reinit_exploration: bool = False
+    """Reset the entropy coefficient and the log-std layer at its start (stage 2)."""
+    fifo_from_previous: bool = False
+    """Start with the newest transitions of the previous buffer in a buffer of ``buffer_size`` (stage 3)."""
+    until_criterion: bool = False
+    """End at the lap-time criterion (stage 1)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def resolve_budget(cfg: TrainOvertakingConfig) -> CurriculumBudget:
+    base = BUDGETS[cfg.preset]
+    return CurriculumBudget(
+        cfg.stage1_max_steps or base.stage1_max_steps,
+        cfg.stage2_steps or base.stage2_steps,
+        cfg.stage3_steps or base.stage3_steps,
+    )
+
+
+def stages_of(cfg: TrainOvertakingConfig) -> list[Stage]:
+    """The chain of stages that makes ``cfg.agent``."""
+    sac, budget = resolve_preset(cfg), resolve_budget(cfg)
+    if cfg.agent == "standard":
+        steps = cfg.standard_steps or budget.stage1_max_steps + budget.stage2_steps + budget.stage3_steps
+        return [Stage("standard", "stage2", PENALTY_STAGE2, steps, sac.buffer_size, None)]
+    stage1 = Stage(
+        "stage1", "stage1", PENALTY_STAGE2, budget.stage1_max_steps, sac.buffer_size, None, until_criterion=True
+    )
+    stage2 = Stage(
+        "stage2", "stage2", PENALTY_STAGE2, budget.stage2_steps, sac.buffer_size, "stage1", reinit_exploration=True
+    )
+    if cfg.agent == "1":
+        return [stage1, stage2]
+    penalty = PENALTY_STAGE2 if cfg.agent == "2" else PENALTY_AGENT3
+    fifo = cfg.stage3_buffer_size or max(budget.stage3_steps // 2, cfg.cars)
+    stage3 = Stage(
+        f"agent{cfg.agent}-stage3", "stage2", penalty, budget.stage3_steps, fifo, "stage2", fifo_from_previous=True
+    )
+    return [stage1, stage2, stage3]
+
+
+def shared_settings(cfg: TrainOvertakingConfig) -> dict[str, Any]:
+    """What every agent of one run folder must agree on (``run.json``)."""
+    budget = resolve_budget(cfg)
+    return {
+        "track": cfg.track,
+        "car": cfg.car,
+        "cars": cfg.cars,
+        "seed": cfg.seed,
+        "preset": cfg.preset,
+        "sac": json.loads(json.dumps(dataclasses.asdict(resolve_preset(cfg)))),
+        "stage1_max_steps": budget.stage1_max_steps,
+        "stage1_margin": cfg.stage1_margin,
+        "stage2_steps": budget.stage2_steps,
+        "episode_s": cfg.episode_s,
+        "overtake_gain_c_r": cfg.overtake_gain_c_r,
+        "detection_range_c_d_m": cfg.detection_range_c_d_m,
+        "eval_every_steps": cfg.eval_every_steps,
+        "eval_seeds": cfg.eval_seeds,
+        "eval_laps": cfg.eval_laps,
+        "eval_time_limit_s": cfg.eval_time_limit_s,
+    }
+
+
+def check_config(cfg: TrainOvertakingConfig) -> None:
+    """One clear line for a bad option, before anything is built or written."""
+    if cfg.agent not in AGENTS:
+        raise ValueError(f"--agent must be one of {', '.join(AGENTS)}, got {cfg.agent!r}")
+    if cfg.preset not in PRESETS or cfg.preset not in BUDGETS:
+        raise ValueError(f"--preset must be one of {sorted(BUDGETS)}, got {cfg.preset!r}")
+    checks = {
+        "cars": 1 <= cfg.cars <= MAX_CARS,
+        "stage1_max_steps": cfg.stage1_max_steps >= 0,
+        "stage1_margin": cfg.stage1_margin >= 0,
+        "stage2_steps": cfg.stage2_steps >= 0,
+        "stage3_steps": cfg.stage3_steps >= 0,
+        "stage3_buffer_size": cfg.stage3_buffer_size >= 0,
+        "standard_steps": cfg.standard_steps >= 0,
+        "episode_s": cfg.episode_s > 0,
+        "overtake_gain_c_r": cfg.overtake_gain_c_r >= 0,
+        "detection_range_c_d_m": cfg.detection_range_c_d_m > 0,
+        "eval_every_steps": cfg.eval_every_steps >= 0,
+        "eval_seeds": cfg.eval_seeds >= 1,
+        "eval_laps": cfg.eval_laps >= 1,
+        "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
+        "eval_episodes": cfg.eval_episodes >= 0,
+        "eval_episode_s": cfg.eval_episode_s >= 0,
+        "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
+        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
+        "learning_rate": cfg.learning_rate >= 0,
+        "batch_size": cfg.batch_size >= 0,
+        "buffer_size": cfg.buffer_size >= 0,
+        "gradient_steps": cfg.gradient_steps >= 0,
+    }
+    bad = [name for name, ok in checks.items() if not ok]
+    if bad:
+        raise ValueError(f"--{bad[0].replace('_', '-')} {getattr(cfg, bad[0])} is out of range")
+    if cfg.workers is not None or cfg.address:
+        from vision_rl.training.distributed import check_workers
+
+        if cfg.workers is None:
+            raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
+        check_workers(cfg.workers, cfg.max_staleness, cfg.version_every_updates)
+    sac = resolve_preset(cfg)
+    for stage in stages_of(cfg):
+        if stage.buffer_size < cfg.cars:
+            raise ValueError(
+                f"{stage.name}: a buffer of {stage.buffer_size} transitions holds less than one step of {cfg.cars} cars"
+            )
+        if stage.previous is None and stage.steps <= sac.learning_starts:
+            raise ValueError(
+                f"{stage.name}: {stage.steps} steps are not above the {sac.learning_starts} random "
+                "start steps (--learning-starts): it would make no update"
+            )
+
+
+def default_out(cfg: TrainOvertakingConfig) -> Path:
+    track = cfg.track.replace("random:", "random-")
+    if track.endswith(".csv") or os.sep in track:
+        track = Path(track).stem
+    return Path("runs") / "overtaking" / f"{track}-{cfg.car}-s{cfg.seed}"
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise OvertakingRunError(f"{path}: unreadable ({exc}); start over with --force") from None
+    if not isinstance(data, dict):
+        raise OvertakingRunError(f"{path}: not a train-overtaking record; start over with --force")
+    return data
+
+
+def reinit_exploration(model: SAC) -> None:
+    """Stage 2's reset of the exploration term: entropy coefficient 1 (SB3's ``auto`` start) with a new optimiser,
+    and the actor's log-std layer drawn anew with its Adam moments cleared."""
+    if model.log_ent_coef is not None:
+        with torch.no_grad():
+            model.log_ent_coef.zero_()
+        model.ent_coef_optimizer = torch.optim.Adam([model.log_ent_coef], lr=model.lr_schedule(1))
+    layer = model.actor.log_std
+    layer.reset_parameters()
+    for parameter in layer.parameters():
+        model.actor.optimizer.state.pop(parameter, None)
+
+
+def chronological_rows(buffer: ReplayBuffer) -> np.ndarray:
+    """Indices (per env) of the filled rows of ``buffer``, oldest first."""
+    if buffer.full:
+        return np.roll(np.arange(buffer.buffer_size), -buffer.pos)
+    return np.arange(buffer.pos)
+
+
+def copy_newest(source: ReplayBuffer, target: ReplayBuffer) -> int:
+    """Fill an empty FIFO ``target`` with the newest transitions of ``source`` (as many as fit), oldest first, so
+    that they are the first to be overwritten; returns the rows (per env) copied."""
+    rows = chronological_rows(source)[-target.buffer_size :]
+    n = len(rows)
+    for name in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts"):
+        getattr(target, name)[:n] = getattr(source, name)[rows]
+    target.pos = n % target.buffer_size
+    target.full = n == target.buffer_size
+    return n
+
+
+#: ``progress(stage_name, num_timesteps, stage_end_steps, last_evaluation_or_None)``.
+Progress = Callable[[str, int, int, "dict[str, Any] | None"], None]
+
+
+class _StageLoop(BaseCallback):
+    """Evaluations, the stage-1 criterion, checkpoints and progress, on cumulative environment steps."""
+
+    def __init__(self, session: _StageSession, progress: Progress | None) -> None:
+        super().__init__()
+        self.session = session
+        self.progress = progress
+        cfg = session.cfg
+        start = session.start_steps_now
+        self.next_eval = next_multiple(start, cfg.eval_every_steps)
+        self.saves = SaveClock(start, cfg.checkpoint_every_steps, cfg.checkpoint_every_min)
+
+    def _on_step(self) -> bool:
+        n = self.num_timesteps
+        session = self.session
+        go_on = True
+        if self.next_eval is not None and n >= self.next_eval:
+            record = session.evaluate(self.model)
+            self.next_eval = next_multiple(n, session.cfg.eval_every_steps)
+            if session.stage.until_criterion and record["criterion_met"]:
+                session.criterion_met_at = n
+                go_on = False
+        if self.progress is not None:
+            self.progress(session.stage.name, n, session.end_steps, session.last_eval)
+        kind = self.saves.due(n)
+        if kind is not None:
+            session.save(self.model, buffer=kind == "full")
+        return go_on
+
+
+class _StageSession:
+    """Training one stage in its folder: start (fresh, from the previous stage, or resumed), learn, save."""
+
+    def __init__(self, run: OvertakingRun, stage: Stage) -> None:
+        self.run, self.cfg, self.stage = run, run.cfg, stage
+        self.folder = run.out / stage.name
+        self.last_eval: dict[str, Any] | None = None
+        self.criterion_met_at: int | None = None
+        self.eval_driver: PolicyDriver | None = None
+        self.frozen_train_time_s: float | None = None
+        """The stage's training time once it ended: the sidecar and stage.json then record the same figure."""
+
+    def racing(self) -> RacingConfig:
+        cfg, stage = self.cfg, self.stage
+        return RacingConfig(
+            track=cfg.track,
+            car=cfg.car,
+            observation=OBSERVATION,
+            scenario=stage.scenario,
+            n_groups=cfg.cars,
+            episode_s=cfg.episode_s,
+            wall_penalty_c_w=stage.penalty_c,
+            car_penalty_c_c=stage.penalty_c,
+            overtake_gain_c_r=cfg.overtake_gain_c_r,
+            detection_range_c_d_m=cfg.detection_range_c_d_m,
+        )
+
+    # ------------------------------------------------------------------ set-up
+    def build(self) -> SAC:
+        run, stage, sac = self.run, self.stage, self.run.sac
+        self.racing_config = self.racing()
+        self.fingerprint = policy_fingerprint(self.racing_config, OBSERVATION, OBS_DIM, None)
+        record_path = self.folder / STAGE_NAME
+        resumed = record_path.is_file() and (self.folder / SIDECAR_NAME).is_file()
+        if resumed:
+            record = _read_json(record_path)
+            if record.get("stage") != stage.to_dict():
+                raise OvertakingRunError(_differs(record_path, record.get("stage") or {}, stage.to_dict()))
+            source = self.folder
+        elif stage.previous is not None:
+            source = run.out / stage.previous
+        else:
+            source = None
+        spec = read_overtaking_spec(source / SIDECAR_NAME) if source is not None else None
+        steps_before = spec.num_timesteps if spec is not None else 0
+        self.venv = make_sb3_vec_env(self.racing_config, seed=self.cfg.seed + steps_before)
+        if spec is not None:  # the numbers the policy was trained with, not whatever the cache holds today
+            self.venv.core.observer.normalizer = spec.normalizer
+        self.normalizer: ObsNormalizer = self.venv.core.observer.normalizer
+        self.env = VecMonitor(self.venv)
+        model = SAC(
+            "MlpPolicy",
+            self.env,
+            learning_rate=sac.learning_rate,
+            buffer_size=stage.buffer_size,
+            learning_starts=sac.learning_starts,
+            batch_size=sac.batch_size,
+            tau=sac.tau,
+            gamma=sac.gamma,
+            train_freq=(sac.train_freq_steps, "step"),
+            gradient_steps=sac.gradient_steps,
+            policy_kwargs={"net_arch": list(sac.hidden_units)},
+            seed=self.cfg.seed + steps_before,
+            device=run.device,
+            verbose=0,
+        )
+        self.buffer_restored = 0
+        if spec is not None:
+            assert source is not None
+            try:
+                state = read_agent(source / spec.model, self.fingerprint, spec.weights_sha256)
+                restore_agent(model, state, str(source / spec.model))
+                if resumed:
+                    if (self.folder / BUFFER_NAME).is_file():
+                        self.buffer_restored = load_buffer(
+                            model.replay_buffer, self.folder / BUFFER_NAME, self.fingerprint
+                        )
+                elif stage.fifo_from_previous:
+                    kept = ReplayBuffer(
+                        int(spec.sac["buffer_size"]),
+                        model.observation_space,
+                        model.action_space,
+                        device="cpu",
+                        n_envs=self.cfg.cars,
+                    )
+                    load_buffer(kept, source / BUFFER_NAME, self.fingerprint)
+                    self.buffer_restored = copy_newest(kept, model.replay_buffer)
+                    del kept
+                else:
+                    self.buffer_restored = load_buffer(model.replay_buffer, source / BUFFER_NAME, self.fingerprint)
+            except ArtifactError as exc:
+                raise OvertakingRunError(f"cannot continue {self.folder}: {exc}") from None
+            if self.buffer_restored == 0:  # never update on an empty buffer: refill it first
+                model.learning_starts = model.num_timesteps + sac.learning_starts
+        self.train_time_before_s = spec.train_time_s if spec is not None else 0.0
+        self.session_start = time.perf_counter()
+        self.start_steps_now = int(model.num_timesteps)
+        if resumed:
+            self.record = record
+        else:
+            if stage.reinit_exploration:
+                reinit_exploration(model)
+            self.record = {
+                "format": RUN_FORMAT,
+                "stage": stage.to_dict(),
+                "status": "running",
+                "start_steps": int(model.num_timesteps),
+                "start_train_time_s": round(self.train_time_before_s, 2),
+                "buffer_at_start": int(self.buffer_restored) * self.cfg.cars,
+                "racing_config": racing_config_to_dict(self.racing_config),
+            }
+        self.end_steps = int(self.record["start_steps"]) + stage.steps
+        (self.folder / "tensorboard").mkdir(parents=True, exist_ok=True)
+        model.set_logger(configure(str(self.folder / "tensorboard"), ["tensorboard"]))
+        if not resumed:
+            # The starting point (the kept buffer included) is on disk before any training: a kill at any moment
+            # resumes this stage with a buffer, never from the previous stage again.
+            self.save(model, buffer=True)
+            write_json(record_path, self.record)
+        return model
+
+    # ------------------------------------------------------------------ periodic work
+    @property
+    def train_time_s(self) -> float:
+        if self.frozen_train_time_s is not None:
+            return self.frozen_train_time_s
+        return self.train_time_before_s + time.perf_counter() - self.session_start
+
+    def evaluate(self, model: SAC) -> dict[str, Any]:
+        """The protocol lap racing alone and the overtaking return, appended to the stage's metrics.jsonl."""
+        cfg, run = self.cfg, self.run
+        t0 = time.perf_counter()
+        if self.eval_driver is None:
+            self.eval_driver = PolicyDriver.for_config(
+                lambda obs: model.predict(obs, deterministic=True)[0],
+                OBSERVATION,
+                self.normalizer,
+                None,
+                self.racing_config,
+            )
+        timing = time_laps(
+            self.eval_driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps, cfg.eval_time_limit_s
+        )
+        summary = timing.summary()
+        lap = summary["best_lap_time_s"]
+        ai_lap = run.ai_lap_time_s()
+        overtaking = overtaking_return(model, self.normalizer, cfg) if cfg.eval_episodes > 0 else {}
+        eval_time_s = time.perf_counter() - t0
+        self.session_start += eval_time_s  # evaluation time is not training time
+        episodes = list(model.ep_info_buffer or [])
+        record = {
+            "stage": self.stage.name,
+            "num_timesteps": int(model.num_timesteps),
+            "train_time_s": round(self.train_time_s, 2),
+            "n_updates": int(getattr(model, "_n_updates", 0)),
+            "overtaking_return": overtaking.get("return"),
+            "overtaken": overtaking.get("overtaken"),
+            "lap_time_s": lap,
+            "ai_lap_time_s": ai_lap,
+            "finished": summary["n_finished"],
+            "criterion_met": lap is not None and ai_lap is not None and lap <= (1.0 + cfg.stage1_margin) * ai_lap,
+            "ep_rew_mean": float(np.mean([e["r"] for e in episodes])) if episodes else None,
+            "eval_time_s": round(eval_time_s, 2),
+        }
+        with open(self.folder / METRICS_NAME, "a") as f:
+            f.write(json.dumps(record) + "\n")
+        if record["overtaking_return"] is not None:
+            model.logger.record("eval/overtaking_return", record["overtaking_return"])
+        if lap is not None:
+            model.logger.record("eval/lap_time_s", lap)
+        model.logger.dump(step=model.num_timesteps)
+        self.last_eval = record
+        return record
+
+    def spec(self, model: SAC, sha256: str) -> OvertakingPolicySpec:
+        return OvertakingPolicySpec(
+            observation=OBSERVATION,
+            racing_config=racing_config_to_dict(self.racing_config),
+            obs_normalizer=self.normalizer.to_dict(),
+            fingerprint=self.fingerprint,
+            weights_sha256=sha256,
+            model=MODEL_NAME,
+            preset=self.cfg.preset,
+            sac=self.run.settings["sac"],
+            seed=self.cfg.seed,
+            num_timesteps=int(model.num_timesteps),
+            train_time_s=round(self.train_time_s, 2),
+            train_config={**self.run.settings, "agent_stage": self.stage.name},
+        )
+
+    def save(self, model: SAC, buffer: bool) -> None:
+        """Weights then sidecar (a kill between leaves the sidecar naming the previous weights, kept beside the new
+        ones as ``policy.pt.prev``), and the replay buffer when ``buffer``."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        sha = save_agent(model, self.folder / MODEL_NAME, self.fingerprint)
+        self.spec(model, sha).write(self.folder / SIDECAR_NAME)
+        if buffer and model.replay_buffer is not None:
+            save_buffer(model.replay_buffer, self.folder / BUFFER_NAME, self.fingerprint)
+
+    def finish(self, model: SAC) -> dict[str, Any]:
+        self.frozen_train_time_s = round(self.train_time_s, 2)
+        self.save(model, buffer=True)
+        self.record.update(
+            status="done",
+            end_steps=int(model.num_timesteps),
+            end_train_time_s=round(self.train_time_s, 2),
+        )
+        if self.stage.until_criterion:
+            ai = self.run.ai_lap_time_s()
+            self.record["criterion"] = {
+                "rule": f"protocol lap time <= (1 + {self.cfg.stage1_margin}) x the built-in AI's "
+                f"(evaluated every {self.cfg.eval_every_steps} steps)",
+                "met": self.criterion_met_at is not None,
+                "met_at_steps": self.criterion_met_at,
+                "ai_lap_time_s": ai,
+                "last_lap_time_s": self.last_eval["lap_time_s"] if self.last_eval else None,
+            }
+        write_json(self.folder / STAGE_NAME, self.record)
+        return self.record
+
+    def learn_with_samplers(self, model: SAC, loop: _StageLoop, cluster: Any) -> None:
+        """The stage's steps from ``cfg.workers`` sampler actors, each a world of this stage's scenario; a lost
+        sampler is a line of the stage's metrics.jsonl; when none is left, the stage is saved and the error raised."""
+        from vision_rl.training.distributed import SamplersLostError, learn_like_sb3
+
+        cfg = self.cfg
+        setup = sampler_setup(
+            self.racing_config,
+            OBSERVATION,
+            self.normalizer,
+            self.fingerprint,
+            self.run.sac.hidden_units,
+            cfg.seed + int(model.num_timesteps),
+        )
+
+        def log_event(record: dict[str, Any]) -> None:
+            with open(self.folder / METRICS_NAME, "a") as f:
+                f.write(
+                    json.dumps({**record, "stage": self.stage.name, "train_time_s": round(self.train_time_s, 2)}) + "\n"
+                )
+
+        try:
+            learn_like_sb3(
+                model,
+                setup,
+                cluster,
+                workers=int(cfg.workers or 0),
+                max_staleness=cfg.max_staleness,
+                version_every_updates=cfg.version_every_updates,
+                total_timesteps=self.end_steps,
+                callback=loop,
+                log_event=log_event,
+            )
+        except SamplersLostError as exc:
+            self.save(model, buffer=True)
+            self.close()
+            raise SamplersLostError(f"{exc}; {self.folder} was saved: run the same command to continue") from None
+
+    def close(self) -> None:
+        self.env.close()
+        if self.eval_driver is not None:
+            self.eval_driver.close()
+
+
+def _differs(path: Path, recorded: dict[str, Any], wanted: dict[str, Any]) -> str:
+    for key, want in wanted.items():
+        if recorded.get(key) != want:
+            return (
+                f"{path} was started with {key} = {recorded.get(key)!r}, not {want!r}: use its settings, "
+                "another --out, or --force to start over"
+            )
+    return f"{path} holds other settings: use another --out or --force"
+
+
+def overtaking_return(model: SAC, normalizer: ObsNormalizer, cfg: TrainOvertakingConfig) -> dict[str, float]:
+    """Mean summed Eq. 2 reward (``c_w = c_c = 0.005``) and mean opponents passed over ``cfg.eval_episodes``
+    fixed-seed stage-2 episodes of the deterministic policy (all episodes at once, one world)."""
+    episode_s = cfg.eval_episode_s or cfg.episode_s
+    config = RacingConfig(
+        track=cfg.track,
+        car=cfg.car,
+        observation=OBSERVATION,
+        scenario="stage2",
+        n_groups=cfg.eval_episodes,
+        episode_s=episode_s,
+        wall_penalty_c_w=PENALTY_STAGE2,
+        car_penalty_c_c=PENALTY_STAGE2,
+        overtake_gain_c_r=cfg.overtake_gain_c_r,
+        detection_range_c_d_m=cfg.detection_range_c_d_m,
+    )
+    core = RacingCore(config, seed=EVAL_EPISODE_SEED)
+    core.observer.normalizer = normalizer
+    try:
+        core.reset_groups(np.arange(cfg.eval_episodes))
+        total = np.zeros(cfg.eval_episodes)
+        infos: list[dict] = []
+        for _ in range(config.max_episode_steps):
+            action, _ = model.predict(core.observation(), deterministic=True)
+            _, reward, _, _, infos = core.step(action, autoreset=False)
+            total += reward
+        return {"return": float(total.mean()), "overtaken": float(np.mean([i["overtaken"] for i in infos]))}
+    finally:
+        core.observer.close()
+
+
+class OvertakingRun:
+    """A run folder: shared settings, the built-in AI's reference lap, and its stages."""
+
+    def __init__(self, cfg: TrainOvertakingConfig) -> None:
+        check_config(cfg)
+        self.cfg = cfg
+        self.out = Path(cfg.out) if cfg.out else default_out(cfg)
+        self.device = torch_device(cfg.device)
+        self.sac = resolve_preset(cfg)
+        self.settings = shared_settings(cfg)
+        self.stages = stages_of(cfg)
+        run_path = self.out / RUN_NAME
+        if run_path.is_file() and not cfg.force:
+            recorded = _read_json(run_path)
+            if recorded.get("settings") != self.settings:
+                raise OvertakingRunError(_differs(run_path, recorded.get("settings") or {}, self.settings))
+            self.record = recorded
+        else:
+            if cfg.force and self.out.exists():
+                shutil.rmtree(self.out)
+            elif self.out.exists() and any(self.out.iterdir()):
+                raise OvertakingRunError(f"{self.out} is not empty and holds no {RUN_NAME}: give another --out")
+            self.record = {"format": RUN_FORMAT, "settings": self.settings, "ai_lap_time_s": None}
+            write_json(run_path, self.record)
+        if cfg.stage1_from and not (self.out / "stage1").exists():
+            self.adopt_stage1(Path(cfg.stage1_from))
+        if self.sac.torch_threads > 0:
+            torch.set_num_threads(self.sac.torch_threads)
+
+    def adopt_stage1(self, source: Path) -> None:
+        """Link ``source``'s finished stage 1 into this run folder, refusing a source of other settings (c_r and c_d
+        aside) or an unfinished stage 1; the built-in AI's lap, timed on the same protocol, comes along."""
+        theirs = _read_json(source / RUN_NAME) if (source / RUN_NAME).is_file() else None
+        if theirs is None:
+            raise OvertakingRunError(f"--stage1-from {source}: no {RUN_NAME} there: give a train-overtaking run folder")
+        other = theirs.get("settings") or {}
+        mine = {k: v for k, v in self.settings.items() if k not in STAGE1_FREE_SETTINGS}
+        for key, want in mine.items():
+            if other.get(key) != want:
+                raise OvertakingRunError(f"--stage1-from {source}: its {key} is {other.get(key)!r}, not {want!r}")
+        record = source / "stage1" / STAGE_NAME
+        if not record.is_file() or _read_json(record).get("status") != "done":
+            raise OvertakingRunError(f"--stage1-from {source}: its stage1 is not done")
+
+        def link(src: str, dst: str) -> None:
+            try:
+                os.link(src, dst)
+            except OSError:  # another filesystem
+                shutil.copy2(src, dst)
+
+        shutil.copytree(source / "stage1", self.out / "stage1", copy_function=link)
+        self.record.update(
+            {k: theirs[k] for k in ("ai_lap_time_s", "ai_timing") if k in theirs}, stage1_from=str(source)
+        )
+        write_json(self.out / RUN_NAME, self.record)
+
+    def ai_lap_time_s(self) -> float | None:
+        """The built-in AI's lap time on the evaluation's protocol (computed once per run folder)."""
+        if "ai_timing" not in self.record:
+            cfg = self.cfg
+            timing = time_laps(
+                BuiltinAI(), cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps, cfg.eval_time_limit_s
+            ).summary()
+            self.record.update(ai_lap_time_s=timing["best_lap_time_s"], ai_timing={"n_finished": timing["n_finished"]})
+            write_json(self.out / RUN_NAME, self.record)
+        return self.record["ai_lap_time_s"]
+
+    def stage_record(self, stage: Stage) -> dict[str, Any] | None:
+        path = self.out / stage.name / STAGE_NAME
+        return _read_json(path) if path.is_file() else None
+
+
+def train_overtaking(cfg: TrainOvertakingConfig, progress: Progress | None = None) -> dict[str, Any]:
+    """Train the stages of ``cfg.agent`` that are not done yet (continuing an interrupted one); returns the stage
+    boundaries and the agent's policy folder. Ctrl-C (or SIGTERM where the caller maps it) saves the stage and
+    returns with ``interrupted``."""
+    from vision_rl.training.distributed import cluster_for
+
+    if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
+        check_config(cfg)
+    with cluster_for(cfg.workers, cfg.address) as cluster:
+        return _train_stages(cfg, cluster, progress)
+
+
+def _train_stages(cfg: TrainOvertakingConfig, cluster: Any, progress: Progress | None) -> dict[str, Any]:
+    run = OvertakingRun(cfg)
+    interrupted = False
+    trained: list[str] = []
+    for stage in run.stages:
+        record = run.stage_record(stage)
+        if record is not None and record.get("stage") != stage.to_dict():
+            raise OvertakingRunError(
+                _differs(run.out / stage.name / STAGE_NAME, record.get("stage") or {}, stage.to_dict())
+            )
+        if record is not None and record.get("status") == "done":
+            continue
+        if stage.previous is not None:
+            previous = run.stage_record(next(s for s in run.stages if s.name == stage.previous))
+            if previous is None or previous.get("status") != "done":
+                raise OvertakingRunError(f"{run.out}: {stage.previous} is not done before {stage.name}")
+        session = _StageSession(run, stage)
+        model = session.build()
+        loop = _StageLoop(session, progress)
+        remaining = session.end_steps - int(model.num_timesteps)
+        try:
+            if remaining > 0 and cluster is not None:
+                session.learn_with_samplers(model, loop, cluster)
+            elif remaining > 0:
+                learn_between_interrupts(
+                    model, loop, total_timesteps=remaining, reset_num_timesteps=False, log_interval=4
+                )
+        except KeyboardInterrupt:
+            interrupted = True
+        if interrupted:
+            session.save(model, buffer=True)
+            session.close()
+            break
+        session.finish(model)
+        session.close()
+        trained.append(stage.name)
+    boundaries = []
+    for stage in run.stages:
+        record = run.stage_record(stage) or {}
+        boundaries.append(
+            {
+                "stage": stage.name,
+                "status": record.get("status", "not started"),
+                "start_steps": record.get("start_steps"),
+                "end_steps": record.get("end_steps"),
+                "start_train_time_s": record.get("start_train_time_s"),
+                "end_train_time_s": record.get("end_train_time_s"),
+                "penalty_c": stage.penalty_c,
+                "buffer_size": stage.buffer_size,
+                "criterion": record.get("criterion"),
+            }
+        )
+    policy = run.out / run.stages[-1].name
+    result = {
+        "out": str(run.out),
+        "agent": cfg.agent,
+        "policy": str(policy),
+        "stages": boundaries,
+        "trained_now": trained,
+        "interrupted": interrupted,
+        "ai_lap_time_s": run.record.get("ai_lap_time_s"),
+        "done": all(b["status"] == "done" for b in boundaries),
+    }
+    if result["done"]:
+        write_json(
+            run.out / f"agent{cfg.agent}.json" if cfg.agent != "standard" else run.out / "standard.json",
+            {"agent": cfg.agent, "policy": str(policy), "stages": boundaries},
+        )
+    return result
+
+
+def read_metrics(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
+    """The evaluation records of a stage's metrics.jsonl, as :func:`~vision_rl.phase2_rl.train.read_metrics` reads
+    them (a torn last line, event lines and the evaluations a resume from an older checkpoint replaced are left
+    out); none when the stage has not started."""
+    path = Path(path)
+    return read_train_metrics(path) if path.is_file() else []
+
+
+def learning_curve(out: str | os.PathLike[str], agent: str) -> dict[str, Any]:
+    """One agent's evaluations over its stages in order (cumulative steps and training seconds), and the steps
+    where each stage after the first began."""
+    cfg = TrainOvertakingConfig(agent=agent, stage1_max_steps=1, stage2_steps=1, stage3_steps=2)
+    names = [s.name for s in stages_of(cfg)]
+    out = Path(out)
+    records, switches = [], []
+    for i, name in enumerate(names):
+        stage_path = out / name / STAGE_NAME
+        if i > 0 and stage_path.is_file():
+            switches.append({"stage": name, "num_timesteps": _read_json(stage_path).get("start_steps")})
+        records += read_metrics(out / name / METRICS_NAME)
+    return {"agent": agent, "out": str(out), "records": records, "stage_switches": switches}
+
+
+__all__ = [
+    "AGENTS",
+    "BUDGETS",
+    "OvertakingPolicySpec",
+    "OvertakingRunError",
+    "TrainOvertakingConfig",
+    "copy_newest",
+    "learning_curve",
+    "load_overtaking_policy",
+    "reinit_exploration",
+    "stages_of",
+    "train_overtaking",
+]

@@ -1,0 +1,220 @@
+"""`table3`: the overtaking paper's Table III (a baseline comparison for the single-car race) on our simulator.
+
+Every row is timed by the one lap-time protocol (:func:`vision_rl.evaluation.protocol.time_laps`): the built-in AI
+(:class:`~vision_rl.evaluation.protocol.BuiltinAI`, at its 50 Hz), each trained baseline of train-baseline (bc,
+gail, sac, td3; a train-overtaking stage-1 folder counts as sac) and, for the record, the demonstrator of the
+imitation baselines (the AI held at 10 Hz, :class:`~vision_rl.overtaking.demos.HeldAIDriver`). A row's figures are
+the best scored lap over the protocol's seeds and that lap's average speed (centre-line length over lap time,
+km/h); with several runs of one algorithm (training seeds) the fastest run is the row, as the vision paper scores
+(Sec. 4: "the fastest time was used"), every run is listed, and ``over_training_seeds`` gives the mean and spread
+of the runs' best laps (:func:`~vision_rl.evaluation.leaderboard.aggregate_seeds`). Each row is printed
+beside the paper's, both as ratios to their own table's built-in AI (lap time and speed), since our track and car
+are stand-ins for GT Sport's. The PlaNet row is timed from ``dreamer`` runs: PlaNet's world model with its
+successor's learned actor instead of its per-step planner (:mod:`.dreamer` says why). An algorithm without a run
+reads "not trained".
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from vision_rl.evaluation.leaderboard import aggregate_seeds
+from vision_rl.evaluation.protocol import BuiltinAI, time_laps
+from vision_rl.overtaking.baselines import ALGOS, BaselineError, baseline_algo, check_table_track, load_baseline
+from vision_rl.overtaking.demos import HeldAIDriver
+from vision_rl.sim.track_library import load_track
+from vision_rl.training.artifact import SIDECAR_NAME, PolicyError
+
+#: The paper's Table III (GT Sport, Audi TT Cup 16 on Tokyo Expressway): lap time s, average speed km/h.
+PAPER_TABLE3: dict[str, tuple[float, float]] = {
+    "ai": (86.9, 184.4),
+    "bc": (108.0, 146.8),
+    "gail": (144.9, 109.4),
+    "sac": (80.1, 198.2),
+    "td3": (80.8, 196.3),
+    "planet": (89.0, 178.2),
+}
+ROW_NAMES = {
+    "ai": "Built-in AI",
+    "bc": "BC",
+    "gail": "GAIL",
+    "sac": "SAC",
+    "td3": "TD3",
+    "planet": "PlaNet (as Dreamer)",
+    "demonstrator": "AI held at 10 Hz (demonstrator)",
+}
+#: The row each train-baseline algorithm fills.
+ROW_OF_ALGO = {"bc": "bc", "gail": "gail", "sac": "sac", "td3": "td3", "dreamer": "planet"}
+
+
+@dataclass(frozen=True)
+class Table3Config:
+    """Table III of the overtaking paper: the built-in AI and the trained baselines through the lap-time protocol."""
+
+    runs: str = ""
+    """Comma-separated run folders of train-baseline (or train-overtaking stage1 folders as SAC); empty: every run
+    under --runs-root."""
+    runs_root: str = "runs/baselines"
+    """Where to look for runs when --runs is empty."""
+    track: str = "expressway"
+    """Track of the table (runs of another track are refused when given, skipped when found)."""
+    car: str = "tt_cup"
+    """Car of the table."""
+    seeds: int = 3
+    """Protocol start seeds per row (the best scored lap is the row's)."""
+    laps: int = 2
+    """Protocol laps (the last is scored)."""
+    time_limit_s: float = 0.0
+    """Protocol time limit, s (0: the protocol's, 3 x the limit lap per lap)."""
+    demonstrator: bool = True
+    """Add the imitation baselines' demonstrator (the AI held at 10 Hz) as an extra row."""
+
+
+def _split(text: str) -> list[str]:
+    return [part.strip() for part in text.split(",") if part.strip()]
+
+
+def find_runs(root: str | os.PathLike[str]) -> list[Path]:
+    """Folders under ``root`` (one level) that hold a policy sidecar, sorted."""
+    root = Path(root)
+    if not root.is_dir():
+        return []
+    return sorted(p for p in root.iterdir() if (p / SIDECAR_NAME).is_file())
+
+
+def _figures(summary: dict[str, Any]) -> dict[str, Any]:
+    best = summary["best_lap"]
+    reasons = sorted({s["dnf_reason"] for s in summary["seeds"] if s["dnf_reason"]})
+    return {
+        "lap_time_s": None if best is None else best["lap_time_s"],
+        "avg_speed_kmh": None if best is None else best["avg_speed_kmh"],
+        "median_lap_time_s": summary["median_lap_time_s"],
+        "finished": summary["n_finished"],
+        "seeds": summary["n_seeds"],
+        "clean": summary["clean"],
+        "wall_contact_s": None if best is None else best["wall_contact_s"],
+        "dnf_reasons": reasons,
+    }
+
+
+def _ratios(row: dict[str, Any], ai: dict[str, Any]) -> None:
+    lap, speed = row.get("lap_time_s"), row.get("avg_speed_kmh")
+    row["lap_ratio_to_ai"] = None if lap is None or ai.get("lap_time_s") is None else lap / ai["lap_time_s"]
+    row["speed_ratio_to_ai"] = None if speed is None or ai.get("avg_speed_kmh") is None else speed / ai["avg_speed_kmh"]
+
+
+def _timed_row(key: str, figures: dict[str, Any]) -> dict[str, Any]:
+    status = "timed" if figures["lap_time_s"] is not None else "DNF"
+    return {"key": key, "name": ROW_NAMES[key], "status": status, **figures}
+
+
+#: ``progress(row_name)`` before each row is timed.
+Table3Progress = Callable[[str], None]
+
+
+def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[str, Any]:
+    """Time every row (see the module's docstring); returns the rows with the paper's beside them."""
+    for name, ok in (("seeds", cfg.seeds >= 1), ("laps", cfg.laps >= 1), ("time_limit_s", cfg.time_limit_s >= 0)):
+        if not ok:
+            raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
+    track = load_track(cfg.track)
+    seeds = range(cfg.seeds)
+    explicit = _split(cfg.runs)
+    paths = [Path(p) for p in explicit] if explicit else find_runs(cfg.runs_root)
+    repeated = sorted({str(p) for p in paths if paths.count(p) > 1})
+    if repeated:
+        raise ValueError(f"--runs names {', '.join(repeated)} more than once: each run is one training seed")
+    loaded, skipped = [], []
+    for path in paths:
+        try:
+            policy = load_baseline(path)
+            check_table_track(policy, cfg.track, cfg.car)
+        except (PolicyError, BaselineError) as exc:
+            if explicit:
+                raise
+            skipped.append({"run": str(path), "reason": str(exc)})
+            continue
+        loaded.append((path, policy))
+
+    def timed(driver) -> dict[str, Any]:
+        return time_laps(driver, track, cfg.car, seeds, cfg.laps, cfg.time_limit_s).summary()
+
+    if progress is not None:
+        progress("ai")
+    ai = _timed_row("ai", _figures(timed(BuiltinAI())))
+    rows = [ai]
+    for algo, key in ROW_OF_ALGO.items():
+        runs, summaries = [], []
+        for path, policy in loaded:
+            if baseline_algo(policy.spec) != algo:
+                continue
+            if progress is not None:
+                progress(f"{algo} {path}")
+            driver = policy.driver()
+            try:
+                summaries.append(timed(driver))
+            finally:
+                driver.close()
+            runs.append(
+                {
+                    "run": str(path),
+                    "num_timesteps": policy.spec.num_timesteps,
+                    "train_time_s": policy.spec.train_time_s,
+                    "seed": policy.spec.seed,
+                    **_figures(summaries[-1]),
+                }
+            )
+        if not runs:
+            rows.append(
+                {"key": key, "name": ROW_NAMES[key], "status": "not trained", "lap_time_s": None, "avg_speed_kmh": None}
+            )
+            continue
+        best = min(runs, key=lambda r: math.inf if r["lap_time_s"] is None else r["lap_time_s"])
+        row = {
+            "key": key,
+            "name": ROW_NAMES[key],
+            "status": "timed" if best["lap_time_s"] is not None else "DNF",
+            **{k: v for k, v in best.items() if k != "run"},
+            "run": best["run"],
+            "runs": runs,
+            "over_training_seeds": aggregate_seeds(summaries),
+        }
+        rows.append(row)
+    if cfg.demonstrator:
+        if progress is not None:
+            progress("demonstrator")
+        rows.append(_timed_row("demonstrator", _figures(timed(HeldAIDriver()))))
+    paper_ai = PAPER_TABLE3["ai"]
+    for row in rows:
+        _ratios(row, ai)
+        paper = PAPER_TABLE3.get(row["key"])
+        row["paper"] = (
+            None
+            if paper is None
+            else {
+                "lap_time_s": paper[0],
+                "avg_speed_kmh": paper[1],
+                "lap_ratio_to_ai": paper[0] / paper_ai[0],
+                "speed_ratio_to_ai": paper[1] / paper_ai[1],
+            }
+        )
+    from vision_rl.evaluation.protocol import rules
+
+    return {
+        "table": "overtaking paper, Table III: a baseline comparison for the single-car race",
+        "track": cfg.track,
+        "track_name": track.name,
+        "track_geometry_hash": track.geometry_hash,
+        "car": cfg.car,
+        "protocol": {**rules(), "seeds": cfg.seeds, "laps": cfg.laps, "time_limit_s": cfg.time_limit_s},
+        "rows": rows,
+        "skipped": skipped,
+    }
+
+
+__all__ = ["ALGOS", "PAPER_TABLE3", "ROW_OF_ALGO", "Table3Config", "find_runs", "table3"]

@@ -1,0 +1,512 @@
+"""The policy artifact: ``policy.pt`` (weights, no pickle) plus ``policy.json``, and the protocol driver that a
+loaded policy becomes.
+
+``policy.json`` holds what evaluation needs to rebuild the policy's inputs exactly as in training:
+
+- ``format`` ("vision_rl.policy"), ``format_version`` (3), ``package_version``;
+- ``observation``: ``"state"`` (the 38-D privileged vector), ``"vision"`` (64-D embedding + 11 dedicated features)
+  or ``"overtaking"`` (the overtaking paper's 96-D vector, from train-overtaking);
+- ``racing_config``: the :class:`~vision_rl.envs.RacingConfig` trained on, as a dict;
+- ``obs_normalizer``: ``{"offset", "scale"}`` of the policy's input (state: the environment's cached statistics;
+  vision: z-score statistics of the 75-D vector, computed once from a short disrupted-AI rollout);
+- ``encoder``: for vision, ``{"path", "sha256", "rep_dim", "input_hw_px"}`` of the frozen encoder checkpoint;
+- ``model`` and ``weights_sha256``: the agent file's name and SHA-256 (:mod:`vision_rl.training.persist`);
+- ``fingerprint``: the track's geometry hash, the car, the observation kind, its length and the encoder's hash,
+  also stored inside the agent file;
+- ``preset``, ``sac`` (hyper-parameters), ``seed``, ``num_timesteps``, ``train_time_s`` and ``train_config`` (the
+  command's options) for the record.
+
+Loading refuses a changed agent file (its SHA-256), a sidecar whose track, car or observation no longer matches the
+weights' fingerprint or the track's geometry, and an encoder whose checkpoint hash differs from the recorded one.
+Format 2 (a Stable-Baselines3 zip, whose pickled parts can run code when loaded) is refused with the command
+that converts it by reading only its tensors and counters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vision_rl.envs.core import RacingConfig, pedal_command, steering_command
+from vision_rl.envs.observations import ObsNormalizer, vector_dim
+from vision_rl.envs.observer import Observer, in_batches_of
+from vision_rl.envs.racing_env import action_space
+from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
+from vision_rl.files import atomic_write
+from vision_rl.sim.track_library import load_track
+from vision_rl.sim.world import World, WorldState
+from vision_rl.training.persist import ArtifactError, check_fingerprint, read_agent, read_sb3_zip, write_agent_state
+
+POLICY_FORMAT = "vision_rl.policy"
+#: 3: weights in an agent file without pickle (``policy.pt``) with a fingerprint. Format 2 (an SB3 zip) is
+#: converted by ``vision-rl convert-policy``; format 1 (observations this code no longer makes) is refused.
+POLICY_FORMAT_VERSION = 3
+SIDECAR_NAME = "policy.json"
+MODEL_NAME = "policy.pt"
+BUFFER_NAME = "replay_buffer.npz"
+#: Sub-folder of a run that holds the weights chosen by held-out starts (train-policy ``--select-starts``).
+BEST_DIR = "best"
+#: What format 2 stored the weights in.
+SB3_ZIP_NAME = "policy.zip"
+POLICY_KINDS = ("state", "vision", "overtaking")
+
+
+class PolicyError(ValueError):
+    """A policy that cannot be used as asked (missing files, another encoder, a bad sidecar); the message says why."""
+
+
+def racing_config_to_dict(config: RacingConfig) -> dict[str, Any]:
+    """A JSON-ready dict of ``config`` (tuples become lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(config)))
+
+
+def racing_config_from_dict(data: Mapping[str, Any]) -> RacingConfig:
+    """The inverse of :func:`racing_config_to_dict`; unknown keys (a newer writer) are refused."""
+    fields = {f.name: f for f in dataclasses.fields(RacingConfig)}
+    unknown = set(data) - set(fields)
+    if unknown:
+        raise PolicyError(f"racing_config has unknown fields {sorted(unknown)}")
+    kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+    return RacingConfig(**kwargs)
+
+
+def obs_dim(kind: str, rep_dim: int = 64, critic_state: bool = False) -> int:
+    """Length of a policy's input vector: 38 (state), 96 (overtaking) or rep_dim + 11 (vision; + 38 with
+    ``critic_state``, the critic's columns)."""
+    if kind not in POLICY_KINDS:
+        raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {kind!r}")
+    return vector_dim(kind, rep_dim, critic_state)
+
+
+def policy_fingerprint(config: RacingConfig, observation: str, obs_dim: int, encoder_sha256: str | None) -> dict:
+    """What a policy's weights belong to: checked against its sidecar and the track on every load."""
+    return {
+        "track_geometry_hash": load_track(config.track).geometry_hash,
+        "car": config.car,
+        "observation": observation,
+        "obs_dim": int(obs_dim),
+        "encoder_sha256": encoder_sha256,
+    }
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """The contents of ``policy.json``."""
+
+    observation: str
+    racing_config: dict[str, Any]
+    obs_normalizer: dict[str, list[float]]
+    fingerprint: dict[str, Any]
+    """See :func:`policy_fingerprint`."""
+    weights_sha256: str
+    """SHA-256 of the agent file ``model``."""
+    encoder: dict[str, Any] | None = None
+    model: str = MODEL_NAME
+    preset: str = ""
+    sac: dict[str, Any] = dataclasses.field(default_factory=dict)
+    seed: int = 0
+    num_timesteps: int = 0
+    """Environment steps (transitions over all cars) the weights were trained on."""
+    train_time_s: float = 0.0
+    """Wall-clock training time over all sessions of the run, s."""
+    train_config: dict[str, Any] = dataclasses.field(default_factory=dict)
+    selection: dict[str, Any] | None = None
+    """For weights kept by ``--select-starts``: the held-out start seeds, laps, and the mean scored lap (s) that
+    chose them; None for a run's last weights."""
+
+    def __post_init__(self) -> None:
+        if self.observation not in POLICY_KINDS:
+            raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {self.observation!r}")
+        if self.observation == "vision" and not self.encoder:
+            raise PolicyError("a vision policy must record its encoder checkpoint")
+
+    @property
+    def config(self) -> RacingConfig:
+        return racing_config_from_dict(self.racing_config)
+
+    @property
+    def normalizer(self) -> ObsNormalizer:
+        return ObsNormalizer.from_dict(self.obs_normalizer)
+
+    @property
+    def encoder_sha256(self) -> str | None:
+        return self.encoder["sha256"] if self.encoder else None
+
+    @property
+    def hidden_units(self) -> list[int]:
+        return [int(n) for n in self.sac["hidden_units"]]
+
+    def to_dict(self) -> dict[str, Any]:
+        from vision_rl.files import package_version
+
+        return {
+            "format": POLICY_FORMAT,
+            "format_version": POLICY_FORMAT_VERSION,
+            "package_version": package_version(),
+            **dataclasses.asdict(self),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], source: str = "policy.json") -> PolicySpec:
+        if data.get("format") != POLICY_FORMAT:
+            raise PolicyError(f"{source}: not a vision_rl policy sidecar (no format {POLICY_FORMAT!r})")
+        version = int(data.get("format_version", 0))
+        if version > POLICY_FORMAT_VERSION:
+            raise PolicyError(f"{source}: policy format {version} is newer than this code's")
+        if version == 2:
+            raise PolicyError(
+                f"{source}: policy format 2 keeps its weights in a Stable-Baselines3 zip, whose pickled parts can "
+                f"run code when loaded, so it is not loaded; convert its tensors (nothing pickled is read) with "
+                f"`vision-rl convert-policy --run {Path(source).parent}`"
+            )
+        if version < POLICY_FORMAT_VERSION:
+            raise PolicyError(
+                f"{source}: policy format {version} was trained on observations this version no longer makes "
+                f"(format {POLICY_FORMAT_VERSION}); train it again with train-policy"
+            )
+        names = {f.name for f in dataclasses.fields(cls)}
+        try:
+            return cls(**{k: v for k, v in data.items() if k in names})
+        except TypeError as exc:
+            raise PolicyError(f"{source}: bad policy sidecar: {exc}") from exc
+
+    def write(self, path: str | os.PathLike[str]) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, lambda tmp: tmp.write_text(json.dumps(self.to_dict(), indent=2)))
+        return path
+
+    @classmethod
+    def read(cls, path: str | os.PathLike[str]) -> PolicySpec:
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except OSError as exc:
+            raise PolicyError(f"{path}: cannot read the policy sidecar: {exc}") from exc
+        except ValueError as exc:
+            raise PolicyError(f"{path}: the policy sidecar is not valid JSON: {exc}") from exc
+        return cls.from_dict(data, str(path))
+
+
+def chosen_weights(run: str | os.PathLike[str]) -> Path | None:
+    """The folder of the weights a run's held-out starts chose (``run/best``), or None when it kept none."""
+    best = Path(run) / BEST_DIR
+    return best if (best / SIDECAR_NAME).is_file() else None
+
+
+def snapshot_sidecar(weights: Path) -> Path:
+    """The sidecar of a snapshot ``checkpoints/policy_<steps>.pt``: ``policy_<steps>.json`` beside it."""
+    return weights.with_suffix(".json")
+
+
+def resolve_policy_paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
+    """(weights, sidecar) of a policy given as a run folder, its ``policy.pt``, or a snapshot
+    ``checkpoints/policy_<steps>.pt`` (whose sidecar is ``policy_<steps>.json`` beside it)."""
+    path = Path(path)
+    if path.is_dir():
+        spec_path = path / SIDECAR_NAME
+        weights = path / MODEL_NAME
+    elif path.suffix == ".json":
+        spec_path, weights = path, path.with_suffix(".pt")
+    else:
+        weights = path
+        spec_path = path.parent / SIDECAR_NAME if path.name == MODEL_NAME else snapshot_sidecar(path)
+    if not spec_path.is_file():
+        if not path.exists():
+            raise PolicyError(f"{path}: no such policy (give a train-policy run folder or its {MODEL_NAME})")
+        raise PolicyError(f"{path}: the policy has no sidecar ({spec_path.name}) beside it")
+    weights = spec_path.parent / PolicySpec.read(spec_path).model
+    if not weights.is_file():
+        raise PolicyError(f"{path}: no policy weights here (missing {weights})")
+    return weights, spec_path
+
+
+def check_encoder(spec: PolicySpec, encoder: str | os.PathLike[str] = "", source: str = "policy") -> Path:
+    """The encoder checkpoint a vision policy should use, refusing one whose SHA-256 is not the recorded one.
+
+    ``encoder`` empty: the recorded path (which must still hold the same bytes)."""
+    from vision_rl.files import file_sha256
+
+    if spec.observation != "vision":
+        raise PolicyError(f"{source} observes {spec.observation!r}, not frames: it takes no encoder")
+    assert spec.encoder is not None
+    recorded = spec.encoder["sha256"]
+    path = Path(encoder) if encoder else Path(spec.encoder["path"])
+    if not path.is_file():
+        hint = "" if encoder else "; pass the encoder it was trained with (--encoder)"
+        raise PolicyError(f"{source}: encoder checkpoint {path} not found{hint}")
+    actual = file_sha256(path)
+    if actual != recorded:
+        raise PolicyError(
+            f"{source} was trained with encoder sha256 {recorded[:12]}... ({spec.encoder['path']}), but {path} "
+            f"has sha256 {actual[:12]}...: a policy only works with the frozen encoder it was trained on"
+        )
+    return path
+
+
+class PolicyDriver:
+    """A policy as a driver of the lap-time protocol: observations of its cars by an
+    :class:`~vision_rl.envs.observer.Observer` built like the one it was trained with, deterministic actions.
+
+    Args:
+        predict: observations (n, obs_dim) -> actions (n, 2) ``[steer rad, omega]``.
+        kind, normalizer, encoder, image_hw_px: the observation it reads (as in training).
+        control_dt_s: how often it acts, s (its training environment's control step).
+        frame_delay_s: vision: how far its frames lag the state, s (as in training).
+        steer_action: how its first action entry steers (as in training; see
+            :func:`vision_rl.envs.core.steering_command`).
+        steer_change_share_of_range: ``rate_scaled``: the most a step moves the command, as a share of the usable
+            angle (as in training; see :func:`vision_rl.envs.core.rate_step_rad`).
+        pedal_full_at: where its second entry reaches full throttle or brake (as in training; see
+            :func:`vision_rl.envs.core.pedal_command`).
+        identity: who it is, for the record (policy path, hashes, training steps).
+    """
+
+    def __init__(
+        self,
+        predict,
+        kind: str,
+        normalizer: ObsNormalizer | None,
+        encoder=None,
+        image_hw_px: tuple[int, int] = (280, 470),
+        control_dt_s: float = 0.1,
+        identity: dict[str, Any] | None = None,
+        frame_delay_s: float = 0.0,
+        steer_action: str = "angle",
+        pedal_full_at: float = 1.0,
+        steer_change_share_of_range: float = 0.0,
+    ) -> None:
+        self.predict = predict
+        self.steer_action, self.pedal_full_at = steer_action, pedal_full_at
+        self.steer_change_share_of_range = steer_change_share_of_range
+        self.kind, self.normalizer, self.encoder = kind, normalizer, encoder
+        self.image_hw_px = image_hw_px
+        self.control_dt_s = control_dt_s
+        self.frame_delay_s = frame_delay_s
+        self.identity = identity or {"driver": "policy", "observation": kind}
+        self.observer: Observer | None = None
+
+    @classmethod
+    def for_config(
+        cls,
+        predict,
+        kind: str,
+        normalizer: ObsNormalizer | None,
+        encoder,
+        config: RacingConfig,
+        identity: dict[str, Any] | None = None,
+    ) -> PolicyDriver:
+        """A driver that observes and steers as the environment ``config`` did in training (frame size, control
+        step, frame delay, steering and pedal actions). A policy with a state-reading critic observes as a vision
+        policy (:func:`vision_rl.training.critic_state.actor_only`)."""
+        if config.critic_state:
+            from vision_rl.training.critic_state import actor_only
+
+            normalizer, predict = actor_only(normalizer, predict)
+        return cls(
+            predict,
+            kind,
+            normalizer,
+            encoder,
+            config.image_hw_px,
+            config.control_dt_s,
+            identity,
+            config.frame_delay_s,
+            config.steer_action,
+            config.pedal_full_at,
+            config.steer_change_share_of_range,
+        )
+
+    def reset(self, world: World, car_ids: np.ndarray) -> None:
+        if self.observer is not None:
+            self.observer.close()
+        self.observer = Observer(
+            self.kind,
+            world.track,
+            world.car,
+            world.model.groups,
+            self.normalizer,
+            self.encoder,
+            self.image_hw_px,
+            batch_cars=DRIVER_BATCH_CARS,
+        )
+        self.observer.delay_frames(self.frame_delay_s, self.control_dt_s)
+        self.car_ids = np.asarray(car_ids)
+        # As the environment: a run starts from the wheel angle the car was placed with.
+        self.steer_command_rad = world.state.vehicle.steer_rad[self.car_ids].copy()
+        self.max_steer_change_rad = world.car.max_steer_rate_radps * self.control_dt_s
+        self.wheelbase_m = world.car.wheelbase_m
+
+    def act(self, state: WorldState) -> np.ndarray:
+        assert self.observer is not None, "reset() first"
+        self.observer.remember(state)  # called once per control step, as the environment does after each step
+        obs = self.observer(state, self.car_ids)
+        action = in_batches_of(DRIVER_BATCH_CARS, self.predict, obs).astype(np.float64).reshape(len(self.car_ids), 2)
+        speed = np.hypot(state.vehicle.vx_mps[self.car_ids], state.vehicle.vy_mps[self.car_ids])
+        action[:, 0] = self.steer_command_rad = steering_command(
+            action[:, 0],
+            self.steer_command_rad,
+            self.steer_action,
+            self.max_steer_change_rad,
+            speed,
+            self.wheelbase_m,
+            self.steer_change_share_of_range,
+        )
+        action[:, 1] = pedal_command(action[:, 1], self.pedal_full_at)
+        return action
+
+    def close(self) -> None:
+        if self.observer is not None:
+            self.observer.close()
+            self.observer = None
+
+
+@dataclass
+class LoadedPolicy:
+    """A trained policy ready to drive: the SB3 actor-critic in evaluation mode, its sidecar and, for vision, its
+    frozen encoder."""
+
+    policy: Any
+    spec: PolicySpec
+    weights_path: Path
+    spec_path: Path
+    encoder: Any = None
+    encoder_path: Path | None = None
+
+    @property
+    def config(self) -> RacingConfig:
+        return self.spec.config
+
+    @property
+    def obs_dim(self) -> int:
+        rep_dim = self.encoder.rep_dim if self.encoder is not None else 64
+        return obs_dim(self.spec.observation, rep_dim, self.config.critic_state)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Deterministic actions (n, 2) ``[steer rad, omega]`` for observations (n, obs_dim)."""
+        action, _ = self.policy.predict(obs, deterministic=True)
+        return np.asarray(action, dtype=np.float64).reshape(len(obs), 2)
+
+    def driver(self) -> PolicyDriver:
+        """This policy as a protocol driver, reading what it was trained on."""
+        spec = self.spec
+        identity = {
+            "driver": "policy",
+            "observation": spec.observation,
+            "policy": str(self.weights_path),
+            "policy_sha256": spec.weights_sha256,
+            "encoder_sha256": spec.encoder_sha256,
+            "num_timesteps": spec.num_timesteps,
+            "train_time_s": spec.train_time_s,
+            "seed": spec.seed,
+        }
+        config = self.config
+        return PolicyDriver.for_config(self.act, spec.observation, spec.normalizer, self.encoder, config, identity)
+
+
+def sac_policy(obs_dim: int, hidden_units: list[int], device: str = "cpu", critic_state: bool = False):
+    """An SB3 SAC actor-critic for ``obs_dim`` inputs and the racing action space, untrained; with ``critic_state``
+    its actor reads all but the critic's last columns (:mod:`vision_rl.training.critic_state`)."""
+    from gymnasium import spaces
+
+    from vision_rl.training.critic_state import sac_policy_class
+
+    space = spaces.Box(-np.inf, np.inf, (obs_dim,), dtype=np.float32)
+    policy_class, kwargs = sac_policy_class(obs_dim, critic_state)
+    return policy_class(space, action_space(), lambda _: 0.0, net_arch=list(hidden_units), **kwargs).to(device)
+
+
+def load_policy(
+    path: str | os.PathLike[str],
+    encoder: str | os.PathLike[str] = "",
+    device: str = "cpu",
+    encoder_runtime: str = "auto",
+) -> LoadedPolicy:
+    """Load a policy (run folder, ``policy.pt`` or a snapshot) with, for vision, its frozen encoder.
+
+    The weights must have the recorded SHA-256 and the fingerprint the sidecar and the track's geometry give.
+    ``encoder``: optional checkpoint path for a vision policy; refused when its hash is not the recorded one.
+    ``encoder_runtime``: see :func:`~vision_rl.phase1_repr.checkpoint.load_encoder`.
+    """
+    from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
+
+    resolve_runtime(encoder_runtime, device)  # refused for a state policy too, which would never use it
+    weights_path, spec_path = resolve_policy_paths(path)
+    spec = PolicySpec.read(spec_path)
+    encoder_path = None
+    module = None
+    if spec.observation == "vision":
+        encoder_path = check_encoder(spec, encoder, source=f"policy {weights_path}")
+        from vision_rl.phase1_repr.checkpoint import load_encoder
+
+        module = load_encoder(encoder_path, device=device, runtime=encoder_runtime)
+    elif encoder:
+        check_encoder(spec, encoder, source=f"policy {weights_path}")  # raises: a state policy takes no encoder
+    critic_state = spec.config.critic_state
+    dim = obs_dim(spec.observation, module.rep_dim if module is not None else 64, critic_state)
+    expected = policy_fingerprint(spec.config, spec.observation, dim, spec.encoder_sha256)
+    try:
+        # The sidecar's claim against the track as it loads today, then the weights' own record against both.
+        check_fingerprint(spec.fingerprint, expected, str(spec_path))
+        state = read_agent(weights_path, expected, spec.weights_sha256)
+        policy = sac_policy(dim, spec.hidden_units, device, critic_state)
+        policy.load_state_dict(state["policy"])
+    except ArtifactError as exc:
+        raise PolicyError(str(exc)) from None
+    except RuntimeError as exc:
+        raise PolicyError(
+            f"{weights_path}: the weights do not fit a {spec.hidden_units} network of {dim} inputs: "
+            f"{str(exc).splitlines()[0]}"
+        ) from None
+    policy.set_training_mode(False)
+    return LoadedPolicy(policy, spec, weights_path, spec_path, module, encoder_path)
+
+
+def convert_sb3_run(run: str | os.PathLike[str]) -> list[Path]:
+    """Convert a format-2 run folder (``policy.zip`` and ``checkpoints/policy_<steps>.zip``) to format 3 in place;
+    returns the files written. Only the zips' tensors and plain JSON counters are read
+    (:func:`~vision_rl.training.persist.read_sb3_zip`), so nothing in them can run. The pickled replay buffer is
+    not read: a resumed run collects a new one."""
+    run = Path(run)
+    spec_path = run / SIDECAR_NAME
+    try:
+        data = json.loads(spec_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise PolicyError(f"{spec_path}: cannot read the sidecar: {exc}") from None
+    if data.get("format") != POLICY_FORMAT or int(data.get("format_version", 0)) != 2:
+        raise PolicyError(f"{spec_path}: not a format-2 policy sidecar (nothing to convert)")
+    config = racing_config_from_dict(data["racing_config"])
+    encoder_sha = data["encoder"]["sha256"] if data.get("encoder") else None
+    states = {}  # every zip is read before anything is written: a damaged one leaves the run as it was
+    for zip_path in [run / data.get("model", SB3_ZIP_NAME), *sorted((run / "checkpoints").glob("policy_*.zip"))]:
+        try:
+            states[zip_path] = state = read_sb3_zip(zip_path)
+            state["input_dim"] = int(state["policy"]["actor.latent_pi.0.weight"].shape[1])  # the actor's inputs
+        except ArtifactError as exc:
+            raise PolicyError(str(exc)) from None
+        except KeyError:
+            raise PolicyError(f"{zip_path}: not the zip of an SB3 SAC MLP policy (no actor.latent_pi.0)") from None
+    written = []
+    for zip_path, state in states.items():
+        fingerprint = policy_fingerprint(config, data["observation"], state.pop("input_dim"), encoder_sha)
+        weights = zip_path.with_suffix(".pt")
+        sha = write_agent_state(state, weights, fingerprint)
+        entry = {
+            **data,
+            "format_version": POLICY_FORMAT_VERSION,
+            "model": weights.name,
+            "weights_sha256": sha,
+            "fingerprint": fingerprint,
+            "num_timesteps": state["counters"]["num_timesteps"],
+        }
+        sidecar = spec_path if zip_path.parent == run else snapshot_sidecar(weights)
+        PolicySpec.from_dict(entry, str(sidecar)).write(sidecar)
+        written += [weights, sidecar]
+    return written

@@ -1,0 +1,149 @@
+"""`evaluate`: a trained policy through the one lap-time protocol (:mod:`vision_rl.evaluation.protocol`): two
+consecutive laps from a rolling start, the second scored, best and median over start seeds. The record goes to
+``evaluation.json`` beside the policy, where the leaderboard finds it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from vision_rl.evaluation.controls import lap_controls
+from vision_rl.evaluation.encoder_error import encoder_error_on_lap
+from vision_rl.evaluation.leaderboard import evaluation_record
+from vision_rl.evaluation.outputs import (
+    check_video_dependencies,
+    format_lap_time,
+    plot_trajectory,
+    write_trace,
+    write_video,
+)
+from vision_rl.evaluation.protocol import BuiltinAI, LapTiming, time_laps
+from vision_rl.evaluation.sections import compare_sections, lap_sections
+from vision_rl.files import atomic_write
+from vision_rl.sim.ai_driver import DEFAULT_SKILL
+from vision_rl.training.artifact import BEST_DIR, MODEL_NAME, LoadedPolicy, load_policy
+
+#: A run's evaluation record, beside its ``policy.pt``.
+EVALUATION_NAME = "evaluation.json"
+
+
+def evaluation_path(weights: Path) -> Path:
+    """``evaluation.json`` beside a run's ``policy.pt``; ``<stem>.evaluation.json`` beside a snapshot."""
+    name = EVALUATION_NAME if weights.name == MODEL_NAME else f"{weights.stem}.evaluation.json"
+    return weights.parent / name
+
+
+def default_policy_name(weights: Path) -> str:
+    if weights.name == MODEL_NAME and weights.parent.name == BEST_DIR:  # the weights a run's held-out starts chose
+        return f"{weights.parent.parent.name}/{BEST_DIR}"
+    if weights.name == MODEL_NAME:
+        return weights.parent.name
+    if weights.parent.name == "checkpoints":
+        return f"{weights.parent.parent.name}/{weights.stem}"
+    return weights.stem
+
+
+def evaluate_policy(
+    policy: str | os.PathLike[str] | LoadedPolicy,
+    laps: int = 2,
+    seeds: int = 3,
+    seed: int = 0,
+    encoder: str = "",
+    time_limit_s: float = 0.0,
+    video: str = "",
+    plot: str = "",
+    name: str = "",
+    device: str = "cpu",
+    write: bool = True,
+    encoder_runtime: str = "auto",
+    sections_m: float = 0.0,
+    reference_skill: float = 1.0,
+    encoder_error: bool = False,
+    trace: str = "",
+) -> dict[str, Any]:
+    """Run the protocol for a policy (path or loaded) on the track and car it was trained on; returns the record
+    and, with ``write``, stores it as ``evaluation.json`` beside the policy for the leaderboard. ``sections_m`` > 0
+    adds ``sections``: the best scored lap against the built-in AI's at ``reference_skill``, section by section
+    (:mod:`vision_rl.evaluation.sections`). ``encoder_error`` (vision) adds ``encoder_error``: the encoder's error on
+    the 27 targets along the best scored lap and along the built-in AI's lap from the same start
+    (:mod:`vision_rl.evaluation.encoder_error`). ``trace``: a CSV of every seed's run, step by step
+    (:func:`~vision_rl.evaluation.outputs.write_trace`)."""
+    if seeds < 1:
+        raise ValueError(f"seeds must be >= 1, got {seeds}")
+    if sections_m < 0 or not 0.0 < reference_skill <= 1.0:
+        raise ValueError(
+            f"--sections-m must be >= 0 and --reference-skill in (0, 1], got {sections_m}, {reference_skill}"
+        )
+    for flag, out in (("--plot", plot), ("--video", video), ("--trace", trace)):
+        if out and Path(out).is_dir():  # found now, not after the whole evaluation
+            raise ValueError(f"{flag} {out} is a folder: give the file to write")
+    if video:
+        check_video_dependencies()
+    loaded = policy if isinstance(policy, LoadedPolicy) else load_policy(policy, encoder, device, encoder_runtime)
+    if encoder_error and loaded.encoder is None:
+        raise ValueError("--encoder-error measures a vision policy's encoder: this policy observes the state")
+    config = loaded.config
+    driver = loaded.driver()
+    try:
+        timing = time_laps(
+            driver,
+            config.track,
+            config.car,
+            range(seed, seed + seeds),
+            laps,
+            time_limit_s,
+            record=bool(plot or video or sections_m or encoder_error or trace),
+        )
+    finally:
+        driver.close()
+    result = evaluation_record(timing, driver.identity, name or default_policy_name(loaded.weights_path))
+    best = timing.best_index()
+    title = (
+        f"{result['name']}: lap {laps} {format_lap_time(result['best_lap_time_s'])} "
+        f"(seed {result['best_seed']}, {timing.track.name}, {timing.car.name})"
+    )
+    result["plot"] = str(plot_trajectory(timing, best, plot, title)) if plot else None
+    result["video"] = str(write_video(timing, best, video, config.image_hw_px)) if video else None
+    result["trace"] = str(write_trace(timing, trace)) if trace else None
+    if sections_m > 0:
+        result["sections"] = _sections(timing, best, sections_m, reference_skill)
+    if encoder_error:
+        result["encoder_error"] = _encoder_error(timing, best, loaded)
+    if write:
+        out = evaluation_path(loaded.weights_path)
+        atomic_write(out, lambda tmp: tmp.write_text(json.dumps(result, indent=2)))
+        result["evaluation_json"] = str(out)
+    return result
+
+
+def _encoder_error(timing: LapTiming, best: int, loaded: LoadedPolicy) -> dict[str, Any]:
+    hw = loaded.config.image_hw_px
+    ai = time_laps(BuiltinAI(), timing.track, timing.car, [timing.runs[best].seed], timing.laps, record=True)
+    return {
+        "policy": encoder_error_on_lap(timing, best, loaded.encoder, hw),
+        "built_in_ai": {"skill": DEFAULT_SKILL, **encoder_error_on_lap(ai, 0, loaded.encoder, hw)},
+    }
+
+
+def _sections(timing: LapTiming, best: int, section_m: float, reference_skill: float) -> dict[str, Any]:
+    reference: dict[str, Any] = {"driver": "built-in AI", "skill": reference_skill, "lap_time_s": None}
+    rows = controls = None
+    if timing.scored(best) is not None:
+        ai = time_laps(
+            BuiltinAI(skill=reference_skill),
+            timing.track,
+            timing.car,
+            [run.seed for run in timing.runs],
+            timing.laps,
+            record=True,
+        )
+        ai_best = ai.best_index()
+        if ai.scored(ai_best) is None:
+            raise ValueError(f"the built-in AI at skill {reference_skill:g} finished no lap: no reference")
+        reference["lap_time_s"] = ai.scored(ai_best).lap_time_s
+        rows = compare_sections(lap_sections(timing, best, section_m), lap_sections(ai, ai_best, section_m))
+        controls = {"lap": lap_controls(timing, best), "reference": lap_controls(ai, ai_best)}
+    return {"section_m": section_m, "reference": reference, "rows": rows, "controls": controls}
