@@ -103,8 +103,8 @@ def flat_fields(config_cls: type) -> list[FlatField]:
             name = spec.rename.get(top, spec.prefix + inner.name)
             doc = spec.help.get(top, inner.doc)
             default = held
-            for name in inner.path:
-                default = getattr(default, name)
+            for attribute in inner.path:
+                default = getattr(default, attribute)
             out.append(FlatField(name, (f.name, *inner.path), inner.field, doc, default))
     names = [flat.name for flat in out]
     if len(set(names)) != len(names):

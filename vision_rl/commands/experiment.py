@@ -6,7 +6,9 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
+from vision_rl.config import nested
 from vision_rl.phase2_rl.train import TrainPolicyConfig
+from vision_rl.training.schedules import EvaluationSchedule
 
 
 @dataclass(frozen=True)
@@ -27,8 +29,10 @@ class ExperimentOptions(TrainPolicyConfig):
     """Unused here: an experiment always resumes its unfinished seeds."""
     force: bool = False
     """Unused here: an experiment folder is never overwritten (use another --out)."""
-    eval_seeds: int = 3
-    """Start seeds of each policy's evaluation."""
+    evaluation: EvaluationSchedule = nested(
+        EvaluationSchedule(seeds=3), prefix="eval_", help={"seeds": "Start seeds of each policy's evaluation."}
+    )
+    """The periodic evaluations; their seeds also time each seed's final policy."""
     name: str = ""
     """Name of the leaderboard row (default: the folder's name)."""
     progress: bool = True
@@ -87,7 +91,7 @@ def run_experiment_command(opts: ExperimentOptions) -> int:
                 train,
                 seeds,
                 opts.out,
-                opts.eval_seeds,
+                opts.evaluation.seeds,
                 opts.name,
                 lambda done, total: show(bar, done, total),
                 opts.seeds_at_once,
@@ -160,7 +164,7 @@ def run_curves(opts: CurvesOptions) -> int:
     names = [n.strip() for n in opts.names.split(",") if n.strip()] or [str(f) for f in files]
     if len(names) != len(files):
         raise ValueError(f"--names gives {len(names)} names for {len(files)} curve files")
-    ai = time_laps(BuiltinAI(), opts.track, opts.car, seeds=AI_SEEDS).summary()
+    ai = time_laps(BuiltinAI(), opts.racing.track, opts.racing.car, seeds=AI_SEEDS).summary()
     result = compare_learning_curves(files, names, ai["limit_lap_time_s"], ai["best_lap_time_s"], opts.out)
     emit(result, opts.json, format_curves)
     return 0

@@ -432,6 +432,7 @@ def _policy_stage(
 ) -> dict[str, Any]:
     """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time its last weights by
     the protocol."""
+    from vision_rl.config import from_flat
     from vision_rl.phase2_rl.train import TrainPolicyConfig, train_policy
     from vision_rl.training.artifact import MODEL_NAME
     from vision_rl.training.evaluate import evaluate_policy
@@ -441,7 +442,8 @@ def _policy_stage(
     t0 = time.perf_counter()
     out = Path(runs) / "policy" / f"pipeline-{kind}"
     trained = train_policy(
-        TrainPolicyConfig(
+        from_flat(
+            TrainPolicyConfig,
             encoder=encoder,
             track=track,
             car=car,

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from vision_rl.config import flat_values
 from vision_rl.evaluation.leaderboard import AI_SEEDS, EXPERIMENT_FORMAT, aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.files import atomic_write, file_sha256
@@ -64,14 +65,18 @@ def parse_seeds(text: str) -> tuple[int, ...]:
 
 def default_experiment_out(cfg: TrainPolicyConfig) -> Path:
     kind = "vision" if cfg.encoder else "state"
-    return Path("runs") / "experiment" / f"{kind}-{Path(cfg.track.replace('random:', 'random-')).stem}-{cfg.car}"
+    return (
+        Path("runs")
+        / "experiment"
+        / f"{kind}-{Path(cfg.racing.track.replace('random:', 'random-')).stem}-{cfg.racing.car}"
+    )
 
 
 def _plan(cfg: TrainPolicyConfig) -> dict[str, Any]:
-    recipe = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in SESSION_FIELDS}
+    recipe = {k: v for k, v in flat_values(cfg).items() if k not in SESSION_FIELDS}
     return {
-        "track": cfg.track,
-        "car": cfg.car,
+        "track": cfg.racing.track,
+        "car": cfg.racing.car,
         "observation": "vision" if cfg.encoder else "state",
         "encoder_sha256": file_sha256(cfg.encoder) if cfg.encoder else None,
         "steps": cfg.steps,
@@ -154,7 +159,7 @@ def run_experiment(
         except ValueError as exc:
             raise ValueError(f"{path}: not valid JSON ({exc}); remove it to start over") from None
         # A recipe field added after the experiment was started holds its default there.
-        defaults = {f.name: f.default for f in dataclasses.fields(TrainPolicyConfig) if f.name not in SESSION_FIELDS}
+        defaults = {k: v for k, v in flat_values(TrainPolicyConfig()).items() if k not in SESSION_FIELDS}
         previous["recipe"] = {**defaults, **previous.get("recipe", {})}
         for key, value in plan.items():
             if previous.get(key) != value:
@@ -192,10 +197,10 @@ def run_experiment(
     record["per_seed"] = _seed_rows(seeds, evaluations)
     if cfg.select_starts:
         record["selected"] = _selected(root, seeds, evaluations)
-    if cfg.eval_every_steps > 0:  # without periodic evaluations the runs have no curve to draw
-        ai = time_laps(BuiltinAI(), cfg.track, cfg.car, seeds=AI_SEEDS).summary()["best_lap_time_s"]
+    if cfg.evaluation.every_steps > 0:  # without periodic evaluations the runs have no curve to draw
+        ai = time_laps(BuiltinAI(), cfg.racing.track, cfg.racing.car, seeds=AI_SEEDS).summary()["best_lap_time_s"]
         record["learning_curves"] = write_learning_curves(
-            root, seeds, evaluations[0]["limit_lap_time_s"], ai, cfg.control_dt_s
+            root, seeds, evaluations[0]["limit_lap_time_s"], ai, cfg.racing.control_dt_s
         )
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
     return {**record, "experiment_json": str(path)}

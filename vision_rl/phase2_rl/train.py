@@ -42,6 +42,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecMonitor
 
+from vision_rl.config import nested
 from vision_rl.envs.core import STEER_ACTIONS, STEER_CHANGE_PENALTY_SCALES, WALL_PENALTY_SPEEDS, RacingConfig
 from vision_rl.envs.observations import ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
@@ -68,6 +69,7 @@ from vision_rl.training.persist import ArtifactError, load_buffer, read_agent, r
 from vision_rl.training.sac import (
     METRICS_NAME,
     Progress,
+    SACOverrides,
     SACPreset,
     SaveClock,
     gamma_per_step,
@@ -77,8 +79,82 @@ from vision_rl.training.sac import (
     sampler_setup,
     torch_device,
 )
+from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule, SamplerOptions
 
 MAX_CARS = 1000
+
+
+#: train-policy's help for the environment's options (the config's own docstrings say more).
+RACING_OPTIONS_HELP = {
+    "track": "Track: built-in name, random:SEED or CSV path.",
+    "car": "Car preset.",
+    "n_groups": "Cars sampled at once (one world, the papers' 20).",
+    "episode_s": "Training episode length, s (the papers' 100 s trials).",
+    "control_dt_s": (
+        "Control step, s: a whole multiple of the simulator's 0.02 s (the papers' 10 Hz: 0.1). --gamma "
+        "stays a discount per 0.1 s; --n-step counts control steps; c_w, c_s and c_o weigh a step (not in"
+        " the papers)."
+    ),
+    "wall_penalty_c_w": "c_w of the reward's wall penalty.",
+    "wall_penalty_speed": (
+        "Speed the wall penalty squares: `end` of the step (the papers) or `impact`, the larger of the "
+        "step's start and end speeds (a hit charged at the speed that hit; not in the papers)."
+    ),
+    "steer_change_penalty_c_s": (
+        "c_s of the reward's steering-change penalty ``c_s * (change / scale)^2`` (0: the papers' reward)."
+    ),
+    "steer_change_penalty_scale": (
+        "The steering-change penalty's scale: `limit` (the command's +-pi/6) or `usable` (the angle "
+        "usable at the car's speed, +-0.07 rad at 159 km/h: a swing across it costs 4 c_s; not in the "
+        "papers)."
+    ),
+    "off_track_penalty_c_o": (
+        "c_o of a penalty c_o |v|^2 per step ending with a wheel over the edge line (not in the papers; 0: none)."
+    ),
+    "wall_hit_throttle_cut_s": (
+        "After a wall hit, hold the throttle at zero this long, s: a hit costs time (GT Sport's "
+        "wall-collision penalty; not in the papers; 0: off; evaluations never apply it)."
+    ),
+    "terminate_on_wall": (
+        "End a training episode when the car touches a wall (a terminal step; not in the GT Sport "
+        "papers). In make quick's vision stage its 8 runs finished 1 of 104 starts against 99: they "
+        "stopped at the hairpin's wall with the brake held (docs/results/vision-expressway-hatchback)."
+    ),
+    "terminate_when_stuck": (
+        "End a training episode when the car is stuck by the protocol's rule (a terminal step: the car "
+        "has no reverse gear, so a stuck car earns nothing more). Otherwise it stands out the rest of its"
+        " 100 s: in make quick's vision runs most of the first 60k transitions were of standing cars (not"
+        " in the papers)."
+    ),
+    "restart_before_stuck_share": (
+        "With --stuck-ends-episode: this share of training episodes starts up to --restart-before-stuck-m"
+        " before a place where a car of the run recently got stuck, the rest at random points (not in the"
+        " papers; 0: all random). With 0.5 make quick's vision stage lost no fewer starts over 8 seeds "
+        "and lapped slower (docs/results/ vision-expressway-hatchback)."
+    ),
+    "restart_before_stuck_m": (
+        "With --restart-before-stuck-share: the most such a start lies before the stuck place, m."
+    ),
+    "frame_delay_s": "Vision: frames lag the state by this long (the paper's 4 frames at 60 Hz: 0.067; 0: none).",
+    "critic_state": (
+        "Vision: the critic also reads the 38-D state observation, the actor the vision vector alone (an "
+        "asymmetric actor-critic, as the DDPG paper's; not in the GT Sport papers). The policy drives as "
+        "any vision policy."
+    ),
+    "steer_action": (
+        "`angle`: the action is the steering command (the papers); `rate`: a change of it, up to the "
+        "car's steering rate limit per step; `speed_scaled`: a share of the angles usable at the car's "
+        "speed; `rate_scaled`: `rate` within that share (none in the papers)."
+    ),
+    "steer_change_share_of_range": (
+        "`rate_scaled`: the most a step moves the steering command, as a share of the angle usable at the"
+        " car's speed, where less than the rate limit (0: the rate limit alone; not in the papers)."
+    ),
+    "pedal_full_at": (
+        "The action's throttle/brake entry at which the pedal reaches full travel (1: the papers' linear "
+        "map; below 1 the deterministic policy can hold the throttle open; not in the papers)."
+    ),
+}
 
 
 @dataclass(frozen=True)
@@ -87,16 +163,8 @@ class TrainPolicyConfig:
 
     encoder: str = ""
     """Encoder ckpt.pt: vision observation (64-D embedding + 11); empty: the 38-D state observation."""
-    track: str = "expressway"
-    """Track: built-in name, random:SEED or CSV path."""
-    car: str = "hatchback"
-    """Car preset."""
-    cars: int = 20
-    """Cars sampled at once (one world, the papers' 20)."""
     steps: int = 1_000_000
     """Total environment steps (transitions over all cars)."""
-    preset: str = "cpu"
-    """`paper` (the paper's SAC recipe) or `cpu` (learns on 2 cores)."""
     out: str = ""
     """Run folder (default runs/policy/<kind>-<track>-<car>-s<seed>)."""
     seed: int = 0
@@ -105,95 +173,56 @@ class TrainPolicyConfig:
     """Continue the run in --out up to --steps (its own track, car, cars, encoder and SAC settings; weights, buffer)."""
     force: bool = False
     """Start over in an --out that holds a run."""
-    eval_every_steps: int = 100_000
-    """Evaluate the current policy every N steps (0: off)."""
-    eval_seeds: int = 1
-    """Start seeds of the periodic evaluation."""
-    eval_laps: int = 2
-    """Laps of the periodic evaluation (the last is scored)."""
+    racing: RacingConfig = nested(
+        RacingConfig(n_groups=20),
+        only=(
+            "track",
+            "car",
+            "n_groups",
+            "episode_s",
+            "control_dt_s",
+            "wall_penalty_c_w",
+            "wall_penalty_speed",
+            "steer_change_penalty_c_s",
+            "steer_change_penalty_scale",
+            "off_track_penalty_c_o",
+            "wall_hit_throttle_cut_s",
+            "terminate_on_wall",
+            "terminate_when_stuck",
+            "restart_before_stuck_share",
+            "restart_before_stuck_m",
+            "frame_delay_s",
+            "critic_state",
+            "steer_action",
+            "steer_change_share_of_range",
+            "pedal_full_at",
+        ),
+        rename={
+            "n_groups": "cars",
+            "terminate_on_wall": "wall_ends_episode",
+            "terminate_when_stuck": "stuck_ends_episode",
+        },
+        help=RACING_OPTIONS_HELP,
+    )
+    """The environment the policy trains in (its observation and frame size follow --encoder)."""
+    evaluation: EvaluationSchedule = nested(EvaluationSchedule(), prefix="eval_")
+    """The periodic evaluations."""
+    checkpoints: CheckpointSchedule = nested(CheckpointSchedule(), prefix="checkpoint_")
+    """The periodic saves."""
+    sac: SACOverrides = nested(SACOverrides())
+    """The SAC preset and its overrides."""
+    samplers: SamplerOptions = nested(SamplerOptions())
+    """Sampling in Ray actors."""
     select_starts: int = 0
     """Held-out start seeds (100, 101, ...) timed at each periodic evaluation; N >= 1 keeps the weights with the
     fastest mean scored lap over them, every start finished clean (see --select-clean), in best/ (0: off)."""
     select_clean: bool = True
     """--select-starts keeps only weights whose held-out starts were all clean; --no-select-clean: all finished is
     enough (for a policy that rides the walls and sometimes loses a start, as make quick's vision policy)."""
-    checkpoint_every_steps: int = 200_000
-    """Save weights, buffer and a snapshot every N steps (0: off)."""
-    checkpoint_every_min: float = 10.0
-    """Save weights, optimisers and counters (not the buffer) every N minutes of wall-clock time (0: off)."""
     save_buffer: bool = True
     """Save the replay buffer with step checkpoints and on Ctrl-C (for --resume)."""
-    episode_s: float = 100.0
-    """Training episode length, s (the papers' 100 s trials)."""
-    control_dt_s: float = 0.1
-    """Control step, s: a whole multiple of the simulator's 0.02 s (the papers' 10 Hz: 0.1). --gamma stays a
-    discount per 0.1 s; --n-step counts control steps; c_w, c_s and c_o weigh a step (not in the papers)."""
-    wall_penalty_c_w: float = 0.005
-    """c_w of the reward's wall penalty."""
-    wall_penalty_speed: str = "end"
-    """Speed the wall penalty squares: `end` of the step (the papers) or `impact`, the larger of the step's start and
-    end speeds (a hit charged at the speed that hit; not in the papers)."""
-    steer_change_penalty_c_s: float = 0.0
-    """c_s of the reward's steering-change penalty ``c_s * (change / scale)^2`` (0: the papers' reward)."""
-    steer_change_penalty_scale: str = "limit"
-    """The steering-change penalty's scale: `limit` (the command's +-pi/6) or `usable` (the angle usable at the
-    car's speed, +-0.07 rad at 159 km/h: a swing across it costs 4 c_s; not in the papers)."""
-    off_track_penalty_c_o: float = 0.0
-    """c_o of a penalty c_o |v|^2 per step ending with a wheel over the edge line (not in the papers; 0: none)."""
-    wall_hit_throttle_cut_s: float = 0.0
-    """After a wall hit, hold the throttle at zero this long, s: a hit costs time (GT Sport's wall-collision
-    penalty; not in the papers; 0: off; evaluations never apply it)."""
-    wall_ends_episode: bool = False
-    """End a training episode when the car touches a wall (a terminal step; not in the GT Sport papers). In make
-    quick's vision stage its 8 runs finished 1 of 104 starts against 99: they stopped at the hairpin's wall with the
-    brake held (docs/results/vision-expressway-hatchback)."""
-    stuck_ends_episode: bool = False
-    """End a training episode when the car is stuck by the protocol's rule (a terminal step: the car has no reverse
-    gear, so a stuck car earns nothing more). Otherwise it stands out the rest of its 100 s: in make quick's vision
-    runs most of the first 60k transitions were of standing cars (not in the papers)."""
-    restart_before_stuck_share: float = 0.0
-    """With --stuck-ends-episode: this share of training episodes starts up to --restart-before-stuck-m before a
-    place where a car of the run recently got stuck, the rest at random points (not in the papers; 0: all random).
-    With 0.5 make quick's vision stage lost no fewer starts over 8 seeds and lapped slower (docs/results/
-    vision-expressway-hatchback)."""
-    restart_before_stuck_m: float = 300.0
-    """With --restart-before-stuck-share: the most such a start lies before the stuck place, m."""
-    frame_delay_s: float = 0.0
-    """Vision: frames lag the state by this long (the paper's 4 frames at 60 Hz: 0.067; 0: none)."""
-    critic_state: bool = False
-    """Vision: the critic also reads the 38-D state observation, the actor the vision vector alone (an asymmetric
-    actor-critic, as the DDPG paper's; not in the GT Sport papers). The policy drives as any vision policy."""
-    steer_action: str = "angle"
-    """`angle`: the action is the steering command (the papers); `rate`: a change of it, up to the car's steering
-    rate limit per step; `speed_scaled`: a share of the angles usable at the car's speed; `rate_scaled`: `rate`
-    within that share (none in the papers)."""
-    steer_change_share_of_range: float = 0.0
-    """`rate_scaled`: the most a step moves the steering command, as a share of the angle usable at the car's speed,
-    where less than the rate limit (0: the rate limit alone; not in the papers)."""
-    pedal_full_at: float = 1.0
-    """The action's throttle/brake entry at which the pedal reaches full travel (1: the papers' linear map; below 1
-    the deterministic policy can hold the throttle open; not in the papers)."""
     stats_steps: int = 50
     """Vision: control steps of the feature-statistics rollout."""
-    learning_rate: float = 0.0
-    """Override the preset's learning rate (0: preset)."""
-    learning_rate_final: float = 0.0
-    """Let the learning rate fall linearly to this by the run's last step (0: constant; not in the papers)."""
-    target_entropy: float = 0.0
-    """SAC's entropy target, nats (0: SB3's, -2 for the 2 action dimensions; lower: a less random policy in
-    training)."""
-    batch_size: int = 0
-    """Override the preset's batch size (0: preset)."""
-    buffer_size: int = 0
-    """Override the preset's buffer size (0: preset)."""
-    learning_starts: int = -1
-    """Override the preset's random start steps (-1: preset)."""
-    gradient_steps: int = 0
-    """Override the preset's updates per vector step (0: preset)."""
-    gamma: float = 0.0
-    """Override the preset's discount per 0.1 s step (0: preset)."""
-    hidden_units: str = ""
-    """Override the preset's hidden layer widths of actor and critics, e.g. 128,128 (empty: preset)."""
     guide_steps: int = 0
     """Transitions of the built-in AI driving the cars (at the start skill) put in the replay buffer before the
     first update: demonstrations of braking, which SAC does not find here (not in the papers; 0: none)."""
@@ -224,23 +253,14 @@ class TrainPolicyConfig:
     """Torch device: auto, cpu or cuda."""
     encoder_runtime: str = "auto"
     """Vision: `auto` (ONNX Runtime on a CPU when installed: the encoder 3-6x faster here), torch or onnxruntime."""
-    workers: int | None = None
-    """Sampler actors (Ray), each a world of --cars cars in its own process, while this process learns; leave it out
-    to sample in this process."""
-    address: str = ""
-    """With --workers: the Ray cluster to join (auto, host:port or ray://host:port); empty: start one here."""
-    max_staleness: int = 1
-    """With --workers: weight versions a sampler's policy may lag the learner's (0: synchronous)."""
-    version_every_updates: int = 20
-    """With --workers: learner updates per weight version sent to the samplers."""
 
 
 def default_out(cfg: TrainPolicyConfig) -> Path:
     kind = "vision" if cfg.encoder else "state"
-    track = cfg.track.replace("random:", "random-")
+    track = cfg.racing.track.replace("random:", "random-")
     if track.endswith(".csv") or os.sep in track:
         track = Path(track).stem
-    return Path("runs") / "policy" / f"{kind}-{track}-{cfg.car}-s{cfg.seed}"
+    return Path("runs") / "policy" / f"{kind}-{track}-{cfg.racing.car}-s{cfg.seed}"
 
 
 #: The first held-out start seed: apart from the protocol's (0, 1, 2, ...), so that the choice of weights does not
@@ -256,8 +276,8 @@ class _TrainingLoop(BaseCallback):
         self.run = run
         self.progress = progress
         cfg = run.cfg
-        self.next_eval = next_multiple(run.start_steps, cfg.eval_every_steps)
-        self.saves = SaveClock(run.start_steps, cfg.checkpoint_every_steps, cfg.checkpoint_every_min)
+        self.next_eval = next_multiple(run.start_steps, cfg.evaluation.every_steps)
+        self.saves = SaveClock(run.start_steps, cfg.checkpoints.every_steps, cfg.checkpoints.every_min)
 
     def _eval_due(self) -> bool:
         return self.next_eval is not None and self.num_timesteps >= self.next_eval
@@ -269,7 +289,7 @@ class _TrainingLoop(BaseCallback):
         # before, and a knife-edge corner could finish another start in the final evaluation).
         if self._eval_due() and n < self.run.cfg.steps:
             self.run.evaluate(self.model)
-            self.next_eval = next_multiple(n, self.run.cfg.eval_every_steps)
+            self.next_eval = next_multiple(n, self.run.cfg.evaluation.every_steps)
         if self.progress is not None:
             self.progress(n, self.run.cfg.steps, self.run.last_eval)
         kind = self.saves.due(n)
@@ -300,11 +320,11 @@ class _Run:
             if not (self.out / MODEL_NAME).is_file() or not (self.out / SIDECAR_NAME).is_file():
                 raise FileNotFoundError(f"{self.out}: nothing to resume (no {MODEL_NAME} and {SIDECAR_NAME})")
             self.previous = PolicySpec.read(self.out / SIDECAR_NAME)
-        self.preset = resolve_preset(cfg) if self.previous is None else _preset_from_spec(self.previous)
+        self.preset = resolve_preset(cfg.sac) if self.previous is None else _preset_from_spec(self.previous)
         if self.previous is None and cfg.steps <= self.preset.learning_starts:
             raise ValueError(
                 f"--steps {cfg.steps} is not above the {self.preset.learning_starts} random start steps "
-                f"(--learning-starts, preset {cfg.preset!r}): training would make no update"
+                f"(--learning-starts, preset {cfg.sac.preset!r}): training would make no update"
             )
         if self.previous is None and cfg.encoder and not Path(cfg.encoder).is_file():
             raise FileNotFoundError(f"{cfg.encoder}: no such encoder checkpoint")
@@ -327,37 +347,14 @@ class _Run:
             self.train_time_before_s = self.previous.train_time_s
         else:
             self.kind = "vision" if cfg.encoder else "state"
-            image_hw = RacingConfig().image_hw_px
+            image_hw = cfg.racing.image_hw_px
             if cfg.encoder:
                 from vision_rl.phase1_repr.checkpoint import read_checkpoint
 
                 self.encoder_path = Path(cfg.encoder)
                 enc = read_checkpoint(self.encoder_path)["encoder_config"]
                 image_hw = (int(enc["input_height_px"]), int(enc["input_width_px"]))
-            self.racing = RacingConfig(
-                track=cfg.track,
-                car=cfg.car,
-                observation=self.kind,
-                n_groups=cfg.cars,
-                episode_s=cfg.episode_s,
-                wall_penalty_c_w=cfg.wall_penalty_c_w,
-                image_hw_px=image_hw,
-                steer_change_penalty_c_s=cfg.steer_change_penalty_c_s,
-                frame_delay_s=cfg.frame_delay_s,
-                critic_state=cfg.critic_state,
-                steer_change_penalty_scale=cfg.steer_change_penalty_scale,
-                steer_action=cfg.steer_action,
-                terminate_on_wall=cfg.wall_ends_episode,
-                terminate_when_stuck=cfg.stuck_ends_episode,
-                restart_before_stuck_share=cfg.restart_before_stuck_share,
-                restart_before_stuck_m=cfg.restart_before_stuck_m,
-                off_track_penalty_c_o=cfg.off_track_penalty_c_o,
-                wall_penalty_speed=cfg.wall_penalty_speed,
-                wall_hit_throttle_cut_s=cfg.wall_hit_throttle_cut_s,
-                pedal_full_at=cfg.pedal_full_at,
-                steer_change_share_of_range=cfg.steer_change_share_of_range,
-                control_dt_s=cfg.control_dt_s,
-            )
+            self.racing = dataclasses.replace(cfg.racing, observation=self.kind, image_hw_px=image_hw)
             self.start_steps = 0
             self.train_time_before_s = 0.0
         self.seed = self.previous.seed if self.previous is not None else cfg.seed  # a resumed run keeps its own
@@ -487,7 +484,7 @@ class _Run:
         return self.train_time_before_s + time.perf_counter() - self.session_start
 
     def evaluate(self, model: SAC) -> dict[str, Any]:
-        """The protocol (cfg.eval_laps laps, last scored) with the current deterministic policy, logged."""
+        """The protocol (cfg.evaluation.laps laps, last scored) with the current deterministic policy, logged."""
         cfg = self.cfg
         train_time_s = self.train_time_s
         t0 = time.perf_counter()
@@ -499,7 +496,9 @@ class _Run:
                 self.encoder,
                 self.racing,
             )
-        timing = time_laps(self.eval_driver, self.racing.track, self.racing.car, range(cfg.eval_seeds), cfg.eval_laps)
+        timing = time_laps(
+            self.eval_driver, self.racing.track, self.racing.car, range(cfg.evaluation.seeds), cfg.evaluation.laps
+        )
         summary = timing.summary()
         episodes = list(model.ep_info_buffer or [])
         record = {
@@ -560,7 +559,7 @@ class _Run:
             weights_sha256=weights_sha256,
             encoder=encoder,
             model=weights_name,
-            preset=self.previous.preset if self.previous is not None else self.cfg.preset,
+            preset=self.previous.preset if self.previous is not None else self.cfg.sac.preset,
             sac=json.loads(json.dumps(sac)),
             seed=self.seed,
             num_timesteps=int(model.num_timesteps),
@@ -574,7 +573,9 @@ class _Run:
         started with --no-select-clean) and their mean scored lap is the fastest so far."""
         seeds = list(range(SELECT_SEED_BASE, SELECT_SEED_BASE + starts))
         assert self.eval_driver is not None
-        summary = time_laps(self.eval_driver, self.racing.track, self.racing.car, seeds, self.cfg.eval_laps).summary()
+        summary = time_laps(
+            self.eval_driver, self.racing.track, self.racing.car, seeds, self.cfg.evaluation.laps
+        ).summary()
         clean = all(s["clean"] for s in summary["seeds"])
         need_clean = bool(self._kept("select_clean", True))
         eligible = clean if need_clean else summary["n_finished"] == len(seeds)
@@ -587,7 +588,7 @@ class _Run:
                 self.out / BEST_DIR,
                 selection={
                     "start_seeds": seeds,
-                    "laps": self.cfg.eval_laps,
+                    "laps": self.cfg.evaluation.laps,
                     "mean_lap_time_s": mean_lap_s,
                     "clean_wall_contact_s": CLEAN_WALL_CONTACT_S if need_clean else None,
                 },
@@ -624,33 +625,33 @@ class _Run:
 def check_bounds(cfg: TrainPolicyConfig) -> None:
     """One clear line for an option out of range, before anything is built or written."""
     checks = {
-        "cars": cfg.cars >= 1,
+        "cars": cfg.racing.n_groups >= 1,
         "steps": cfg.steps >= 1,
-        "eval_every_steps": cfg.eval_every_steps >= 0,
-        "eval_seeds": cfg.eval_seeds >= 1 or cfg.eval_every_steps == 0,
-        "eval_laps": cfg.eval_laps >= 1,
+        "eval_every_steps": cfg.evaluation.every_steps >= 0,
+        "eval_seeds": cfg.evaluation.seeds >= 1 or cfg.evaluation.every_steps == 0,
+        "eval_laps": cfg.evaluation.laps >= 1,
         "select_starts": cfg.select_starts >= 0,
-        "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
-        "episode_s": cfg.episode_s >= cfg.control_dt_s,
-        "control_dt_s": 0 < cfg.control_dt_s <= 1,
-        "wall_penalty_c_w": cfg.wall_penalty_c_w >= 0,
-        "steer_change_penalty_c_s": cfg.steer_change_penalty_c_s >= 0,
+        "checkpoint_every_steps": cfg.checkpoints.every_steps >= 0,
+        "checkpoint_every_min": cfg.checkpoints.every_min >= 0,
+        "episode_s": cfg.racing.episode_s >= cfg.racing.control_dt_s,
+        "control_dt_s": 0 < cfg.racing.control_dt_s <= 1,
+        "wall_penalty_c_w": cfg.racing.wall_penalty_c_w >= 0,
+        "steer_change_penalty_c_s": cfg.racing.steer_change_penalty_c_s >= 0,
         "stats_steps": cfg.stats_steps >= 1,
-        "off_track_penalty_c_o": cfg.off_track_penalty_c_o >= 0,
-        "wall_hit_throttle_cut_s": 0 <= cfg.wall_hit_throttle_cut_s <= 60,
-        "restart_before_stuck_share": 0 <= cfg.restart_before_stuck_share <= 1,
-        "restart_before_stuck_m": cfg.restart_before_stuck_m >= 0,
-        "frame_delay_s": 0 <= cfg.frame_delay_s <= 1,
-        "pedal_full_at": 0 < cfg.pedal_full_at <= 1,
-        "steer_change_share_of_range": cfg.steer_change_share_of_range >= 0,
-        "learning_rate": cfg.learning_rate >= 0,
-        "learning_rate_final": cfg.learning_rate_final >= 0,
-        "target_entropy": cfg.target_entropy <= 0,
-        "batch_size": cfg.batch_size >= 0,
-        "buffer_size": cfg.buffer_size >= 0,
-        "gradient_steps": cfg.gradient_steps >= 0,
-        "gamma": 0 <= cfg.gamma < 1,
+        "off_track_penalty_c_o": cfg.racing.off_track_penalty_c_o >= 0,
+        "wall_hit_throttle_cut_s": 0 <= cfg.racing.wall_hit_throttle_cut_s <= 60,
+        "restart_before_stuck_share": 0 <= cfg.racing.restart_before_stuck_share <= 1,
+        "restart_before_stuck_m": cfg.racing.restart_before_stuck_m >= 0,
+        "frame_delay_s": 0 <= cfg.racing.frame_delay_s <= 1,
+        "pedal_full_at": 0 < cfg.racing.pedal_full_at <= 1,
+        "steer_change_share_of_range": cfg.racing.steer_change_share_of_range >= 0,
+        "learning_rate": cfg.sac.learning_rate >= 0,
+        "learning_rate_final": cfg.sac.learning_rate_final >= 0,
+        "target_entropy": cfg.sac.target_entropy <= 0,
+        "batch_size": cfg.sac.batch_size >= 0,
+        "buffer_size": cfg.sac.buffer_size >= 0,
+        "gradient_steps": cfg.sac.gradient_steps >= 0,
+        "gamma": 0 <= cfg.sac.gamma < 1,
         "n_step": 1 <= cfg.n_step <= 100,
         "guide_steps": cfg.guide_steps >= 0,
         "guide_bc_weight": cfg.guide_bc_weight >= 0,
@@ -663,10 +664,10 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     if bad:
         name = bad[0]
         raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
-    parse_hidden_units(cfg.hidden_units)
-    if ai_ticks(cfg.control_dt_s) is None:
+    parse_hidden_units(cfg.sac.hidden_units)
+    if ai_ticks(cfg.racing.control_dt_s) is None:
         raise ValueError(
-            f"--control-dt-s {cfg.control_dt_s} is not a whole multiple of the simulator's "
+            f"--control-dt-s {cfg.racing.control_dt_s} is not a whole multiple of the simulator's "
             f"{AI_CONTROL_DT_S} s step, e.g. 0.04 (25 Hz) or 0.1 (10 Hz)"
         )
     choices = {
@@ -678,19 +679,19 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         value = getattr(cfg, name)
         if value not in allowed:
             raise ValueError(f"--{name.replace('_', '-')} must be one of {', '.join(allowed)}, got {value!r}")
-    if cfg.steer_change_share_of_range > 0 and cfg.steer_action != "rate_scaled":
+    if cfg.racing.steer_change_share_of_range > 0 and cfg.racing.steer_action != "rate_scaled":
         raise ValueError("--steer-change-share-of-range limits rate_scaled steering: give --steer-action rate_scaled")
     if (cfg.guide_bc_weight > 0 or cfg.guide_pretrain_steps > 0) and cfg.guide_steps == 0:
         raise ValueError(
             "--guide-bc-weight and --guide-pretrain-steps clone the AI's transitions: give --guide-steps too"
         )
-    if cfg.select_starts > 0 and cfg.eval_every_steps == 0:
+    if cfg.select_starts > 0 and cfg.evaluation.every_steps == 0:
         raise ValueError("--select-starts chooses among the periodic evaluations: give --eval-every-steps above 0")
     if not cfg.select_clean and cfg.select_starts == 0:
         raise ValueError("--no-select-clean sets the rule of --select-starts: give --select-starts N too")
-    if cfg.select_starts > 0 and cfg.eval_seeds > SELECT_SEED_BASE:
+    if cfg.select_starts > 0 and cfg.evaluation.seeds > SELECT_SEED_BASE:
         raise ValueError(
-            f"--eval-seeds {cfg.eval_seeds} would time the held-out starts of --select-starts, which "
+            f"--eval-seeds {cfg.evaluation.seeds} would time the held-out starts of --select-starts, which "
             f"begin at seed {SELECT_SEED_BASE}: give at most {SELECT_SEED_BASE}"
         )
     shaping = [
@@ -703,25 +704,27 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     ]
     if shaping and cfg.guide_label_weight == 0:
         raise ValueError(f"{shaping[0]} shapes the labels' cloning: give --guide-label-weight too")
-    if cfg.restart_before_stuck_share > 0 and not cfg.stuck_ends_episode:
+    if cfg.racing.restart_before_stuck_share > 0 and not cfg.racing.terminate_when_stuck:
         raise ValueError("--restart-before-stuck-share starts episodes before stuck ends: give --stuck-ends-episode")
-    if cfg.frame_delay_s > 0 and not cfg.encoder:
+    if cfg.racing.frame_delay_s > 0 and not cfg.encoder:
         raise ValueError("--frame-delay-s delays the vision frames: give --encoder (the state observation has none)")
-    if cfg.critic_state and not cfg.encoder:
+    if cfg.racing.critic_state and not cfg.encoder:
         raise ValueError("--critic-state gives a vision policy's critic the state observation: give --encoder")
-    if cfg.workers is not None or cfg.address:
+    if cfg.samplers.workers is not None or cfg.samplers.address:
         from vision_rl.training.distributed import check_workers
 
-        if cfg.workers is None:
-            raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
-        check_workers(cfg.workers, cfg.max_staleness, cfg.version_every_updates)
-        if cfg.n_step > 1 and cfg.workers > 1:
+        if cfg.samplers.workers is None:
+            raise ValueError(
+                f"--address {cfg.samplers.address} needs --workers: the samplers are what runs on the cluster"
+            )
+        check_workers(cfg.samplers.workers, cfg.samplers.max_staleness, cfg.samplers.version_every_updates)
+        if cfg.n_step > 1 and cfg.samplers.workers > 1:
             # The learner's buffer interleaves the samplers' vector steps, so a column is not one car's time line.
             raise ValueError(f"--n-step {cfg.n_step} needs one car's steps in a row: use --workers 1 or leave it out")
     # The world holds every car's state and, for vision, renders every car's frame each step; 1,000 cars is far
     # beyond the papers' 20 and what one process can step at a useful rate.
-    if cfg.cars > MAX_CARS:
-        raise ValueError(f"--cars {cfg.cars} is more than {MAX_CARS} cars in one world")
+    if cfg.racing.n_groups > MAX_CARS:
+        raise ValueError(f"--cars {cfg.racing.n_groups} is more than {MAX_CARS} cars in one world")
 
 
 def _preset_from_spec(spec: PolicySpec) -> SACPreset:
@@ -735,9 +738,11 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
     (Ctrl-C, or SIGTERM where the caller maps it) saves everything and returns with ``interrupted``."""
     from vision_rl.training.distributed import cluster_for
 
-    if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
+    if (
+        cfg.samplers.workers is not None
+    ):  # Ray's cluster and the worker count are checked before the run folder is touched
         check_bounds(cfg)
-    with cluster_for(cfg.workers, cfg.address) as cluster:
+    with cluster_for(cfg.samplers.workers, cfg.samplers.address) as cluster:
         run = _Run(cfg)
         model = run.build()
         loop = _TrainingLoop(run, progress)
@@ -775,7 +780,7 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
 
 
 def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: Any) -> dict[str, Any]:
-    """The session's steps from ``cfg.workers`` sampler actors (:mod:`vision_rl.training.distributed`); the same
+    """The session's steps from ``--workers`` sampler actors (:mod:`vision_rl.training.distributed`); the same
     evaluations, checkpoints and progress as the single-process loop, on the same step counts. A lost sampler is a
     line of metrics.jsonl; when none is left, the run is saved and the error raised."""
     from vision_rl.training.distributed import SamplersLostError, learn_like_sb3
@@ -803,9 +808,9 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
             model,
             setup,
             cluster,
-            workers=int(cfg.workers or 0),
-            max_staleness=cfg.max_staleness,
-            version_every_updates=cfg.version_every_updates,
+            workers=int(cfg.samplers.workers or 0),
+            max_staleness=cfg.samplers.max_staleness,
+            version_every_updates=cfg.samplers.version_every_updates,
             total_timesteps=cfg.steps,
             callback=loop,
             log_event=log_event,

@@ -22,7 +22,6 @@ another base recipe or space is refused.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import os
@@ -32,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from vision_rl.config import flat_values, replace_flat
 from vision_rl.files import atomic_write
 from vision_rl.phase2_rl.train import STEER_ACTIONS, TrainPolicyConfig, train_policy
 from vision_rl.training.evaluate import evaluate_policy
@@ -129,7 +129,7 @@ def check_tune(base: TrainPolicyConfig, tune: TuneConfig) -> None:
         raise TuneError(f"--space {','.join(tune.space)}: an option is repeated")
     if tune.trials < 1 or tune.eval_starts < 1 or tune.wall_weight < 0 or tune.prune_after_steps < 0:
         raise TuneError("--trials and --eval-starts must be >= 1, --wall-weight and --prune-after-steps >= 0")
-    if base.resume or base.workers is not None:
+    if base.resume or base.samplers.workers is not None:
         raise TuneError("tune trains each trial from scratch in this process: leave out --resume and --workers")
 
 
@@ -146,7 +146,7 @@ def recipe_flags(params: dict[str, Any]) -> str:
 
 
 def _study_record(base: TrainPolicyConfig, tune: TuneConfig) -> dict[str, Any]:
-    recipe = {k: v for k, v in dataclasses.asdict(base).items() if k not in ("out", "resume", "force", "device")}
+    recipe = {k: v for k, v in flat_values(base).items() if k not in ("out", "resume", "force", "device")}
     return {
         "base_recipe": recipe,
         "space": list(tune.space),
@@ -222,7 +222,7 @@ def run_tune(
                 raise KeyboardInterrupt  # train_policy saves the run folder and returns
 
         run = root / f"trial-{trial.number}"
-        cfg = dataclasses.replace(base, **params, out=str(run), resume=False, force=True, save_buffer=False)
+        cfg = replace_flat(base, **params, out=str(run), resume=False, force=True, save_buffer=False)
         result = train_policy(cfg, progress)
         if pruned:
             raise optuna.TrialPruned

@@ -74,6 +74,33 @@ PRESETS: dict[str, SACPreset] = {
 }
 
 
+@dataclass(frozen=True)
+class SACOverrides:
+    """A preset by name and the hyper-parameters a run overrides (0, -1 or empty: the preset's)."""
+
+    preset: str = "cpu"
+    """`paper` (the paper's SAC recipe) or `cpu` (learns on 2 cores)."""
+    learning_rate: float = 0.0
+    """Override the preset's learning rate (0: preset)."""
+    learning_rate_final: float = 0.0
+    """Let the learning rate fall linearly to this by the run's last step (0: constant; not in the papers)."""
+    target_entropy: float = 0.0
+    """SAC's entropy target, nats (0: SB3's, -2 for the 2 action dimensions; lower: a less random policy in
+    training)."""
+    batch_size: int = 0
+    """Override the preset's batch size (0: preset)."""
+    buffer_size: int = 0
+    """Override the preset's buffer size (0: preset)."""
+    learning_starts: int = -1
+    """Override the preset's random start steps (-1: preset)."""
+    gradient_steps: int = 0
+    """Override the preset's updates per vector step (0: preset)."""
+    gamma: float = 0.0
+    """Override the preset's discount per 0.1 s step (0: preset)."""
+    hidden_units: str = ""
+    """Override the preset's hidden layer widths of actor and critics, e.g. 128,128 (empty: preset)."""
+
+
 def parse_hidden_units(text: str) -> tuple[int, ...]:
     """``"128,128"`` -> (128, 128); empty -> (); a non-positive or non-integer width is refused."""
     try:
@@ -85,10 +112,9 @@ def parse_hidden_units(text: str) -> tuple[int, ...]:
     return units
 
 
-def resolve_preset(cfg: Any) -> SACPreset:
-    """The preset ``cfg.preset`` with ``cfg``'s overrides (learning_rate, batch_size, buffer_size, learning_starts,
-    gradient_steps, and where the config has them gamma, hidden_units, learning_rate_final and target_entropy; 0, -1
-    or empty: the preset's); any trainer's config with those fields."""
+def resolve_preset(cfg: SACOverrides | Any) -> SACPreset:
+    """The preset ``cfg.preset`` with ``cfg``'s overrides (0, -1 or empty: the preset's): a :class:`SACOverrides`,
+    or a trainer's config with its fields (gamma, hidden_units, learning_rate_final and target_entropy optional)."""
     if cfg.preset not in PRESETS:
         raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
     preset = PRESETS[cfg.preset]
