@@ -42,7 +42,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecMonitor
 
-from vision_rl.config import nested
+from vision_rl.config import flat_values, nested
 from vision_rl.envs.core import STEER_ACTIONS, STEER_CHANGE_PENALTY_SCALES, WALL_PENALTY_SPEEDS, RacingConfig
 from vision_rl.envs.observations import ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
@@ -663,7 +663,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
         name = bad[0]
-        raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
+        raise ValueError(f"--{name.replace('_', '-')} {flat_values(cfg)[name]} is out of range")
     parse_hidden_units(cfg.sac.hidden_units)
     if ai_ticks(cfg.racing.control_dt_s) is None:
         raise ValueError(
@@ -676,7 +676,7 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "steer_change_penalty_scale": STEER_CHANGE_PENALTY_SCALES,
     }
     for name, allowed in choices.items():
-        value = getattr(cfg, name)
+        value = flat_values(cfg)[name]
         if value not in allowed:
             raise ValueError(f"--{name.replace('_', '-')} must be one of {', '.join(allowed)}, got {value!r}")
     if cfg.racing.steer_change_share_of_range > 0 and cfg.racing.steer_action != "rate_scaled":
