@@ -1,12 +1,17 @@
-"""Fixtures of every test: a private cache and working folder, and the guard of the tests that render."""
+"""Fixtures of more than one test folder: a private cache and working folder, the guard of the tests that render,
+the local Ray cluster, and a small track with tiny encoders, a tiny trained policy and recorded demonstrations.
+A folder's own fixtures stay in its conftest; the helpers they share are in tests/helpers."""
 
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
+from pathlib import Path
 
 import pytest
+
+from tests.helpers.policies import tiny_train_config, write_tiny_encoder
+from tests.helpers.rendering import renderer_available
+from tests.helpers.tracks import STADIUM, stadium_csv
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -31,30 +36,6 @@ def _private_cache_and_runs(tmp_path_factory):
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
-
-
-def renderer_available() -> str:
-    """Empty if a headless EGL context can be made here, else the reason."""
-    try:
-        from vision_rl.render import create_context
-
-        create_context().release()
-        return ""
-    except Exception as exc:  # no EGL library, no driver, no moderngl
-        return f"vision_rl.render cannot make an EGL context here: {exc}"
-
-
-def kill_and_read(process: subprocess.Popen) -> str:
-    """Kill a test's subprocess and, when it was started with ``start_new_session=True``, every process it started;
-    its stderr. A child left running holds the pipes open, and reading them would wait for it for ever."""
-    try:
-        os.killpg(process.pid, signal.SIGKILL)  # its session's process group
-    except ProcessLookupError:  # not a group's leader
-        process.kill()
-    try:
-        return process.communicate(timeout=30)[1]
-    except subprocess.TimeoutExpired:
-        return "(no output: a process it started holds its pipes open)"
 
 
 @pytest.fixture(scope="session")
@@ -98,3 +79,38 @@ def ray_local():
         yield ray
     finally:
         ray.shutdown()
+
+
+@pytest.fixture(scope="session")
+def small_track(tmp_path_factory) -> str:
+    """The 677 m stadium (``STADIUM``) as a CSV path."""
+    return str(stadium_csv(tmp_path_factory.mktemp("track") / "stadium.csv", *STADIUM))
+
+
+@pytest.fixture(scope="session")
+def tiny_encoders(tmp_path_factory) -> tuple[Path, Path]:
+    """Two encoder checkpoints of one architecture with different weights (so different SHA-256)."""
+    root = tmp_path_factory.mktemp("encoders")
+    return write_tiny_encoder(root / "a" / "ckpt.pt", 0), write_tiny_encoder(root / "b" / "ckpt.pt", 1)
+
+
+@pytest.fixture(scope="session")
+def state_run(tmp_path_factory, small_track) -> tuple[Path, dict]:
+    """A state policy trained for 200 steps (2 cars) on the small track: (run folder, train_policy result)."""
+    from vision_rl.phase2_rl.train import train_policy
+
+    out = tmp_path_factory.mktemp("runs") / "policy" / "tiny-state"
+    return out, train_policy(tiny_train_config(small_track, out))
+
+
+@pytest.fixture(scope="session")
+def small_demos(tmp_path_factory, small_track):
+    """Two laps of demonstrations on the small track: 2 cars, 20 s episodes (so several episodes per car)."""
+    from tests.helpers.overtaking import DEMOS_CAR
+    from vision_rl.overtaking.demos import RecordDemosConfig, record_demos
+
+    out = tmp_path_factory.mktemp("demos") / "ai.npz"
+    result = record_demos(
+        RecordDemosConfig(track=small_track, car=DEMOS_CAR, laps=2.0, cars=2, episode_s=20.0, seed=3, out=str(out))
+    )
+    return out, result

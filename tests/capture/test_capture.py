@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tests.evaluation.test_protocol import CentreLineFollower
+from tests.helpers.drivers import CentreLineFollower
 from vision_rl.capture.h5format import CaptureFormatError, open_capture
 from vision_rl.capture.sim_capture import CaptureConfig, capture_sim, physics_step_for, turned_round
 from vision_rl.sim import sensors

@@ -2,7 +2,7 @@
 
 import json
 
-from tests.datasets.synthetic_capture import write_synthetic_capture
+from tests.helpers.captures import write_synthetic_capture
 from vision_rl.commands.main import main
 
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from tests.datasets.synthetic_capture import write_synthetic_capture
+from tests.helpers.captures import write_synthetic_capture
 from vision_rl.capture.h5format import CaptureFormatError
 from vision_rl.datasets import (
     CaptureDataset,

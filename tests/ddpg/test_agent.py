@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.phase2_rl.conftest import STADIUM, stadium_csv
+from tests.helpers.tracks import STADIUM, stadium_csv
 from vision_rl.ddpg.agent import (
     BENCH_LAYOUTS,
     DDPGAgent,

@@ -3,31 +3,10 @@ refusals: tests/faults/test_ddpg.py)."""
 
 from __future__ import annotations
 
-import json
-
 import pytest
 
+from tests.helpers.ddpg import hand_made_run
 from vision_rl.ddpg.compare import compare_runs, plot_comparison
-
-
-def hand_made_run(
-    folder, variant: str, minutes: float, episodes: list[tuple[float, float, int]], track="Catalunya", updates=600
-):
-    """A run folder whose episodes end at (training minute, distance m, laps)."""
-    folder.mkdir()
-    sidecar = {
-        "hyper": {"variant": variant},
-        "env": {"track": track, "car": "gt3"},
-        "seed": 1,
-        "counters": {"train_time_s": 60.0 * minutes, "num_steps": 1000, "n_updates": updates},
-    }
-    (folder / "ddpg.json").write_text(json.dumps(sidecar))
-    lines = [
-        json.dumps({"train_time_s": 60.0 * m, "distance_m": d, "laps": laps, "return": d, "end": "crash 2"})
-        for m, d, laps in episodes
-    ]
-    (folder / "episodes.jsonl").write_text("".join(line + "\n" for line in lines))
-    return folder
 
 
 def test_runs_are_cut_at_the_common_time_and_binned(tmp_path):

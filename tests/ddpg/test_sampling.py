@@ -8,38 +8,17 @@ import json
 import numpy as np
 import pytest
 
-from tests.phase2_rl.conftest import STADIUM, stadium_csv
+from tests.helpers.ddpg import HW, ddpg_config
+from tests.helpers.tracks import STADIUM, stadium_csv
 from vision_rl.ddpg.agent import FrameReplay, load_replay
-from vision_rl.ddpg.train import TrainDDPGConfig, train_ddpg
+from vision_rl.ddpg.train import train_ddpg
 from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
 from vision_rl.training.distributed import worker_seed
-
-HW = (32, 48)
 
 
 @pytest.fixture(scope="module")
 def track(tmp_path_factory) -> str:
     return str(stadium_csv(tmp_path_factory.mktemp("track") / "stadium.csv", *STADIUM))
-
-
-def ddpg_config(track: str, out, **kw) -> TrainDDPGConfig:
-    base = dict(
-        track=track,
-        cars=2,
-        steps=24,
-        out=str(out),
-        image_hw_px=HW,
-        buffer_size=200,
-        learning_starts=8,
-        batch_size=8,
-        eval_every_steps=0,
-        eval_seeds=0,
-        checkpoint_every_steps=0,
-        workers=1,
-        max_staleness=0,
-        version_every_updates=2,
-    )
-    return TrainDDPGConfig(**{**base, **kw})
 
 
 def test_a_samplers_steps_reach_the_frame_replay_as_its_world_gives_them(ray_local, gl_available, track, tmp_path):

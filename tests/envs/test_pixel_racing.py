@@ -9,8 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from tests.phase2_rl.conftest import STADIUM, stadium_csv
-from tests.sim.conftest import stadium_points
+from tests.helpers.tracks import STADIUM, stadium_csv, stadium_points
 from vision_rl.envs.pixel_racing import (
     CRASH_LARGE_PROP,
     CRASH_NONE,

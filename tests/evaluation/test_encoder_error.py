@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.evaluation.test_protocol import CentreLineFollower
-from tests.phase2_rl.conftest import renderer_available
+from tests.helpers.drivers import CentreLineFollower
+from tests.helpers.rendering import renderer_available
 from vision_rl.evaluation.encoder_error import (
     BATCH_FRAMES,
     NEAR_WALL_M,

@@ -10,8 +10,6 @@ import re
 
 import pytest
 
-from tests.phase2_rl.conftest import small_track, state_run, tiny_encoders  # noqa: F401  (fixtures of the policy faults)
-
 OUTCOMES = ("refused with message", "recovered")
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.phase2_rl import test_baselines
+from tests.helpers.overtaking import tiny_baseline_config
 from vision_rl.overtaking.baselines import (
     BaselineError,
     TrainBaselineConfig,
@@ -28,16 +28,13 @@ from vision_rl.overtaking.table3 import Table3Config, table3
 from vision_rl.training.artifact import PolicyError, PolicySpec, sac_policy
 from vision_rl.training.persist import write_agent_state
 
-small_demos = test_baselines.small_demos  # the recorded demonstrations fixture, shared
-tiny = test_baselines.tiny_baseline_config
-
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory, small_track, small_demos):
     demos, _ = small_demos
     root = tmp_path_factory.mktemp("baseline-faults")
     for algo in ("bc", "td3"):
-        train_baseline(tiny(small_track, demos, root / algo, algo=algo, eval_every_steps=0))
+        train_baseline(tiny_baseline_config(small_track, demos, root / algo, algo=algo, eval_every_steps=0))
     return root
 
 
@@ -51,7 +48,7 @@ def test_an_unknown_algorithm_is_refused(fault):
 def test_demonstrations_of_another_track_or_car_are_refused(small_demos, small_track, tmp_path, fault):
     demos, _ = small_demos
     with pytest.raises(DemoError) as excinfo:
-        train_baseline(tiny("expressway", demos, tmp_path / "bc", algo="bc"))
+        train_baseline(tiny_baseline_config("expressway", demos, tmp_path / "bc", algo="bc"))
     assert "was made for track_geometry_hash" in str(excinfo.value) and not (tmp_path / "bc").exists()
     fault.refused("train-baseline --algo bc on expressway with demonstrations of another track", str(excinfo.value))
     with pytest.raises(DemoError) as excinfo:
@@ -160,7 +157,9 @@ def test_a_continued_run_with_other_settings_is_refused_and_kept(runs, small_tra
     demos, _ = small_demos
     before = (runs / "td3" / "baseline.json").read_text()
     with pytest.raises(BaselineError) as excinfo:
-        train_baseline(tiny(small_track, demos, runs / "td3", algo="td3", eval_every_steps=0, td3_noise=0.3))
+        train_baseline(
+            tiny_baseline_config(small_track, demos, runs / "td3", algo="td3", eval_every_steps=0, td3_noise=0.3)
+        )
     assert "td3_noise = 0.1, not 0.3" in str(excinfo.value)
     assert (runs / "td3" / "baseline.json").read_text() == before
     fault.refused("train-baseline --algo td3 on its run folder with another --td3-noise", str(excinfo.value))

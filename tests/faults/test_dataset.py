@@ -9,7 +9,7 @@ import h5py
 import numpy as np
 import pytest
 
-from tests.datasets.synthetic_capture import write_synthetic_capture
+from tests.helpers.captures import write_synthetic_capture
 from vision_rl.capture.h5format import ALL_DATASETS, CaptureFormatError, open_capture
 from vision_rl.datasets import FrameCatalogue
 

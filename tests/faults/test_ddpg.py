@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from tests.phase2_rl.conftest import STADIUM, stadium_csv
-from tests.phase2_rl.test_ddpg_compare import hand_made_run
+from tests.helpers.ddpg import hand_made_run
+from tests.helpers.tracks import STADIUM, stadium_csv
 from vision_rl.ddpg.agent import (
     DDPGAgent,
     DDPGError,

@@ -6,9 +6,9 @@ import json
 
 import pytest
 
-from tests.faults.test_distributed_sampling import _killer
-from tests.phase2_rl.conftest import STADIUM, stadium_csv
-from tests.phase2_rl.test_ddpg_sampling import ddpg_config
+from tests.helpers.ddpg import ddpg_config
+from tests.helpers.processes import sampler_killer
+from tests.helpers.tracks import STADIUM, stadium_csv
 from vision_rl.ddpg.agent import DDPGError
 from vision_rl.ddpg.train import train_ddpg
 from vision_rl.training.distributed import DistributedError
@@ -21,7 +21,7 @@ def track(tmp_path_factory) -> str:
 
 def test_a_killed_ddpg_sampler_leaves_the_learner_going_with_the_other(ray_local, gl_available, track, tmp_path, fault):
     out = tmp_path / "run"
-    progress, killed = _killer(ray_local, 12, 1)
+    progress, killed = sampler_killer(ray_local, 12, 1)
     result = train_ddpg(ddpg_config(track, out, workers=2, steps=40, variant="state-actor", max_staleness=1), progress)
     assert len(killed) == 1 and result["num_steps"] == 40  # the other sampler collected the rest
     lost = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]

@@ -3,38 +3,21 @@
 from __future__ import annotations
 
 import dataclasses
-import os
-import signal
 import sys
 
 import pytest
 
-from tests.phase2_rl.conftest import tiny_train_config
+from tests.helpers.policies import tiny_train_config
+from tests.helpers.processes import sampler_killer
 from vision_rl.phase2_rl.train import train_policy
 from vision_rl.training.artifact import PolicySpec
-from vision_rl.training.distributed import ACTOR_PREFIX, RAY_MISSING, DistributedError, SamplersLostError
+from vision_rl.training.distributed import RAY_MISSING, DistributedError, SamplersLostError
 from vision_rl.training.sac import read_metrics
-
-
-def _killer(ray, at_steps: int, how_many: int):
-    """A progress callback that SIGKILLs ``how_many`` of the run's sampler processes once ``at_steps`` is reached."""
-    killed: list[int] = []
-
-    def progress(steps: int, total: int, last_eval) -> None:
-        if killed or steps < at_steps:
-            return
-        names = sorted(n for n in ray.util.list_named_actors() if n.startswith(ACTOR_PREFIX))
-        for name in names[:how_many]:
-            pid = ray.get(ray.get_actor(name).pid.remote())
-            os.kill(pid, signal.SIGKILL)
-            killed.append(pid)
-
-    return progress, killed
 
 
 def test_a_killed_sampler_leaves_the_learner_going_with_the_other(ray_local, small_track, tmp_path, fault):
     out = tmp_path / "run"
-    progress, killed = _killer(ray_local, 100, 1)
+    progress, killed = sampler_killer(ray_local, 100, 1)
     config = tiny_train_config(small_track, out, workers=2, steps=300, eval_every_steps=0)
     result = train_policy(config, progress)
     assert len(killed) == 1
@@ -54,7 +37,7 @@ def test_a_killed_sampler_leaves_the_learner_going_with_the_other(ray_local, sma
 
 def test_all_samplers_killed_saves_the_run_and_stops_with_one_line(ray_local, small_track, tmp_path, fault):
     out = tmp_path / "run"
-    progress, killed = _killer(ray_local, 100, 2)
+    progress, killed = sampler_killer(ray_local, 100, 2)
     config = tiny_train_config(small_track, out, workers=2, steps=300, eval_every_steps=0, checkpoint_every_steps=0)
     with pytest.raises(SamplersLostError, match="all 2 sampler actors died") as excinfo:
         train_policy(config, progress)

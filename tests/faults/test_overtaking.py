@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import kill_and_read
-from tests.phase2_rl.test_overtaking import tiny_overtaking_config
+from tests.helpers.overtaking import tiny_overtaking_config
+from tests.helpers.processes import kill_and_read
 from vision_rl.overtaking.curriculum import (
     OvertakingRunError,
     TrainOvertakingConfig,

@@ -10,7 +10,8 @@ import time
 
 import pytest
 
-from tests.conftest import kill_and_read, renderer_available
+from tests.helpers.processes import kill_and_read
+from tests.helpers.rendering import renderer_available
 
 _SCRIPT = """
 import dataclasses, sys

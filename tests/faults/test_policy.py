@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 import torch
 
-from tests.conftest import kill_and_read
-from tests.phase2_rl.conftest import tiny_train_config
+from tests.helpers.policies import tiny_train_config
+from tests.helpers.processes import kill_and_read
 from vision_rl.files import ArtifactWriteError
 from vision_rl.phase2_rl.train import train_policy
 from vision_rl.training.artifact import PolicyError, PolicySpec, convert_sb3_run, load_policy

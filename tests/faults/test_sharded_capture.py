@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.datasets.synthetic_capture import ATTRS, write_synthetic_capture
+from tests.helpers.captures import ATTRS, write_synthetic_capture
 from vision_rl.capture.h5format import CaptureFormatError, open_capture
 from vision_rl.capture.sharded import (
     ManifestError,

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.datasets.synthetic_capture import TARGET_NAMES, write_synthetic_capture
+from tests.helpers.captures import TARGET_NAMES, write_synthetic_capture
 from vision_rl.commands.main import main
 from vision_rl.datasets import TargetValueError
 from vision_rl.phase1_repr import EncoderCheckpointError, load_encoder

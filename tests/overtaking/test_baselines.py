@@ -14,39 +14,15 @@ import torch
 from gymnasium import spaces
 from stable_baselines3 import SAC, TD3
 
-from tests.phase2_rl import test_demos
+from tests.helpers.overtaking import tiny_baseline_config
 from vision_rl.overtaking.baselines import (
     GAILReplayBuffer,
     GAILUpdater,
-    TrainBaselineConfig,
     fit_bc,
     load_baseline,
     train_baseline,
 )
 from vision_rl.training.artifact import load_policy, sac_policy
-
-small_demos = test_demos.small_demos  # the recorded demonstrations fixture, shared
-
-
-def tiny_baseline_config(track: str, demos, out, **kw) -> TrainBaselineConfig:
-    base = dict(
-        track=track,
-        demos=str(demos),
-        out=str(out),
-        cars=2,
-        steps=300,
-        learning_starts=100,
-        batch_size=32,
-        buffer_size=5_000,
-        eval_every_steps=200,
-        eval_laps=1,
-        eval_time_limit_s=20.0,
-        checkpoint_every_steps=0,
-        gail_disc_every_steps=100,
-        bc_max_epochs=30,
-        device="cpu",
-    )
-    return TrainBaselineConfig(**{**base, **kw})
 
 
 def test_bc_recovers_a_known_linear_policy():

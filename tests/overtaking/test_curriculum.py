@@ -13,39 +13,16 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 
 import vision_rl.overtaking.curriculum as ot
+from tests.helpers.overtaking import tiny_overtaking_config
 from vision_rl.envs import RacingConfig, RacingCore
 from vision_rl.evaluation.protocol import time_laps
 from vision_rl.overtaking.curriculum import (
-    TrainOvertakingConfig,
     copy_newest,
     learning_curve,
     load_overtaking_policy,
     reinit_exploration,
     train_overtaking,
 )
-
-
-def tiny_overtaking_config(track: str, out: Path, **kw) -> TrainOvertakingConfig:
-    base = dict(
-        track=track,
-        cars=2,
-        out=str(out),
-        stage1_max_steps=200,
-        stage2_steps=100,
-        stage3_steps=100,
-        standard_steps=400,
-        learning_starts=50,
-        batch_size=32,
-        buffer_size=5_000,
-        eval_every_steps=100,
-        eval_laps=1,
-        eval_time_limit_s=40.0,
-        eval_episodes=2,
-        eval_episode_s=5.0,
-        checkpoint_every_steps=0,
-        device="cpu",
-    )
-    return TrainOvertakingConfig(**{**base, **kw})
 
 
 @pytest.fixture(scope="module")

@@ -8,21 +8,10 @@ import numpy as np
 import pytest
 
 import vision_rl  # noqa: F401  (registers the environments)
+from tests.helpers.overtaking import DEMOS_CAR as CAR
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.overtaking.demos import HeldAIDriver, RecordDemosConfig, demo_fingerprint, load_demos, record_demos
 from vision_rl.sim.track_library import load_track
-
-CAR = "tt_cup"
-
-
-@pytest.fixture(scope="session")
-def small_demos(tmp_path_factory, small_track):
-    """Two laps of demonstrations on the small track: 2 cars, 20 s episodes (so several episodes per car)."""
-    out = tmp_path_factory.mktemp("demos") / "ai.npz"
-    result = record_demos(
-        RecordDemosConfig(track=small_track, car=CAR, laps=2.0, cars=2, episode_s=20.0, seed=3, out=str(out))
-    )
-    return out, result
 
 
 def test_the_held_ai_laps_like_the_ai_it_holds(small_track):

@@ -10,13 +10,12 @@ import numpy as np
 import pytest
 import torch
 
-from tests.phase2_rl import test_baselines
+from tests.helpers.overtaking import tiny_baseline_config
 from vision_rl.evaluation.protocol import time_laps
 from vision_rl.overtaking.baselines import BaselineError, load_baseline, train_baseline
 from vision_rl.overtaking.dreamer import DreamerAgent, DreamerRecipe, SequenceReplay, lambda_returns
 from vision_rl.training.artifact import PolicyError
 
-small_demos = test_baselines.small_demos  # the recorded demonstrations fixture, shared
 TINY = DreamerRecipe(
     hidden_units=(32, 32),
     deter_units=32,
@@ -116,7 +115,7 @@ def test_the_world_model_learns_known_dynamics_and_the_actor_learns_through_imag
 def dreamer_run(tmp_path_factory, small_track, small_demos):
     demos, _ = small_demos
     out = tmp_path_factory.mktemp("dreamer") / "run"
-    cfg = test_baselines.tiny_baseline_config(
+    cfg = tiny_baseline_config(
         small_track, demos, out, algo="dreamer", batch_size=4, dreamer_sequence_steps=8, dreamer_train_every_steps=50
     )
     return out, cfg, train_baseline(cfg)

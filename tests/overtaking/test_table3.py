@@ -7,20 +7,18 @@ import json
 
 import pytest
 
-from tests.phase2_rl import test_baselines
+from tests.helpers.overtaking import tiny_baseline_config
 from vision_rl.commands.main import main
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.overtaking.baselines import train_baseline
 from vision_rl.overtaking.table3 import PAPER_TABLE3, Table3Config, table3
-
-small_demos = test_baselines.small_demos  # the recorded demonstrations fixture, shared
 
 
 @pytest.fixture(scope="module")
 def bc_run(tmp_path_factory, small_track, small_demos):
     demos, _ = small_demos
     out = tmp_path_factory.mktemp("table3") / "bc-small"
-    train_baseline(test_baselines.tiny_baseline_config(small_track, demos, out, algo="bc"))
+    train_baseline(tiny_baseline_config(small_track, demos, out, algo="bc"))
     return out
 
 

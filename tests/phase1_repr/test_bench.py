@@ -9,13 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from tests.phase1_repr.test_checkpoint import write
+from tests.helpers.checkpoints import write_checkpoint
 from vision_rl.phase1_repr.bench import BenchLatencyConfig, BenchTrainStepConfig, bench_latency, bench_train_step
 
 
 def test_checkpoint_sets_the_frame_size(tmp_path: Path) -> None:
     path = tmp_path / "ckpt.pt"
-    write(path)  # a 32x48 encoder
+    write_checkpoint(path)  # a 32x48 encoder
     result = bench_latency(BenchLatencyConfig(encoder=str(path), runs=3, warmup=0, batch_size=2, variants=False))
     assert result["input_hw_px"] == [32, 48] and result["encoder"] == str(path)
 

@@ -9,52 +9,15 @@ import numpy as np
 import pytest
 import torch
 
+from tests.helpers.checkpoints import CFG, NAMES, trained_net, write_checkpoint
 from vision_rl.files import file_sha256
-from vision_rl.phase1_repr import EncoderCheckpointError, load_encoder, read_checkpoint, save_checkpoint
+from vision_rl.phase1_repr import EncoderCheckpointError, load_encoder, read_checkpoint
 from vision_rl.phase1_repr.checkpoint import checkpoint_checksums
-from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
-
-CFG = EncoderConfig(
-    input_height_px=32,
-    input_width_px=48,
-    stem_channels=8,
-    stage_channels=(16, 32),
-    stage_blocks=(1, 1),
-    stage_strides=(2, 2),
-    n_targets=27,
-)
-NAMES = [f"t{i}" for i in range(27)]
-UNITS = ["m"] * 27
-
-
-def trained_net(cfg: EncoderConfig = CFG, seed: int = 0) -> ReprNet:
-    torch.manual_seed(seed)
-    net = ReprNet(cfg).train()
-    x = torch.randint(0, 256, (4, cfg.input_height_px, cfg.input_width_px, 3), dtype=torch.uint8)
-    with torch.no_grad():
-        net(x)  # BatchNorm running statistics away from their initial values
-    return net.eval()
-
-
-def write(path: Path, cfg: EncoderConfig = CFG) -> tuple[ReprNet, np.ndarray, np.ndarray]:
-    net = trained_net(cfg)
-    n = cfg.n_targets
-    mean, std = np.linspace(-1, 1, n).astype(np.float32), np.linspace(0.5, 2, n).astype(np.float32)
-    save_checkpoint(
-        path,
-        net,
-        target_names=NAMES[:n],
-        target_units=UNITS[:n],
-        target_mean=mean,
-        target_std=std,
-        metrics={"val_loss": 0.5},
-    )
-    return net, mean, std
 
 
 def test_round_trip_gives_the_same_embedding(tmp_path: Path) -> None:
     path = tmp_path / "ckpt.pt"
-    net, mean, std = write(path)
+    net, mean, std = write_checkpoint(path)
     raw = torch.load(path, weights_only=True)  # the contract: plain tensors and containers only
     assert raw["encoder_config"]["input_height_px"] == 32 and raw["target_names"] == NAMES
     assert raw["encoder_config"]["pixel_mean"] == list(CFG.pixel_mean)
@@ -78,7 +41,7 @@ def test_round_trip_gives_the_same_embedding(tmp_path: Path) -> None:
 
 def test_frozen_module_stays_frozen(tmp_path: Path) -> None:
     path = tmp_path / "ckpt.pt"
-    write(path)
+    write_checkpoint(path)
     enc = load_encoder(path)
     enc.train()
     assert not enc.training and not enc.net.training
@@ -89,11 +52,11 @@ def test_frozen_module_stays_frozen(tmp_path: Path) -> None:
 
 def test_other_input_size_or_target_count_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "ckpt.pt"
-    write(path)
+    write_checkpoint(path)
     with pytest.raises(EncoderCheckpointError, match=r"32x48 \(HxW\) frames, expected 280x470"):
         load_encoder(path, expected_input_hw_px=(280, 470))
     small = tmp_path / "five.pt"
-    write(small, dataclasses.replace(CFG, n_targets=5))
+    write_checkpoint(small, dataclasses.replace(CFG, n_targets=5))
     with pytest.raises(EncoderCheckpointError, match="5 targets, expected 27"):
         load_encoder(small, expected_target_names=NAMES)
     with pytest.raises(EncoderCheckpointError, match="first difference"):
@@ -102,7 +65,7 @@ def test_other_input_size_or_target_count_is_refused(tmp_path: Path) -> None:
 
 def test_corrupt_truncated_and_inconsistent_checkpoints(tmp_path: Path) -> None:
     path = tmp_path / "ckpt.pt"
-    write(path)
+    write_checkpoint(path)
     data = path.read_bytes()
     truncated = tmp_path / "truncated.pt"
     truncated.write_bytes(data[: len(data) // 2])

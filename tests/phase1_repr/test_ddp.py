@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from tests.datasets.synthetic_capture import TARGET_NAMES, write_synthetic_capture
+from tests.helpers.captures import TARGET_NAMES, write_synthetic_capture
 from vision_rl.phase1_repr import load_encoder
 from vision_rl.phase1_repr.checkpoint import save_checkpoint
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.phase1_repr.test_checkpoint import trained_net, write
+from tests.helpers.checkpoints import trained_net, write_checkpoint
 from vision_rl.phase1_repr import load_encoder
 from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, onnxruntime_installed, resolve_runtime
 
@@ -28,7 +28,7 @@ def test_onnx_embedding_equals_torch_for_any_batch_size() -> None:
 @needs_onnxruntime
 def test_load_encoder_on_onnxruntime_matches_torch(tmp_path: Path) -> None:
     path = tmp_path / "ckpt.pt"
-    write(path)
+    write_checkpoint(path)
     on_torch = load_encoder(path, runtime="torch")
     on_onnx = load_encoder(path, runtime="onnxruntime")
     assert (on_torch.runtime, on_onnx.runtime, load_encoder(path, runtime="auto").runtime) == (
@@ -58,7 +58,7 @@ def test_runtime_choice() -> None:
 @needs_onnxruntime
 def test_auto_falls_back_to_torch_when_the_export_fails(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     path = tmp_path / "ckpt.pt"
-    write(path)
+    write_checkpoint(path)
 
     def fail(net):
         raise RuntimeError("exporter broke")

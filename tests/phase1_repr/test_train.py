@@ -11,7 +11,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from tests.datasets.synthetic_capture import TARGET_NAMES, frames_and_targets, write_synthetic_capture
+from tests.helpers.captures import TARGET_NAMES, frames_and_targets, write_synthetic_capture
 from vision_rl.datasets import TargetStandardiser
 from vision_rl.datasets.augment import target_mirror
 from vision_rl.phase1_repr import load_encoder

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from tests.phase2_rl.conftest import script_held_out_laps, tiny_train_config
+from tests.helpers.policies import script_held_out_laps, tiny_train_config
 from vision_rl.evaluation.leaderboard import aggregate_seeds, leaderboard
 from vision_rl.evaluation.protocol import PROTOCOL_VERSION
 from vision_rl.phase2_rl import experiment as experiment_module

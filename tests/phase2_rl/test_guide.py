@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tests.phase2_rl.conftest import tiny_train_config
+from tests.helpers.policies import tiny_train_config
 
 
 def test_guided_transitions_enter_the_buffer_as_the_learner_would_store_them(small_track):

@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
-from tests.phase2_rl.conftest import script_held_out_laps, tiny_train_config
+from tests.helpers.policies import script_held_out_laps, tiny_train_config
 from vision_rl.envs import RacingConfig
 from vision_rl.envs.observations import STATE_OBS_NAMES
 from vision_rl.phase2_rl.train import TrainPolicyConfig, _TrainingLoop, train_policy

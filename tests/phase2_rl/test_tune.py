@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from tests.phase2_rl.conftest import tiny_train_config
+from tests.helpers.policies import tiny_train_config
 from vision_rl.phase2_rl.tune import SEARCH_SPACE, TuneConfig, TuneError, check_tune, recipe_flags, run_tune, score
 
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.phase2_rl.conftest import renderer_available, tiny_train_config
+from tests.helpers.policies import tiny_train_config
+from tests.helpers.rendering import renderer_available
 from vision_rl.envs import RacingConfig, make_sb3_vec_env
 from vision_rl.envs.observations import ObsNormalizer
 from vision_rl.envs.observer import Observer

@@ -3,19 +3,8 @@
 import numpy as np
 import pytest
 
+from tests.helpers.tracks import stadium_points
 from vision_rl.sim.track import Track
-
-
-def stadium_points(straight_m: float = 400.0, radius_m: float = 60.0, step_m: float = 2.0) -> np.ndarray:
-    """Counter-clockwise stadium: the bottom straight runs along +x from (0, 0), the top one back along y = 2R."""
-    n_straight = int(straight_m / step_m)
-    n_arc = int(np.pi * radius_m / step_m)
-    bottom = np.stack([np.arange(n_straight) * step_m, np.zeros(n_straight)], axis=1)
-    a = -np.pi / 2 + np.arange(n_arc) * np.pi / n_arc
-    right = np.stack([straight_m + radius_m * np.cos(a), radius_m + radius_m * np.sin(a)], axis=1)
-    top = np.stack([straight_m - np.arange(n_straight) * step_m, np.full(n_straight, 2 * radius_m)], axis=1)
-    left = np.stack([radius_m * np.cos(a + np.pi), radius_m + radius_m * np.sin(a + np.pi)], axis=1)
-    return np.vstack([bottom, right, top, left])
 
 
 @pytest.fixture(scope="session")

@@ -14,8 +14,8 @@ import tempfile
 import numpy as np
 import pytest
 
-from tests.conftest import kill_and_read
-from tests.phase2_rl.conftest import tiny_train_config
+from tests.helpers.policies import tiny_train_config
+from tests.helpers.processes import kill_and_read
 from vision_rl.phase2_rl.train import _TrainingLoop, train_policy
 from vision_rl.training.artifact import PolicySpec, load_policy
 from vision_rl.training.distributed import BENCH_SAC, Pacer, Pacing, bench_sampling, worker_seed
@@ -256,7 +256,7 @@ def test_train_overtaking_with_a_worker_ends_stage_one_at_its_criterion_and_samp
     ray_local, small_track, tmp_path, monkeypatch
 ):
     import vision_rl.overtaking.curriculum as ot
-    from tests.phase2_rl.test_overtaking import tiny_overtaking_config
+    from tests.helpers.overtaking import tiny_overtaking_config
 
     class Timing:  # every driver laps in 30 s: the policy is within 5 % of the AI at the first evaluation
         def summary(self):
@@ -280,7 +280,7 @@ def test_train_overtaking_with_a_worker_ends_stage_one_at_its_criterion_and_samp
 
 
 def test_train_overtaking_refuses_bad_sampling_options_before_writing(small_track, tmp_path):
-    from tests.phase2_rl.test_overtaking import tiny_overtaking_config
+    from tests.helpers.overtaking import tiny_overtaking_config
     from vision_rl.overtaking.curriculum import train_overtaking
 
     for change, message in [

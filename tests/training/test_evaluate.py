@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.evaluation.test_protocol import CentreLineFollower
-from tests.phase2_rl.conftest import renderer_available
+from tests.helpers.drivers import CentreLineFollower
+from tests.helpers.rendering import renderer_available
 from vision_rl.evaluation.outputs import TRACE_COLUMNS, format_lap_time, plot_trajectory, write_trace, write_video
 from vision_rl.evaluation.protocol import LapRecord, LapTiming, SeedRun, time_laps
 from vision_rl.sim.track_library import load_track

@@ -1,33 +1,13 @@
-"""Shared fixtures of the Phase-2 tests: a small track, tiny encoders and a tiny trained policy (the private cache
-is the root conftest's)."""
+"""Tiny Phase-2 policies: small untrained encoder checkpoints, a train-policy config of a few hundred steps, and
+held-out starts that lap in scripted times."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
-import pytest
 
-from tests.conftest import renderer_available  # noqa: F401  (the Phase-2 tests import it from here)
-from tests.sim.conftest import stadium_points
 from vision_rl.sim.sensors import TARGET_NAMES, TARGET_UNITS
-
-#: A stadium of 150 m straights and 60 m-radius bends, 6 m from the centre line to each wall: a 677 m lap, about 26 s
-#: at the limit (the built-in AI completes laps here; on tighter stadiums it hit walls when this was written).
-STADIUM = (150.0, 60.0, 6.0)
-
-
-def stadium_csv(path: Path, straight_m: float, radius_m: float, half_width_m: float) -> Path:
-    """Counter-clockwise stadium in the racetrack-database CSV format; s = 0 at the origin, on the bottom straight."""
-    xy = stadium_points(straight_m, radius_m)
-    rows = np.column_stack([xy, np.full(len(xy), half_width_m), np.full(len(xy), half_width_m)])
-    np.savetxt(path, rows, delimiter=",", header="x_m,y_m,w_tr_right_m,w_tr_left_m")
-    return path
-
-
-@pytest.fixture(scope="session")
-def small_track(tmp_path_factory) -> str:
-    return str(stadium_csv(tmp_path_factory.mktemp("track") / "stadium.csv", *STADIUM))
 
 
 def write_tiny_encoder(path: Path, seed: int) -> Path:
@@ -56,14 +36,8 @@ def write_tiny_encoder(path: Path, seed: int) -> Path:
     )
 
 
-@pytest.fixture(scope="session")
-def tiny_encoders(tmp_path_factory) -> tuple[Path, Path]:
-    """Two encoder checkpoints of one architecture with different weights (so different SHA-256)."""
-    root = tmp_path_factory.mktemp("encoders")
-    return write_tiny_encoder(root / "a" / "ckpt.pt", 0), write_tiny_encoder(root / "b" / "ckpt.pt", 1)
-
-
 def tiny_train_config(track: str, out: Path, **kw):
+    """train-policy for 200 steps of 2 cars on ``track``, evaluated and saved every 100; ``kw`` overrides any field."""
     from vision_rl.phase2_rl.train import TrainPolicyConfig
 
     base = dict(
@@ -80,15 +54,6 @@ def tiny_train_config(track: str, out: Path, **kw):
         device="cpu",
     )
     return TrainPolicyConfig(**{**base, **kw})
-
-
-@pytest.fixture(scope="session")
-def state_run(tmp_path_factory, small_track) -> tuple[Path, dict]:
-    """A state policy trained for 200 steps (2 cars) on the small track: (run folder, train_policy result)."""
-    from vision_rl.phase2_rl.train import train_policy
-
-    out = tmp_path_factory.mktemp("runs") / "policy" / "tiny-state"
-    return out, train_policy(tiny_train_config(small_track, out))
 
 
 def script_held_out_laps(

@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from tests.conftest import renderer_available
+from tests.helpers.rendering import renderer_available
 from vision_rl.commands.pipeline import (
     SIZES,
     STATE_POLICY_CARS,

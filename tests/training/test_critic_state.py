@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from tests.phase2_rl.conftest import renderer_available, tiny_train_config
+from tests.helpers.policies import tiny_train_config
+from tests.helpers.rendering import renderer_available
 from vision_rl.envs import RacingConfig, make_sb3_vec_env
 from vision_rl.envs import observations as obs_lib
 from vision_rl.envs.observer import Observer

@@ -1,0 +1,53 @@
+"""Tiny DDPG runs: a train-ddpg config of a few dozen steps on small frames, and hand-made run folders for
+compare-ddpg."""
+
+from __future__ import annotations
+
+import json
+
+from vision_rl.ddpg.train import TrainDDPGConfig
+
+#: Frames of the tiny runs, (height, width) px.
+HW = (32, 48)
+
+
+def ddpg_config(track: str, out, **kw) -> TrainDDPGConfig:
+    """train-ddpg for 24 steps of 2 cars on ``track`` with one sampler actor, no evaluation and no checkpoint;
+    ``kw`` overrides any field."""
+    base = dict(
+        track=track,
+        cars=2,
+        steps=24,
+        out=str(out),
+        image_hw_px=HW,
+        buffer_size=200,
+        learning_starts=8,
+        batch_size=8,
+        eval_every_steps=0,
+        eval_seeds=0,
+        checkpoint_every_steps=0,
+        workers=1,
+        max_staleness=0,
+        version_every_updates=2,
+    )
+    return TrainDDPGConfig(**{**base, **kw})
+
+
+def hand_made_run(
+    folder, variant: str, minutes: float, episodes: list[tuple[float, float, int]], track="Catalunya", updates=600
+):
+    """A run folder whose episodes end at (training minute, distance m, laps)."""
+    folder.mkdir()
+    sidecar = {
+        "hyper": {"variant": variant},
+        "env": {"track": track, "car": "gt3"},
+        "seed": 1,
+        "counters": {"train_time_s": 60.0 * minutes, "num_steps": 1000, "n_updates": updates},
+    }
+    (folder / "ddpg.json").write_text(json.dumps(sidecar))
+    lines = [
+        json.dumps({"train_time_s": 60.0 * m, "distance_m": d, "laps": laps, "return": d, "end": "crash 2"})
+        for m, d, laps in episodes
+    ]
+    (folder / "episodes.jsonl").write_text("".join(line + "\n" for line in lines))
+    return folder
