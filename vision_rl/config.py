@@ -2,7 +2,8 @@
 
 The command line and a search over options see such a tree flat, one name per leaf field (``--cars`` for
 ``racing.n_groups``): :func:`flat_fields` lists them, :func:`from_flat` and :func:`replace_flat` build configs from
-flat names. A field's help is its attribute docstring (:func:`field_docs`), or the holder's word for it.
+flat names. A field's help is its attribute docstring (:func:`field_docs`), or the holder's word for it; a config
+with a ``check_options(flat_values)`` static method has the flat values checked before anything is built.
 """
 
 from __future__ import annotations
@@ -141,6 +142,9 @@ def replace_flat(config: Any, **values: Any) -> Any:
     unknown = sorted(set(values) - set(by_name))
     if unknown:
         raise TypeError(f"{type(config).__name__} has no field {', '.join(unknown)}")
+    check = getattr(type(config), "check_options", None)
+    if check is not None:  # in the options' own words, before a held config refuses a value in its own
+        check({**flat_values(config), **values})
     tree: dict[str, Any] = {}
     for name, value in values.items():
         node = tree

@@ -275,8 +275,6 @@ class RacingConfig:
             raise ValueError("the reward's penalty weights (c_w, c_s, c_o) must be >= 0")
         if self.steer_change_share_of_range < 0:
             raise ValueError(f"steer_change_share_of_range must be >= 0, got {self.steer_change_share_of_range}")
-        if self.critic_state and self.observation != "vision":
-            raise ValueError(f"critic_state adds the state observation to vision, not to {self.observation!r}")
         if self.steer_change_share_of_range > 0 and self.steer_action != "rate_scaled":
             raise ValueError("steer_change_share_of_range limits rate_scaled steering: use steer_action='rate_scaled'")
         if not 0 < self.pedal_full_at <= 1:

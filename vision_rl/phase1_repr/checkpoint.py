@@ -25,6 +25,7 @@ from __future__ import annotations
 import errno
 import functools
 import hashlib
+import io
 import json
 import os
 import warnings
@@ -36,7 +37,6 @@ import numpy as np
 import torch
 from torch import nn
 
-from vision_rl.files import file_sha256
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
 from vision_rl.phase1_repr.onnx_runtime import OnnxEmbedding, export_embedding, resolve_runtime
 
@@ -168,11 +168,17 @@ def _verifycheckpoint_checksums(path: Path, ckpt: Mapping[str, Any]) -> None:
 
 def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The checkpoint dict, checked for its keys and internal consistency (tensors on the CPU)."""
-    path = Path(path)
+    return _read_checked(Path(path))[0]
+
+
+def _read_checked(path: Path) -> tuple[dict[str, Any], str]:
+    """(:func:`read_checkpoint`'s dict, the file's SHA-256), from one read of the file."""
     if not path.is_file():
         raise EncoderCheckpointError(f"{path}: no such checkpoint file")
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        data = path.read_bytes()
+        sha256 = hashlib.sha256(data).hexdigest()
+        ckpt = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises several types (RuntimeError, UnpicklingError, EOFError) for a bad file
         raise EncoderCheckpointError(
             f"{path}: not a readable encoder checkpoint (corrupt or truncated?): {exc}"
@@ -208,7 +214,7 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise EncoderCheckpointError(
             f"{path}: the network predicts {n} targets but names/units/mean/std have {sizes} entries"
         )
-    return ckpt
+    return ckpt, sha256
 
 
 def build_network(ckpt: Mapping[str, Any], path: str | os.PathLike[str] = "<checkpoint>") -> ReprNet:
@@ -228,11 +234,15 @@ class FrozenEncoder(nn.Module):
     ``onnx`` embedding (CPU only), phi_rep is computed by ONNX Runtime; ``predict_targets`` stays on torch.
     """
 
-    def __init__(self, net: ReprNet, ckpt: Mapping[str, Any], path: Path, onnx: OnnxEmbedding | None = None) -> None:
+    def __init__(
+        self, net: ReprNet, ckpt: Mapping[str, Any], path: Path, sha256: str, onnx: OnnxEmbedding | None = None
+    ) -> None:
         super().__init__()
         self.net = net
         self.onnx = onnx
         self.path = path
+        self.sha256 = sha256
+        """SHA-256 of the checkpoint file's bytes, as read once at load: what a policy records and checks."""
         self.config: EncoderConfig = net.config
         self.target_names: list[str] = list(ckpt["target_names"])
         self.target_units: list[str] = list(ckpt["target_units"])
@@ -307,7 +317,7 @@ def load_encoder(
     """
     requested_runtime, runtime = runtime, resolve_runtime(runtime, device)
     path = Path(path)
-    ckpt = read_checkpoint(path)
+    ckpt, sha256 = _read_checked(path)
     cfg = EncoderConfig.from_dict(ckpt["encoder_config"])
     if expected_input_hw_px is not None:
         want = (int(expected_input_hw_px[0]), int(expected_input_hw_px[1]))
@@ -340,7 +350,7 @@ def load_encoder(
     onnx = None
     if runtime == "onnxruntime":
         try:
-            model = _exported_embedding(str(path.resolve()), file_sha256(path))
+            model = _exported_embedding(str(path.resolve()), sha256)
             onnx = OnnxEmbedding(model, threads=torch.get_num_threads())
         except Exception as exc:  # the exporter's and ONNX Runtime's errors have many types
             if requested_runtime != "auto":
@@ -348,7 +358,7 @@ def load_encoder(
             warnings.warn(
                 f"{path}: ONNX Runtime cannot run this encoder, torch will ({exc})", RuntimeWarning, stacklevel=2
             )
-    return FrozenEncoder(net, ckpt, path, onnx).to(device)
+    return FrozenEncoder(net, ckpt, path, sha256, onnx).to(device)
 
 
 @functools.lru_cache(maxsize=4)

@@ -149,7 +149,7 @@ def run_experiment(
         raise ValueError(f"--eval-seeds must be >= 1, got {eval_seeds}")
     if seeds_at_once < 1:
         raise ValueError(f"--seeds-at-once must be >= 1, got {seeds_at_once}")
-    check_bounds(cfg)  # a bad option is refused before the experiment folder is written
+    check_bounds(flat_values(cfg))  # a bad option is refused before the experiment folder is written
     root = Path(out) if out else default_experiment_out(cfg)
     plan = _plan(cfg)
     path = root / EXPERIMENT_NAME

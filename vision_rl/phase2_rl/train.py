@@ -31,9 +31,10 @@ import json
 import os
 import shutil
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -57,8 +58,8 @@ from vision_rl.training.artifact import (
     PolicyDriver,
     PolicyError,
     PolicySpec,
-    check_encoder,
     chosen_weights,
+    load_checked_encoder,
     policy_fingerprint,
     racing_config_to_dict,
     snapshot_sidecar,
@@ -80,6 +81,9 @@ from vision_rl.training.sac import (
     torch_device,
 )
 from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule, SamplerOptions
+
+if TYPE_CHECKING:
+    from vision_rl.phase1_repr.checkpoint import FrozenEncoder
 
 MAX_CARS = 1000
 
@@ -160,6 +164,10 @@ RACING_OPTIONS_HELP = {
 @dataclass(frozen=True)
 class TrainPolicyConfig:
     """Train a SAC driving policy on the batched time-trial env (state, or vision with an encoder)."""
+
+    @staticmethod
+    def check_options(options: Mapping[str, Any]) -> None:
+        check_bounds(options)
 
     encoder: str = ""
     """Encoder ckpt.pt: vision observation (64-D embedding + 11); empty: the 38-D state observation."""
@@ -314,7 +322,7 @@ class _Run:
         self.out = Path(cfg.out) if cfg.out else default_out(cfg)
         self.device = torch_device(cfg.device)
         self.previous: PolicySpec | None = None
-        check_bounds(cfg)
+        check_bounds(flat_values(cfg))
         resolve_runtime(cfg.encoder_runtime, self.device)  # a bad value is refused before the run folder is touched
         if cfg.resume:
             if not (self.out / MODEL_NAME).is_file() or not (self.out / SIDECAR_NAME).is_file():
@@ -328,38 +336,29 @@ class _Run:
             )
         if self.previous is None and cfg.encoder and not Path(cfg.encoder).is_file():
             raise FileNotFoundError(f"{cfg.encoder}: no such encoder checkpoint")
+        if self.previous is not None and self.previous.observation != "vision" and cfg.encoder:
+            raise PolicyError(f"the run in {self.out} observes state; it cannot resume with an --encoder")
+        if self.preset.torch_threads > 0:  # before the encoder loads: ONNX Runtime takes torch's thread count
+            torch.set_num_threads(self.preset.torch_threads)
+        self.encoder = self._load_encoder()  # the one read of the checkpoint: its frame size and hash come from it
         # Checked only now, so that a bad option never deletes the run it would have replaced.
         if self.previous is None and ((self.out / SIDECAR_NAME).exists() or (self.out / MODEL_NAME).exists()):
             if not cfg.force:
                 raise FileExistsError(f"{self.out} holds a run: pass --resume to continue it or --force to start over")
             shutil.rmtree(self.out)
         self.out.mkdir(parents=True, exist_ok=True)
-        self.encoder_path: Path | None = None
-        self.encoder = None
         if self.previous is not None:
             self.kind = self.previous.observation
             self.racing = self.previous.config
-            if self.kind == "vision":
-                self.encoder_path = check_encoder(self.previous, cfg.encoder, source=f"the run in {self.out}")
-            elif cfg.encoder:
-                raise PolicyError(f"the run in {self.out} observes state; it cannot resume with an --encoder")
             self.start_steps = self.previous.num_timesteps
             self.train_time_before_s = self.previous.train_time_s
         else:
             self.kind = "vision" if cfg.encoder else "state"
-            image_hw = cfg.racing.image_hw_px
-            if cfg.encoder:
-                from vision_rl.phase1_repr.checkpoint import read_checkpoint
-
-                self.encoder_path = Path(cfg.encoder)
-                enc = read_checkpoint(self.encoder_path)["encoder_config"]
-                image_hw = (int(enc["input_height_px"]), int(enc["input_width_px"]))
+            image_hw = self.encoder.input_hw_px if self.encoder is not None else cfg.racing.image_hw_px
             self.racing = dataclasses.replace(cfg.racing, observation=self.kind, image_hw_px=image_hw)
             self.start_steps = 0
             self.train_time_before_s = 0.0
         self.seed = self.previous.seed if self.previous is not None else cfg.seed  # a resumed run keeps its own
-        if self.preset.torch_threads > 0:
-            torch.set_num_threads(self.preset.torch_threads)
         self.session_start = time.perf_counter()
         self.last_eval: dict[str, Any] | None = None
         # A resumed run goes on from the weights it kept (a kill may have rolled it back before them: they stay).
@@ -368,18 +367,26 @@ class _Run:
         self.best_mean_lap_s: float | None = selection["mean_lap_time_s"] if selection else None
 
     # ------------------------------------------------------------------ set-up
-    def build(self) -> SAC:
-        from vision_rl.files import file_sha256
+    def _load_encoder(self) -> FrozenEncoder | None:
+        """The frozen encoder of a vision run: --encoder for a new run, the recorded one (or --encoder, checked
+        against its hash) for a resumed run; None for a state run."""
+        cfg, where = self.cfg, dict(device=self.device, runtime=self.cfg.encoder_runtime)
+        if self.previous is not None:
+            if self.previous.observation != "vision":
+                return None
+            return load_checked_encoder(self.previous, cfg.encoder, f"the run in {self.out}", **where)
+        if not cfg.encoder:
+            return None
         from vision_rl.phase1_repr.checkpoint import load_encoder
 
+        return load_encoder(cfg.encoder, **where)
+
+    def build(self) -> SAC:
         # A resumed session draws new start points: reusing the first session's would replay its episodes.
         venv = make_sb3_vec_env(self.racing, seed=self.seed + self.start_steps)
         self.venv = venv
         core = venv.core
-        if self.kind == "vision":
-            assert self.encoder_path is not None
-            self.encoder = load_encoder(self.encoder_path, device=self.device, runtime=self.cfg.encoder_runtime)
-            self.encoder_sha256 = file_sha256(self.encoder_path)
+        if self.encoder is not None:
             # The SAC input is the vision vector (with the critic's state after it): the env's observer embeds the
             # frames with the frozen encoder, so the replay buffer holds vectors, not images.
             observer = core.vision_observer(self.encoder)
@@ -427,7 +434,7 @@ class _Run:
             n_steps=self.cfg.n_step,
         )
         model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
-        encoder_sha = self.encoder_sha256 if self.kind == "vision" else None
+        encoder_sha = self.encoder.sha256 if self.encoder is not None else None
         self.fingerprint = policy_fingerprint(self.racing, self.kind, venv.observation_space.shape[0], encoder_sha)
         self.buffer_restored = 0
         self.guided_transitions = 0
@@ -543,10 +550,10 @@ class _Run:
     def spec(self, model: SAC, weights_name: str, weights_sha256: str) -> PolicySpec:
         encoder = None
         if self.kind == "vision":
-            assert self.encoder_path is not None and self.encoder is not None
+            assert self.encoder is not None
             encoder = {
-                "path": str(self.encoder_path.resolve()),
-                "sha256": self.encoder_sha256,
+                "path": str(self.encoder.path.resolve()),
+                "sha256": self.encoder.sha256,
                 "rep_dim": int(self.encoder.rep_dim),
                 "input_hw_px": list(self.encoder.input_hw_px),
             }
@@ -622,52 +629,53 @@ class _Run:
             self.eval_driver.close()
 
 
-def check_bounds(cfg: TrainPolicyConfig) -> None:
-    """One clear line for an option out of range, before anything is built or written."""
+def check_bounds(o: Mapping[str, Any]) -> None:
+    """One clear line for an option out of range, before anything is built or written: ``o`` holds the flat
+    options (:func:`~vision_rl.config.flat_values` of a config)."""
     checks = {
-        "cars": cfg.racing.n_groups >= 1,
-        "steps": cfg.steps >= 1,
-        "eval_every_steps": cfg.evaluation.every_steps >= 0,
-        "eval_seeds": cfg.evaluation.seeds >= 1 or cfg.evaluation.every_steps == 0,
-        "eval_laps": cfg.evaluation.laps >= 1,
-        "select_starts": cfg.select_starts >= 0,
-        "checkpoint_every_steps": cfg.checkpoints.every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoints.every_min >= 0,
-        "episode_s": cfg.racing.episode_s >= cfg.racing.control_dt_s,
-        "control_dt_s": 0 < cfg.racing.control_dt_s <= 1,
-        "wall_penalty_c_w": cfg.racing.wall_penalty_c_w >= 0,
-        "steer_change_penalty_c_s": cfg.racing.steer_change_penalty_c_s >= 0,
-        "stats_steps": cfg.stats_steps >= 1,
-        "off_track_penalty_c_o": cfg.racing.off_track_penalty_c_o >= 0,
-        "wall_hit_throttle_cut_s": 0 <= cfg.racing.wall_hit_throttle_cut_s <= 60,
-        "restart_before_stuck_share": 0 <= cfg.racing.restart_before_stuck_share <= 1,
-        "restart_before_stuck_m": cfg.racing.restart_before_stuck_m >= 0,
-        "frame_delay_s": 0 <= cfg.racing.frame_delay_s <= 1,
-        "pedal_full_at": 0 < cfg.racing.pedal_full_at <= 1,
-        "steer_change_share_of_range": cfg.racing.steer_change_share_of_range >= 0,
-        "learning_rate": cfg.sac.learning_rate >= 0,
-        "learning_rate_final": cfg.sac.learning_rate_final >= 0,
-        "target_entropy": cfg.sac.target_entropy <= 0,
-        "batch_size": cfg.sac.batch_size >= 0,
-        "buffer_size": cfg.sac.buffer_size >= 0,
-        "gradient_steps": cfg.sac.gradient_steps >= 0,
-        "gamma": 0 <= cfg.sac.gamma < 1,
-        "n_step": 1 <= cfg.n_step <= 100,
-        "guide_steps": cfg.guide_steps >= 0,
-        "guide_bc_weight": cfg.guide_bc_weight >= 0,
-        "guide_label_weight": cfg.guide_label_weight >= 0,
-        "guide_label_fade_steps": cfg.guide_label_fade_steps >= 0,
-        "guide_label_steer_weight": cfg.guide_label_steer_weight >= 0,
-        "guide_pretrain_steps": cfg.guide_pretrain_steps >= 0,
+        "cars": o["cars"] >= 1,
+        "steps": o["steps"] >= 1,
+        "eval_every_steps": o["eval_every_steps"] >= 0,
+        "eval_seeds": o["eval_seeds"] >= 1 or o["eval_every_steps"] == 0,
+        "eval_laps": o["eval_laps"] >= 1,
+        "select_starts": o["select_starts"] >= 0,
+        "checkpoint_every_steps": o["checkpoint_every_steps"] >= 0,
+        "checkpoint_every_min": o["checkpoint_every_min"] >= 0,
+        "episode_s": o["episode_s"] >= o["control_dt_s"],
+        "control_dt_s": 0 < o["control_dt_s"] <= 1,
+        "wall_penalty_c_w": o["wall_penalty_c_w"] >= 0,
+        "steer_change_penalty_c_s": o["steer_change_penalty_c_s"] >= 0,
+        "stats_steps": o["stats_steps"] >= 1,
+        "off_track_penalty_c_o": o["off_track_penalty_c_o"] >= 0,
+        "wall_hit_throttle_cut_s": 0 <= o["wall_hit_throttle_cut_s"] <= 60,
+        "restart_before_stuck_share": 0 <= o["restart_before_stuck_share"] <= 1,
+        "restart_before_stuck_m": o["restart_before_stuck_m"] >= 0,
+        "frame_delay_s": 0 <= o["frame_delay_s"] <= 1,
+        "pedal_full_at": 0 < o["pedal_full_at"] <= 1,
+        "steer_change_share_of_range": o["steer_change_share_of_range"] >= 0,
+        "learning_rate": o["learning_rate"] >= 0,
+        "learning_rate_final": o["learning_rate_final"] >= 0,
+        "target_entropy": o["target_entropy"] <= 0,
+        "batch_size": o["batch_size"] >= 0,
+        "buffer_size": o["buffer_size"] >= 0,
+        "gradient_steps": o["gradient_steps"] >= 0,
+        "gamma": 0 <= o["gamma"] < 1,
+        "n_step": 1 <= o["n_step"] <= 100,
+        "guide_steps": o["guide_steps"] >= 0,
+        "guide_bc_weight": o["guide_bc_weight"] >= 0,
+        "guide_label_weight": o["guide_label_weight"] >= 0,
+        "guide_label_fade_steps": o["guide_label_fade_steps"] >= 0,
+        "guide_label_steer_weight": o["guide_label_steer_weight"] >= 0,
+        "guide_pretrain_steps": o["guide_pretrain_steps"] >= 0,
     }
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
         name = bad[0]
-        raise ValueError(f"--{name.replace('_', '-')} {flat_values(cfg)[name]} is out of range")
-    parse_hidden_units(cfg.sac.hidden_units)
-    if ai_ticks(cfg.racing.control_dt_s) is None:
+        raise ValueError(f"--{name.replace('_', '-')} {o[name]} is out of range")
+    parse_hidden_units(o["hidden_units"])
+    if ai_ticks(o["control_dt_s"]) is None:
         raise ValueError(
-            f"--control-dt-s {cfg.racing.control_dt_s} is not a whole multiple of the simulator's "
+            f"--control-dt-s {o['control_dt_s']} is not a whole multiple of the simulator's "
             f"{AI_CONTROL_DT_S} s step, e.g. 0.04 (25 Hz) or 0.1 (10 Hz)"
         )
     choices = {
@@ -676,55 +684,53 @@ def check_bounds(cfg: TrainPolicyConfig) -> None:
         "steer_change_penalty_scale": STEER_CHANGE_PENALTY_SCALES,
     }
     for name, allowed in choices.items():
-        value = flat_values(cfg)[name]
+        value = o[name]
         if value not in allowed:
             raise ValueError(f"--{name.replace('_', '-')} must be one of {', '.join(allowed)}, got {value!r}")
-    if cfg.racing.steer_change_share_of_range > 0 and cfg.racing.steer_action != "rate_scaled":
+    if o["steer_change_share_of_range"] > 0 and o["steer_action"] != "rate_scaled":
         raise ValueError("--steer-change-share-of-range limits rate_scaled steering: give --steer-action rate_scaled")
-    if (cfg.guide_bc_weight > 0 or cfg.guide_pretrain_steps > 0) and cfg.guide_steps == 0:
+    if (o["guide_bc_weight"] > 0 or o["guide_pretrain_steps"] > 0) and o["guide_steps"] == 0:
         raise ValueError(
             "--guide-bc-weight and --guide-pretrain-steps clone the AI's transitions: give --guide-steps too"
         )
-    if cfg.select_starts > 0 and cfg.evaluation.every_steps == 0:
+    if o["select_starts"] > 0 and o["eval_every_steps"] == 0:
         raise ValueError("--select-starts chooses among the periodic evaluations: give --eval-every-steps above 0")
-    if not cfg.select_clean and cfg.select_starts == 0:
+    if not o["select_clean"] and o["select_starts"] == 0:
         raise ValueError("--no-select-clean sets the rule of --select-starts: give --select-starts N too")
-    if cfg.select_starts > 0 and cfg.evaluation.seeds > SELECT_SEED_BASE:
+    if o["select_starts"] > 0 and o["eval_seeds"] > SELECT_SEED_BASE:
         raise ValueError(
-            f"--eval-seeds {cfg.evaluation.seeds} would time the held-out starts of --select-starts, which "
+            f"--eval-seeds {o['eval_seeds']} would time the held-out starts of --select-starts, which "
             f"begin at seed {SELECT_SEED_BASE}: give at most {SELECT_SEED_BASE}"
         )
     shaping = [
         name
         for name, given in (
-            ("--guide-label-fade-steps", cfg.guide_label_fade_steps > 0),
-            ("--guide-label-steer-weight", cfg.guide_label_steer_weight != 1),
+            ("--guide-label-fade-steps", o["guide_label_fade_steps"] > 0),
+            ("--guide-label-steer-weight", o["guide_label_steer_weight"] != 1),
         )
         if given
     ]
-    if shaping and cfg.guide_label_weight == 0:
+    if shaping and o["guide_label_weight"] == 0:
         raise ValueError(f"{shaping[0]} shapes the labels' cloning: give --guide-label-weight too")
-    if cfg.racing.restart_before_stuck_share > 0 and not cfg.racing.terminate_when_stuck:
+    if o["restart_before_stuck_share"] > 0 and not o["stuck_ends_episode"]:
         raise ValueError("--restart-before-stuck-share starts episodes before stuck ends: give --stuck-ends-episode")
-    if cfg.racing.frame_delay_s > 0 and not cfg.encoder:
+    if o["frame_delay_s"] > 0 and not o["encoder"]:
         raise ValueError("--frame-delay-s delays the vision frames: give --encoder (the state observation has none)")
-    if cfg.racing.critic_state and not cfg.encoder:
+    if o["critic_state"] and not o["encoder"]:
         raise ValueError("--critic-state gives a vision policy's critic the state observation: give --encoder")
-    if cfg.samplers.workers is not None or cfg.samplers.address:
+    if o["workers"] is not None or o["address"]:
         from vision_rl.training.distributed import check_workers
 
-        if cfg.samplers.workers is None:
-            raise ValueError(
-                f"--address {cfg.samplers.address} needs --workers: the samplers are what runs on the cluster"
-            )
-        check_workers(cfg.samplers.workers, cfg.samplers.max_staleness, cfg.samplers.version_every_updates)
-        if cfg.n_step > 1 and cfg.samplers.workers > 1:
+        if o["workers"] is None:
+            raise ValueError(f"--address {o['address']} needs --workers: the samplers are what runs on the cluster")
+        check_workers(o["workers"], o["max_staleness"], o["version_every_updates"])
+        if o["n_step"] > 1 and o["workers"] > 1:
             # The learner's buffer interleaves the samplers' vector steps, so a column is not one car's time line.
-            raise ValueError(f"--n-step {cfg.n_step} needs one car's steps in a row: use --workers 1 or leave it out")
+            raise ValueError(f"--n-step {o['n_step']} needs one car's steps in a row: use --workers 1 or leave it out")
     # The world holds every car's state and, for vision, renders every car's frame each step; 1,000 cars is far
     # beyond the papers' 20 and what one process can step at a useful rate.
-    if cfg.racing.n_groups > MAX_CARS:
-        raise ValueError(f"--cars {cfg.racing.n_groups} is more than {MAX_CARS} cars in one world")
+    if o["cars"] > MAX_CARS:
+        raise ValueError(f"--cars {o['cars']} is more than {MAX_CARS} cars in one world")
 
 
 def _preset_from_spec(spec: PolicySpec) -> SACPreset:
@@ -741,7 +747,7 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
     if (
         cfg.samplers.workers is not None
     ):  # Ray's cluster and the worker count are checked before the run folder is touched
-        check_bounds(cfg)
+        check_bounds(flat_values(cfg))
     with cluster_for(cfg.samplers.workers, cfg.samplers.address) as cluster:
         run = _Run(cfg)
         model = run.build()
@@ -793,7 +799,7 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
         run.fingerprint,
         run.preset.hidden_units,
         run.seed + run.start_steps,
-        run.encoder_path,
+        run.encoder.path if run.encoder is not None else None,
         cfg.encoder_runtime,
         label_skill=getattr(model, "label_skill", None),
     )

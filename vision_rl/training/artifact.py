@@ -30,7 +30,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -43,6 +43,9 @@ from vision_rl.files import atomic_write
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.world import World, WorldState
 from vision_rl.training.persist import ArtifactError, check_fingerprint, read_agent, read_sb3_zip, write_agent_state
+
+if TYPE_CHECKING:
+    from vision_rl.phase1_repr.checkpoint import FrozenEncoder
 
 POLICY_FORMAT = "vision_rl.policy"
 #: 3: weights in an agent file without pickle (``policy.pt``) with a fingerprint. Format 2 (an SB3 zip) is
@@ -228,11 +231,16 @@ def resolve_policy_paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
     return weights, spec_path
 
 
-def check_encoder(spec: PolicySpec, encoder: str | os.PathLike[str] = "", source: str = "policy") -> Path:
-    """The encoder checkpoint a vision policy should use, refusing one whose SHA-256 is not the recorded one.
-
-    ``encoder`` empty: the recorded path (which must still hold the same bytes)."""
-    from vision_rl.files import file_sha256
+def load_checked_encoder(
+    spec: PolicySpec,
+    encoder: str | os.PathLike[str] = "",
+    source: str = "policy",
+    device: str = "cpu",
+    runtime: str = "torch",
+) -> FrozenEncoder:
+    """The frozen encoder a vision policy was trained with, read once; refused when the SHA-256 of what was read is
+    not the recorded one. ``encoder`` empty: the recorded path (which must still hold the same bytes)."""
+    from vision_rl.phase1_repr.checkpoint import load_encoder
 
     if spec.observation != "vision":
         raise PolicyError(f"{source} observes {spec.observation!r}, not frames: it takes no encoder")
@@ -242,13 +250,13 @@ def check_encoder(spec: PolicySpec, encoder: str | os.PathLike[str] = "", source
     if not path.is_file():
         hint = "" if encoder else "; pass the encoder it was trained with (--encoder)"
         raise PolicyError(f"{source}: encoder checkpoint {path} not found{hint}")
-    actual = file_sha256(path)
-    if actual != recorded:
+    module = load_encoder(path, device=device, runtime=runtime)
+    if module.sha256 != recorded:
         raise PolicyError(
             f"{source} was trained with encoder sha256 {recorded[:12]}... ({spec.encoder['path']}), but {path} "
-            f"has sha256 {actual[:12]}...: a policy only works with the frozen encoder it was trained on"
+            f"has sha256 {module.sha256[:12]}...: a policy only works with the frozen encoder it was trained on"
         )
-    return path
+    return module
 
 
 class PolicyDriver:
@@ -443,12 +451,10 @@ def load_policy(
     encoder_path = None
     module = None
     if spec.observation == "vision":
-        encoder_path = check_encoder(spec, encoder, source=f"policy {weights_path}")
-        from vision_rl.phase1_repr.checkpoint import load_encoder
-
-        module = load_encoder(encoder_path, device=device, runtime=encoder_runtime)
+        module = load_checked_encoder(spec, encoder, f"policy {weights_path}", device, encoder_runtime)
+        encoder_path = module.path
     elif encoder:
-        check_encoder(spec, encoder, source=f"policy {weights_path}")  # raises: a state policy takes no encoder
+        load_checked_encoder(spec, encoder, source=f"policy {weights_path}")  # raises: a state policy takes none
     critic_state = spec.config.critic_state
     dim = obs_dim(spec.observation, module.rep_dim if module is not None else 64, critic_state)
     expected = policy_fingerprint(spec.config, spec.observation, dim, spec.encoder_sha256)

@@ -373,11 +373,10 @@ class Sampler:
         normalizer = ObsNormalizer.from_dict(dict(setup.obs_normalizer))
         encoder_sha = None
         if setup.observation == "vision":
-            from vision_rl.files import file_sha256
             from vision_rl.phase1_repr.checkpoint import load_encoder
 
-            encoder_sha = file_sha256(setup.encoder_path)
             encoder = load_encoder(setup.encoder_path, device="cpu", runtime=setup.encoder_runtime)
+            encoder_sha = encoder.sha256
             core.observer.close()
             core.observer = core.vision_observer(encoder, normalizer)
             self.env.observation_space = core.observer.space
