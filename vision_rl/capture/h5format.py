@@ -70,7 +70,7 @@ import hdf5plugin  # registers HDF5's Zstandard filter, so h5py reads zstd image
 import numpy as np
 import zstandard
 
-from vision_rl.files import package_version
+from vision_rl.files import atomic_write, package_version
 
 FORMAT_VERSION = 2
 #: The first format version whose files carry checksums; older files are refused.
@@ -170,15 +170,12 @@ def _chunk_start(row: int) -> int:
 
 def _write_journal(path: Path, fingerprint_sha: str, start: int, rows: Mapping[str, np.ndarray]) -> None:
     # Written whole and renamed, so a kill leaves the previous journal or this one, never half of one (zip members
-    # carry a CRC-32, checked when read). Not fsynced: the guarantee is against a killed process, as for the file.
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        with open(tmp, "wb") as fh:
+    # carry a CRC-32, checked when read).
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:  # a file, not a name: np.savez would add ".npz" to the staging name
             np.savez(fh, start=np.int64(start), fingerprint_sha256=np.str_(fingerprint_sha), **rows)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+
+    atomic_write(path, write)
 
 
 def _repair_from_journal(path: Path) -> None:

@@ -37,6 +37,7 @@ import numpy as np
 
 from vision_rl.capture.h5format import CaptureFormatError, first_difference, open_capture
 from vision_rl.capture.sim_capture import CaptureConfig
+from vision_rl.files import atomic_write
 
 #: The ``format`` field of a manifest, and the version this module writes and reads.
 MANIFEST_FORMAT = "vision_rl capture manifest"
@@ -187,7 +188,7 @@ def _shard_record(path: Path, manifest_dir: Path, index: int, cfg: CaptureConfig
 
 
 def write_manifest(cfg: ShardedCaptureConfig, shards: list[CaptureConfig], settings: dict[str, Any]) -> dict:
-    """Write the manifest of ``cfg.out`` from the shard files as they are now (temporary file, then renamed)."""
+    """Write the manifest of ``cfg.out`` from the shard files as they are now (atomically)."""
     path = Path(cfg.out)
     records = [_shard_record(Path(s.out), path.resolve().parent, i, s) for i, s in enumerate(shards)]
     body: dict[str, Any] = {
@@ -200,13 +201,7 @@ def write_manifest(cfg: ShardedCaptureConfig, shards: list[CaptureConfig], setti
     }
     body["manifest_sha256"] = _manifest_digest(body)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_text(json.dumps(body, indent=1, sort_keys=True))
-        os.replace(tmp, path)
-    except OSError:
-        tmp.unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(body, indent=1, sort_keys=True)))
     return body
 
 

@@ -15,13 +15,14 @@ numbers.
 
 from __future__ import annotations
 
+import enum
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
+from vision_rl.files import write_json
 from vision_rl.sim import sensors
 from vision_rl.sim.driving import cache_dir
 from vision_rl.sim.track import Track
@@ -43,15 +44,52 @@ OVERTAKING_OBS_NAMES: tuple[str, ...] = (
 )
 #: Slice of the lidar beams inside the overtaking vector: min-max scaled, not z-scored.
 OVERTAKING_LIDAR = slice(7, 79)
-OBS_NAMES = {"state": STATE_OBS_NAMES, "overtaking": OVERTAKING_OBS_NAMES}
 
 
-def vector_dim(kind: str, rep_dim: int = 64, critic_state: bool = False) -> int:
-    """Length of an observation vector: 38 (state), 96 (overtaking) or, for vision with an encoder of ``rep_dim``,
-    ``rep_dim`` + 11, + 38 with ``critic_state`` (the state observation after them)."""
-    if kind == "vision":
-        return rep_dim + len(sensors.DEDICATED_NAMES) + (len(STATE_OBS_NAMES) if critic_state else 0)
-    return len(OBS_NAMES[kind])
+class ObservationKind(str, enum.Enum):
+    """What a policy observes. A str, so its value is the name configs, sidecars and records hold."""
+
+    STATE = "state"
+    """The 38-D privileged vector."""
+    OVERTAKING = "overtaking"
+    """The overtaking paper's 96-D vector (lidar among it)."""
+    VISION = "vision"
+    """The rendered frame (embedded by a frozen encoder) and the 11 dedicated features."""
+
+    def __str__(self) -> str:  # its name in file names, keys and messages, on every Python version
+        return self.value
+
+    @classmethod
+    def of(cls, name: str) -> ObservationKind:
+        """The kind named ``name``; another name is refused in one line that lists the kinds."""
+        try:
+            return cls(name)
+        except ValueError:
+            raise ValueError(f"observation must be one of {[k.value for k in cls]}, got {name!r}") from None
+
+    @property
+    def sees_frames(self) -> bool:
+        return self is ObservationKind.VISION
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The names of a fixed vector's entries (vision's depend on the encoder: none)."""
+        return {ObservationKind.STATE: STATE_OBS_NAMES, ObservationKind.OVERTAKING: OVERTAKING_OBS_NAMES}.get(self, ())
+
+    def vector_dim(self, rep_dim: int = 64, critic_state: bool = False) -> int:
+        """Length of the vector: 38 (state), 96 (overtaking) or, for vision with an encoder of ``rep_dim``,
+        ``rep_dim`` + 11, + 38 with ``critic_state`` (the state observation after them)."""
+        if self.sees_frames:
+            return rep_dim + len(sensors.DEDICATED_NAMES) + (len(STATE_OBS_NAMES) if critic_state else 0)
+        return len(self.names)
+
+    @property
+    def min_max_columns(self) -> slice | None:
+        """Columns scaled min-max to [0, 1] instead of z-scored: the overtaking vector's lidar."""
+        return OVERTAKING_LIDAR if self is ObservationKind.OVERTAKING else None
+
+
+OBS_NAMES = {kind.value: kind.names for kind in ObservationKind if kind.names}
 
 
 #: Bump when an observation's definition or its statistics' sampling changes: cached statistics of older versions
@@ -131,9 +169,10 @@ class ObsNormalizer:
         offset = samples.mean(axis=0)
         scale = samples.std(axis=0)
         scale = np.where(scale > 1e-6, scale, 1.0)
-        if kind == "overtaking":
-            offset[OVERTAKING_LIDAR] = 0.0
-            scale[OVERTAKING_LIDAR] = sensors.LIDAR_RANGE_M
+        lidar = ObservationKind.of(kind).min_max_columns
+        if lidar is not None:
+            offset[lidar] = 0.0
+            scale[lidar] = sensors.LIDAR_RANGE_M
         return cls(offset=offset, scale=scale)
 
 
@@ -150,13 +189,10 @@ def load_or_compute_normalizer(track: Track, car_name: str, kind: str, sample) -
     path = cache_dir() / "obs_stats" / f"{kind}-{stats_key(track, car_name, kind)}.json"
     try:
         normalizer = ObsNormalizer.from_dict(json.loads(path.read_text()))
-        if normalizer.offset.shape == (len(OBS_NAMES[kind]),):
+        if normalizer.offset.shape == (ObservationKind.of(kind).vector_dim(),):
             return normalizer
     except (OSError, ValueError, KeyError, TypeError):
         pass
     normalizer = ObsNormalizer.from_samples(kind, sample())
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_text(json.dumps({**normalizer.to_dict(), "track": track.name, "car": car_name, "kind": kind}))
-    tmp.replace(path)
+    write_json(path, {**normalizer.to_dict(), "track": track.name, "car": car_name, "kind": kind}, indent=None)
     return normalizer

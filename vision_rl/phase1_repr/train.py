@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import errno
 import json
 import logging
 import math
@@ -42,6 +41,7 @@ import torch
 
 from vision_rl.datasets.augment import FrameAugmentation, target_mirror
 from vision_rl.datasets.capture_dataset import TargetStandardiser
+from vision_rl.files import write_json
 from vision_rl.phase1_repr.checkpoint import save_checkpoint
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
 
@@ -236,27 +236,13 @@ class MetricsHistory(L.Callback):
 
     def write(self, extra: dict[str, Any] | None = None) -> None:
         payload = {"units": self.units, "epochs": self.epochs, "best": self.best(), **(extra or {})}
-        write_text_atomic(self.path, json.dumps(payload, indent=2, allow_nan=True))
+        write_json(self.path, payload)
 
     def state_dict(self) -> dict[str, Any]:
         return {"epochs": self.epochs}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         self.epochs = list(state_dict.get("epochs", []))
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file renamed over it: a failed write (a full disk) raises an
-    ``OSError`` naming the file and leaves the old file, if any, and no temporary file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise OSError(exc.errno or errno.EIO, f"{path}: cannot write it ({exc.strerror or exc})") from exc
 
 
 class BestWeights(L.Callback):
@@ -510,7 +496,7 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
         _check_same_data(data_json, dataset)
     if rank == 0:
         out.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(data_json, json.dumps(dataset, indent=2))
+        write_json(data_json, dataset)
     on_cpu = cfg.device == "cpu" or (cfg.device == "auto" and not torch.cuda.is_available())
     if on_cpu and cfg.devices > 1:
         # Processes share the machine's cores: torch's threads per process are the cores' share, not all of them.

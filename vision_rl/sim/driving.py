@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from vision_rl.files import atomic_write
 from vision_rl.sim.racing_line import CURVATURE_MODELS, RacingLine, optimise_racing_line
 from vision_rl.sim.speed_profile import SpeedProfile, profile_for_line
 from vision_rl.sim.track import Track
@@ -68,10 +69,15 @@ def line_and_profile(track: Track, car: VehicleParams) -> tuple[RacingLine, Spee
         if profile is None or candidate_profile.lap_time_s < (1.0 - EXACT_LINE_MIN_GAIN) * profile.lap_time_s:
             line, profile = candidate, candidate_profile
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
-    np.savez(tmp, **line.to_arrays(), **profile.to_arrays())
-    tmp.replace(path)
+    arrays = {**line.to_arrays(), **profile.to_arrays()}
+    atomic_write(path, lambda tmp: _write_npz(tmp, arrays))
     return line, profile
+
+
+def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    # Through an open file: np.savez would add ".npz" to the staging file's name.
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
 
 
 def compute_limit(track_spec: str, car_name: str) -> dict[str, Any]:
