@@ -15,7 +15,8 @@ from vision_rl.commands.train_policy import TrainPolicyOptions
 def test_options_parse():
     argv = ["--encoder", "ckpt.pt", "--cars", "4", "--preset", "paper", "--no-progress"]
     cfg = parse_config(TrainPolicyOptions, argv)
-    assert (cfg.encoder, cfg.cars, cfg.preset, cfg.progress, cfg.steps) == ("ckpt.pt", 4, "paper", False, 1_000_000)
+    got = (cfg.encoder, cfg.racing.n_groups, cfg.sac.preset, cfg.progress, cfg.steps)
+    assert got == ("ckpt.pt", 4, "paper", False, 1_000_000)
     ev = parse_config(EvaluateOptions, ["--policy", "runs/policy/x", "--laps", "2", "--seeds", "3", "--json"])
     assert (ev.policy, ev.laps, ev.seeds, ev.json) == ("runs/policy/x", 2, 3, True)
     assert parse_config(LeaderboardOptions, ["--track", "technical"]).runs == "runs"

@@ -9,6 +9,7 @@ import pytest
 
 from tests.helpers.policies import tiny_train_config
 from tests.helpers.processes import sampler_killer
+from vision_rl.config import replace_flat
 from vision_rl.phase2_rl.train import train_policy
 from vision_rl.training.artifact import PolicySpec
 from vision_rl.training.distributed import RAY_MISSING, DistributedError, SamplersLostError
@@ -44,7 +45,7 @@ def test_all_samplers_killed_saves_the_run_and_stops_with_one_line(ray_local, sm
     assert len(killed) == 2 and "--resume" in str(excinfo.value)
     saved = PolicySpec.read(out / "policy.json").num_timesteps
     assert 100 <= saved < 300 and (out / "replay_buffer.npz").is_file()
-    resumed = train_policy(dataclasses.replace(config, resume=True), None)
+    resumed = train_policy(replace_flat(config, resume=True), None)
     assert resumed["num_timesteps"] == 300 and resumed["buffer_restored"] == saved // 2
     fault.refused("every sampler actor SIGKILLed mid-run (the run is saved, --resume finishes it)", str(excinfo.value))
 

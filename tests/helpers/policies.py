@@ -38,6 +38,7 @@ def write_tiny_encoder(path: Path, seed: int) -> Path:
 
 def tiny_train_config(track: str, out: Path, **kw):
     """train-policy for 200 steps of 2 cars on ``track``, evaluated and saved every 100; ``kw`` overrides any field."""
+    from vision_rl.config import from_flat
     from vision_rl.phase2_rl.train import TrainPolicyConfig
 
     base = dict(
@@ -53,7 +54,7 @@ def tiny_train_config(track: str, out: Path, **kw):
         checkpoint_every_steps=100,
         device="cpu",
     )
-    return TrainPolicyConfig(**{**base, **kw})
+    return from_flat(TrainPolicyConfig, {**base, **kw})
 
 
 def script_held_out_laps(

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from tests.helpers.policies import script_held_out_laps, tiny_train_config
+from vision_rl.config import replace_flat
 from vision_rl.evaluation.leaderboard import aggregate_seeds, leaderboard
 from vision_rl.evaluation.protocol import PROTOCOL_VERSION
 from vision_rl.phase2_rl import experiment as experiment_module
@@ -100,11 +101,11 @@ def test_an_experiment_resumes_only_unfinished_seeds_and_refuses_another_recipe(
     again = run_experiment(cfg, (0, 1, 2), out, eval_seeds=2, name="tiny")
     assert trained == [2] and again["summary"]["n_training_seeds"] == 3  # seeds 0 and 1 were kept
     with pytest.raises(ValueError, match="another track"):
-        run_experiment(cfg.__class__(**{**cfg.__dict__, "track": "technical"}), (0,), out)
+        run_experiment(replace_flat(cfg, track="technical"), (0,), out)
     with pytest.raises(ValueError, match="recipe field batch_size"):
-        run_experiment(cfg.__class__(**{**cfg.__dict__, "batch_size": 64}), (0,), out)
+        run_experiment(replace_flat(cfg, batch_size=64), (0,), out)
     with pytest.raises(ValueError, match="recipe field steer_change_penalty_c_s"):
-        run_experiment(cfg.__class__(**{**cfg.__dict__, "steer_change_penalty_c_s": 0.5}), (0,), out)
+        run_experiment(replace_flat(cfg, steer_change_penalty_c_s=0.5), (0,), out)
 
     table = leaderboard(small_track, "hatchback", str(tmp_path))
     names = [r["name"] for r in table["rows"]]

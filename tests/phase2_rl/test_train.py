@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import shutil
 
@@ -10,12 +9,13 @@ import numpy as np
 import pytest
 
 from tests.helpers.policies import script_held_out_laps, tiny_train_config
+from vision_rl.config import flat_values, from_flat, replace_flat
 from vision_rl.envs import RacingConfig
 from vision_rl.envs.observations import STATE_OBS_NAMES
-from vision_rl.phase2_rl.train import TrainPolicyConfig, _TrainingLoop, train_policy
+from vision_rl.phase2_rl.train import _TrainingLoop, train_policy
 from vision_rl.training.artifact import PolicySpec, load_policy
 from vision_rl.training.evaluate import evaluate_policy
-from vision_rl.training.sac import PRESETS, read_metrics, resolve_preset
+from vision_rl.training.sac import PRESETS, SACOverrides, read_metrics, resolve_preset
 
 
 def test_train_writes_a_policy_that_evaluate_loads(state_run, small_track):
@@ -123,7 +123,7 @@ def test_light_checkpoints_on_time_survive_a_crash_and_resume_refills_the_buffer
     assert PolicySpec.read(out / "policy.json").num_timesteps == 148  # the last step before the crash
     assert not (out / "replay_buffer.npz").exists() and not list(out.glob(".*.tmp"))
     monkeypatch.setattr(_TrainingLoop, "_on_step", original)
-    result = train_policy(dataclasses.replace(config, resume=True, steps=300, checkpoint_every_min=10.0))
+    result = train_policy(replace_flat(config, resume=True, steps=300, checkpoint_every_min=10.0))
     assert result["buffer_restored"] == 0 and result["num_timesteps"] == 300
     new_updates = result["n_updates"] - (148 - 50) // 2
     assert abs(new_updates - (300 - 148 - 50) // 2) <= 1  # a new random phase of 50 steps (76 updates without)
@@ -138,9 +138,9 @@ def test_presets_and_overrides():
         40_000,
     )
     assert (paper.learning_rate, paper.gamma) == (1e-3, 0.99)
-    cpu = resolve_preset(TrainPolicyConfig(preset="cpu"))
+    cpu = resolve_preset(SACOverrides(preset="cpu"))
     assert cpu == PRESETS["cpu"] and cpu.torch_threads == 1
-    custom = resolve_preset(TrainPolicyConfig(preset="paper", batch_size=64, learning_starts=0, learning_rate=3e-4))
+    custom = resolve_preset(SACOverrides(preset="paper", batch_size=64, learning_starts=0, learning_rate=3e-4))
     assert (custom.batch_size, custom.learning_starts, custom.learning_rate, custom.buffer_size) == (
         64,
         0,
@@ -202,7 +202,7 @@ def test_sigterm_saves_like_ctrl_c(small_track, tmp_path, monkeypatch, capsys):
     handler = signal.getsignal(signal.SIGTERM)
     out = tmp_path / "run"
     config = tiny_train_config(small_track, out, eval_every_steps=0)
-    assert run_train_policy(TrainPolicyOptions(**dataclasses.asdict(config), progress=False)) == 130
+    assert run_train_policy(from_flat(TrainPolicyOptions, flat_values(config), progress=False)) == 130
     assert "interrupted: saved" in capsys.readouterr().out
     assert 100 <= PolicySpec.read(out / "policy.json").num_timesteps < 200
     assert signal.getsignal(signal.SIGTERM) == handler  # the command's handler is gone again
@@ -252,15 +252,15 @@ def test_held_out_starts_keep_the_fastest_clean_weights_and_a_resumed_run_goes_o
     assert evaluate_policy(out / "best", laps=1, seeds=1, time_limit_s=5.0)["name"] == "run/best"
 
     # 29.2 is slower than the 29.0 the run kept before it was resumed; 28.0 is faster.
-    train_policy(dataclasses.replace(cfg, steps=600, resume=True))
+    train_policy(replace_flat(cfg, steps=600, resume=True))
     assert [m["selection"]["kept"] for m in read_metrics(out / "metrics.jsonl")][-2:] == [False, True]
     assert load_policy(out / "best").spec.num_timesteps == 600
     with pytest.raises(ValueError, match="--select-starts"):
-        train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), eval_every_steps=0))
+        train_policy(replace_flat(cfg, out=str(tmp_path / "other"), eval_every_steps=0))
     with pytest.raises(ValueError, match="--eval-seeds 101 would time the held-out starts"):
-        train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), eval_seeds=101))
+        train_policy(replace_flat(cfg, out=str(tmp_path / "other"), eval_seeds=101))
     with pytest.raises(ValueError, match="--select-starts -1 is out of range"):
-        train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), select_starts=-1))
+        train_policy(replace_flat(cfg, out=str(tmp_path / "other"), select_starts=-1))
 
 
 def test_without_select_clean_held_out_starts_keep_the_fastest_weights_that_finished_every_start(
@@ -274,7 +274,7 @@ def test_without_select_clean_held_out_starts_keep_the_fastest_weights_that_fini
     assert not (tmp_path / "clean" / "best").exists()
     script_held_out_laps(monkeypatch, [30.0, [27.0, None], 29.0, 29.5], clean=False)
     out = tmp_path / "finished"
-    train_policy(dataclasses.replace(cfg, out=str(out), select_clean=False))
+    train_policy(replace_flat(cfg, out=str(out), select_clean=False))
     selection = [m["selection"] for m in read_metrics(out / "metrics.jsonl")]
     assert [s["kept"] for s in selection] == [True, False, True, False]
     assert selection[1]["finished"] == 1 and selection[1]["mean_lap_time_s"] is None
@@ -282,7 +282,7 @@ def test_without_select_clean_held_out_starts_keep_the_fastest_weights_that_fini
     assert best.num_timesteps == 300 and best.selection["mean_lap_time_s"] == pytest.approx(29.0)
     assert best.selection["clean_wall_contact_s"] is None  # chosen without the clean rule, and it says so
     with pytest.raises(ValueError, match="--no-select-clean sets the rule of --select-starts"):
-        train_policy(dataclasses.replace(cfg, out=str(tmp_path / "other"), select_starts=0, select_clean=False))
+        train_policy(replace_flat(cfg, out=str(tmp_path / "other"), select_starts=0, select_clean=False))
 
 
 def test_read_metrics_drops_the_evaluations_a_resume_replaced(tmp_path):

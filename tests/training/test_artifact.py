@@ -13,7 +13,7 @@ from vision_rl.phase1_repr import file_sha256
 from vision_rl.training.artifact import (
     PolicyError,
     PolicySpec,
-    check_encoder,
+    load_checked_encoder,
     load_policy,
     racing_config_from_dict,
     racing_config_to_dict,
@@ -73,19 +73,20 @@ def test_encoder_hash_mismatch_is_refused(tmp_path, tiny_encoders):
     sha_a = file_sha256(enc_a)
     assert sha_a != file_sha256(enc_b)
     spec = _vision_spec(enc_a, sha_a)
-    assert check_encoder(spec, enc_a) == enc_a
-    assert check_encoder(spec) == enc_a  # no --encoder: the recorded checkpoint, checked again
+    loaded = load_checked_encoder(spec, enc_a)
+    assert loaded.path == enc_a and loaded.sha256 == sha_a
+    assert load_checked_encoder(spec).path == enc_a  # no --encoder: the recorded checkpoint, checked again
     with pytest.raises(PolicyError, match="trained with encoder sha256"):
-        check_encoder(spec, enc_b)
+        load_checked_encoder(spec, enc_b)
     # The recorded file was replaced by other weights: refused even without --encoder.
     moved = tmp_path / "ckpt.pt"
     shutil.copyfile(enc_b, moved)
     with pytest.raises(PolicyError, match="trained with encoder sha256"):
-        check_encoder(_vision_spec(moved, sha_a))
+        load_checked_encoder(_vision_spec(moved, sha_a))
     with pytest.raises(PolicyError, match="--encoder"):
-        check_encoder(_vision_spec(tmp_path / "gone.pt", sha_a))
+        load_checked_encoder(_vision_spec(tmp_path / "gone.pt", sha_a))
     with pytest.raises(PolicyError, match="takes no encoder"):
-        check_encoder(_state_spec(), enc_a)
+        load_checked_encoder(_state_spec(), enc_a)
 
 
 def test_policy_paths_resolve_from_folder_weights_and_snapshot(tmp_path):

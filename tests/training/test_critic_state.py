@@ -35,8 +35,8 @@ def test_the_actor_never_reads_the_critics_columns_and_the_critic_does():
 
 
 def test_a_state_observation_cannot_add_the_state_again():
-    with pytest.raises(ValueError, match="critic_state adds the state observation to vision, not to"):
-        RacingConfig(observation="state", critic_state=True)
+    with pytest.raises(ValueError, match="critic_state appends the state observation to the vision vector"):
+        make_sb3_vec_env(RacingConfig(observation="state", critic_state=True), seed=0)
 
 
 @pytest.mark.skipif(bool(_REASON), reason=_REASON or "renderer available")

@@ -4,7 +4,6 @@ synchronous single-worker run, Ctrl-C and resume."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import subprocess
@@ -16,6 +15,7 @@ import pytest
 
 from tests.helpers.policies import tiny_train_config
 from tests.helpers.processes import kill_and_read
+from vision_rl.config import replace_flat
 from vision_rl.phase2_rl.train import _TrainingLoop, train_policy
 from vision_rl.training.artifact import PolicySpec, load_policy
 from vision_rl.training.distributed import BENCH_SAC, Pacer, Pacing, bench_sampling, worker_seed
@@ -192,12 +192,12 @@ def test_ctrl_c_with_workers_saves_and_resume_restarts_the_samplers(ray_local, s
     assert result["interrupted"] and result["num_timesteps"] == 120
     assert PolicySpec.read(out / "policy.json").num_timesteps == 120
     monkeypatch.setattr(_TrainingLoop, "_on_step", original)
-    resumed = train_policy(dataclasses.replace(config, resume=True, steps=300))
+    resumed = train_policy(replace_flat(config, resume=True, steps=300))
     assert resumed["num_timesteps"] == 300 and resumed["buffer_restored"] == 60
     assert resumed["n_updates"] == result["n_updates"] + (300 - 120) // 2  # the buffer came back: no random phase
     assert resumed["sampling"]["workers"] == 1
     # A run sampled with workers resumes in one process too (the same files).
-    single = train_policy(dataclasses.replace(config, resume=True, steps=340, workers=None))
+    single = train_policy(replace_flat(config, resume=True, steps=340, workers=None))
     assert single["num_timesteps"] == 340 and single["sampling"] is None
 
 
@@ -243,7 +243,7 @@ def test_vision_samplers_embed_frames_with_the_runs_encoder(
     with np.load(out / "replay_buffer.npz", allow_pickle=False) as data:
         observations = data["observations"]
     assert observations.shape == (50, 2, 64 + 11 + (38 if critic_state else 0))
-    run = _Run(dataclasses.replace(config, resume=True))
+    run = _Run(replace_flat(config, resume=True))
     run.build()
     core = run.venv.core
     core.seed(worker_seed(0, 0))  # the sampler's world: same seed, so the same start points

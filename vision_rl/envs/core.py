@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vision_rl.envs import observations as obs_lib
-from vision_rl.envs.observer import OBSERVATION_KINDS, Observer
+from vision_rl.envs.observer import Observer
 from vision_rl.envs.rewards import (
     off_track_penalty,
     overtaking_reward,
@@ -254,8 +254,7 @@ class RacingConfig:
     """Free-form notes carried with the config (not used by the environment)."""
 
     def __post_init__(self) -> None:
-        if self.observation not in OBSERVATION_KINDS:
-            raise ValueError(f"observation must be one of {OBSERVATION_KINDS}, got {self.observation!r}")
+        obs_lib.ObservationKind.of(self.observation)
         if self.scenario not in SCENARIOS:
             raise ValueError(f"scenario must be one of {tuple(SCENARIOS)}, got {self.scenario!r}")
         if self.steer_action not in STEER_ACTIONS:
@@ -291,6 +290,11 @@ class RacingConfig:
             raise ValueError("episode_s must cover at least one control step")
         if ai_ticks(self.control_dt_s) is None:
             raise ValueError(f"control_dt_s must be a whole multiple of the AI's {AI_CONTROL_DT_S} s")
+
+    @property
+    def kind(self) -> obs_lib.ObservationKind:
+        """What the egos observe, as a type (``observation`` is its name)."""
+        return obs_lib.ObservationKind(self.observation)
 
     @property
     def opponents(self) -> int:
@@ -352,9 +356,11 @@ class RacingCore:
         self.stuck = StuckDetector(self.world.state.unwrapped_s_m[self.ego_ids], cfg.control_dt_s)
         self.stuck_points_s_m = np.empty(0)
         """Where egos got stuck, track arc length, m: the last :data:`STUCK_POINTS_KEPT`, oldest first."""
+        if cfg.critic_state and not cfg.kind.sees_frames:  # checked here: a trainer's config sets the kind late
+            raise ValueError(f"critic_state appends the state observation to the vision vector, not to {cfg.kind}")
         if observer is None:
             observer = Observer(cfg.observation, self.track, self.car, self.groups, image_hw_px=cfg.image_hw_px)
-            if cfg.normalize and cfg.observation != "vision":
+            if cfg.normalize and not cfg.kind.sees_frames:
                 observer.normalizer = obs_lib.load_or_compute_normalizer(
                     self.track, self.car.name, cfg.observation, lambda: _statistics_sample(cfg)
                 )
@@ -439,7 +445,7 @@ class RacingCore:
         columns as its config says), for a trainer or a sampler to put in as :attr:`observer`."""
         cfg = self.config
         return Observer(
-            "vision",
+            obs_lib.ObservationKind.VISION,
             self.track,
             self.car,
             self.groups,

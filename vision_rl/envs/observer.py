@@ -22,8 +22,6 @@ from vision_rl.sim.track import Track
 from vision_rl.sim.vehicle import VehicleParams
 from vision_rl.sim.world import WorldState
 
-OBSERVATION_KINDS = ("state", "vision", "overtaking")
-
 #: The vision paper's frames reach the agent 4 frames (67 ms at 60 Hz) behind the game state it acts on (section 3).
 PAPER_FRAME_DELAY_S = 4 / 60
 
@@ -121,11 +119,9 @@ class Observer:
         batch_cars: int = 0,
         critic_state: bool = False,
     ) -> None:
-        if kind not in OBSERVATION_KINDS:
-            raise ValueError(f"observation must be one of {OBSERVATION_KINDS}, got {kind!r}")
-        if encoder is not None and kind != "vision":
+        self.kind = obs_lib.ObservationKind.of(kind)
+        if encoder is not None and not self.kind.sees_frames:
             raise ValueError(f"the {kind!r} observation takes no encoder")
-        self.kind = kind
         self.track = track
         self.car = car
         self.groups = np.asarray(groups)
@@ -135,7 +131,7 @@ class Observer:
         if batch_cars < 0:
             raise ValueError(f"batch_cars must be >= 0, got {batch_cars}")
         self.batch_cars = int(batch_cars)
-        if critic_state and (kind != "vision" or encoder is None):
+        if critic_state and (not self.kind.sees_frames or encoder is None):
             raise ValueError("critic_state appends the state observation to the vision vector: it needs an encoder")
         self.critic_state = bool(critic_state)
         self.caster = sensors.WallRayCaster(track)
@@ -159,11 +155,9 @@ class Observer:
     @property
     def dim(self) -> int | None:
         """Length of the observation vector (None: the vision Dict)."""
-        if self.kind == "vision":
-            if self.encoder is None:
-                return None
-            return obs_lib.vector_dim("vision", int(self.encoder.rep_dim), self.critic_state)
-        return obs_lib.vector_dim(self.kind)
+        if not self.kind.sees_frames:
+            return self.kind.vector_dim()
+        return None if self.encoder is None else self.kind.vector_dim(int(self.encoder.rep_dim), self.critic_state)
 
     @property
     def space(self) -> spaces.Space:
@@ -210,9 +204,9 @@ class Observer:
     def raw(self, state: WorldState, ids: np.ndarray) -> np.ndarray:
         """The observation vectors (len(ids), dim) before normalisation, float64."""
         ids = np.asarray(ids)
-        if self.kind == "state":
+        if self.kind is obs_lib.ObservationKind.STATE:
             return obs_lib.state_observation(self.track, self.caster, state, ids)
-        if self.kind == "overtaking":
+        if self.kind is obs_lib.ObservationKind.OVERTAKING:
             return obs_lib.overtaking_observation(
                 self.track, self.caster, state, ids, self.car.length_m, self.car.width_m, self.groups
             )
@@ -235,7 +229,7 @@ class Observer:
     def __call__(self, state: WorldState, ids: np.ndarray) -> np.ndarray | dict[str, np.ndarray]:
         """The observations of cars ``ids``: normalised float32 vectors (len(ids), dim), or the vision Dict."""
         ids = np.asarray(ids)
-        if self.kind == "vision" and self.encoder is None:
+        if self.kind.sees_frames and self.encoder is None:
             return {"image": self.frames(state, ids), "features": self._features(state, ids).astype(np.float32)}
         raw = self.raw(state, ids)
         return self.normalizer(raw) if self.normalizer is not None else raw.astype(np.float32)

@@ -64,7 +64,7 @@ def parse_seeds(text: str) -> tuple[int, ...]:
 
 
 def default_experiment_out(cfg: TrainPolicyConfig) -> Path:
-    kind = "vision" if cfg.encoder else "state"
+    kind = cfg.kind.value
     return (
         Path("runs")
         / "experiment"
@@ -77,7 +77,7 @@ def _plan(cfg: TrainPolicyConfig) -> dict[str, Any]:
     return {
         "track": cfg.racing.track,
         "car": cfg.racing.car,
-        "observation": "vision" if cfg.encoder else "state",
+        "observation": cfg.kind.value,
         "encoder_sha256": file_sha256(cfg.encoder) if cfg.encoder else None,
         "steps": cfg.steps,
         "recipe": recipe,

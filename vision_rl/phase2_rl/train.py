@@ -45,7 +45,7 @@ from stable_baselines3.common.vec_env import VecMonitor
 
 from vision_rl.config import flat_values, nested
 from vision_rl.envs.core import STEER_ACTIONS, STEER_CHANGE_PENALTY_SCALES, WALL_PENALTY_SPEEDS, RacingConfig
-from vision_rl.envs.observations import ObsNormalizer
+from vision_rl.envs.observations import ObservationKind, ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import CLEAN_WALL_CONTACT_S, time_laps
 from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
@@ -169,6 +169,11 @@ class TrainPolicyConfig:
     def check_options(options: Mapping[str, Any]) -> None:
         check_bounds(options)
 
+    @property
+    def kind(self) -> ObservationKind:
+        """What the policy observes: the frozen encoder's embedding with --encoder, else the state."""
+        return ObservationKind.VISION if self.encoder else ObservationKind.STATE
+
     encoder: str = ""
     """Encoder ckpt.pt: vision observation (64-D embedding + 11); empty: the 38-D state observation."""
     steps: int = 1_000_000
@@ -264,7 +269,7 @@ class TrainPolicyConfig:
 
 
 def default_out(cfg: TrainPolicyConfig) -> Path:
-    kind = "vision" if cfg.encoder else "state"
+    kind = cfg.kind.value
     track = cfg.racing.track.replace("random:", "random-")
     if track.endswith(".csv") or os.sep in track:
         track = Path(track).stem
@@ -336,7 +341,7 @@ class _Run:
             )
         if self.previous is None and cfg.encoder and not Path(cfg.encoder).is_file():
             raise FileNotFoundError(f"{cfg.encoder}: no such encoder checkpoint")
-        if self.previous is not None and self.previous.observation != "vision" and cfg.encoder:
+        if self.previous is not None and not self.previous.kind.sees_frames and cfg.encoder:
             raise PolicyError(f"the run in {self.out} observes state; it cannot resume with an --encoder")
         if self.preset.torch_threads > 0:  # before the encoder loads: ONNX Runtime takes torch's thread count
             torch.set_num_threads(self.preset.torch_threads)
@@ -348,14 +353,14 @@ class _Run:
             shutil.rmtree(self.out)
         self.out.mkdir(parents=True, exist_ok=True)
         if self.previous is not None:
-            self.kind = self.previous.observation
+            self.kind = self.previous.kind
             self.racing = self.previous.config
             self.start_steps = self.previous.num_timesteps
             self.train_time_before_s = self.previous.train_time_s
         else:
-            self.kind = "vision" if cfg.encoder else "state"
+            self.kind = cfg.kind
             image_hw = self.encoder.input_hw_px if self.encoder is not None else cfg.racing.image_hw_px
-            self.racing = dataclasses.replace(cfg.racing, observation=self.kind, image_hw_px=image_hw)
+            self.racing = dataclasses.replace(cfg.racing, observation=self.kind.value, image_hw_px=image_hw)
             self.start_steps = 0
             self.train_time_before_s = 0.0
         self.seed = self.previous.seed if self.previous is not None else cfg.seed  # a resumed run keeps its own
@@ -372,7 +377,7 @@ class _Run:
         against its hash) for a resumed run; None for a state run."""
         cfg, where = self.cfg, dict(device=self.device, runtime=self.cfg.encoder_runtime)
         if self.previous is not None:
-            if self.previous.observation != "vision":
+            if not self.previous.kind.sees_frames:
                 return None
             return load_checked_encoder(self.previous, cfg.encoder, f"the run in {self.out}", **where)
         if not cfg.encoder:
@@ -396,7 +401,7 @@ class _Run:
                 # Statistics of the embedding are not cached per track: they belong to this encoder, and are stored
                 # with the policy and never recomputed for it.
                 samples = core.sample_raw_observations(observer, self.cfg.stats_steps)
-                observer.normalizer = ObsNormalizer.from_samples("vision", samples)
+                observer.normalizer = ObsNormalizer.from_samples(ObservationKind.VISION, samples)
             core.observer.close()
             core.observer = observer
             venv.observation_space = observer.space
@@ -469,7 +474,7 @@ class _Run:
 
     def _kept(self, name: str, default: float = 0.0) -> float:
         """The run's value of a setting a resumed run keeps from its start (``default`` for a run older than it)."""
-        config = self.previous.train_config if self.previous is not None else dataclasses.asdict(self.cfg)
+        config = self.previous.train_config if self.previous is not None else flat_values(self.cfg)
         return float(config.get(name, default))
 
     def _restore(self, model: SAC) -> None:
@@ -498,7 +503,7 @@ class _Run:
         if self.eval_driver is None:
             self.eval_driver = PolicyDriver.for_config(
                 lambda obs: model.predict(obs, deterministic=True)[0],
-                self.kind,
+                self.kind.value,
                 self.normalizer,
                 self.encoder,
                 self.racing,
@@ -549,7 +554,7 @@ class _Run:
 
     def spec(self, model: SAC, weights_name: str, weights_sha256: str) -> PolicySpec:
         encoder = None
-        if self.kind == "vision":
+        if self.kind.sees_frames:
             assert self.encoder is not None
             encoder = {
                 "path": str(self.encoder.path.resolve()),
@@ -559,7 +564,7 @@ class _Run:
             }
         sac = dataclasses.asdict(self.preset)
         return PolicySpec(
-            observation=self.kind,
+            observation=self.kind.value,
             racing_config=racing_config_to_dict(self.racing),
             obs_normalizer=self.normalizer.to_dict(),
             fingerprint=self.fingerprint,
@@ -572,7 +577,7 @@ class _Run:
             num_timesteps=int(model.num_timesteps),
             train_time_s=round(self.train_time_s, 2),
             # A resumed run keeps the options it was started with (its track, car and cars win over the new ones).
-            train_config=self.previous.train_config if self.previous is not None else dataclasses.asdict(self.cfg),
+            train_config=self.previous.train_config if self.previous is not None else flat_values(self.cfg),
         )
 
     def _select(self, model: SAC, starts: int) -> dict[str, Any]:
@@ -744,9 +749,7 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
     (Ctrl-C, or SIGTERM where the caller maps it) saves everything and returns with ``interrupted``."""
     from vision_rl.training.distributed import cluster_for
 
-    if (
-        cfg.samplers.workers is not None
-    ):  # Ray's cluster and the worker count are checked before the run folder is touched
+    if cfg.samplers.workers is not None:  # Ray's cluster and the worker count, before the run folder is touched
         check_bounds(flat_values(cfg))
     with cluster_for(cfg.samplers.workers, cfg.samplers.address) as cluster:
         run = _Run(cfg)
@@ -770,7 +773,7 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
     return {
         "out": str(run.out),
         "policy": str(run.out / MODEL_NAME),
-        "observation": run.kind,
+        "observation": run.kind.value,
         "num_timesteps": int(model.num_timesteps),
         "n_updates": int(getattr(model, "_n_updates", 0)),
         "train_time_s": round(run.train_time_s, 2),
@@ -794,7 +797,7 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
     cfg = run.cfg
     setup = sampler_setup(
         run.racing,
-        run.kind,
+        run.kind.value,
         run.normalizer,
         run.fingerprint,
         run.preset.hidden_units,

@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from vision_rl.envs.core import RacingConfig, pedal_command, steering_command
-from vision_rl.envs.observations import ObsNormalizer, vector_dim
+from vision_rl.envs.observations import ObservationKind, ObsNormalizer
 from vision_rl.envs.observer import Observer, in_batches_of
 from vision_rl.envs.racing_env import action_space
 from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
@@ -58,7 +58,6 @@ BUFFER_NAME = "replay_buffer.npz"
 BEST_DIR = "best"
 #: What format 2 stored the weights in.
 SB3_ZIP_NAME = "policy.zip"
-POLICY_KINDS = ("state", "vision", "overtaking")
 
 
 class PolicyError(ValueError):
@@ -83,9 +82,10 @@ def racing_config_from_dict(data: Mapping[str, Any]) -> RacingConfig:
 def obs_dim(kind: str, rep_dim: int = 64, critic_state: bool = False) -> int:
     """Length of a policy's input vector: 38 (state), 96 (overtaking) or rep_dim + 11 (vision; + 38 with
     ``critic_state``, the critic's columns)."""
-    if kind not in POLICY_KINDS:
-        raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {kind!r}")
-    return vector_dim(kind, rep_dim, critic_state)
+    try:
+        return ObservationKind.of(kind).vector_dim(rep_dim, critic_state)
+    except ValueError as exc:
+        raise PolicyError(str(exc)) from None
 
 
 def policy_fingerprint(config: RacingConfig, observation: str, obs_dim: int, encoder_sha256: str | None) -> dict:
@@ -93,7 +93,7 @@ def policy_fingerprint(config: RacingConfig, observation: str, obs_dim: int, enc
     return {
         "track_geometry_hash": load_track(config.track).geometry_hash,
         "car": config.car,
-        "observation": observation,
+        "observation": ObservationKind.of(observation).value,
         "obs_dim": int(obs_dim),
         "encoder_sha256": encoder_sha256,
     }
@@ -125,10 +125,16 @@ class PolicySpec:
     chose them; None for a run's last weights."""
 
     def __post_init__(self) -> None:
-        if self.observation not in POLICY_KINDS:
-            raise PolicyError(f"observation must be one of {POLICY_KINDS}, got {self.observation!r}")
-        if self.observation == "vision" and not self.encoder:
+        try:
+            ObservationKind.of(self.observation)
+        except ValueError as exc:
+            raise PolicyError(str(exc)) from None
+        if self.kind.sees_frames and not self.encoder:
             raise PolicyError("a vision policy must record its encoder checkpoint")
+
+    @property
+    def kind(self) -> ObservationKind:
+        return ObservationKind(self.observation)
 
     @property
     def config(self) -> RacingConfig:
@@ -242,7 +248,7 @@ def load_checked_encoder(
     not the recorded one. ``encoder`` empty: the recorded path (which must still hold the same bytes)."""
     from vision_rl.phase1_repr.checkpoint import load_encoder
 
-    if spec.observation != "vision":
+    if not spec.kind.sees_frames:
         raise PolicyError(f"{source} observes {spec.observation!r}, not frames: it takes no encoder")
     assert spec.encoder is not None
     recorded = spec.encoder["sha256"]
@@ -450,7 +456,7 @@ def load_policy(
     spec = PolicySpec.read(spec_path)
     encoder_path = None
     module = None
-    if spec.observation == "vision":
+    if spec.kind.sees_frames:
         module = load_checked_encoder(spec, encoder, f"policy {weights_path}", device, encoder_runtime)
         encoder_path = module.path
     elif encoder:

@@ -356,7 +356,7 @@ class Sampler:
     def __init__(self, setup: SamplerSetup, worker: int) -> None:
         import torch
 
-        from vision_rl.envs.observations import ObsNormalizer
+        from vision_rl.envs.observations import ObservationKind, ObsNormalizer
         from vision_rl.envs.vector import make_sb3_vec_env
         from vision_rl.training.artifact import policy_fingerprint, racing_config_from_dict
         from vision_rl.training.critic_state import sac_policy_class
@@ -372,7 +372,7 @@ class Sampler:
         core = self.env.core
         normalizer = ObsNormalizer.from_dict(dict(setup.obs_normalizer))
         encoder_sha = None
-        if setup.observation == "vision":
+        if ObservationKind.of(setup.observation).sees_frames:
             from vision_rl.phase1_repr.checkpoint import load_encoder
 
             encoder = load_encoder(setup.encoder_path, device="cpu", runtime=setup.encoder_runtime)
