@@ -135,8 +135,33 @@ def _hit_segment(px, py, dx, dy, ax, ay, bx, by):
     return np.inf
 
 
+@njit(cache=True, inline="always")
+def _slab(t0, t1, origin, direction, lo, hi):
+    """The ray parameters (t0, t1) clipped to the slab lo..hi of one axis; t1 = -1 when the ray runs outside it."""
+    if direction != 0.0:
+        ta = (lo - origin) / direction
+        tb = (hi - origin) / direction
+        t0 = max(t0, min(ta, tb))
+        t1 = min(t1, max(ta, tb))
+    elif not (lo <= origin <= hi):
+        t1 = -1.0
+    return t0, t1
+
+
+@njit(cache=True, inline="always")
+def _axis_start(t0, p, d, cell, index):
+    """One axis of the voxel walk from grid position ``p`` (in cell ``index``) along ``d``: (step between cells,
+    ray parameter of the next cell boundary, ray parameter between two boundaries)."""
+    if d > 0.0:
+        return 1, t0 + ((index + 1) * cell - p) / d, cell / d
+    if d < 0.0:
+        return -1, t0 + (index * cell - p) / d, -cell / d
+    return 0, np.inf, np.inf
+
+
 @njit(cache=True)
 def _cast_walls(ox, oy, ang, max_range, segs, x0, y0, cell, nx, ny, start, items, out):
+    """``out[i, j]``: the distance from origin i along world angle ``ang[i, j]`` to the nearest wall."""
     n, k = ang.shape
     gx1 = x0 + nx * cell
     gy1 = y0 + ny * cell
@@ -150,22 +175,8 @@ def _cast_walls(ox, oy, ang, max_range, segs, x0, y0, cell, nx, ny, start, items
                 continue
             best = max_range
             # Clip the ray to the grid box (slab test) so an origin outside the grid still finds the walls.
-            t0 = 0.0
-            t1 = max_range
-            if dx != 0.0:
-                ta = (x0 - ox[i]) / dx
-                tb = (gx1 - ox[i]) / dx
-                t0 = max(t0, min(ta, tb))
-                t1 = min(t1, max(ta, tb))
-            elif not (x0 <= ox[i] <= gx1):
-                t1 = -1.0
-            if dy != 0.0:
-                ta = (y0 - oy[i]) / dy
-                tb = (gy1 - oy[i]) / dy
-                t0 = max(t0, min(ta, tb))
-                t1 = min(t1, max(ta, tb))
-            elif not (y0 <= oy[i] <= gy1):
-                t1 = -1.0
+            t0, t1 = _slab(0.0, max_range, ox[i], dx, x0, gx1)
+            t0, t1 = _slab(t0, t1, oy[i], dy, y0, gy1)
             if t0 > t1:
                 out[i, j] = best
                 continue
@@ -173,30 +184,8 @@ def _cast_walls(ox, oy, ang, max_range, segs, x0, y0, cell, nx, ny, start, items
             py = oy[i] + dy * t0 - y0
             ix = min(max(int(px / cell), 0), nx - 1)
             iy = min(max(int(py / cell), 0), ny - 1)
-            if dx > 0.0:
-                step_x = 1
-                t_max_x = t0 + ((ix + 1) * cell - px) / dx
-                t_delta_x = cell / dx
-            elif dx < 0.0:
-                step_x = -1
-                t_max_x = t0 + (ix * cell - px) / dx
-                t_delta_x = -cell / dx
-            else:
-                step_x = 0
-                t_max_x = np.inf
-                t_delta_x = np.inf
-            if dy > 0.0:
-                step_y = 1
-                t_max_y = t0 + ((iy + 1) * cell - py) / dy
-                t_delta_y = cell / dy
-            elif dy < 0.0:
-                step_y = -1
-                t_max_y = t0 + (iy * cell - py) / dy
-                t_delta_y = -cell / dy
-            else:
-                step_y = 0
-                t_max_y = np.inf
-                t_delta_y = np.inf
+            step_x, t_max_x, t_delta_x = _axis_start(t0, px, dx, cell, ix)
+            step_y, t_max_y, t_delta_y = _axis_start(t0, py, dy, cell, iy)
             while True:
                 c = iy * nx + ix
                 for q in range(start[c], start[c + 1]):

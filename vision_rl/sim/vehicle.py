@@ -488,21 +488,9 @@ def axle_loads_n(
 
 
 @register_jitable
-def _car_step(
-    p, x, y, yaw, vx, vy, r, steer, omega, ax, ay, roll, pitch, roll_rate, pitch_rate, steer_cmd, omega_cmd, dt
-):
-    """One substep, element-wise: every argument but ``p`` (``VehicleParams._packed``) and ``dt`` (s) is either an
-    (n,) array (the numpy path) or one car's float (the numba path, :func:`_step_jit`): one source for both.
-
-    Returns the 14 new state values in :class:`VehicleState` order.
-    """
-    m = p[_P_MASS]
-    lf = p[_P_LF]
-    lr = p[_P_LR]
-    wheelbase = lf + lr
-    h = p[_P_H]
-
-    # --- actuators: exact discretisation of the first-order lags (stable for any dt), then the rate limit.
+def _actuators(p, steer, omega, steer_cmd, omega_cmd, dt):
+    """New road-wheel angle (rad) and pedal: exact discretisation of the first-order lags (stable for any dt), then
+    the steering's rate limit."""
     steer_target = _clean_command(steer_cmd, p[_P_STEER_LIM])
     omega_target = _clean_command(omega_cmd, 1.0)
     steer_gain = 1.0 - math.exp(-dt / p[_P_STEER_LAG])
@@ -511,10 +499,15 @@ def _car_step(
     steer_n = steer + np.minimum(np.maximum(steer_gain * (steer_target - steer), -max_dsteer), max_dsteer)
     steer_n = np.minimum(np.maximum(steer_n, -p[_P_STEER_LIM]), p[_P_STEER_LIM])  # also for a bad initial state
     omega_n = omega + omega_gain * (omega_target - omega)
+    return steer_n, omega_n
 
-    # --- normal loads. Last substep's acceleration closes the load-transfer loop one step late (gain h/L * mu < 1).
+
+@register_jitable
+def _grips_n(p, vx, ax, ay):
+    """Axle loads and each axle's lateral and longitudinal grip, N: (fz_f, fz_r, grip_f, grip_r, grip_long_f,
+    grip_long_r). Last substep's acceleration closes the load-transfer loop one step late (gain h/L * mu < 1)."""
     fz_f, fz_r = _axle_loads(p, vx, ax)
-    lateral_transfer = m * h / p[_P_TRACK] * np.abs(ay)
+    lateral_transfer = p[_P_MASS] * p[_P_H] / p[_P_TRACK] * np.abs(ay)
     grip_f = _axle_grip_n(
         fz_f,
         np.minimum(p[_P_ROLL_FRONT] * lateral_transfer, 0.5 * fz_f),
@@ -529,21 +522,27 @@ def _car_step(
         p[_P_TYRE_R + 4],
         p[_P_TYRE_R + 5],
     )
-    grip_long_f = p[_P_TYRE_F + 6] * grip_f
-    grip_long_r = p[_P_TYRE_R + 6] * grip_r
+    return fz_f, fz_r, grip_f, grip_r, p[_P_TYRE_F + 6] * grip_f, p[_P_TYRE_R + 6] * grip_r
 
-    # --- pure lateral forces; slip angles in each wheel's frame (valid reversing and sliding sideways).
-    cos_d = np.cos(steer_n)
-    sin_d = np.sin(steer_n)
-    vy_front = vy + lf * r
+
+@register_jitable
+def _lateral_forces_n(p, vx, vy, r, cos_d, sin_d, grip_f, grip_r):
+    """Pure lateral forces of the front and rear axle, N; slip angles in each wheel's frame (valid reversing and
+    sliding sideways)."""
+    vy_front = vy + p[_P_LF] * r
     u_front = vx * cos_d + vy_front * sin_d
     w_front = vy_front * cos_d - vx * sin_d
     slip_f = -np.arctan2(w_front, np.abs(u_front))
-    slip_r = -np.arctan2(vy - lr * r, np.abs(vx))
+    slip_r = -np.arctan2(vy - p[_P_LR] * r, np.abs(vx))
     fy_f0 = grip_f * _magic_formula(p[_P_TYRE_F], p[_P_TYRE_F + 1], p[_P_TYRE_F + 2], slip_f)
     fy_r0 = grip_r * _magic_formula(p[_P_TYRE_R], p[_P_TYRE_R + 1], p[_P_TYRE_R + 2], slip_r)
+    return fy_f0, fy_r0
 
-    # --- longitudinal demand: engine (power and force caps, rev limit) and brakes opposing the motion.
+
+@register_jitable
+def _longitudinal_demand_n(p, vx, vy, omega_n, grip_long_f, grip_long_r):
+    """(throttle, front and rear force demand in N, speed in m/s, direction): the engine (power and force caps, rev
+    limit) and the brakes opposing the motion; ``direction`` is the forward share of the motion."""
     throttle = np.maximum(omega_n, 0.0)
     brake = np.maximum(-omega_n, 0.0)
     rev_fade = np.minimum(np.maximum(p[_P_VMAX] - vx, 0.0), 1.0)
@@ -558,17 +557,20 @@ def _car_step(
         drive_front = grip_long_f / (grip_long_f + grip_long_r)
     fx_f_demand = drive_front * f_drive - p[_P_BRAKE_FRONT] * f_brake
     fx_r_demand = (1.0 - drive_front) * f_drive - (1.0 - p[_P_BRAKE_FRONT]) * f_brake
+    return throttle, fx_f_demand, fx_r_demand, speed, direction
 
-    # --- combined slip: scale the (Fx, Fy) pair back onto each axle's friction ellipse.
-    scale_f = 1.0 / np.maximum(np.sqrt((fx_f_demand / grip_long_f) ** 2 + (fy_f0 / grip_f) ** 2), 1.0)
-    scale_r = 1.0 / np.maximum(np.sqrt((fx_r_demand / grip_long_r) ** 2 + (fy_r0 / grip_r) ** 2), 1.0)
-    fx_f = fx_f_demand * scale_f
-    fy_f = fy_f0 * scale_f
-    fx_r = fx_r_demand * scale_r
-    fy_r = fy_r0 * scale_r
 
-    # --- body forces and the two models' updates.
-    f_resist = -p[_P_HALF_RHO_CDA] * vx * np.abs(vx) - p[_P_CRR] * (fz_f + fz_r) * direction
+@register_jitable
+def _friction_ellipse(fx_demand, fy0, grip_long, grip):
+    """Combined slip: an axle's (Fx, Fy) pair scaled back onto its friction ellipse, N."""
+    scale = 1.0 / np.maximum(np.sqrt((fx_demand / grip_long) ** 2 + (fy0 / grip) ** 2), 1.0)
+    return fx_demand * scale, fy0 * scale
+
+
+@register_jitable
+def _dynamic_velocities(p, vx, vy, r, cos_d, sin_d, fx_f, fy_f, fx_r, fy_r, f_resist, dt):
+    """The dynamic model's new body-frame velocities (m/s) and yaw rate (rad/s)."""
+    m = p[_P_MASS]
     fy_front_body = fx_f * sin_d + fy_f * cos_d
     dvx_dyn = (fx_f * cos_d - fy_f * sin_d + fx_r + f_resist) / m
     dvy_dyn = (fy_front_body + fy_r) / m
@@ -579,14 +581,28 @@ def _car_step(
     turn_s = np.sin(r * dt)
     vx_turned = vx * turn_c + vy * turn_s
     vy_turned = vy * turn_c - vx * turn_s
-    dr_dyn = (lf * fy_front_body - lr * fy_r) / p[_P_IZ]
-    # The kinematic model has no slip: only longitudinal forces, each within its axle's capacity.
+    dr_dyn = (p[_P_LF] * fy_front_body - p[_P_LR] * fy_r) / p[_P_IZ]
+    return vx_turned + dt * dvx_dyn, vy_turned + dt * dvy_dyn, r + dt * dr_dyn
+
+
+@register_jitable
+def _kinematic_dvx(p, cos_d, fx_f_demand, fx_r_demand, grip_long_f, grip_long_r, f_resist):
+    """The kinematic model's forward acceleration, m/s^2: no slip, only longitudinal forces, each within its axle's
+    capacity."""
     fx_f_kin = np.minimum(np.maximum(fx_f_demand, -grip_long_f), grip_long_f)
     fx_r_kin = np.minimum(np.maximum(fx_r_demand, -grip_long_r), grip_long_r)
-    dvx_kin = (fx_f_kin * cos_d + fx_r_kin + f_resist) / m
+    return (fx_f_kin * cos_d + fx_r_kin + f_resist) / p[_P_MASS]
 
+
+@register_jitable
+def _blended_velocities(p, vx, vy, r, speed, throttle, cos_d, sin_d, grip_f, grip_r, dvx_kin, dyn, dt):
+    """New (vx, vy, yaw rate): the kinematic model's below ``_P_V_KIN``, the dynamic model's ``dyn`` (vx, vy, r)
+    above ``_P_V_DYN``, blended linearly in between."""
+    vx_dyn, vy_dyn, r_dyn = dyn
+    lf = p[_P_LF]
+    lr = p[_P_LR]
     w_dyn = np.minimum(np.maximum((speed - p[_P_V_KIN]) / (p[_P_V_DYN] - p[_P_V_KIN]), 0.0), 1.0)
-    vx_n = vx + dt * dvx_kin + w_dyn * (vx_turned + dt * dvx_dyn - vx - dt * dvx_kin)
+    vx_n = vx + dt * dvx_kin + w_dyn * (vx_dyn - vx - dt * dvx_kin)
     # In the kinematic regime brakes and rolling resistance stop a car but never reverse it, and a creep below
     # 1 mm/s is a stop (else it decays geometrically into subnormal floats). At speed a sign change of vx is real:
     # a spinning car.
@@ -594,30 +610,63 @@ def _car_step(
     vx_n = vx_n * np.logical_not(stopped) + 0.0  # + 0.0 turns -0.0 into 0.0
     # The kinematic model's no-slip values, approached as fast as the tyres' grip allows: rolling cars follow them
     # exactly, a car still sliding when it slows down keeps sliding at the friction limit instead of snapping.
-    yaw_rate_kin = vx_n * (sin_d / cos_d) / wheelbase
-    max_dvy = dt * (grip_f + grip_r) / m
+    yaw_rate_kin = vx_n * (sin_d / cos_d) / (lf + lr)
+    max_dvy = dt * (grip_f + grip_r) / p[_P_MASS]
     max_dr = dt * (lf * grip_f + lr * grip_r) / p[_P_IZ]
     vy_kin = vy + np.minimum(np.maximum(lr * yaw_rate_kin - vy, -max_dvy), max_dvy)
     r_kin = r + np.minimum(np.maximum(yaw_rate_kin - r, -max_dr), max_dr)
-    vy_n = vy_kin + w_dyn * (vy_turned + dt * dvy_dyn - vy_kin)
-    r_n = r_kin + w_dyn * (r + dt * dr_dyn - r_kin)
+    vy_n = vy_kin + w_dyn * (vy_dyn - vy_kin)
+    r_n = r_kin + w_dyn * (r_dyn - r_kin)
+    return vx_n, vy_n, r_n
 
-    # --- pose (semi-implicit: new velocities), yaw wrapped to [-pi, pi).
+
+@register_jitable
+def _pose(x, y, yaw, vx_n, vy_n, r_n, dt):
+    """New (x, y, yaw): semi-implicit (the new velocities), yaw wrapped to [-pi, pi)."""
     yaw_n = yaw + dt * r_n
     yaw_n = yaw_n - 2.0 * np.pi * np.floor((yaw_n + np.pi) / (2.0 * np.pi))
     cos_y = np.cos(yaw_n)
     sin_y = np.sin(yaw_n)
-    x_n = x + dt * (vx_n * cos_y - vy_n * sin_y)
-    y_n = y + dt * (vx_n * sin_y + vy_n * cos_y)
+    return x + dt * (vx_n * cos_y - vy_n * sin_y), y + dt * (vx_n * sin_y + vy_n * cos_y), yaw_n
 
-    # --- accelerometer (dv/dt + omega x v) and the lagged quasi-static body roll/pitch.
+
+@register_jitable
+def _body_motion(p, vx, vy, r, vx_n, vy_n, roll, pitch, dt):
+    """The accelerometer (dv/dt + omega x v) and the lagged quasi-static body roll and pitch: (ax, ay, roll, pitch,
+    roll rate, pitch rate)."""
     ax_n = (vx_n - vx) / dt - r * vy
     ay_n = (vy_n - vy) / dt + r * vx
     body_gain = 1.0 - math.exp(-dt / p[_P_BODY_LAG])
     roll_n = roll + body_gain * (p[_P_ROLL_GRAD] * ay_n - roll)
     pitch_n = pitch + body_gain * (-p[_P_PITCH_GRAD] * ax_n - pitch)
-    roll_rate_n = (roll_n - roll) / dt
-    pitch_rate_n = (pitch_n - pitch) / dt
+    return ax_n, ay_n, roll_n, pitch_n, (roll_n - roll) / dt, (pitch_n - pitch) / dt
+
+
+@register_jitable
+def _car_step(
+    p, x, y, yaw, vx, vy, r, steer, omega, ax, ay, roll, pitch, roll_rate, pitch_rate, steer_cmd, omega_cmd, dt
+):
+    """One substep, element-wise: every argument but ``p`` (``VehicleParams._packed``) and ``dt`` (s) is either an
+    (n,) array (the numpy path) or one car's float (the numba path, :func:`_step_jit`): one source for both.
+
+    Returns the 14 new state values in :class:`VehicleState` order.
+    """
+    steer_n, omega_n = _actuators(p, steer, omega, steer_cmd, omega_cmd, dt)
+    fz_f, fz_r, grip_f, grip_r, grip_long_f, grip_long_r = _grips_n(p, vx, ax, ay)
+    cos_d = np.cos(steer_n)
+    sin_d = np.sin(steer_n)
+    fy_f0, fy_r0 = _lateral_forces_n(p, vx, vy, r, cos_d, sin_d, grip_f, grip_r)
+    throttle, fx_f_demand, fx_r_demand, speed, direction = _longitudinal_demand_n(
+        p, vx, vy, omega_n, grip_long_f, grip_long_r
+    )
+    fx_f, fy_f = _friction_ellipse(fx_f_demand, fy_f0, grip_long_f, grip_f)
+    fx_r, fy_r = _friction_ellipse(fx_r_demand, fy_r0, grip_long_r, grip_r)
+    f_resist = -p[_P_HALF_RHO_CDA] * vx * np.abs(vx) - p[_P_CRR] * (fz_f + fz_r) * direction
+    dyn = _dynamic_velocities(p, vx, vy, r, cos_d, sin_d, fx_f, fy_f, fx_r, fy_r, f_resist, dt)
+    dvx_kin = _kinematic_dvx(p, cos_d, fx_f_demand, fx_r_demand, grip_long_f, grip_long_r, f_resist)
+    vx_n, vy_n, r_n = _blended_velocities(p, vx, vy, r, speed, throttle, cos_d, sin_d, grip_f, grip_r, dvx_kin, dyn, dt)
+    x_n, y_n, yaw_n = _pose(x, y, yaw, vx_n, vy_n, r_n, dt)
+    ax_n, ay_n, roll_n, pitch_n, roll_rate_n, pitch_rate_n = _body_motion(p, vx, vy, r, vx_n, vy_n, roll, pitch, dt)
     return (
         x_n,
         y_n,

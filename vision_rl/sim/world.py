@@ -195,24 +195,11 @@ class WorldModel:
         return np.array([reach, 0.0, -reach])
 
 
-def place_cars(
-    model: WorldModel,
-    state: WorldState | None,
-    car_ids: np.ndarray,
-    s_m: np.ndarray,
-    lateral_m: np.ndarray,
-    speed_mps: np.ndarray,
-    heading_offset_rad: np.ndarray,
-) -> WorldState:
-    """Reset the cars ``car_ids`` at track coordinates and return the new state (a new state if ``state`` is None).
-
-    Each car is placed at rest in every respect but its forward speed, with its clocks and counters cleared. A car
-    placed exactly on the start/finish line (s = 0) starts a timed lap; elsewhere the first crossing starts one.
-    Raises :class:`WorldInputError` for a car id out of range or listed twice, a value that is not finite or of the
-    wrong shape, a car centre outside the walls or a speed beyond :data:`MAX_PLACE_SPEED_MPS`.
-    """
-    track = model.track
-    n = model.n_cars
+def _checked_placement(
+    track: Track, n: int, car_ids, s_m, lateral_m, speed_mps, heading_offset_rad
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(car ids, s, lateral, speed, heading offset) as (k,) arrays, or a :class:`WorldInputError` naming the
+    argument, the car and the value (see :func:`place_cars`)."""
     car_ids = _car_ids(car_ids, n)
     k = len(car_ids)
     s = track.wrap_s(_per_car("s_m", s_m, k))
@@ -234,27 +221,54 @@ def place_cars(
         raise WorldInputError(
             f"speed_mps[{i}] = {speed_mps[i]:g} is beyond +-{MAX_PLACE_SPEED_MPS:g} m/s (speeds are in m/s)"
         )
+    return car_ids, s, lateral, speed_mps, heading_offset_rad
+
+
+def _empty_state(n: int) -> WorldState:
+    """n cars at the origin, at rest, with clocks and counters cleared: what :func:`place_cars` places cars into."""
+    return WorldState(
+        vehicle=vehicle_model.initial_state(n),
+        s_m=np.zeros(n),
+        lateral_m=np.zeros(n),
+        unwrapped_s_m=np.zeros(n),
+        time_s=np.zeros(n),
+        wall_contact=np.zeros(n, dtype=bool),
+        wall_contact_time_s=np.zeros(n),
+        car_contact=np.zeros(n, dtype=bool),
+        car_contact_time_s=np.zeros(n),
+        laps_completed=np.zeros(n, dtype=np.int64),
+        line_crossings=np.zeros(n, dtype=np.int64),
+        lap_start_time_s=np.full(n, np.nan),
+        last_lap_time_s=np.full(n, np.nan),
+        prev_steer_cmd_rad=np.zeros(n),
+    )
+
+
+def place_cars(
+    model: WorldModel,
+    state: WorldState | None,
+    car_ids: np.ndarray,
+    s_m: np.ndarray,
+    lateral_m: np.ndarray,
+    speed_mps: np.ndarray,
+    heading_offset_rad: np.ndarray,
+) -> WorldState:
+    """Reset the cars ``car_ids`` at track coordinates and return the new state (a new state if ``state`` is None).
+
+    Each car is placed at rest in every respect but its forward speed, with its clocks and counters cleared. A car
+    placed exactly on the start/finish line (s = 0) starts a timed lap; elsewhere the first crossing starts one.
+    Raises :class:`WorldInputError` for a car id out of range or listed twice, a value that is not finite or of the
+    wrong shape, a car centre outside the walls or a speed beyond :data:`MAX_PLACE_SPEED_MPS`.
+    """
+    track = model.track
+    car_ids, s, lateral, speed_mps, heading_offset_rad = _checked_placement(
+        track, model.n_cars, car_ids, s_m, lateral_m, speed_mps, heading_offset_rad
+    )
     xy = track.position_at(s, lateral)
     yaw = track.heading_at(s) + heading_offset_rad
-    fresh_vehicle = vehicle_model.initial_state(k, xy[:, 0], xy[:, 1], yaw, speed_mps)
+    fresh_vehicle = vehicle_model.initial_state(len(car_ids), xy[:, 0], xy[:, 1], yaw, speed_mps)
     if state is None:
-        template = vehicle_model.initial_state(n)
-        state = WorldState(
-            vehicle=template,
-            s_m=np.zeros(n),
-            lateral_m=np.zeros(n),
-            unwrapped_s_m=np.zeros(n),
-            time_s=np.zeros(n),
-            wall_contact=np.zeros(n, dtype=bool),
-            wall_contact_time_s=np.zeros(n),
-            car_contact=np.zeros(n, dtype=bool),
-            car_contact_time_s=np.zeros(n),
-            laps_completed=np.zeros(n, dtype=np.int64),
-            line_crossings=np.zeros(n, dtype=np.int64),
-            lap_start_time_s=np.full(n, np.nan),
-            last_lap_time_s=np.full(n, np.nan),
-            prev_steer_cmd_rad=np.zeros(n),
-        )
+        state = _empty_state(model.n_cars)
 
     def put(field: np.ndarray, values) -> np.ndarray:
         out = field.copy()
@@ -433,6 +447,79 @@ def _wall_contact(veh, i, lateral, heading, width_left, width_right, half_l, hal
     return lateral - side * push, True
 
 
+@register_jitable
+def _step_vehicles(p, veh, steer, omega, dt):
+    """One physics substep of every car's own dynamics (:func:`_car_step`), in place in the (14, n) block."""
+    for i in range(veh.shape[1]):
+        c = (
+            veh[0, i],
+            veh[1, i],
+            veh[2, i],
+            veh[3, i],
+            veh[4, i],
+            veh[5, i],
+            veh[6, i],
+            veh[7, i],
+            veh[8, i],
+            veh[9, i],
+            veh[10, i],
+            veh[11, i],
+            veh[12, i],
+            veh[13, i],
+        )
+        c = _car_step(p, *c, steer[i], omega[i], dt)
+        for k in range(14):
+            veh[k, i] = c[k]
+
+
+@register_jitable
+def _keep_within_walls(veh, s, walls, body, dt, s_new, lat_new, hit):
+    """Every car's new arc length and lateral offset (into ``s_new``, ``lat_new``) once the walls have kept it on the
+    track, and whether it touched one (``hit``). Each projection starts from the car's previous arc length in ``s``;
+    ``walls`` and ``body`` are the kernel's track arrays and the car's contact constants, in its argument order."""
+    centre, tangent, heading_unwrapped, width_left, width_right, spacing = walls
+    half_l, half_w, mass, inertia, wall_e, wall_mu = body
+    n_points = centre.shape[0]
+    for i in range(veh.shape[1]):
+        start = int(round(s[i] / spacing)) % n_points  # noqa: RUF046 (numba's round needs the int)
+        s_i, lat, heading, _ = project_point(centre, tangent, heading_unwrapped, spacing, veh[_X, i], veh[_Y, i], start)
+        pos = s_i / spacing
+        i0 = int(pos) % n_points
+        frac = pos - int(pos)
+        i1 = (i0 + 1) % n_points
+        wl = width_left[i0] * (1.0 - frac) + width_left[i1] * frac
+        wr = width_right[i0] * (1.0 - frac) + width_right[i1] * frac
+        lat_new[i], hit[i] = _wall_contact(
+            veh, i, lat, heading, wl, wr, half_l, half_w, mass, inertia, wall_e, wall_mu, dt
+        )
+        s_new[i] = s_i
+
+
+@register_jitable
+def _count_laps(s_new, length, dt, s, unwrapped, time_s, lap_arrays):
+    """Every car's unwrapped arc length moved on to ``s_new``; a crossing of the lap line starts a timed lap and ends
+    the one under way (``lap_arrays``: the kernel's crossings, lap start, laps, last lap, lap completed and lap time).
+
+    Signed progress is wrapped to half a lap; a lap line is crossed when the unwrapped arc length reaches a new
+    multiple of the lap length, so driving back and forth over the line never counts twice."""
+    crossings, lap_start, laps, last_lap, lap_completed, lap_time = lap_arrays
+    for i in range(s.shape[0]):
+        ds = (s_new[i] - s[i] + 0.5 * length) % length - 0.5 * length
+        u_new = unwrapped[i] + ds
+        reached = math.floor(u_new / length)
+        if reached > crossings[i]:
+            frac_t = min(max((reached * length - unwrapped[i]) / max(ds, 1e-12), 0.0), 1.0)
+            t_cross = time_s[i] + dt * frac_t
+            if not math.isnan(lap_start[i]):
+                laps[i] += 1
+                last_lap[i] = t_cross - lap_start[i]
+                lap_completed[i] = True
+                lap_time[i] = last_lap[i]
+            lap_start[i] = t_cross
+            crossings[i] = reached
+        unwrapped[i] = u_new
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _world_substeps(
     p,
@@ -476,65 +563,25 @@ def _world_substeps(
 ):
     """``n_substeps`` physics substeps for every car; updates all the array arguments after ``n_substeps`` in place."""
     n = veh.shape[1]
-    n_points = centre.shape[0]
-    length = n_points * spacing
+    length = centre.shape[0] * spacing
+    walls = (centre, tangent, heading_unwrapped, width_left, width_right, spacing)
+    body = (half_l, half_w, mass, inertia, wall_e, wall_mu)
+    lap_arrays = (crossings, lap_start, laps, last_lap, lap_completed, lap_time)
     car_hit = np.zeros(n, dtype=np.bool_)
+    # Each substep's new arc lengths, lateral offsets and wall hits: computed for every car before any is written.
+    s_new, lat_new, wall_hit = np.empty(n), np.empty(n), np.zeros(n, dtype=np.bool_)
     for _ in range(n_substeps):
-        for i in range(n):
-            c = (
-                veh[0, i],
-                veh[1, i],
-                veh[2, i],
-                veh[3, i],
-                veh[4, i],
-                veh[5, i],
-                veh[6, i],
-                veh[7, i],
-                veh[8, i],
-                veh[9, i],
-                veh[10, i],
-                veh[11, i],
-                veh[12, i],
-                veh[13, i],
-            )
-            c = _car_step(p, *c, steer[i], omega[i], dt)
-            for k in range(14):
-                veh[k, i] = c[k]
+        _step_vehicles(p, veh, steer, omega, dt)
         car_hit[:] = False
         if pair_i.shape[0] > 0:
             _car_contacts(veh, pair_i, pair_j, offsets, radius, mass, inertia, car_e, car_mu, dt, car_hit)
+        _keep_within_walls(veh, s, walls, body, dt, s_new, lat_new, wall_hit)
+        _count_laps(s_new, length, dt, s, unwrapped, time_s, lap_arrays)
         for i in range(n):
-            start = int(round(s[i] / spacing)) % n_points  # noqa: RUF046 (numba's round needs the int)
-            s_new, lat, heading, _ = project_point(
-                centre, tangent, heading_unwrapped, spacing, veh[_X, i], veh[_Y, i], start
-            )
-            pos = s_new / spacing
-            i0 = int(pos) % n_points
-            frac = pos - int(pos)
-            i1 = (i0 + 1) % n_points
-            wl = width_left[i0] * (1.0 - frac) + width_left[i1] * frac
-            wr = width_right[i0] * (1.0 - frac) + width_right[i1] * frac
-            lat, hit = _wall_contact(veh, i, lat, heading, wl, wr, half_l, half_w, mass, inertia, wall_e, wall_mu, dt)
-            # Signed progress wrapped to half a lap; a lap line is crossed when the unwrapped arc length reaches a
-            # new multiple of the lap length, so driving back and forth over the line never counts twice.
-            ds = (s_new - s[i] + 0.5 * length) % length - 0.5 * length
-            u_new = unwrapped[i] + ds
-            reached = math.floor(u_new / length)
-            if reached > crossings[i]:
-                frac_t = min(max((reached * length - unwrapped[i]) / max(ds, 1e-12), 0.0), 1.0)
-                t_cross = time_s[i] + dt * frac_t
-                if not math.isnan(lap_start[i]):
-                    laps[i] += 1
-                    last_lap[i] = t_cross - lap_start[i]
-                    lap_completed[i] = True
-                    lap_time[i] = last_lap[i]
-                lap_start[i] = t_cross
-                crossings[i] = reached
-            s[i] = s_new
-            lateral[i] = lat
-            unwrapped[i] = u_new
+            s[i] = s_new[i]
+            lateral[i] = lat_new[i]
             time_s[i] += dt
-            if hit:
+            if wall_hit[i]:
                 wall_any[i] = True
                 wall_time[i] += dt
             if car_hit[i]:
