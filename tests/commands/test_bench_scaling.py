@@ -62,7 +62,7 @@ def test_train_row_compares_one_and_two_devices(monkeypatch, tmp_path):
 
 
 def test_sampling_row_says_when_the_distributed_sampler_is_missing(monkeypatch):
-    monkeypatch.setitem(sys.modules, "vision_rl.training.distributed", types.ModuleType("distributed"))
+    monkeypatch.setitem(sys.modules, "vision_rl.training.sampling_bench", types.ModuleType("sampling_bench"))
     row = bench._sampling_row(bench.BenchScalingOptions(repeats=1))
     assert "bench_sampling is not available" in row["missing"]
     lines = bench._lines({"cpus": 2, "repeats": 1, "rows": {"sampling": row}, "targets": {}})
@@ -70,7 +70,7 @@ def test_sampling_row_says_when_the_distributed_sampler_is_missing(monkeypatch):
 
 
 def test_sampling_row_calls_bench_sampling_with_each_worker_count(monkeypatch):
-    module = types.ModuleType("distributed")
+    module = types.ModuleType("sampling_bench")
     heard = []
 
     def bench_sampling(workers: int, seconds: float, seed: int) -> dict:
@@ -82,7 +82,7 @@ def test_sampling_row_calls_bench_sampling_with_each_worker_count(monkeypatch):
         }
 
     module.bench_sampling = bench_sampling
-    monkeypatch.setitem(sys.modules, "vision_rl.training.distributed", module)
+    monkeypatch.setitem(sys.modules, "vision_rl.training.sampling_bench", module)
     row = bench._sampling_row(bench.BenchScalingOptions(repeats=2, sampling_seconds=3.0, seed=5))
     assert heard == [(1, 3.0, 5), (2, 3.0, 5), (1, 3.0, 6), (2, 3.0, 6)]
     assert row["sampled transitions/s"]["ratio"] == pytest.approx(2.0)

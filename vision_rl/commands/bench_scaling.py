@@ -1,20 +1,8 @@
-"""`vision-rl bench scaling`: each job that spreads over processes, run with 1 and with 2 workers side by side.
+"""`vision-rl bench scaling`: each job that spreads over processes (a sharded capture, train-repr on 1 and 2
+devices, train-policy's sampling), run with 1 and with 2 workers side by side, alternating over ``--repeats`` so
+that a change of the machine's load hits both; the table shows medians, the spread and the ratio.
 
-Rows (``--rows``, in this order):
-
-- ``capture``: a sharded capture (``capture --workers N``, Ray tasks) of ``--capture-frames`` frames in all, with 1
-  and 2 workers: frames/s of wall clock (from submitting the shards to the last one's end, Ray's workers already
-  started by an untimed warm-up), frames/s inside the shards, and CPU-seconds per frame (the shards' processes:
-  simulation, rendering, compression threads).
-- ``train``: ``train-repr`` for ``--train-epochs`` on the frames of that capture, on 1 device (torch's threads on
-  every core) and on 2 (``--devices 2 --strategy ddp``, one thread per process), each a command of its own as a
-  user runs it: training frames/s (validation excluded).
-- ``sampling``: distributed sampling for ``train-policy`` (sampled transitions/s, learner updates/s and the learner's
-  share of its standalone rate, with 1 and 2 sampler workers), from
-  ``vision_rl.training.distributed.bench_sampling`` when that exists; the row says so when it does not.
-
-Each case is repeated ``--repeats`` times, 1 and 2 workers alternating so that a change of the machine's load hits
-both; the table shows medians, the spread (min..max) and the ratio of the medians, 2 workers over 1.
+The rows, what each times: docs/notes/commands.md.
 """
 
 from __future__ import annotations
@@ -192,9 +180,9 @@ def _train_row(opts: BenchScalingOptions, data: str, folder: Path) -> dict[str, 
 def _sampling_row(opts: BenchScalingOptions) -> dict[str, Any]:
     """The distributed-sampling figures, or why there are none."""
     try:
-        from vision_rl.training.distributed import bench_sampling
+        from vision_rl.training.sampling_bench import bench_sampling
     except (ImportError, AttributeError) as exc:
-        return {"missing": f"vision_rl.training.distributed.bench_sampling is not available ({exc})"}
+        return {"missing": f"vision_rl.training.sampling_bench.bench_sampling is not available ({exc})"}
 
     def run(workers: int, repeat: int) -> dict[str, float]:
         return bench_sampling(workers=workers, seconds=opts.sampling_seconds, seed=opts.seed + repeat)

@@ -1,18 +1,9 @@
-"""`vision-rl pipeline`: the whole two-phase job of the vision paper on one track and car.
+"""`vision-rl pipeline`: the whole two-phase job of the vision paper on one track and car: capture, train-repr,
+train-policy on the frozen embedding and on the state, their evaluation and the leaderboard. ``--quick`` is the
+small job (``make quick``), ``--tiny`` the seconds-long one for tests; a stage whose output is complete is not
+redone, so an interrupted pipeline continues where it stopped.
 
-1. capture: disrupted built-in AI laps (training frames) and, in a second process beside them, clean laps (the
-   evaluation set, as the paper's "undisturbed driving"); with ``--state-policy-laps``, laps of Phase 2's state
-   policy too once it is trained (``capture --policy``);
-2. train-repr: the space2depth encoder on those frames, best checkpoint on the clean laps;
-3. Phase 2: train-policy on the frozen encoder's embedding (its frames rendered in a sampler process) and on the
-   state, in a second process at the lowest priority that starts with the captures (it needs neither frames nor
-   encoder); the papers' evaluation of both policies' last weights; the leaderboard.
-
-``--quick`` shrinks every stage to fit 20 minutes on 2 CPU cores (9.5 measured, 12.3 with the CPU held to 1.5
-cores; README, "Two commands"); without it the paper-scale recipe runs (50 disrupted laps at 60 fps, 50 epochs,
-millions of SAC steps: days on a CPU). ``--tiny`` is for tests. Each stage's outputs stay under ``--runs`` and a
-stage whose output is complete is not redone (the policies are trained again), so an interrupted pipeline continues
-where it stopped.
+The stages, in detail: docs/notes/commands.md.
 """
 
 from __future__ import annotations

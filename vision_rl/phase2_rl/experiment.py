@@ -1,20 +1,8 @@
 """`experiment`: one train-policy recipe over several training seeds, each timed by the lap-time protocol, with
-the seeds' mean, spread and best (:func:`vision_rl.evaluation.leaderboard.aggregate_seeds`).
+the seeds' mean, spread and best (:func:`vision_rl.evaluation.leaderboard.aggregate_seeds`). A killed experiment
+resumes its unfinished seeds; a folder made for another recipe is refused, naming the field.
 
-An experiment folder holds ``experiment.json`` (what is trained: track, car, observation, encoder hash, steps, the
-recipe; then the summary and one row per seed) and one train-policy run folder per seed, ``seed-<k>/`` with its
-``evaluation.json``. A killed experiment resumes the unfinished seeds only: a seed whose policy reached the steps
-and was evaluated is kept, a seed with a saved run is resumed, the others start. An existing folder made for
-another track, car, observation, encoder, step count or recipe is refused, naming the field.
-
-With ``select_starts`` (:mod:`vision_rl.phase2_rl.train`), each seed's run also keeps the weights its held-out
-starts chose, in ``seed-<k>/best/``; they are timed by the same protocol and summarised apart (``selected``), beside
-the last weights, never instead of them. A seed that never finished its held-out starts clean has no such weights:
-its last weights stand for it there, and its row says so.
-
-``seeds_at_once`` > 1 trains that many seeds side by side, each in its own process: one train-policy run uses about
-one core (one torch thread with the cpu preset), so on a machine with idle cores the seeds share them instead of
-waiting their turn. A seed's result does not depend on which process trained it.
+The folder's layout, the selected weights and seeds side by side: docs/notes/phase2_rl.md.
 """
 
 from __future__ import annotations

@@ -1,27 +1,10 @@
 """`train-policy`: SAC (Stable-Baselines3) on the batched racing env, from the 38-D privileged state or, with
 ``--encoder``, from the frozen 64-D frame embedding plus the 11 dedicated features (vision paper, section 3
-"Phase 2" and section 4).
+"Phase 2" and section 4). A run folder holds the policy artifact, the replay buffer, snapshots, ``metrics.jsonl``
+and TensorBoard logs; it survives a kill (time-based checkpoints, Ctrl-C and SIGTERM save) and ``--resume``
+continues it, in this process or with ``--workers`` Ray samplers.
 
-A run folder holds ``policy.pt`` + ``policy.json`` (the artifact), ``replay_buffer.npz``, snapshots in
-``checkpoints/``, ``metrics.jsonl`` (one line per periodic evaluation: the protocol's lap time of the current
-policy against environment steps and training time) and TensorBoard logs in ``tensorboard/``. No file is pickled
-(:mod:`vision_rl.training.persist`).
-
-``--select-starts N`` also times the policy at each periodic evaluation from N held-out starts
-(:data:`SELECT_SEED_BASE` on; the protocol's are 0, 1, 2) and keeps the weights with the fastest mean scored lap
-over them, every start finished clean (or only finished: ``--no-select-clean``), as a second artifact in ``best/``
-(Stable-Baselines3's EvalCallback keeps its ``best_model`` the same way). The held-out starts choose the weights
-without looking at the laps the protocol then scores them on.
-
-What survives a kill: the weights, optimiser states and counters are saved every ``checkpoint_every_min`` minutes
-of wall-clock time (a light checkpoint) and at every ``checkpoint_every_steps`` with the replay buffer and a
-snapshot; Ctrl-C (and SIGTERM, which the command maps to it) saves all of it and exits cleanly. ``--resume``
-continues the step count with the stored weights, optimiser states and the last saved buffer; a run with no saved
-buffer collects ``learning_starts`` fresh random transitions before it updates again.
-
-``--workers N`` samples in N Ray actors (:mod:`vision_rl.training.distributed`: the pacing, the staleness bound,
-what is deterministic) while this process only learns; the run folder, evaluations, checkpoints, Ctrl-C and
-``--resume`` are the same, and a run may switch between the two on resume.
+The run folder, ``--select-starts`` and what survives a kill: docs/notes/phase2_rl.md.
 """
 
 from __future__ import annotations
@@ -387,9 +370,22 @@ class _Run:
         return load_encoder(cfg.encoder, **where)
 
     def build(self) -> SAC:
+        """The environments, the SAC model (restored for a resumed run) and the guided start, as configured."""
         # A resumed session draws new start points: reusing the first session's would replay its episodes.
         venv = make_sb3_vec_env(self.racing, seed=self.seed + self.start_steps)
         self.venv = venv
+        self._observe(venv)
+        self.env = VecMonitor(venv)
+        model = self._model(venv)
+        model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
+        encoder_sha = self.encoder.sha256 if self.encoder is not None else None
+        self.fingerprint = policy_fingerprint(self.racing, self.kind, venv.observation_space.shape[0], encoder_sha)
+        self._guide(model, venv)
+        self.eval_driver: PolicyDriver | None = None
+        return model
+
+    def _observe(self, venv: Any) -> None:
+        """The environment's observer and its normalisation: the run's own numbers when it resumes."""
         core = venv.core
         if self.encoder is not None:
             # The SAC input is the vision vector (with the critic's state after it): the env's observer embeds the
@@ -408,21 +404,24 @@ class _Run:
         elif self.previous is not None:
             core.observer.normalizer = self.previous.normalizer  # the numbers it was trained with, not the cache's
         self.normalizer = core.observer.normalizer
-        env = VecMonitor(venv)
-        self.env = env
-        p = self.preset
-        label_weight = self._kept("guide_label_weight")
-        cloning = (
+
+    @property
+    def _cloning(self) -> bool:
+        """Whether the actor also clones the built-in AI (its transitions or its labels): a guided SAC."""
+        return (
             self._kept("guide_bc_weight") > 0
-            or label_weight > 0
+            or self._kept("guide_label_weight") > 0
             or (self.previous is None and self.cfg.guide_pretrain_steps > 0)
         )
-        if cloning:
+
+    def _model(self, venv: Any) -> SAC:
+        p = self.preset
+        if self._cloning:
             from vision_rl.phase2_rl.guide import guided_sac_class
         policy_class, policy_kwargs = sac_policy_class(venv.observation_space.shape[0], self.racing.critic_state)
-        model = (guided_sac_class() if cloning else SAC)(
+        return (guided_sac_class() if self._cloning else SAC)(
             policy_class,
-            env,
+            self.env,
             learning_rate=p.learning_rate_schedule(),
             buffer_size=p.buffer_size,
             learning_starts=p.learning_starts,
@@ -438,11 +437,13 @@ class _Run:
             verbose=0,
             n_steps=self.cfg.n_step,
         )
-        model.set_logger(configure(str(self.out / "tensorboard"), ["tensorboard"]))
-        encoder_sha = self.encoder.sha256 if self.encoder is not None else None
-        self.fingerprint = policy_fingerprint(self.racing, self.kind, venv.observation_space.shape[0], encoder_sha)
+
+    def _guide(self, model: SAC, venv: Any) -> None:
+        """The AI's labels, the run's restored state (or the AI's transitions in a new run's buffer), and the
+        cloning weights of a guided SAC."""
         self.buffer_restored = 0
         self.guided_transitions = 0
+        label_weight = self._kept("guide_label_weight")
         if label_weight > 0:  # before a restore, which fills the labels' array too
             from vision_rl.phase2_rl.guide import start_labels
 
@@ -460,7 +461,7 @@ class _Run:
             from vision_rl.phase2_rl.guide import add_guided_transitions
 
             self.guided_transitions = add_guided_transitions(model, venv, self.cfg.guide_steps)
-        if cloning and (self.previous is None or self.buffer_restored):
+        if self._cloning and (self.previous is None or self.buffer_restored):
             # The guided rows lead the buffer; a resumed run finds them there when its buffer was saved.
             guided = self.guided_transitions or (
                 int(self.previous.train_config.get("guide_steps", 0)) if self.previous is not None else 0
@@ -469,8 +470,6 @@ class _Run:
             model.bc_weight = self._kept("guide_bc_weight")
             if self.previous is None and self.cfg.guide_pretrain_steps > 0:
                 model.clone(self.cfg.guide_pretrain_steps, self.preset.batch_size)
-        self.eval_driver: PolicyDriver | None = None
-        return model
 
     def _kept(self, name: str, default: float = 0.0) -> float:
         """The run's value of a setting a resumed run keeps from its start (``default`` for a run older than it)."""
@@ -637,6 +636,12 @@ class _Run:
 def check_bounds(o: Mapping[str, Any]) -> None:
     """One clear line for an option out of range, before anything is built or written: ``o`` holds the flat
     options (:func:`~vision_rl.config.flat_values` of a config)."""
+    _check_ranges(o)
+    _check_choices(o)
+    _check_combinations(o)
+
+
+def _check_ranges(o: Mapping[str, Any]) -> None:
     checks = {
         "cars": o["cars"] >= 1,
         "steps": o["steps"] >= 1,
@@ -677,6 +682,9 @@ def check_bounds(o: Mapping[str, Any]) -> None:
     if bad:
         name = bad[0]
         raise ValueError(f"--{name.replace('_', '-')} {o[name]} is out of range")
+
+
+def _check_choices(o: Mapping[str, Any]) -> None:
     parse_hidden_units(o["hidden_units"])
     if ai_ticks(o["control_dt_s"]) is None:
         raise ValueError(
@@ -692,6 +700,9 @@ def check_bounds(o: Mapping[str, Any]) -> None:
         value = o[name]
         if value not in allowed:
             raise ValueError(f"--{name.replace('_', '-')} must be one of {', '.join(allowed)}, got {value!r}")
+
+
+def _check_combinations(o: Mapping[str, Any]) -> None:
     if o["steer_change_share_of_range"] > 0 and o["steer_action"] != "rate_scaled":
         raise ValueError("--steer-change-share-of-range limits rate_scaled steering: give --steer-action rate_scaled")
     if (o["guide_bc_weight"] > 0 or o["guide_pretrain_steps"] > 0) and o["guide_steps"] == 0:

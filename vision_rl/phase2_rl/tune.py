@@ -1,23 +1,8 @@
 """`tune`: an Optuna search over train-policy's recipe. Each trial trains one policy from a base recipe with some
-options drawn from :data:`SEARCH_SPACE`, and its score is the lap-time protocol's.
+options drawn from :data:`SEARCH_SPACE` (one training seed per trial: a winner is confirmed by ``experiment``), and
+its score is the lap-time protocol's; the study resumes from ``OUT/study.db``.
 
-**Score** (s, lower is better): the mean over the protocol's starts of the scored lap, a start that did not
-finish counting as :data:`DNF_LAP_FACTOR` times the physical limit's lap (slower than any lap a policy finishes in
-practice), plus ``wall_weight`` seconds per second of wall contact in the scored laps (0: lap time alone; 1 charges
-wall contact as lap time, to search for clean recipes). The final score is the protocol with ``eval_starts``
-starts; the periodic evaluations of training (every ``eval_every_steps``, one start) are reported to Optuna's
-median pruner, which stops a trial scoring worse than the median of the earlier trials at the same step (after
-``prune_after_steps``).
-
-**One training seed per trial** (the base recipe's ``seed``): the search ranks recipes on one seed each, so a
-winner is an anecdote until ``vision-rl experiment --seeds 0,1,2`` confirms it with the recipe's flags
-(:func:`recipe_flags`).
-
-**Resume**: the study lives in ``OUT/study.db`` (SQLite; Optuna stores numbers and strings, no pickle) and each trial
-trains in ``OUT/trial-<n>/``. Running the command again continues until ``trials`` trials are complete or pruned; a
-trial whose process died is marked failed by its missing heartbeat and its place is drawn again. Two processes on
-the same ``OUT`` share the study (one per core). ``study.json`` records the base recipe, and a study continued with
-another base recipe or space is refused.
+The score, the pruning and resuming: docs/notes/phase2_rl.md.
 """
 
 from __future__ import annotations
@@ -32,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from vision_rl.config import flat_values, replace_flat
-from vision_rl.files import atomic_write
+from vision_rl.files import write_json
 from vision_rl.phase2_rl.train import STEER_ACTIONS, TrainPolicyConfig, train_policy
 from vision_rl.training.evaluate import evaluate_policy
 from vision_rl.training.sac import Progress
@@ -181,8 +166,18 @@ def run_tune(
         for key in ("base_recipe", "space", "eval_starts", "wall_weight"):
             if previous.get(key) != record[key]:
                 raise TuneError(f"{root} holds a study with another {key.replace('_', ' ')}: use another --out")
-    root.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
+    write_json(path, record)
+    study = _open_study(optuna, root, tune)
+    objective = _Objective(optuna, study, base, tune, root, trial_started, train_progress)
+    done = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+    study.optimize(objective, callbacks=[optuna.study.MaxTrialsCallback(tune.trials, states=done)])
+    result = {**record, **summarise_study(study), "interrupted": objective.stopped, "study_db": str(root / STUDY_DB)}
+    write_json(path, result)
+    return {**result, "study_json": str(path)}
+
+
+def _open_study(optuna: Any, root: Path, tune: TuneConfig) -> Any:
+    """The study of ``root/study.db``, created or loaded: TPE seeded by ``tune.sampler_seed``, median pruning."""
     optuna.logging.set_verbosity(optuna.logging.WARNING)  # library code prints nothing
     with warnings.catch_warnings():  # the heartbeat is "experimental" in Optuna 4-5; it is what resume relies on
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
@@ -193,7 +188,7 @@ def run_tune(
         if tune.prune_after_steps > 0
         else optuna.pruners.NopPruner()
     )
-    study = optuna.create_study(
+    return optuna.create_study(
         storage=storage,
         study_name="tune",
         direction="minimize",
@@ -201,48 +196,48 @@ def run_tune(
         sampler=optuna.samplers.TPESampler(seed=tune.sampler_seed),
         pruner=pruner,
     )
-    stopped = False
 
-    def objective(trial: optuna.Trial) -> float:
-        nonlocal stopped
-        params = {name: _suggest(trial, name) for name in tune.space}
-        if trial_started is not None:
-            trial_started(trial.number, params)
-        pruned = False
+
+class _Objective:
+    """One trial: train the drawn recipe (pruned on its periodic evaluations), then score it by the protocol.
+    ``stopped`` turns true when a Ctrl-C ended a trial, which also stops the study."""
+
+    def __init__(self, optuna, study, base, tune, root, trial_started, train_progress) -> None:
+        self.optuna, self.study, self.base, self.tune, self.root = optuna, study, base, tune, root
+        self.trial_started, self.train_progress = trial_started, train_progress
+        self.stopped = False
+
+    def __call__(self, trial: Any) -> float:
+        params = {name: _suggest(trial, name) for name in self.tune.space}
+        if self.trial_started is not None:
+            self.trial_started(trial.number, params)
+        pruned = []
 
         def progress(steps: int, total: int, last_eval: dict[str, Any] | None) -> None:
-            nonlocal pruned
-            if train_progress is not None:
-                train_progress(steps, total, last_eval)
+            if self.train_progress is not None:
+                self.train_progress(steps, total, last_eval)
             if last_eval is None or last_eval["num_timesteps"] != steps:
                 return
-            trial.report(_evaluation_score(last_eval, tune.wall_weight), steps)
+            trial.report(_evaluation_score(last_eval, self.tune.wall_weight), steps)
             if trial.should_prune():
-                pruned = True
+                pruned.append(steps)
                 raise KeyboardInterrupt  # train_policy saves the run folder and returns
 
-        run = root / f"trial-{trial.number}"
-        cfg = replace_flat(base, **params, out=str(run), resume=False, force=True, save_buffer=False)
+        run = self.root / f"trial-{trial.number}"
+        cfg = replace_flat(self.base, **params, out=str(run), resume=False, force=True, save_buffer=False)
         result = train_policy(cfg, progress)
         if pruned:
-            raise optuna.TrialPruned
+            raise self.optuna.TrialPruned
         if result["interrupted"]:
-            stopped = True
-            study.stop()
-            raise optuna.TrialPruned  # a Ctrl-C: the trial did not run its course
-        evaluation = evaluate_policy(
-            run, seeds=tune.eval_starts, name=f"{root.name}/trial-{trial.number}", encoder=base.encoder
-        )
+            self.stopped = True
+            self.study.stop()
+            raise self.optuna.TrialPruned  # a Ctrl-C: the trial did not run its course
+        name = f"{self.root.name}/trial-{trial.number}"
+        evaluation = evaluate_policy(run, seeds=self.tune.eval_starts, name=name, encoder=self.base.encoder)
         trial.set_user_attr("lap_time_s", evaluation["median_lap_time_s"])
         trial.set_user_attr("finished", f"{evaluation['n_finished']}/{evaluation['n_seeds']}")
         trial.set_user_attr("train_time_s", result["train_time_s"])
-        return _evaluation_score(evaluation, tune.wall_weight)
-
-    done = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
-    study.optimize(objective, callbacks=[optuna.study.MaxTrialsCallback(tune.trials, states=done)])
-    result = {**record, **summarise_study(study), "interrupted": stopped, "study_db": str(root / STUDY_DB)}
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(result, indent=2)))
-    return {**result, "study_json": str(path)}
+        return _evaluation_score(evaluation, self.tune.wall_weight)
 
 
 def summarise_study(study: Any) -> dict[str, Any]:

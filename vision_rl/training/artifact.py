@@ -1,25 +1,9 @@
-"""The policy artifact: ``policy.pt`` (weights, no pickle) plus ``policy.json``, and the protocol driver that a
-loaded policy becomes.
+"""The policy artifact, ``policy.pt`` (weights, no pickle) plus ``policy.json`` (what rebuilds the policy's inputs
+as in training: observation, racing config, normaliser, encoder, fingerprint), and the protocol driver a loaded
+policy becomes. Loading refuses changed weights, a sidecar that no longer matches the weights or the track, and
+another encoder than the recorded one.
 
-``policy.json`` holds what evaluation needs to rebuild the policy's inputs exactly as in training:
-
-- ``format`` ("vision_rl.policy"), ``format_version`` (3), ``package_version``;
-- ``observation``: ``"state"`` (the 38-D privileged vector), ``"vision"`` (64-D embedding + 11 dedicated features)
-  or ``"overtaking"`` (the overtaking paper's 96-D vector, from train-overtaking);
-- ``racing_config``: the :class:`~vision_rl.envs.RacingConfig` trained on, as a dict;
-- ``obs_normalizer``: ``{"offset", "scale"}`` of the policy's input (state: the environment's cached statistics;
-  vision: z-score statistics of the 75-D vector, computed once from a short disrupted-AI rollout);
-- ``encoder``: for vision, ``{"path", "sha256", "rep_dim", "input_hw_px"}`` of the frozen encoder checkpoint;
-- ``model`` and ``weights_sha256``: the agent file's name and SHA-256 (:mod:`vision_rl.training.persist`);
-- ``fingerprint``: the track's geometry hash, the car, the observation kind, its length and the encoder's hash,
-  also stored inside the agent file;
-- ``preset``, ``sac`` (hyper-parameters), ``seed``, ``num_timesteps``, ``train_time_s`` and ``train_config`` (the
-  command's options) for the record.
-
-Loading refuses a changed agent file (its SHA-256), a sidecar whose track, car or observation no longer matches the
-weights' fingerprint or the track's geometry, and an encoder whose checkpoint hash differs from the recorded one.
-Format 2 (a Stable-Baselines3 zip, whose pickled parts can run code when loaded) is refused with the command
-that converts it by reading only its tensors and counters.
+The sidecar's fields, one by one: docs/notes/training.md.
 """
 
 from __future__ import annotations
