@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 
@@ -22,8 +23,9 @@ def test_options_parse():
     assert parse_config(LeaderboardOptions, ["--track", "technical"]).runs == "runs"
 
 
-def test_evaluate_and_leaderboard_print(state_run, small_track, capsys):
-    out, _ = state_run
+def test_evaluate_and_leaderboard_print(state_run, small_track, capsys, tmp_path):
+    out = tmp_path / "policy" / "tiny-state"  # a copy without the evaluations other tests write beside the run
+    shutil.copytree(state_run[0], out, ignore=shutil.ignore_patterns("evaluation*.json"))
     opts = parse_config(EvaluateOptions, ["--policy", str(out), "--seeds", "1", "--time-limit-s", "10", "--no-write"])
     assert run_evaluate(opts) == 0
     text = capsys.readouterr().out
