@@ -15,13 +15,9 @@ from gymnasium import spaces
 from stable_baselines3 import SAC, TD3
 
 from tests.helpers.overtaking import tiny_baseline_config
-from vision_rl.overtaking.baselines import (
-    GAILReplayBuffer,
-    GAILUpdater,
-    fit_bc,
-    load_baseline,
-    train_baseline,
-)
+from vision_rl.overtaking.baselines import load_baseline, train_baseline
+from vision_rl.overtaking.bc import fit_bc
+from vision_rl.overtaking.gail import GAILReplayBuffer, GAILUpdater
 from vision_rl.training.artifact import load_policy, sac_policy
 
 

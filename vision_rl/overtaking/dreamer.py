@@ -1,22 +1,10 @@
-"""A Dreamer-style world-model agent: the Table III PlaNet row.
+"""A Dreamer-style world-model agent: the Table III PlaNet row (``train-baseline --algo dreamer``).
 
-PlaNet (Hafner et al. 2019, arXiv:1811.04551) learns a recurrent state-space model (RSSM) of the environment and
-plans every action with the cross-entropy method (CEM) in its latent space: 12 steps ahead, 1,000 candidate action
-sequences, 10 refinements, about 120,000 model steps per action. For 20 cars at 10 Hz that is 2.4M recurrent-cell
-evaluations per control step, far beyond a 2-core CPU. Its successor Dreamer (Hafner et al. 2020,
-arXiv:1912.01603, Sec. 3-4) keeps the same world model and replaces the planner with an actor and a value
-function trained on the model's imagined trajectories, so acting is one forward pass. This module is that
-successor, sized like the paper's other baselines (2 x 256 MLPs) and reading the same 96-D observation:
-
-- **World model**: an encoder MLP of the observation; an RSSM with a deterministic GRU state ``h`` and a
-  diagonal-Gaussian stochastic state ``z`` (prior ``p(z | h)``, posterior ``q(z | h, embed)``); heads from the
-  feature ``[h, z]`` to the observation (Gaussian, unit variance), the reward (Gaussian, unit variance) and the
-  continuation flag (Bernoulli: 0 after a crash that ends the episode). Loss: the heads' negative log-likelihoods
-  plus ``KL(q || p)`` summed over ``z``'s units, averaged, and floored at ``free_nats`` (Dreamer's Eq. 10).
-- **Actor**: a tanh-transformed Gaussian on ``[h, z]`` (Dreamer's Eq. 11 parameterisation), trained by
-  back-propagating the lambda-returns of ``imagine_steps``-step imagined rollouts through the model's dynamics.
-- **Value**: an MLP regressed on the same lambda-returns (Eq. 6 and 8).
-- **Exploration**: Gaussian noise of ``explore_std`` on the actor's action in [-1, 1] units, as Dreamer.
+PlaNet plans every action with the cross-entropy method in its learned latent space, far beyond a 2-core CPU for 20
+cars; its successor Dreamer keeps the same world model and replaces the planner with an actor and a value trained on
+the model's imagined trajectories, so acting is one forward pass. This module is that successor, sized like the
+paper's other baselines (2 x 256 MLPs) on the same 96-D observation, with its replay and its protocol driver; its
+training is :mod:`.dreamer_train`. The parts and the numbers: docs/notes/overtaking.md, "dreamer.py".
 
 Sequences are stored per car (:class:`SequenceReplay`) in Dreamer's convention: row ``t`` holds observation
 ``o_t``, the action ``a_{t-1}`` that led to it, the reward received on arriving, whether the episode continues from
@@ -30,12 +18,18 @@ import copy
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 import torch
 from torch import nn
 from torch.distributions import Independent, Normal, TanhTransform, TransformedDistribution, kl_divergence
+
+from vision_rl.envs.core import RacingConfig
+from vision_rl.envs.racing_env import action_space
+from vision_rl.overtaking.demos import OBSERVATION
+from vision_rl.training.artifact import PolicyDriver, PolicySpec
 
 
 @dataclass(frozen=True)
@@ -445,14 +439,84 @@ class SequenceReplay:
         return int(filled.sum())
 
 
+# ------------------------------------------------------------------------------------------------- driving
+
+
+def to_env_units(actions: np.ndarray) -> np.ndarray:
+    """Actions in [-1, 1] to the environment's ``[steer rad, omega]``."""
+    space = action_space()
+    return space.low + 0.5 * (np.clip(actions, -1.0, 1.0) + 1.0) * (space.high - space.low)
+
+
+class DreamerDriver(PolicyDriver):
+    """A Dreamer agent as a protocol driver: its recurrent state restarts with every protocol run."""
+
+    def __init__(self, agent: DreamerAgent, config: RacingConfig, normalizer, identity: dict[str, Any]) -> None:
+        super().__init__(
+            self._predict,
+            OBSERVATION,
+            normalizer,
+            None,
+            config.image_hw_px,
+            config.control_dt_s,
+            identity,
+            config.frame_delay_s,
+            config.steer_action,
+            config.pedal_full_at,
+            config.steer_change_share_of_range,
+        )
+        self.agent = agent
+
+    def reset(self, world, car_ids: np.ndarray) -> None:
+        super().reset(world, car_ids)
+        self.carry = self.agent.initial(len(car_ids))
+        self.first = np.ones(len(car_ids))
+
+    def _predict(self, obs: np.ndarray) -> np.ndarray:
+        action, self.carry = self.agent.act(self.carry, obs, self.first, explore=False)
+        self.first = np.zeros(len(obs))
+        return to_env_units(action)
+
+
+@dataclass
+class LoadedDreamer:
+    """A trained Dreamer agent ready to drive (as :class:`~.artifact.LoadedPolicy` for the protocol)."""
+
+    agent: DreamerAgent
+    spec: PolicySpec
+    weights_path: Path
+    spec_path: Path
+
+    @property
+    def config(self) -> RacingConfig:
+        return self.spec.config
+
+    def driver(self) -> DreamerDriver:
+        spec = self.spec
+        identity = {
+            "driver": "policy",
+            "observation": spec.observation,
+            "policy": str(self.weights_path),
+            "policy_sha256": spec.weights_sha256,
+            "num_timesteps": spec.num_timesteps,
+            "train_time_s": spec.train_time_s,
+            "seed": spec.seed,
+            "algo": "dreamer",
+        }
+        return DreamerDriver(self.agent, self.config, spec.normalizer, identity)
+
+
 __all__ = [
     "Actor",
     "DreamerAgent",
+    "DreamerDriver",
     "DreamerRecipe",
     "LatentState",
+    "LoadedDreamer",
     "SequenceBatch",
     "SequenceReplay",
     "WorldModel",
     "frozen",
     "lambda_returns",
+    "to_env_units",
 ]
