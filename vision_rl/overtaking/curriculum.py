@@ -1,42 +1,15 @@
 """`train-overtaking`: the overtaking paper's curriculum SAC (section III-C) and standard SAC, on the 96-D
 ``overtaking`` observation (72-beam lidar) with Stable-Baselines3.
 
-The curriculum (one run folder per training seed, ``--out``):
-
-- **stage 1** (``stage1/``): a fresh policy races alone (Eq. 1, ``c_w`` 0.005) until it "drives at very high
-  speed": the stage ends at the first periodic evaluation whose protocol lap time
-  (:func:`vision_rl.evaluation.protocol.time_laps`, the scored lap of ``eval_laps``) is within
-  ``stage1_margin`` of the built-in AI's lap time on the same protocol (``lap <= (1 + margin) x AI lap``), or at
-  ``stage1_max_steps`` when that never happens (``stage.json`` then says the criterion was not met).
-- **stage 2** (``stage2/``): the same policy and optimisers with the *kept* replay buffer; the exploration term is
-  re-initialised (SAC's entropy coefficient back to 1 with a fresh optimiser, the actor's log-std layer drawn anew
-  with its Adam moments cleared); one built-in AI car 200 m ahead along the centre line; Eq. 2 with
-  ``c_w = c_c = 0.005``; ``stage2_steps`` steps. Agent 1 is this stage's policy.
-- **stage 3** (``agent2-stage3/``, ``agent3-stage3/``): the stage-2 policy goes on with a fixed-size FIFO replay
-  buffer of ``stage3_buffer_size`` transitions (default half of ``stage3_steps``), filled at the start with the
-  newest transitions of the kept buffer: every transition from before stage 3, stage 1's racing data first, is
-  evicted by the middle of stage 3, and its second half learns from its own overtaking samples only. Agent 2 keeps
-  ``c_w = c_c = 0.005``, Agent 3 raises them to 0.01.
-- **standard SAC** (``standard/``): a fresh policy on Eq. 2 in the stage-2 setting from the first step, for as many
-  steps as the curriculum's budget (stage-1 cap + stage 2 + stage 3).
-
-Agents 1-3 branch from one shared stage-1/2 run: ``--agent 2`` after ``--agent 1`` in the same ``--out`` trains
-only stage 3 (``run.json`` holds the settings they share; a run with other shared settings is refused, naming the
-field). Every ego car has its own opponents (its own collision group) and the ``cars`` egos share one world: 20
-cars as in the paper means 20 groups (20 egos plus 20 opponents in stage 2).
-
-What a stage folder holds: ``policy.pt`` + ``policy.json`` (:class:`OvertakingPolicySpec`; no pickle,
-:mod:`vision_rl.training.persist`), ``replay_buffer.npz``, ``stage.json`` (its settings, status, and its
-boundaries in cumulative environment steps and training seconds), ``metrics.jsonl`` (one line per periodic
-evaluation) and ``tensorboard/``. A stage saves its starting point (weights and buffer) before it trains, light
-checkpoints (weights, optimisers, counters) every ``checkpoint_every_min`` minutes, full ones (with the buffer)
-every ``checkpoint_every_steps``; Ctrl-C or SIGTERM saves everything. Running the same command again continues the
-unfinished stage from what it saved (with its buffer), and skips finished ones.
-
-Periodic evaluation (every ``eval_every_steps`` cumulative steps, all stages and standard SAC alike): the protocol
-lap time of the deterministic policy racing alone, and the *overtaking return*: the mean over ``eval_episodes``
-fixed-seed episodes of the stage-2 setting of the summed Eq. 2 reward (``c_w = c_c = 0.005``), so that curriculum
-and standard SAC are measured on one scale whatever their own stage's reward (the paper's Fig. 3).
+The curriculum, one run folder per training seed (``--out``): stage 1 races alone until its protocol lap time is
+within ``stage1_margin`` of the built-in AI's (or ``stage1_max_steps``); stage 2 goes on with the kept buffer, the
+exploration re-initialised and one AI car ahead (Agent 1); stage 3 goes on with a FIFO buffer that forgets stage 1
+(Agent 2 with stage 2's collision weights, Agent 3 with them doubled); standard SAC learns the stage-2 setting from
+the first step for the curriculum's budget. Agents 1-3 share one stage-1/2 run. A stage folder holds the policy,
+its replay buffer, ``stage.json`` and ``metrics.jsonl``; a stage saves its starting point, checkpoints and on
+Ctrl-C, and the same command continues it. Every periodic evaluation measures the protocol lap and the overtaking
+return of the stage-2 setting, so curriculum and standard SAC share one scale (the paper's Fig. 3). In full:
+docs/notes/overtaking.md, "curriculum.py".
 """
 
 from __future__ import annotations
@@ -496,89 +469,23 @@ class _StageSession:
 
     # ------------------------------------------------------------------ set-up
     def build(self) -> SAC:
-        run, stage, sac = self.run, self.stage, self.run.sac
+        """The stage's model: fresh, from the previous stage's folder (weights, optimisers, buffer), or resumed."""
         self.racing_config = self.racing()
         self.fingerprint = policy_fingerprint(self.racing_config, OBSERVATION, OBS_DIM, None)
         record_path = self.folder / STAGE_NAME
-        resumed = record_path.is_file() and (self.folder / SIDECAR_NAME).is_file()
-        if resumed:
-            record = _read_json(record_path)
-            if record.get("stage") != stage.to_dict():
-                raise OvertakingRunError(_differs(record_path, record.get("stage") or {}, stage.to_dict()))
-            source = self.folder
-        elif stage.previous is not None:
-            source = run.out / stage.previous
-        else:
-            source = None
+        record, source = self._source(record_path)
+        resumed = record is not None
         spec = read_overtaking_spec(source / SIDECAR_NAME) if source is not None else None
-        steps_before = spec.num_timesteps if spec is not None else 0
-        self.venv = make_sb3_vec_env(self.racing_config, seed=self.cfg.seed + steps_before)
-        if spec is not None:  # the numbers the policy was trained with, not whatever the cache holds today
-            self.venv.core.observer.normalizer = spec.normalizer
-        self.normalizer: ObsNormalizer = self.venv.core.observer.normalizer
-        self.env = VecMonitor(self.venv)
-        model = SAC(
-            "MlpPolicy",
-            self.env,
-            learning_rate=sac.learning_rate,
-            buffer_size=stage.buffer_size,
-            learning_starts=sac.learning_starts,
-            batch_size=sac.batch_size,
-            tau=sac.tau,
-            gamma=sac.gamma,
-            train_freq=(sac.train_freq_steps, "step"),
-            gradient_steps=sac.gradient_steps,
-            policy_kwargs={"net_arch": list(sac.hidden_units)},
-            seed=self.cfg.seed + steps_before,
-            device=run.device,
-            verbose=0,
-        )
+        model = self._make_model(spec)
         self.buffer_restored = 0
         if spec is not None:
             assert source is not None
-            try:
-                state = read_agent(source / spec.model, self.fingerprint, spec.weights_sha256)
-                restore_agent(model, state, str(source / spec.model))
-                if resumed:
-                    if (self.folder / BUFFER_NAME).is_file():
-                        self.buffer_restored = load_buffer(
-                            model.replay_buffer, self.folder / BUFFER_NAME, self.fingerprint
-                        )
-                elif stage.fifo_from_previous:
-                    kept = ReplayBuffer(
-                        int(spec.sac["buffer_size"]),
-                        model.observation_space,
-                        model.action_space,
-                        device="cpu",
-                        n_envs=self.cfg.cars,
-                    )
-                    load_buffer(kept, source / BUFFER_NAME, self.fingerprint)
-                    self.buffer_restored = copy_newest(kept, model.replay_buffer)
-                    del kept
-                else:
-                    self.buffer_restored = load_buffer(model.replay_buffer, source / BUFFER_NAME, self.fingerprint)
-            except ArtifactError as exc:
-                raise OvertakingRunError(f"cannot continue {self.folder}: {exc}") from None
-            if self.buffer_restored == 0:  # never update on an empty buffer: refill it first
-                model.learning_starts = model.num_timesteps + sac.learning_starts
+            self._restore(model, spec, source, resumed)
         self.train_time_before_s = spec.train_time_s if spec is not None else 0.0
         self.session_start = time.perf_counter()
         self.start_steps_now = int(model.num_timesteps)
-        if resumed:
-            self.record = record
-        else:
-            if stage.reinit_exploration:
-                reinit_exploration(model)
-            self.record = {
-                "format": RUN_FORMAT,
-                "stage": stage.to_dict(),
-                "status": "running",
-                "start_steps": int(model.num_timesteps),
-                "start_train_time_s": round(self.train_time_before_s, 2),
-                "buffer_at_start": int(self.buffer_restored) * self.cfg.cars,
-                "racing_config": racing_config_to_dict(self.racing_config),
-            }
-        self.end_steps = int(self.record["start_steps"]) + stage.steps
+        self.record = record if record is not None else self._start_fresh(model)
+        self.end_steps = int(self.record["start_steps"]) + self.stage.steps
         (self.folder / "tensorboard").mkdir(parents=True, exist_ok=True)
         model.set_logger(configure(str(self.folder / "tensorboard"), ["tensorboard"]))
         if not resumed:
@@ -587,6 +494,82 @@ class _StageSession:
             self.save(model, buffer=True)
             write_json(record_path, self.record)
         return model
+
+    def _source(self, record_path: Path) -> tuple[dict[str, Any] | None, Path | None]:
+        """(the stage's own record when it is resumed, else None; the folder whose policy it starts from)."""
+        stage = self.stage
+        if record_path.is_file() and (self.folder / SIDECAR_NAME).is_file():
+            record = _read_json(record_path)
+            if record.get("stage") != stage.to_dict():
+                raise OvertakingRunError(_differs(record_path, record.get("stage") or {}, stage.to_dict()))
+            return record, self.folder
+        return None, (self.run.out / stage.previous if stage.previous is not None else None)
+
+    def _make_model(self, spec: OvertakingPolicySpec | None) -> SAC:
+        sac = self.run.sac
+        steps_before = spec.num_timesteps if spec is not None else 0
+        self.venv = make_sb3_vec_env(self.racing_config, seed=self.cfg.seed + steps_before)
+        if spec is not None:  # the numbers the policy was trained with, not whatever the cache holds today
+            self.venv.core.observer.normalizer = spec.normalizer
+        self.normalizer: ObsNormalizer = self.venv.core.observer.normalizer
+        self.env = VecMonitor(self.venv)
+        return SAC(
+            "MlpPolicy",
+            self.env,
+            learning_rate=sac.learning_rate,
+            buffer_size=self.stage.buffer_size,
+            learning_starts=sac.learning_starts,
+            batch_size=sac.batch_size,
+            tau=sac.tau,
+            gamma=sac.gamma,
+            train_freq=(sac.train_freq_steps, "step"),
+            gradient_steps=sac.gradient_steps,
+            policy_kwargs={"net_arch": list(sac.hidden_units)},
+            seed=self.cfg.seed + steps_before,
+            device=self.run.device,
+            verbose=0,
+        )
+
+    def _restore(self, model: SAC, spec: OvertakingPolicySpec, source: Path, resumed: bool) -> None:
+        """Weights and optimisers from ``source``; the buffer: the stage's own (resumed), the newest rows of the
+        previous stage's (a FIFO stage) or all of it."""
+        try:
+            state = read_agent(source / spec.model, self.fingerprint, spec.weights_sha256)
+            restore_agent(model, state, str(source / spec.model))
+            if resumed:
+                if (self.folder / BUFFER_NAME).is_file():
+                    self.buffer_restored = load_buffer(model.replay_buffer, self.folder / BUFFER_NAME, self.fingerprint)
+            elif self.stage.fifo_from_previous:
+                kept = ReplayBuffer(
+                    int(spec.sac["buffer_size"]),
+                    model.observation_space,
+                    model.action_space,
+                    device="cpu",
+                    n_envs=self.cfg.cars,
+                )
+                load_buffer(kept, source / BUFFER_NAME, self.fingerprint)
+                self.buffer_restored = copy_newest(kept, model.replay_buffer)
+                del kept
+            else:
+                self.buffer_restored = load_buffer(model.replay_buffer, source / BUFFER_NAME, self.fingerprint)
+        except ArtifactError as exc:
+            raise OvertakingRunError(f"cannot continue {self.folder}: {exc}") from None
+        if self.buffer_restored == 0:  # never update on an empty buffer: refill it first
+            model.learning_starts = model.num_timesteps + self.run.sac.learning_starts
+
+    def _start_fresh(self, model: SAC) -> dict[str, Any]:
+        """A stage that starts now: its exploration re-initialised where it asks so, and its new stage.json record."""
+        if self.stage.reinit_exploration:
+            reinit_exploration(model)
+        return {
+            "format": RUN_FORMAT,
+            "stage": self.stage.to_dict(),
+            "status": "running",
+            "start_steps": int(model.num_timesteps),
+            "start_train_time_s": round(self.train_time_before_s, 2),
+            "buffer_at_start": int(self.buffer_restored) * self.cfg.cars,
+            "racing_config": racing_config_to_dict(self.racing_config),
+        }
 
     # ------------------------------------------------------------------ periodic work
     @property

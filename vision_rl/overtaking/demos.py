@@ -1,34 +1,13 @@
 """Demonstrations of the single-car race for the imitation baselines of the overtaking paper's Table III (BC, GAIL).
 
-**The demonstrator.** The built-in AI (:class:`vision_rl.sim.ai_driver.AIDriver`) is tuned at 50 Hz and does not
-complete a lap when its command is simply held for the environments' 0.1 s step (see
-:data:`vision_rl.sim.fleet.AI_CONTROL_DT_S`). The environments take one ``[steer rad, omega]`` per 0.1 s, so
-:class:`HeldAIDriver` expresses the AI in that action space: at each control step it lets the AI drive a copy of
-the world (:func:`vision_rl.sim.world.world_step` is pure) for five of its 0.02 s steps and holds the mean of those
-five commands over the real step. Both are in the same units and bounds (steering angle in rad within the car's
-lock, omega in [-1, 1]), so no other mapping is needed. On the expressway with the tt_cup its protocol lap is
-within 0.02 s of the 50 Hz AI's (100.56 s against 100.58 s, 3 seeds, no wall contact), and since the recorded
-action is the one the environment applied, replaying the actions in ``vision_rl/Overtaking-v1`` reproduces the
-recorded observations.
-
-**The file** (``.npz``, read with ``numpy.load(allow_pickle=False)``; every array CRC-checked by the zip):
-
-- ``observations`` float32 (N, 96): the ``overtaking`` observation as the environment returns it (normalised);
-- ``actions`` float32 (N, 2): ``[steer rad, omega]`` applied at that step;
-- ``expert_actions`` float32 (N, 2): the demonstrator's action there, the label BC and GAIL learn; the same as
-  ``actions`` unless the recording injects noise (``noise``: Gaussian noise on the applied action only, so the
-  demonstrations show the AI bringing the car back from where its own driving would never go);
-- ``rewards`` float32 (N,): the single-car race's reward (Eq. 1, ``c_w`` 0.005);
-- ``episode_starts`` bool (N,): True at the first step of an episode; episodes are contiguous, and the first
-  one is group 0's first episode, the one ``reset(seed=seed)`` of the environment starts;
-- ``meta``: JSON text: format and version, the :func:`demo_fingerprint` (track geometry hash, car, observation
-  kind, length and version, control step, scenario, and the SHA-256 of the normaliser the observations went
-  through), the demonstrator, the recording's settings and figures, and ``arrays_sha256``, a SHA-256 over the
-  arrays' bytes: a file whose arrays were edited and saved again no longer matches it.
-
+The demonstrator, :class:`HeldAIDriver`, is the built-in AI expressed in the environments' 10 Hz action space: the
+AI is tuned at 50 Hz and does not complete a lap when its command is simply held for a 0.1 s step, so at each
+control step it drives a copy of the world for five of its 0.02 s steps and the mean of those commands is held.
+The file is an ``.npz`` read without pickle: the observations, the applied and the demonstrator's actions, the
+rewards, the episode starts, and a ``meta`` record with the :func:`demo_fingerprint` and a SHA-256 over the arrays;
 :func:`load_demos` refuses, in one line each, a file that is damaged, edited, of another format, or recorded for
-another track, car or observation. A recording is written once at its end (to a temporary file, then renamed):
-an interrupted one leaves the previous file as it was.
+another track, car or observation. A recording is written once at its end, atomically. The demonstrator's lap time
+and the file's fields in full: docs/notes/overtaking.md, "demos.py".
 """
 
 from __future__ import annotations
@@ -43,7 +22,7 @@ import zipfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -369,6 +348,58 @@ def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -
     the transitions episode by episode; returns the file's figures."""
     check_record_config(cfg)
     t0 = time.perf_counter()
+    recording = _drive_demos(cfg, progress)
+    arrays = _episode_major(recording.steps, recording.episode_ids, cfg.cars)
+    record_s = time.perf_counter() - t0
+    from vision_rl.files import package_version
+
+    meta = {
+        "fingerprint": demo_fingerprint(cfg.track, cfg.car, recording.normalizer),
+        "track": cfg.track,
+        "track_name": load_track(cfg.track).name,
+        "demonstrator": recording.demonstrator,
+        "settings": dataclasses.asdict(cfg),
+        "normalizer": recording.normalizer.to_dict(),
+        "n_transitions": len(arrays["actions"]),
+        "n_episodes": int(arrays["episode_starts"].sum()),
+        "laps_driven": round(recording.laps_driven, 3),
+        "wall_contact_s_in_finished_episodes": round(recording.wall_s, 2),
+        "mean_reward": float(arrays["rewards"].mean()),
+        "record_time_s": round(record_s, 2),
+        "package_version": package_version(),
+    }
+    sha = write_demos(cfg.out, arrays, meta)
+    shown = (
+        "n_transitions",
+        "n_episodes",
+        "laps_driven",
+        "mean_reward",
+        "record_time_s",
+        "demonstrator",
+        "fingerprint",
+    )
+    return {
+        "out": str(cfg.out),
+        "sha256": sha,
+        "transitions_per_s": round(len(arrays["actions"]) / record_s, 1),
+        **{k: meta[k] for k in shown},
+    }
+
+
+class _Recording(NamedTuple):
+    """What :func:`_drive_demos` drove: per step (T, cars, ...) arrays of :data:`ARRAYS` and each group's episode
+    counter, with the laps driven, the wall contact of the finished episodes, the normaliser and the driver."""
+
+    steps: dict[str, list[np.ndarray]]
+    episode_ids: list[np.ndarray]
+    laps_driven: float
+    wall_s: float
+    normalizer: ObsNormalizer
+    demonstrator: dict[str, Any]
+
+
+def _drive_demos(cfg: RecordDemosConfig, progress: DemoProgress | None) -> _Recording:
+    """The demonstrator's steps until the cars together have driven ``cfg.laps`` laps."""
     core = RacingCore(race_config(cfg.track, cfg.car, cfg.cars, cfg.episode_s), seed=cfg.seed)
     try:
         expert = HeldAIDriver(cfg.skill)
@@ -410,57 +441,25 @@ def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -
             starts = done
             if progress is not None:
                 progress(laps_driven, cfg.laps)
-        normalizer = core.observer.normalizer
+        return _Recording(steps, episode_ids, laps_driven, wall_s, core.observer.normalizer, expert.identity)
     finally:
         core.observer.close()
-    # (T, cars, ...) -> episode by episode: group-major, then each group's episodes in time order.
+
+
+def _episode_major(steps: dict[str, list[np.ndarray]], episode_ids: list[np.ndarray], cars: int) -> dict[str, Any]:
+    """(T, cars, ...) -> episode by episode: group-major, then each group's episodes in time order."""
     n_steps = len(steps["actions"])
-    group = np.repeat(np.arange(cfg.cars)[None, :], n_steps, axis=0).ravel()
+    group = np.repeat(np.arange(cars)[None, :], n_steps, axis=0).ravel()
     ep = np.stack(episode_ids).ravel()
-    t = np.repeat(np.arange(n_steps), cfg.cars)
+    t = np.repeat(np.arange(n_steps), cars)
     order = np.lexsort((t, ep, group))
     arrays = {
-        name: np.stack(values).reshape(n_steps * cfg.cars, *np.shape(values[0])[1:])[order]
+        name: np.stack(values).reshape(n_steps * cars, *np.shape(values[0])[1:])[order]
         for name, values in steps.items()
     }
     arrays["observations"] = arrays["observations"].astype(np.float32)
     arrays["episode_starts"] = arrays["episode_starts"].astype(bool)
-    record_s = time.perf_counter() - t0
-    from vision_rl.files import package_version
-
-    meta = {
-        "fingerprint": demo_fingerprint(cfg.track, cfg.car, normalizer),
-        "track": cfg.track,
-        "track_name": load_track(cfg.track).name,
-        "demonstrator": expert.identity,
-        "settings": dataclasses.asdict(cfg),
-        "normalizer": normalizer.to_dict(),
-        "n_transitions": len(arrays["actions"]),
-        "n_episodes": int(arrays["episode_starts"].sum()),
-        "laps_driven": round(laps_driven, 3),
-        "wall_contact_s_in_finished_episodes": round(wall_s, 2),
-        "mean_reward": float(arrays["rewards"].mean()),
-        "record_time_s": round(record_s, 2),
-        "package_version": package_version(),
-    }
-    sha = write_demos(cfg.out, arrays, meta)
-    return {
-        "out": str(cfg.out),
-        "sha256": sha,
-        "transitions_per_s": round(len(arrays["actions"]) / record_s, 1),
-        **{
-            k: meta[k]
-            for k in (
-                "n_transitions",
-                "n_episodes",
-                "laps_driven",
-                "mean_reward",
-                "record_time_s",
-                "demonstrator",
-                "fingerprint",
-            )
-        },
-    }
+    return arrays
 
 
 __all__ = [

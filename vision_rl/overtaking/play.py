@@ -3,7 +3,6 @@ drive a demonstrations file the imitation baselines read (:mod:`vision_rl.overta
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -13,7 +12,7 @@ from vision_rl.envs.observer import Observer
 from vision_rl.evaluation.human import HumanDriver, HumanQuit, check_display
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.protocol import time_laps
-from vision_rl.files import atomic_write
+from vision_rl.files import write_json
 from vision_rl.overtaking.demos import OBSERVATION, demo_fingerprint, environment_normalizer, write_demos
 from vision_rl.overtaking.settings import check_setting, run_setting, summarise_runs
 from vision_rl.sim.track_library import load_track
@@ -119,7 +118,7 @@ def play(cfg: PlayConfig, events=None) -> dict[str, Any]:
         result["quit"] = True
         return result
     evaluation = out / "evaluation.json"
-    atomic_write(evaluation, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
+    write_json(evaluation, record)
     return {
         **result,
         **{k: record[k] for k in ("best_lap_time_s", "n_finished", "limit_lap_time_s", "best_lap")},
@@ -167,5 +166,5 @@ def play_setting(cfg: PlayConfig, events=None) -> dict[str, Any]:
     }
     out = Path(cfg.runs) / "human" / f"{cfg.name}-{track.name}-{cfg.car}-setting-{cfg.setting}" / SETTING_ROW_NAME
     out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(out, lambda tmp: tmp.write_text(json.dumps(row, indent=2)))
+    write_json(out, row)
     return {**row, "quit": quit_run, "setting_json": str(out)}

@@ -1,26 +1,12 @@
-"""The overtaking paper's evaluation (section IV-C, Figs. 3-5): settings A and B, and the learning curves.
+"""`evaluate-overtaking`: the overtaking paper's evaluation (section IV-C, Figs. 3-6): settings A and B, the
+analysis of one run (Fig. 6), and the learning curves (Fig. 3).
 
-**Settings A and B.** Five built-in AI opponents ahead of the agent's car, 50 m (A) or 200 m (B) apart along the
-centre line: the agent starts on the start/finish line (s = 0) on the racing line at the built-in AI's
-default-skill speed, opponent k at s = k x separation on the racing line at its own skill's speed. Run k draws,
-from ``numpy.random.default_rng(seed + k)``, the opponents' skills (uniform in the environments'
-``OPPONENT_SKILL_RANGE``, so the same for every agent evaluated with the same seed) and the agent's start jitter
-(as the lap-time protocol's: +-0.25 m lateral, +-2 % speed). The runs go at once, each in its own collision group
-of one world stepped at the built-in AI's 0.02 s; the agent's driver acts at its own rate (a policy every 0.1 s)
-and the opponents are driven by :class:`vision_rl.sim.fleet.AIFleet`.
-
-A run ends when the agent leads all five by ``lead_margin_m`` of centre-line progress ("all 5 overtaken"), when
-it is stuck (:data:`vision_rl.sim.fleet.STUCK_RULE`) or at the time limit. Per run, the paper's four metrics:
-total travel time (s, until the run ended), total travel distance (the path length of the agent's centre, m),
-total car-collision time and total wall-collision time (s), plus the number of opponents the agent is ahead of
-at the end and whether all five were overtaken. Over the runs: mean, standard deviation and best (the lowest) of
-each metric, and how many runs overtook all five. The built-in AI driving the agent's car
-(:class:`~vision_rl.evaluation.protocol.BuiltinAI` at its default skill) is the reference row, drawn as the dashed
-lines of the bar charts where the paper draws its human's best.
-
-**Learning curves** (Fig. 3): the overtaking return of the periodic evaluations of curriculum and standard SAC
-runs (:func:`vision_rl.overtaking.curriculum.learning_curve`) over training seeds, mean and spread, with the
-stage switches marked.
+Settings A and B put five built-in AI opponents ahead of the agent's car, 50 m (A) or 200 m (B) apart along the
+centre line; the runs go at once in one world, each in its own collision group, until the agent leads all five, is
+stuck or reaches the time limit. Per run, the paper's four metrics (total travel time and distance, car- and
+wall-collision time) and the cars overtaken; over the runs, mean, standard deviation and best, beside the built-in
+AI driving the agent's car (the reference row). The learning curves put the overtaking return of curriculum and
+standard SAC runs on one axis. The rules in full: docs/notes/overtaking.md, "settings.py".
 """
 
 from __future__ import annotations
@@ -35,7 +21,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from vision_rl.evaluation.protocol import START_JITTER_LATERAL_M, START_JITTER_SPEED, BuiltinAI, Driver
-from vision_rl.files import atomic_write
+from vision_rl.files import atomic_write, write_json
 from vision_rl.overtaking.curriculum import learning_curve, load_overtaking_policy
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE
 from vision_rl.sim.driving import line_and_profile
@@ -110,7 +96,7 @@ def run_setting(
     time_limit_s: float = 0.0,
     lead_margin_m: float = LEAD_MARGIN_M,
 ) -> tuple[list[dict[str, Any]], list[RunTrace]]:
-    """``runs`` runs of ``setting`` with ``driver`` on the agent's car (see the module's rules): one dict of
+    """``runs`` runs of ``setting`` with ``driver`` on the agent's car (see the module's docstring): one dict of
     metrics per run, and each run's :class:`RunTrace`."""
     separation_m = check_setting(setting)
     if runs < 1:
@@ -121,6 +107,43 @@ def run_setting(
     every = ai_ticks(driver.control_dt_s)
     if every is None:
         raise SettingError(f"a driver must act every {AI_CONTROL_DT_S} s or a whole multiple of it")
+    field = _place_runs(driver, track, car, runs, seed, separation_m)
+    steps = math.ceil(limit_s / AI_CONTROL_DT_S - 1e-9)
+    tracer = _Tracer(field.world, field.ego, runs, steps)
+    end, reason = _drive_runs(driver, field, tracer, steps, every, lead_margin_m)
+    return [
+        {
+            "run": r,
+            "seed": seed + r,
+            "opponent_skills": [round(float(x), 4) for x in field.skill[r, 1:]],
+            **{name: round(float(end[name][r]), 3) for name in METRICS},
+            "overtaken": int(end["overtaken"][r]),
+            "all_overtaken": reason[r] == "all overtaken",
+            "end": reason[r],
+        }
+        for r in range(runs)
+    ], tracer.traces()
+
+
+class _Field(NamedTuple):
+    """The runs of a setting at their start: the agent's car and its five opponents per run, one group each."""
+
+    world: World
+    fleet: AIFleet
+    ego: np.ndarray
+    """(runs,) the agents' car ids."""
+    skill: np.ndarray
+    """(runs, 6) the cars' skills (the agent's column the default)."""
+    start_gap_m: np.ndarray
+    """(5,) each opponent's start lead over the agent along the centre line, m."""
+    at_reset_m: np.ndarray
+    """Every car's unwrapped centre-line progress at the start, m."""
+    stuck: StuckDetector
+
+
+def _place_runs(driver: Driver, track: Track, car: VehicleParams, runs: int, seed: int, separation_m: float) -> _Field:
+    """One world of ``runs`` groups: opponents on the racing line at their skill's speed, the agent on the start
+    line with run ``r``'s draws from ``default_rng(seed + r)`` (the opponents' skills, the agent's start jitter)."""
     k = OPPONENTS + 1
     n = runs * k
     groups = np.repeat(np.arange(runs), k)
@@ -145,37 +168,40 @@ def run_setting(
         speed_mps=ego_speed,
         car_ids=ego,
     )
-    at_reset = world.state.unwrapped_s_m.copy()
+    at_reset_m = world.state.unwrapped_s_m.copy()
     driver.reset(world, ego)
     stuck = StuckDetector(world.state.unwrapped_s_m[ego], AI_CONTROL_DT_S, STUCK_RULE)
+    return _Field(world, fleet, ego, skill, start_gap_m, at_reset_m, stuck)
 
-    active = np.ones(runs, dtype=bool)
-    distance_m = np.zeros(runs)
-    end = {name: np.zeros(runs) for name in (*METRICS, "overtaken")}
-    reason = np.array(["time limit"] * runs, dtype=object)
-    action = np.zeros((runs, 2))
-    gap = np.tile(start_gap_m, (runs, 1))
-    steps = math.ceil(limit_s / AI_CONTROL_DT_S - 1e-9)
-    trace_every = round(TRACE_DT_S / AI_CONTROL_DT_S)
-    samples = np.zeros(runs, dtype=np.int64)
-    rows_max = steps // trace_every + 2
-    trace = {
-        name: np.zeros((rows_max, runs, *shape))
-        for name, shape in (
-            ("time_s", ()),
-            ("x_m", (k,)),
-            ("y_m", (k,)),
-            ("yaw_rad", (k,)),
-            ("speed_mps", ()),
-            ("gap_m", (k - 1,)),
-            ("car_contact_s", ()),
-            ("wall_contact_s", ()),
-        )
-    }
 
-    def record(which: np.ndarray) -> None:
-        st, rows, ids = world.state, samples[which], ego[which]
-        cars = ids[:, None] + np.arange(k)
+class _Tracer:
+    """Every run's :class:`RunTrace`, sampled into preallocated arrays every :data:`TRACE_DT_S` and where a run
+    ends."""
+
+    def __init__(self, world: World, ego: np.ndarray, runs: int, steps: int) -> None:
+        k = OPPONENTS + 1
+        self.world, self.ego, self.k, self.runs = world, ego, k, runs
+        self.every = round(TRACE_DT_S / AI_CONTROL_DT_S)
+        self.samples = np.zeros(runs, dtype=np.int64)
+        rows_max = steps // self.every + 2
+        self.trace = {
+            name: np.zeros((rows_max, runs, *shape))
+            for name, shape in (
+                ("time_s", ()),
+                ("x_m", (k,)),
+                ("y_m", (k,)),
+                ("yaw_rad", (k,)),
+                ("speed_mps", ()),
+                ("gap_m", (k - 1,)),
+                ("car_contact_s", ()),
+                ("wall_contact_s", ()),
+            )
+        }
+
+    def record(self, which: np.ndarray, gap: np.ndarray) -> None:
+        """A sample of the runs ``which``; ``gap`` (runs, 5): each opponent's lead over the agent now, m."""
+        st, rows, ids = self.world.state, self.samples[which], self.ego[which]
+        cars = ids[:, None] + np.arange(self.k)
         for name, value in (
             ("time_s", st.time_s[ids]),
             ("x_m", st.vehicle.x_m[cars]),
@@ -186,29 +212,48 @@ def run_setting(
             ("car_contact_s", st.car_contact_time_s[ids]),
             ("wall_contact_s", st.wall_contact_time_s[ids]),
         ):
-            trace[name][rows, which] = value
-        samples[which] += 1
+            self.trace[name][rows, which] = value
+        self.samples[which] += 1
 
-    record(np.arange(runs))
+    def traces(self) -> list[RunTrace]:
+        return [
+            RunTrace(**{name: values[: self.samples[r], r] for name, values in self.trace.items()})
+            for r in range(self.runs)
+        ]
+
+
+def _drive_runs(
+    driver: Driver, field: _Field, tracer: _Tracer, steps: int, every: int, lead_margin_m: float
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Step the world until every run has ended (see the module's docstring); returns each run's metrics at its end
+    and why it ended."""
+    world, ego = field.world, field.ego
+    runs, k = len(ego), OPPONENTS + 1
+    active = np.ones(runs, dtype=bool)
+    distance_m = np.zeros(runs)
+    end = {name: np.zeros(runs) for name in (*METRICS, "overtaken")}
+    reason = np.array(["time limit"] * runs, dtype=object)
+    action = np.zeros((runs, 2))
+    gap = np.tile(field.start_gap_m, (runs, 1))
+    tracer.record(np.arange(runs), gap)
     for step in range(steps):
         if step % every == 0:
             action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(runs, 2)
-        fleet.advance(1, ego, action[:, 0], action[:, 1])
+        field.fleet.advance(1, ego, action[:, 0], action[:, 1])
         st = world.state
         speed = np.hypot(st.vehicle.vx_mps[ego], st.vehicle.vy_mps[ego])
         distance_m += AI_CONTROL_DT_S * speed * active
-        travelled = (st.unwrapped_s_m - at_reset).reshape(runs, k)
-        gap = start_gap_m[None, :] + travelled[:, 1:] - travelled[:, :1]
+        travelled = (st.unwrapped_s_m - field.at_reset_m).reshape(runs, k)
+        gap = field.start_gap_m[None, :] + travelled[:, 1:] - travelled[:, :1]
         led = active & np.all(gap < -lead_margin_m, axis=1)
         stuck_now = np.zeros(runs, dtype=bool)
-        stuck_now[stuck.update(st.unwrapped_s_m[ego])] = True
+        stuck_now[field.stuck.update(st.unwrapped_s_m[ego])] = True
         stuck_now &= active & ~led
-        last = step == steps - 1
-        ended = led | stuck_now | (active & last)
-        if (step + 1) % trace_every == 0:
-            record(np.flatnonzero(active))
+        ended = led | stuck_now | (active & (step == steps - 1))
+        if (step + 1) % tracer.every == 0:
+            tracer.record(np.flatnonzero(active), gap)
         elif ended.any():  # only the runs that end get a sample off the grid, so rows_max bounds every run
-            record(np.flatnonzero(ended))
+            tracer.record(np.flatnonzero(ended), gap)
         if ended.any():
             idx = np.flatnonzero(ended)
             end["travel_time_s"][idx] = st.time_s[ego[idx]]
@@ -221,19 +266,7 @@ def run_setting(
             active &= ~ended
         if not active.any():
             break
-    traces = [RunTrace(**{name: values[: samples[r], r] for name, values in trace.items()}) for r in range(runs)]
-    return [
-        {
-            "run": r,
-            "seed": seed + r,
-            "opponent_skills": [round(float(x), 4) for x in skill[r, 1:]],
-            **{name: round(float(end[name][r]), 3) for name in METRICS},
-            "overtaken": int(end["overtaken"][r]),
-            "all_overtaken": reason[r] == "all overtaken",
-            "end": reason[r],
-        }
-        for r in range(runs)
-    ], traces
+    return end, reason
 
 
 def summarise_runs(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -358,18 +391,13 @@ def _policy_name(path: Path) -> str:
 def write_setting_outputs(result: dict[str, Any], out: str | os.PathLike[str]) -> dict[str, str]:
     """``overtaking_setting_<X>.json`` and the bar chart ``overtaking_setting_<X>.png`` (the paper's Figs. 4-5:
     mean with the standard deviation as error bars, the best run as a dot, the reference's best dashed)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     stem = f"overtaking_setting_{result['setting']}"
     json_path, png_path = out / f"{stem}.json", out / f"{stem}.png"
-    atomic_write(json_path, lambda tmp: tmp.write_text(json.dumps(result, indent=2)))
+    write_json(json_path, result)
     rows = result["drivers"]
-    fig, axes = plt.subplots(1, len(METRICS), figsize=(4.0 * len(METRICS), 4.0))
+    fig, axes = _pyplot().subplots(1, len(METRICS), figsize=(4.0 * len(METRICS), 4.0))
     x = np.arange(len(rows))
     for ax, metric in zip(axes, METRICS, strict=True):
         means = [r["summary"][metric]["mean"] for r in rows]
@@ -392,10 +420,7 @@ def write_setting_outputs(result: dict[str, Any], out: str | os.PathLike[str]) -
         fontsize=9,
     )
     fig.tight_layout()
-    tmp = png_path.with_name(f".{png_path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, png_path)
+    _save_figure(fig, png_path)
     return {"json": str(json_path), "png": str(png_path)}
 
 
@@ -511,24 +536,39 @@ def write_analysis_outputs(
     long and wall collisions as short vertical lines, as the paper's Fig. 6); ``overtaking_paths.png`` (the agent's
     path coloured by speed 3 s either side of each pass, with the passed car's path); and, with ``frames``, the
     agent's driver view as it closes in on each pass (``overtake_<k>.png``, at the moment's approach sample)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    files: dict[str, Any] = {"json": str(out / "overtaking_analysis.json")}
+    write_json(out / "overtaking_analysis.json", analysis, indent=None)
+    files["timeline"] = _save_figure(_timeline_figure(analysis), out / "overtaking_timeline.png")
+    moments = analysis["agent"]["moments"]
+    if moments:
+        files["paths"] = _save_figure(_paths_figure(moments, trace, track), out / "overtaking_paths.png")
+    if frames and moments:
+        files["frames"] = _write_pass_views(moments, trace, track, out, car_length_m, car_width_m)
+    return files
+
+
+def _pyplot() -> Any:
+    """matplotlib's pyplot on the Agg backend (no display needed)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    files: dict[str, Any] = {"json": str(out / "overtaking_analysis.json")}
-    atomic_write(out / "overtaking_analysis.json", lambda tmp: tmp.write_text(json.dumps(analysis)))
+    return plt
 
-    def save(fig: Any, path: Path) -> str:
-        tmp = path.with_name(f".{path.name}.tmp.png")
-        fig.savefig(tmp, dpi=110)
-        plt.close(fig)
-        os.replace(tmp, path)
-        return str(path)
 
-    fig, axes = plt.subplots(2, 1, figsize=(8.0, 5.0), sharex=True)
+def _save_figure(fig: Any, path: Path) -> str:
+    """``fig`` as a PNG at ``path``, written atomically, then closed."""
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    _pyplot().close(fig)
+    return str(path)
+
+
+def _timeline_figure(analysis: dict[str, Any]) -> Any:
+    """Cars overtaken against time, the agent's run above the built-in AI's, with their contacts."""
+    fig, axes = _pyplot().subplots(2, 1, figsize=(8.0, 5.0), sharex=True)
     for ax, record, color in zip(axes, (analysis["agent"], analysis["reference"]), ("C0", "0.4"), strict=True):
         ax.step(record["time_s"], record["overtaken"], where="post", color=color)
         for start, _ in record["car_contacts"]:
@@ -547,49 +587,61 @@ def write_analysis_outputs(
     axes[1].set_xlabel("time (s)")
     fig.suptitle(f"setting {analysis['setting']}, {analysis['track_name']}, {analysis['car']}", fontsize=9)
     fig.tight_layout()
-    files["timeline"] = save(fig, out / "overtaking_timeline.png")
+    return fig
 
-    moments = analysis["agent"]["moments"]
-    if moments:
-        fig, axes = plt.subplots(1, len(moments), figsize=(3.2 * len(moments), 3.6), squeeze=False)
-        half = round(3.0 / TRACE_DT_S)
-        windows = [slice(max(m["sample"] - half, 0), m["sample"] + half + 1) for m in moments]
-        kmh = 3.6 * trace.speed_mps
-        norm = matplotlib.colors.Normalize(min(kmh[w].min() for w in windows), max(kmh[w].max() for w in windows))
-        for ax, moment, window in zip(axes[0], moments, windows, strict=True):
-            i, j = moment["sample"], moment["opponent"]
-            xs, ys = trace.x_m[window], trace.y_m[window]
-            for wall in (track.left_wall_xy_m, track.right_wall_xy_m):
-                ax.plot(wall[:, 0], wall[:, 1], color="0.5", linewidth=0.8)
-            ax.plot(xs[:, j], ys[:, j], color="0.2", linestyle="--", linewidth=1.0, label=f"opponent {j}")
-            points = ax.scatter(xs[:, 0], ys[:, 0], c=kmh[window], cmap="viridis", norm=norm, s=6)
-            ax.plot(trace.x_m[i, 0], trace.y_m[i, 0], "r+", markersize=10)
-            centre = 0.5 * np.array([xs.min() + xs.max(), ys.min() + ys.max()])
-            box = 0.5 * max(np.ptp(xs), np.ptp(ys)) + 15.0  # a square view: the path's extent and a margin, m
-            ax.set_xlim(centre[0] - box, centre[0] + box)
-            ax.set_ylim(centre[1] - box, centre[1] + box)
-            ax.set_aspect("equal")
-            ax.set_title(f"pass {j} at {moment['time_s']:.1f} s, {moment['speed_kmh']:.0f} km/h", fontsize=8)
-            ax.tick_params(labelsize=6)
-        fig.colorbar(points, ax=axes[0].tolist(), label="agent speed (km/h)", shrink=0.8)
-        files["paths"] = save(fig, out / "overtaking_paths.png")
-    if frames and moments:
-        from PIL import Image
 
-        from vision_rl.render import Renderer
+def _paths_figure(moments: list[dict[str, Any]], trace: RunTrace, track: Track) -> Any:
+    """One panel per pass: the agent's path coloured by speed 3 s either side of it, the passed car's dashed."""
+    import matplotlib
 
-        samples = [m["approach_sample"] for m in moments]
-        with Renderer(track, car_length_m=car_length_m, car_width_m=car_width_m) as renderer:
-            views = [
-                renderer.render(trace.x_m[i], trace.y_m[i], trace.yaw_rad[i], view_ids=np.array([0]))[0]
-                for i in samples
-            ]
-        files["frames"] = []
-        for moment, view in zip(moments, views, strict=True):
-            path = out / f"overtake_{moment['opponent']}.png"
-            atomic_write(path, lambda tmp, v=view: Image.fromarray(v).save(tmp, format="PNG"))
-            files["frames"].append(str(path))
-    return files
+    fig, axes = _pyplot().subplots(1, len(moments), figsize=(3.2 * len(moments), 3.6), squeeze=False)
+    half = round(3.0 / TRACE_DT_S)
+    windows = [slice(max(m["sample"] - half, 0), m["sample"] + half + 1) for m in moments]
+    kmh = 3.6 * trace.speed_mps
+    norm = matplotlib.colors.Normalize(min(kmh[w].min() for w in windows), max(kmh[w].max() for w in windows))
+    for ax, moment, window in zip(axes[0], moments, windows, strict=True):
+        i, j = moment["sample"], moment["opponent"]
+        xs, ys = trace.x_m[window], trace.y_m[window]
+        for wall in (track.left_wall_xy_m, track.right_wall_xy_m):
+            ax.plot(wall[:, 0], wall[:, 1], color="0.5", linewidth=0.8)
+        ax.plot(xs[:, j], ys[:, j], color="0.2", linestyle="--", linewidth=1.0, label=f"opponent {j}")
+        points = ax.scatter(xs[:, 0], ys[:, 0], c=kmh[window], cmap="viridis", norm=norm, s=6)
+        ax.plot(trace.x_m[i, 0], trace.y_m[i, 0], "r+", markersize=10)
+        centre = 0.5 * np.array([xs.min() + xs.max(), ys.min() + ys.max()])
+        box = 0.5 * max(np.ptp(xs), np.ptp(ys)) + 15.0  # a square view: the path's extent and a margin, m
+        ax.set_xlim(centre[0] - box, centre[0] + box)
+        ax.set_ylim(centre[1] - box, centre[1] + box)
+        ax.set_aspect("equal")
+        ax.set_title(f"pass {j} at {moment['time_s']:.1f} s, {moment['speed_kmh']:.0f} km/h", fontsize=8)
+        ax.tick_params(labelsize=6)
+    fig.colorbar(points, ax=axes[0].tolist(), label="agent speed (km/h)", shrink=0.8)
+    return fig
+
+
+def _write_pass_views(
+    moments: list[dict[str, Any]],
+    trace: RunTrace,
+    track: Track,
+    out: Path,
+    car_length_m: float,
+    car_width_m: float,
+) -> list[str]:
+    """The agent's driver view at each pass's approach sample, ``overtake_<k>.png``; returns the paths."""
+    from PIL import Image
+
+    from vision_rl.render import Renderer
+
+    samples = [m["approach_sample"] for m in moments]
+    with Renderer(track, car_length_m=car_length_m, car_width_m=car_width_m) as renderer:
+        views = [
+            renderer.render(trace.x_m[i], trace.y_m[i], trace.yaw_rad[i], view_ids=np.array([0]))[0] for i in samples
+        ]
+    paths = []
+    for moment, view in zip(moments, views, strict=True):
+        path = out / f"overtake_{moment['opponent']}.png"
+        atomic_write(path, lambda tmp, v=view: Image.fromarray(v).save(tmp, format="PNG"))
+        paths.append(str(path))
+    return paths
 
 
 # ------------------------------------------------------------------------------------------------- Fig. 3
@@ -671,17 +723,12 @@ def _nan_to_none(values: np.ndarray) -> list[float | None]:
 
 def write_learning_curves(result: dict[str, Any], out: str | os.PathLike[str]) -> dict[str, str]:
     """``learning_curves_<axis>.json`` and ``.png``: mean lines with a +-1 std band, stage switches dashed red."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     stem = f"learning_curves_{result['axis']}"
     json_path, png_path = out / f"{stem}.json", out / f"{stem}.png"
-    atomic_write(json_path, lambda tmp: tmp.write_text(json.dumps(result, indent=2)))
-    fig, ax = plt.subplots(figsize=(7.0, 4.0))
+    write_json(json_path, result)
+    fig, ax = _pyplot().subplots(figsize=(7.0, 4.0))
     for label, color in (("curriculum", "C0"), ("standard", "C1")):
         data = result[label]
         if not data["x"]:
@@ -710,10 +757,7 @@ def write_learning_curves(result: dict[str, Any], out: str | os.PathLike[str]) -
     ax.set_ylabel("overtaking return (Eq. 2, stage-2 setting)")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    tmp = png_path.with_name(f".{png_path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, png_path)
+    _save_figure(fig, png_path)
     return {"json": str(json_path), "png": str(png_path)}
 
 

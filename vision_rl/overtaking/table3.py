@@ -5,13 +5,11 @@ Every row is timed by the one lap-time protocol (:func:`vision_rl.evaluation.pro
 gail, sac, td3; a train-overtaking stage-1 folder counts as sac) and, for the record, the demonstrator of the
 imitation baselines (the AI held at 10 Hz, :class:`~vision_rl.overtaking.demos.HeldAIDriver`). A row's figures are
 the best scored lap over the protocol's seeds and that lap's average speed (centre-line length over lap time,
-km/h); with several runs of one algorithm (training seeds) the fastest run is the row, as the vision paper scores
-(Sec. 4: "the fastest time was used"), every run is listed, and ``over_training_seeds`` gives the mean and spread
-of the runs' best laps (:func:`~vision_rl.evaluation.leaderboard.aggregate_seeds`). Each row is printed
-beside the paper's, both as ratios to their own table's built-in AI (lap time and speed), since our track and car
-are stand-ins for GT Sport's. The PlaNet row is timed from ``dreamer`` runs: PlaNet's world model with its
-successor's learned actor instead of its per-step planner (:mod:`.dreamer` says why). An algorithm without a run
-reads "not trained".
+km/h); with several runs of one algorithm (training seeds) the fastest run is the row, every run is listed, and
+``over_training_seeds`` gives the mean and spread of the runs' best laps. Each row stands beside the paper's as
+ratios to their own table's built-in AI. The PlaNet row is timed from ``dreamer`` runs (:mod:`.dreamer` says why).
+An algorithm without a run reads "not trained". Why ratios, and the vision paper's rule: docs/notes/overtaking.md,
+"table3.py".
 """
 
 from __future__ import annotations
@@ -123,86 +121,26 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
         if not ok:
             raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
     track = load_track(cfg.track)
-    seeds = range(cfg.seeds)
     explicit = _split(cfg.runs)
     paths = [Path(p) for p in explicit] if explicit else find_runs(cfg.runs_root)
     repeated = sorted({str(p) for p in paths if paths.count(p) > 1})
     if repeated:
         raise ValueError(f"--runs names {', '.join(repeated)} more than once: each run is one training seed")
-    loaded, skipped = [], []
-    for path in paths:
-        try:
-            policy = load_baseline(path)
-            check_table_track(policy, cfg.track, cfg.car)
-        except (PolicyError, BaselineError) as exc:
-            if explicit:
-                raise
-            skipped.append({"run": str(path), "reason": str(exc)})
-            continue
-        loaded.append((path, policy))
+    loaded, skipped = _load_runs(paths, cfg, refuse=bool(explicit))
 
     def timed(driver) -> dict[str, Any]:
-        return time_laps(driver, track, cfg.car, seeds, cfg.laps, cfg.time_limit_s).summary()
+        return time_laps(driver, track, cfg.car, range(cfg.seeds), cfg.laps, cfg.time_limit_s).summary()
 
     if progress is not None:
         progress("ai")
     ai = _timed_row("ai", _figures(timed(BuiltinAI())))
-    rows = [ai]
-    for algo, key in ROW_OF_ALGO.items():
-        runs, summaries = [], []
-        for path, policy in loaded:
-            if baseline_algo(policy.spec) != algo:
-                continue
-            if progress is not None:
-                progress(f"{algo} {path}")
-            driver = policy.driver()
-            try:
-                summaries.append(timed(driver))
-            finally:
-                driver.close()
-            runs.append(
-                {
-                    "run": str(path),
-                    "num_timesteps": policy.spec.num_timesteps,
-                    "train_time_s": policy.spec.train_time_s,
-                    "seed": policy.spec.seed,
-                    **_figures(summaries[-1]),
-                }
-            )
-        if not runs:
-            rows.append(
-                {"key": key, "name": ROW_NAMES[key], "status": "not trained", "lap_time_s": None, "avg_speed_kmh": None}
-            )
-            continue
-        best = min(runs, key=lambda r: math.inf if r["lap_time_s"] is None else r["lap_time_s"])
-        row = {
-            "key": key,
-            "name": ROW_NAMES[key],
-            "status": "timed" if best["lap_time_s"] is not None else "DNF",
-            **{k: v for k, v in best.items() if k != "run"},
-            "run": best["run"],
-            "runs": runs,
-            "over_training_seeds": aggregate_seeds(summaries),
-        }
-        rows.append(row)
+    rows = [ai, *(_algo_row(algo, key, loaded, timed, progress) for algo, key in ROW_OF_ALGO.items())]
     if cfg.demonstrator:
         if progress is not None:
             progress("demonstrator")
         rows.append(_timed_row("demonstrator", _figures(timed(HeldAIDriver()))))
-    paper_ai = PAPER_TABLE3["ai"]
     for row in rows:
-        _ratios(row, ai)
-        paper = PAPER_TABLE3.get(row["key"])
-        row["paper"] = (
-            None
-            if paper is None
-            else {
-                "lap_time_s": paper[0],
-                "avg_speed_kmh": paper[1],
-                "lap_ratio_to_ai": paper[0] / paper_ai[0],
-                "speed_ratio_to_ai": paper[1] / paper_ai[1],
-            }
-        )
+        _beside_the_paper(row, ai)
     from vision_rl.evaluation.protocol import rules
 
     return {
@@ -215,6 +153,81 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
         "rows": rows,
         "skipped": skipped,
     }
+
+
+def _load_runs(paths: list[Path], cfg: Table3Config, refuse: bool) -> tuple[list[tuple[Path, Any]], list[dict]]:
+    """(the runs' policies, the runs skipped and why); with ``refuse`` (runs named by --runs) a run that cannot be
+    timed on the table's track and car raises instead."""
+    loaded, skipped = [], []
+    for path in paths:
+        try:
+            policy = load_baseline(path)
+            check_table_track(policy, cfg.track, cfg.car)
+        except (PolicyError, BaselineError) as exc:
+            if refuse:
+                raise
+            skipped.append({"run": str(path), "reason": str(exc)})
+            continue
+        loaded.append((path, policy))
+    return loaded, skipped
+
+
+def _algo_row(
+    algo: str,
+    key: str,
+    loaded: list[tuple[Path, Any]],
+    timed: Callable[[Any], dict[str, Any]],
+    progress: Table3Progress | None,
+) -> dict[str, Any]:
+    """The row of one algorithm: each of its runs timed, the fastest the row's figures."""
+    runs, summaries = [], []
+    for path, policy in loaded:
+        if baseline_algo(policy.spec) != algo:
+            continue
+        if progress is not None:
+            progress(f"{algo} {path}")
+        driver = policy.driver()
+        try:
+            summaries.append(timed(driver))
+        finally:
+            driver.close()
+        runs.append(
+            {
+                "run": str(path),
+                "num_timesteps": policy.spec.num_timesteps,
+                "train_time_s": policy.spec.train_time_s,
+                "seed": policy.spec.seed,
+                **_figures(summaries[-1]),
+            }
+        )
+    if not runs:
+        return {"key": key, "name": ROW_NAMES[key], "status": "not trained", "lap_time_s": None, "avg_speed_kmh": None}
+    best = min(runs, key=lambda r: math.inf if r["lap_time_s"] is None else r["lap_time_s"])
+    return {
+        "key": key,
+        "name": ROW_NAMES[key],
+        "status": "timed" if best["lap_time_s"] is not None else "DNF",
+        **{k: v for k, v in best.items() if k != "run"},
+        "run": best["run"],
+        "runs": runs,
+        "over_training_seeds": aggregate_seeds(summaries),
+    }
+
+
+def _beside_the_paper(row: dict[str, Any], ai: dict[str, Any]) -> None:
+    """The row's ratios to our built-in AI, and the paper's row with its ratios to the paper's AI."""
+    _ratios(row, ai)
+    paper, paper_ai = PAPER_TABLE3.get(row["key"]), PAPER_TABLE3["ai"]
+    row["paper"] = (
+        None
+        if paper is None
+        else {
+            "lap_time_s": paper[0],
+            "avg_speed_kmh": paper[1],
+            "lap_ratio_to_ai": paper[0] / paper_ai[0],
+            "speed_ratio_to_ai": paper[1] / paper_ai[1],
+        }
+    )
 
 
 __all__ = ["ALGOS", "PAPER_TABLE3", "ROW_OF_ALGO", "Table3Config", "find_runs", "table3"]
