@@ -1,36 +1,15 @@
 """DDPG with an asymmetric actor-critic (the Project CARS 2 paper): a pixel actor, a critic on motion and the
 racing line, Ornstein-Uhlenbeck exploration, a replay buffer that stores every frame once, and files without pickle.
 
-Networks (the paper's section IV-D; :class:`DDPGHyper` holds its Table 2):
-
-- actor (:class:`PixelActor`): four 2x2 stride-1 convolutions of 64, 64, 32, 32 filters, each followed by ReLU,
-  2x2 max-pooling and batch-norm, in the order the paper lists them (batch-norm after pooling costs a quarter of
-  batch-norm before it: measured 0.79 against 1.18 s per forward and backward of the trunk at batch 32); the
-  paper's "bottleneck on the third layer" is read as the third convolution halving the width 64 -> 32. Then
-  Dense 150, 300, 300 (ReLU, batch-norm) and four outputs: accelerate and brake ReLU, left and right tanh,
-  initialised by variance scaling of scale 1e-2 (fan-in, truncated normal, as Keras).
-- critic (:class:`Critic`): three pathways, motion (15), goal (3) and action (4), each Dense 150, 300, 300 (ReLU,
-  batch-norm), concatenated into Dense 600 (ReLU) and a linear Q.
-
-Variants, for the ablations: ``asymmetric`` (the paper), ``symmetric`` (the critic also on pixels: a CNN pathway
-like the actor's in place of motion and goal) and ``state-actor`` (the actor on the critic's motion and goal, no
-pixels at all). Motion and goal enter the networks scaled by fixed offsets and scales of the track and car
-(:func:`vision_rl.envs.pixel_racing.critic_input_scale`), stored in the weights.
-
-Why not Stable-Baselines3's DDPG: its dict replay buffer stores every observation twice (as obs and next obs), so
-100,000 frames would take 6.4 GB instead of 3.2 GB, and actor and critic cannot read different keys of the
-observation without replacing its policy class; batch-norm's train/eval modes per network and per-car episode
-streams in one buffer are simpler in the ~300 lines here.
-
-Replay (:class:`FrameReplay`): one row per car and step holding the observation (frame uint8, motion, goal) and,
-once taken, the action, reward and termination; the next observation is the car's following row. An episode's last
-observation gets a row of its own (it has no action), then the next episode starts. Capacity 100,000 rows (the
-paper's buffer; 3.2 GB of 89x120 frames) by default.
-
-Files (:func:`save_agent_file`, :func:`save_replay`): ``torch.save`` of tensors and plain values read with
-``torch.load(weights_only=True)``; the buffer in chunk files (``numpy.savez``, read with ``allow_pickle=False``),
-only those changed since the last save rewritten, named by generation, listed with their SHA-256 in an index that
-is replaced last: a kill at any point leaves the previous complete set.
+The networks are the paper's (section IV-D; :class:`DDPGHyper` holds its Table 2): the actor (:class:`PixelActor`)
+four small convolutions then three dense layers to four key outputs, the critic (:class:`Critic`) three pathways
+(motion, goal, action) into one Q. Variants, for the ablations: ``asymmetric`` (the paper), ``symmetric`` (the
+critic also on pixels) and ``state-actor`` (the actor on the critic's motion and goal, no pixels). The replay
+(:class:`FrameReplay`) holds one row per car and step, the next observation being the car's following row, so
+each frame is stored once; the files (:func:`save_agent_file`, :func:`save_replay`) are read without pickle, the
+buffer in chunk files of which only the changed ones are rewritten, listed in an index that is replaced last. The
+layers in detail, the measurements behind them and why not Stable-Baselines3's DDPG: docs/notes/ddpg.md,
+"agent.py".
 """
 
 from __future__ import annotations
@@ -59,7 +38,7 @@ from vision_rl.envs.pixel_racing import (
     keys_to_action,
 )
 from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
-from vision_rl.files import atomic_write
+from vision_rl.files import atomic_write, write_json
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import get_preset
 from vision_rl.sim.world import World, WorldState
@@ -454,7 +433,7 @@ def save_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint
         "pos": buffer.pos.tolist(),
         "chunks": chunks,
     }
-    atomic_write(index_path, lambda tmp: tmp.write_text(json.dumps(index)))
+    write_json(index_path, index, indent=None)
     buffer.dirty[:] = False
     keep = {c["file"] for c in chunks.values()}
     for stale in folder.glob("chunk_*.npz"):

@@ -1,17 +1,16 @@
 """`train-ddpg`: DDPG with an asymmetric actor-critic on ``vision_rl/PixelRacing-v0`` (the Project CARS 2 paper), and
 its ablations (``--variant symmetric``, ``state-actor``).
 
-A run folder holds ``ddpg.pt`` (weights, targets, optimisers, noise, counters; no pickle) and ``ddpg.json`` (its
+A run folder holds ``ddpg.pt`` (weights, targets, optimisers, noise, counters; no pickle), ``ddpg.json`` (its
 sidecar: variant, environment, hyper-parameters, fingerprint, the weights' SHA-256, counters), ``replay/`` (the
 buffer in chunk files, only changed chunks rewritten), ``metrics.jsonl`` (one line per periodic evaluation through
 the lap-time protocol) and ``episodes.jsonl`` (one line per finished training episode: return, steps, distance,
-laps, why it ended).
-
-What survives a kill: the agent is saved every ``checkpoint_every_min`` minutes (light: no buffer) and, with the
-buffer, every ``checkpoint_every_steps``; Ctrl-C (and SIGTERM, which the command maps to it) saves everything and
-returns. ``--resume`` continues with the stored agent and buffer (without a saved buffer it collects
-``learning_starts`` transitions before updating again) and cuts ``episodes.jsonl`` back to the checkpoint's episodes.
-``--train-minutes`` bounds the run's training time over all its sessions, for comparisons at equal wall-clock.
+laps, why it ended). What survives a kill: the agent is saved every ``checkpoint_every_min`` minutes (light: no
+buffer) and, with the buffer, every ``checkpoint_every_steps``; Ctrl-C (and SIGTERM, which the command maps to it)
+saves everything and returns. ``--resume`` continues with the stored agent and buffer (without a saved buffer it
+collects ``learning_starts`` transitions before updating again) and cuts ``episodes.jsonl`` back to the
+checkpoint's episodes. ``--train-minutes`` bounds the run's training time over all its sessions, for comparisons at
+equal wall-clock.
 """
 
 from __future__ import annotations
@@ -48,7 +47,7 @@ from vision_rl.ddpg.sampling import episode_record
 from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.protocol import time_laps
-from vision_rl.files import atomic_write
+from vision_rl.files import atomic_write, write_json
 from vision_rl.sim.ai_driver import DEFAULT_SKILL
 from vision_rl.training.interrupts import HeldSignal
 from vision_rl.training.persist import ArtifactError, check_fingerprint
@@ -325,7 +324,7 @@ class _Run:
             "seed": (self.previous or {}).get("seed", self.cfg.seed),
             "train_config": (self.previous or {}).get("train_config", train_config),
         }
-        atomic_write(self.out / SIDECAR_NAME, lambda tmp: tmp.write_text(json.dumps(sidecar, indent=2)))
+        write_json(self.out / SIDECAR_NAME, sidecar)
         if buffer is not None:
             save_replay(buffer, self.out / REPLAY_DIR, self.fingerprint)
 
@@ -383,7 +382,6 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
     if cfg.torch_threads > 0:
         torch.set_num_threads(cfg.torch_threads)
     hyper, env = run.hyper, run.env
-    n = env.n_cars
     workers = cfg.workers or 0
     trained_with = (run.previous or {}).get("train_config", {}).get("workers") or 0
     if run.previous is not None and trained_with != workers:
@@ -393,84 +391,37 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
         )
     # A resumed session draws new start points and noise: reusing the first session's would replay its episodes.
     session_seed = cfg.seed + run.num_steps
-    agent = DDPGAgent(hyper, env, n_cars=n, seed=session_seed, device=cfg.device)
-    buffer = FrameReplay(hyper.buffer_size, n * max(workers, 1), env.image_hw_px if env.frames else None)
-    learning_starts = cfg.learning_starts
-    restored = 0
-    if run.previous is not None:
-        try:
-            state = read_agent_file(run.out / AGENT_NAME, run.previous["weights_sha256"])
-            check_fingerprint(state["fingerprint"], run.fingerprint, str(run.out / AGENT_NAME))
-            agent.load_state(state, str(run.out / AGENT_NAME))
-            if (run.out / REPLAY_DIR / "index.json").is_file():
-                restored = load_replay(buffer, run.out / REPLAY_DIR, run.fingerprint)
-        except ArtifactError as exc:
-            raise DDPGError(f"cannot resume: {exc}") from None
-        if restored == 0:  # never update on an empty buffer: refill it first
-            learning_starts = cfg.learning_starts
-        else:
-            learning_starts = 0
+    agent = DDPGAgent(hyper, env, n_cars=env.n_cars, seed=session_seed, device=cfg.device)
+    buffer = FrameReplay(hyper.buffer_size, env.n_cars * max(workers, 1), env.image_hw_px if env.frames else None)
+    restored, learning_starts = _restore(run, agent, buffer)
     rng = np.random.default_rng(session_seed + 1)
-    next_eval = (run.num_steps // cfg.eval_every_steps + 1) * cfg.eval_every_steps if cfg.eval_every_steps else None
-    next_ckpt = (
-        (run.num_steps // cfg.checkpoint_every_steps + 1) * cfg.checkpoint_every_steps
-        if cfg.checkpoint_every_steps
-        else None
-    )
-    last_light = time.perf_counter()
+    hooks = _StepHooks(run, agent, buffer, progress)
     interrupted = False
     sampling = None
-    episodes_file = open(run.out / EPISODES_NAME, "a")  # closed in the finally below
-
-    def after_vector_step() -> None:
-        """What follows every step of all cars, here or from a sampler: evaluation, checkpoints, progress."""
-        nonlocal next_eval, next_ckpt, last_light
-        held.release()  # the step is counted and stored: an interrupt held since acts here
-        if next_eval is not None and run.num_steps >= next_eval and cfg.eval_seeds > 0:
-            run.evaluate(agent)
-            next_eval += cfg.eval_every_steps
-        if next_ckpt is not None and run.num_steps >= next_ckpt:
-            run.save(agent, buffer)
-            next_ckpt += cfg.checkpoint_every_steps
-            last_light = time.perf_counter()
-        elif cfg.checkpoint_every_min and time.perf_counter() - last_light >= 60.0 * cfg.checkpoint_every_min:
-            run.save(agent, None)
-            last_light = time.perf_counter()
-        if progress is not None:
-            progress(run.num_steps, cfg.steps, run.last_eval)
-
-    def log_episode(record: dict[str, Any]) -> None:
-        episodes_file.write(
-            json.dumps(
-                {
-                    "episode": run.episodes,
-                    "num_steps": run.num_steps,
-                    **record,
-                    "train_time_s": round(run.train_time_s, 2),
-                }
-            )
-            + "\n"
-        )
-        episodes_file.flush()
-        run.episodes += 1
-
-    held = HeldSignal()
     try:
-        with held.installed():
+        with hooks.held.installed():
             if workers:
                 sampling = _learn_with_samplers(
-                    run, agent, buffer, rng, restored > 0, learning_starts, cluster, log_episode, after_vector_step
+                    run, agent, buffer, rng, restored > 0, learning_starts, cluster, hooks.log_episode, hooks.after_step
                 )
             else:
                 _learn_here(
-                    run, agent, buffer, rng, restored > 0, learning_starts, session_seed, log_episode, after_vector_step
+                    run,
+                    agent,
+                    buffer,
+                    rng,
+                    restored > 0,
+                    learning_starts,
+                    session_seed,
+                    hooks.log_episode,
+                    hooks.after_step,
                 )
         if cfg.eval_seeds > 0 and (run.last_eval is None or run.last_eval["num_steps"] != run.num_steps):
             run.evaluate(agent)
     except KeyboardInterrupt:
         interrupted = True
     finally:
-        episodes_file.close()
+        hooks.close()
     run.save(agent, buffer)
     run.close()
     return {
@@ -492,6 +443,74 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
         "episodes_jsonl": str(run.out / EPISODES_NAME),
         "sampling": sampling,
     }
+
+
+def _restore(run: _Run, agent: DDPGAgent, buffer: FrameReplay) -> tuple[int, int]:
+    """A resumed run's agent and buffer; returns (rows restored, transitions to collect before updating)."""
+    cfg = run.cfg
+    if run.previous is None:
+        return 0, cfg.learning_starts
+    restored = 0
+    try:
+        state = read_agent_file(run.out / AGENT_NAME, run.previous["weights_sha256"])
+        check_fingerprint(state["fingerprint"], run.fingerprint, str(run.out / AGENT_NAME))
+        agent.load_state(state, str(run.out / AGENT_NAME))
+        if (run.out / REPLAY_DIR / "index.json").is_file():
+            restored = load_replay(buffer, run.out / REPLAY_DIR, run.fingerprint)
+    except ArtifactError as exc:
+        raise DDPGError(f"cannot resume: {exc}") from None
+    # Never update on an empty buffer: refill it first.
+    return restored, cfg.learning_starts if restored == 0 else 0
+
+
+class _StepHooks:
+    """What follows every step of all cars, here or from a sampler (evaluation, checkpoints, progress), and the
+    line of each finished episode in episodes.jsonl; it holds the schedules' state and the open episodes file."""
+
+    def __init__(self, run: _Run, agent: DDPGAgent, buffer: FrameReplay, progress: Progress | None) -> None:
+        cfg = run.cfg
+        self.run, self.agent, self.buffer, self.progress = run, agent, buffer, progress
+        self.next_eval = _next_multiple(run.num_steps, cfg.eval_every_steps)
+        self.next_checkpoint = _next_multiple(run.num_steps, cfg.checkpoint_every_steps)
+        self.last_light_s = time.perf_counter()
+        self.episodes_file = open(run.out / EPISODES_NAME, "a")  # closed by close()
+        self.held = HeldSignal()
+
+    def after_step(self) -> None:
+        run, cfg = self.run, self.run.cfg
+        self.held.release()  # the step is counted and stored: an interrupt held since acts here
+        if self.next_eval is not None and run.num_steps >= self.next_eval and cfg.eval_seeds > 0:
+            run.evaluate(self.agent)
+            self.next_eval += cfg.eval_every_steps
+        if self.next_checkpoint is not None and run.num_steps >= self.next_checkpoint:
+            run.save(self.agent, self.buffer)
+            self.next_checkpoint += cfg.checkpoint_every_steps
+            self.last_light_s = time.perf_counter()
+        elif cfg.checkpoint_every_min and time.perf_counter() - self.last_light_s >= 60.0 * cfg.checkpoint_every_min:
+            run.save(self.agent, None)
+            self.last_light_s = time.perf_counter()
+        if self.progress is not None:
+            self.progress(run.num_steps, cfg.steps, run.last_eval)
+
+    def log_episode(self, record: dict[str, Any]) -> None:
+        run = self.run
+        line = {
+            "episode": run.episodes,
+            "num_steps": run.num_steps,
+            **record,
+            "train_time_s": round(run.train_time_s, 2),
+        }
+        self.episodes_file.write(json.dumps(line) + "\n")
+        self.episodes_file.flush()
+        run.episodes += 1
+
+    def close(self) -> None:
+        self.episodes_file.close()
+
+
+def _next_multiple(n: int, every: int) -> int | None:
+    """The first multiple of ``every`` after ``n`` (None when ``every`` is 0: never)."""
+    return (n // every + 1) * every if every else None
 
 
 def _learn_here(
@@ -646,6 +665,6 @@ def evaluate_ddpg(
     record["plot"] = str(plot_trajectory(timing, best, plot, f"ddpg {variant}")) if plot else None
     if write:
         out = resolve_agent_path(path).with_name("evaluation.json")
-        atomic_write(out, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
+        write_json(out, record)
         record["evaluation_json"] = str(out)
     return record
