@@ -442,8 +442,19 @@ class Renderer:
 
     # -------------------------------------------------------------- set-up
     def _setup(self, ctx) -> None:
-        import moderngl
+        """Everything a render needs on the GPU, made once: framebuffers, textures, buffers and programs."""
+        self._layout_tiles(ctx)
+        self._make_framebuffers(ctx)
+        self._make_texture(ctx)
+        # Per-view data (uniform block of View structs, 128 bytes each) and a view index per instance.
+        self._views_ubo = ctx.buffer(reserve=_VIEW_BYTES * self.config.max_views)
+        view_index = ctx.buffer(np.arange(self.config.max_views, dtype=np.float32).tobytes())
+        self._make_mesh_buffers(ctx)
+        self._make_background_quads(ctx)
+        self._make_programs(ctx, view_index)
 
+    def _layout_tiles(self, ctx) -> None:
+        """Rows and columns of view tiles in the shared framebuffer, checked against this device's limits."""
         cfg = self.config
         h, w = cfg.height_px, cfg.width_px
         max_size = min(int(ctx.info["GL_MAX_RENDERBUFFER_SIZE"]), *map(int, ctx.info["GL_MAX_VIEWPORT_DIMS"]))
@@ -460,15 +471,17 @@ class Renderer:
         if cfg.samples > int(ctx.info.get("GL_MAX_SAMPLES", 0)):
             raise ValueError(f"samples={cfg.samples} exceeds this GL device's maximum {ctx.info.get('GL_MAX_SAMPLES')}")
 
-        # Framebuffers: colour (+ optional MSAA with a resolve target) and a plain one for the label pass.
+    def _make_framebuffers(self, ctx) -> None:
+        """Colour (+ optional MSAA with a resolve target) and a plain one for the label pass."""
+        samples = self.config.samples
         self._label_fbo = ctx.framebuffer(
             color_attachments=[ctx.renderbuffer(self._fb_size, components=4)],
             depth_attachment=ctx.depth_renderbuffer(self._fb_size),
         )
-        if cfg.samples:
+        if samples:
             self._fbo = ctx.framebuffer(
-                color_attachments=[ctx.renderbuffer(self._fb_size, components=4, samples=cfg.samples)],
-                depth_attachment=ctx.depth_renderbuffer(self._fb_size, samples=cfg.samples),
+                color_attachments=[ctx.renderbuffer(self._fb_size, components=4, samples=samples)],
+                depth_attachment=ctx.depth_renderbuffer(self._fb_size, samples=samples),
             )
             self._msaa = True
         else:
@@ -477,7 +490,11 @@ class Renderer:
         # MSAA resolve targets, one per used region size: resolving only the tiles drawn, not the whole framebuffer.
         self._resolve_fbos = {}
 
-        # Textures: one mipmapped array, one layer per surface.
+    def _make_texture(self, ctx) -> None:
+        """One mipmapped texture array, one layer per surface."""
+        import moderngl
+
+        cfg = self.config
         layers = build_texture_layers()
         # RGBA8, the format every GL driver stores and samples natively.
         rgba = np.concatenate([layers, np.full((*layers.shape[:3], 1), 255, np.uint8)], axis=3)
@@ -493,25 +510,25 @@ class Renderer:
             tex.anisotropy = cfg.anisotropy
         self._tex = tex
 
-        # Per-view data (uniform block of View structs, 128 bytes each) and a view index per instance.
-        self._views_ubo = ctx.buffer(reserve=_VIEW_BYTES * cfg.max_views)
-        view_index = ctx.buffer(np.arange(cfg.max_views, dtype=np.float32).tobytes())
-
+    def _make_mesh_buffers(self, ctx) -> None:
+        """The static scene's vertices, indices and draw commands, and the car body mesh with its instances."""
         scene = self.scene
         self._vbo = ctx.buffer(scene.vertices.tobytes())
         self._ibo = ctx.buffer(scene.indices.tobytes())
-        self._cmd = ctx.buffer(reserve=max(1, cfg.max_views * scene.n_chunks) * 20)
-
+        self._cmd = ctx.buffer(reserve=max(1, self.config.max_views * scene.n_chunks) * 20)
         car_v, car_i = build_car_mesh(self.car_length_m, self.car_width_m)
         self._car_vbo = ctx.buffer(car_v.tobytes())
         self._car_ibo = ctx.buffer(car_i.tobytes())
         self._car_inst_capacity = 64
         self._car_inst = ctx.buffer(reserve=7 * 4 * self._car_inst_capacity)
+
+    def _make_background_quads(self, ctx) -> None:
+        """Background quads of every tile: the sky above the horizon row, the ground below it."""
+        cfg = self.config
         cam = cfg.camera
         self._tan_half_fovx = math.tan(math.radians(cam.fov_deg) / 2.0)
         self._tan_half_fovy = self._tan_half_fovx / cfg.aspect
-        # Background quads of every tile: the sky above the horizon row, the ground below it. With no roll the
-        # horizon is the same row in every view: ndc y = tan(pitch) / tan(vertical half fov).
+        # With no roll the horizon is the same row in every view: ndc y = tan(pitch) / tan(vertical half fov).
         horizon = float(np.clip(math.tan(math.radians(cam.pitch_deg)) / self._tan_half_fovy, -1.0, 1.0))
         quads = np.array(
             [
@@ -532,6 +549,11 @@ class Renderer:
         )
         self._quad_vbo = ctx.buffer(quads.tobytes())
 
+    def _make_programs(self, ctx, view_index) -> None:
+        """The colour and label programs of the static mesh, the cars, the sky and the ground, and their vertex
+        arrays."""
+        cfg = self.config
+
         def fs(body: str, labels: bool) -> str:
             return _fs(body, labels, cfg.color_levels)
 
@@ -545,34 +567,38 @@ class Renderer:
             )
             for prog in (static, car, sky, ground):
                 self._set_uniforms(prog)
-            # skip_errors: the label and colour programs each leave some attributes unused.
-            static_vao = ctx.vertex_array(
-                static,
-                [
-                    (self._vbo, "3f 2f 1f 3f 1f", "in_pos", "in_uv", "in_layer", "in_tint", "in_label"),
-                    (view_index, "1f/i", "in_view"),
-                ],
-                index_buffer=self._ibo,
-                index_element_size=4,
-                skip_errors=True,
+            self._vaos[labels] = self._vertex_arrays(ctx, view_index, static, car, sky, ground)
+
+    def _vertex_arrays(self, ctx, view_index, static, car, sky, ground) -> tuple:
+        """(static, car, sky, ground) vertex arrays of one set of programs."""
+        # skip_errors: the label and colour programs each leave some attributes unused.
+        static_vao = ctx.vertex_array(
+            static,
+            [
+                (self._vbo, "3f 2f 1f 3f 1f", "in_pos", "in_uv", "in_layer", "in_tint", "in_label"),
+                (view_index, "1f/i", "in_view"),
+            ],
+            index_buffer=self._ibo,
+            index_element_size=4,
+            skip_errors=True,
+        )
+        car_vao = ctx.vertex_array(
+            car,
+            [
+                (self._car_vbo, "3f 3f 1f", "in_pos", "in_normal", "in_part"),
+                (self._car_inst, "1f 3f 3f/i", "in_view", "in_pose", "in_color"),
+            ],
+            index_buffer=self._car_ibo,
+            index_element_size=4,
+            skip_errors=True,
+        )
+        sky_vao, ground_vao = (
+            ctx.vertex_array(
+                prog, [(self._quad_vbo, "2f", "in_ndc"), (view_index, "1f/i", "in_view")], skip_errors=True
             )
-            car_vao = ctx.vertex_array(
-                car,
-                [
-                    (self._car_vbo, "3f 3f 1f", "in_pos", "in_normal", "in_part"),
-                    (self._car_inst, "1f 3f 3f/i", "in_view", "in_pose", "in_color"),
-                ],
-                index_buffer=self._car_ibo,
-                index_element_size=4,
-                skip_errors=True,
-            )
-            sky_vao, ground_vao = (
-                ctx.vertex_array(
-                    prog, [(self._quad_vbo, "2f", "in_ndc"), (view_index, "1f/i", "in_view")], skip_errors=True
-                )
-                for prog in (sky, ground)
-            )
-            self._vaos[labels] = (static_vao, car_vao, sky_vao, ground_vao)
+            for prog in (sky, ground)
+        )
+        return static_vao, car_vao, sky_vao, ground_vao
 
     def _set_uniforms(self, prog) -> None:
         values = {

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
 
 import numpy as np
 
@@ -352,71 +353,83 @@ def _section_indices(track: Track, style: SceneStyle, kerb: np.ndarray, forced: 
     return np.asarray(keep, dtype=np.int64)
 
 
-def _track_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndarray) -> int:
-    """Road bands and walls; returns the number of chunk ids used (track chunks are 0..k-1)."""
-    kerb_raw = np.abs(track.curvature_1pm) > style.kerb_min_curvature_1pm
-    kerb = _dilate_circular(kerb_raw, round(style.kerb_extend_m / track.spacing_m))
-    start_end = max(1, round(style.start_line_length_m / track.spacing_m))
-    idx = _section_indices(track, style, kerb, [start_end])
-    nxt = np.roll(idx, -1)
-    s0 = track.s_m[idx]
-    seg_len = np.mod(track.s_m[nxt] - s0, track.length_m)
-    seg_len[seg_len == 0] = track.length_m  # a track of a single section (never in practice)
-    s1 = s0 + seg_len
-    chunk = np.floor(s0 / style.chunk_length_m).astype(np.int64)
-    n_chunks = int(chunk.max()) + 1
+class _Sections(NamedTuple):
+    """The road's cross-sections: where each segment starts and ends along the centre line and its chunk."""
+
+    idx: np.ndarray
+    """(q,) centre-line sample of each segment's start."""
+    nxt: np.ndarray
+    """(q,) centre-line sample of its end (the next segment's start)."""
+    s0: np.ndarray
+    """(q,) arc length of its start, m."""
+    s1: np.ndarray
+    """(q,) arc length of its end, m (past the lap length for the last segment)."""
+    chunk: np.ndarray
+    """(q,) culling chunk id."""
+
+
+def _corners(a0: np.ndarray, a1: np.ndarray, b1: np.ndarray, b0: np.ndarray) -> np.ndarray:
+    """(q, 4, k) quad corners from four (q, k) arrays, in the order given."""
+    return np.stack([a0, a1, b1, b0], axis=1)
+
+
+def _uv_rect(u0: np.ndarray, u1: np.ndarray, v0: float, v1: float) -> np.ndarray:
+    """(q, 4, 2) uv of quads running from u0 to u1 along and from v0 to v1 across."""
+    return _corners(
+        np.column_stack([u0, np.full_like(u0, v0)]),
+        np.column_stack([u1, np.full_like(u0, v0)]),
+        np.column_stack([u1, np.full_like(u0, v1)]),
+        np.column_stack([u0, np.full_like(u0, v1)]),
+    )
+
+
+def _band_lines(track: Track, style: SceneStyle, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((n, 6, 2) scene positions, (n, 6) lateral offsets (+ left)) of the six cross-section lines at every centre-line
+    sample, from the left wall to the right wall."""
     centre = track.centre_xy_m - origin
-    normal = track.normal_left
     wl, wr = track.width_left_m, track.width_right_m
-    # Lateral offsets (+ left) of the six cross-section lines, from the left wall to the right wall.
     kerb_w_l = np.minimum(style.kerb_width_m, SHOULDER_SHARE * wl)
     kerb_w_r = np.minimum(style.kerb_width_m, SHOULDER_SHARE * wr)
     line_w = np.minimum(style.line_width_m, 0.03 * np.minimum(wl, wr))
     offsets = np.stack(
         [wl, wl - kerb_w_l, wl - kerb_w_l - line_w, -(wr - kerb_w_r - line_w), -(wr - kerb_w_r), -wr], axis=1
     )  # (n, 6)
-    xy = centre[:, None, :] + normal[:, None, :] * offsets[:, :, None]  # (n, 6, 2)
+    xy = centre[:, None, :] + track.normal_left[:, None, :] * offsets[:, :, None]  # (n, 6, 2)
+    return xy, offsets
+
+
+def _road_quads(
+    quads: _Quads, sec: _Sections, xy: np.ndarray, offsets: np.ndarray, kerb_seg: np.ndarray, style: SceneStyle
+) -> None:
+    """The five bands across the road: shoulder or kerb, edge line, asphalt (with the start line), edge line,
+    shoulder or kerb."""
+    idx, nxt, s0, s1, chunk = sec
     start_line = np.zeros(len(idx), dtype=bool)
     start_line[0] = True
-    kerb_seg = kerb[idx]
     z = np.zeros((len(idx), 1))
     for band in range(5):
         a, b = band, band + 1
-        p = np.stack(
-            [
-                np.column_stack([xy[idx, a], z]),
-                np.column_stack([xy[nxt, a], z]),
-                np.column_stack([xy[nxt, b], z]),
-                np.column_stack([xy[idx, b], z]),
-            ],
-            axis=1,
+        p = _corners(
+            np.column_stack([xy[idx, a], z]),
+            np.column_stack([xy[nxt, a], z]),
+            np.column_stack([xy[nxt, b], z]),
+            np.column_stack([xy[idx, b], z]),
         )
         lat_a0, lat_a1, lat_b1, lat_b0 = offsets[idx, a], offsets[nxt, a], offsets[nxt, b], offsets[idx, b]
         tile = style.asphalt_tile_m
         uv = (
-            np.stack(
-                [
-                    np.column_stack([s0, lat_a0]),
-                    np.column_stack([s1, lat_a1]),
-                    np.column_stack([s1, lat_b1]),
-                    np.column_stack([s0, lat_b0]),
-                ],
-                axis=1,
+            _corners(
+                np.column_stack([s0, lat_a0]),
+                np.column_stack([s1, lat_a1]),
+                np.column_stack([s1, lat_b1]),
+                np.column_stack([s0, lat_b0]),
             )
             / tile
         )
         if band in (0, 4):
             # Kerb in corners, old darker asphalt elsewhere; kerb uv: u one red+white period, v 0..1 across.
             k = kerb_seg
-            kuv = np.stack(
-                [
-                    np.column_stack([s0, np.zeros_like(s0)]),
-                    np.column_stack([s1, np.zeros_like(s0)]),
-                    np.column_stack([s1, np.ones_like(s0)]),
-                    np.column_stack([s0, np.ones_like(s0)]),
-                ],
-                axis=1,
-            )
+            kuv = _uv_rect(s0, s1, 0.0, 1.0)
             kuv[:, :, 0] /= style.kerb_period_m
             quads.add(p[k], kuv[k], Layer.KERB, np.ones(3), Label.KERB, chunk[k], _UP)
             quads.add(p[~k], uv[~k], Layer.SHOULDER, np.ones(3), Label.ROAD, chunk[~k], _UP)
@@ -427,64 +440,66 @@ def _track_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndar
             sl = start_line
             quads.add(p[~sl], uv[~sl], Layer.ASPHALT, np.ones(3), Label.ROAD, chunk[~sl], _UP)
             quads.add(p[sl], uv[sl], Layer.CHECKER, np.ones(3), Label.LINE, chunk[sl], _UP)
-    # Walls: inner face, top, outer face, each a strip along the wall line.
+
+
+def _strip(a0, a1, b0, b1, za: float, zb: float) -> np.ndarray:
+    """(q, 4, 3) quads from the lines a (at height za) to b (at zb), each from its sample 0 to 1."""
+    q = len(a0)
+    return _corners(
+        np.column_stack([a0, np.full(q, za)]),
+        np.column_stack([a1, np.full(q, za)]),
+        np.column_stack([b1, np.full(q, zb)]),
+        np.column_stack([b0, np.full(q, zb)]),
+    )
+
+
+def _wall_quads(
+    quads: _Quads, track: Track, style: SceneStyle, origin: np.ndarray, sec: _Sections, w: np.ndarray, out: np.ndarray
+) -> None:
+    """One wall along the line ``w`` (n, 2), ``out`` (n, 2) the outward normal: inner face, top and outer face."""
+    idx, nxt, chunk = sec.idx, sec.nxt, sec.chunk
     h = style.wall_height_m
     foot_z = GROUND_Z_M
+    seg = w[nxt] - w[idx]
+    wall_len = np.hypot(seg[:, 0], seg[:, 1])
+    u0 = np.concatenate([[0.0], np.cumsum(wall_len)[:-1]]) / (2.0 * style.wall_panel_m)
+    u1 = u0 + wall_len / (2.0 * style.wall_panel_m)
+    inner_n = np.column_stack([-out[idx], np.zeros(len(idx))])
+    inner_n /= np.linalg.norm(inner_n, axis=1, keepdims=True)
+    top_w = w + out * style.wall_thickness_m
+    # Where the track crosses itself (a bridge, as at Suzuka) the flat renderer would put each branch's wall
+    # across the other's road; leave those wall pieces out, making the crossing look like a junction.
+    inside = _inside_other_branch(track, w[idx] + origin, track.s_m[idx])
+    keep = ~(inside | np.roll(inside, -1))
+    wall_uv = _uv_rect(u0, u1, foot_z / h, 1.0)
+    inner = _strip(w[idx], w[nxt], w[idx], w[nxt], foot_z, h)
+    shade = _face_shade(inner_n)[:, None] * np.ones(3)
+    quads.add(inner[keep], wall_uv[keep], Layer.WALL, shade[keep], Label.WALL, chunk[keep], inner_n[keep])
+    top = _strip(w[idx], w[nxt], top_w[idx], top_w[nxt], h, h)
+    top_uv = _uv_rect(u0, u1, 0.0, 0.1)
+    quads.add(top[keep], top_uv[keep], Layer.WALL_TOP, np.ones(3), Label.WALL, chunk[keep], _UP)
+    outer = _strip(top_w[idx], top_w[nxt], top_w[idx], top_w[nxt], foot_z, h)
+    shade = _face_shade(-inner_n)[:, None] * np.ones(3)
+    quads.add(outer[keep], wall_uv[keep], Layer.WALL, shade[keep], Label.WALL, chunk[keep], -inner_n[keep])
+
+
+def _track_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndarray) -> int:
+    """Road bands and walls; returns the number of chunk ids used (track chunks are 0..k-1)."""
+    kerb_raw = np.abs(track.curvature_1pm) > style.kerb_min_curvature_1pm
+    kerb = _dilate_circular(kerb_raw, round(style.kerb_extend_m / track.spacing_m))
+    start_end = max(1, round(style.start_line_length_m / track.spacing_m))
+    idx = _section_indices(track, style, kerb, [start_end])
+    nxt = np.roll(idx, -1)
+    s0 = track.s_m[idx]
+    seg_len = np.mod(track.s_m[nxt] - s0, track.length_m)
+    seg_len[seg_len == 0] = track.length_m  # a track of a single section (never in practice)
+    sec = _Sections(idx, nxt, s0, s0 + seg_len, np.floor(s0 / style.chunk_length_m).astype(np.int64))
+    xy, offsets = _band_lines(track, style, origin)
+    _road_quads(quads, sec, xy, offsets, kerb[idx], style)
     for col, outward_sign in ((0, 1.0), (5, -1.0)):  # left wall line (outwards = +normal), right wall line
-        w = xy[:, col]  # (n, 2) wall line
-        out = normal * outward_sign
-        seg = w[nxt] - w[idx]
-        wall_len = np.hypot(seg[:, 0], seg[:, 1])
-        u0 = np.concatenate([[0.0], np.cumsum(wall_len)[:-1]]) / (2.0 * style.wall_panel_m)
-        u1 = u0 + wall_len / (2.0 * style.wall_panel_m)
-        inner_n = np.column_stack([-out[idx], np.zeros(len(idx))])
-        inner_n /= np.linalg.norm(inner_n, axis=1, keepdims=True)
-        top_w = w + out * style.wall_thickness_m
-        v_foot = foot_z / h
-        # Where the track crosses itself (a bridge, as at Suzuka) the flat renderer would put each branch's wall
-        # across the other's road; leave those wall pieces out, making the crossing look like a junction.
-        inside = _inside_other_branch(track, w[idx] + origin, track.s_m[idx])
-        keep = ~(inside | np.roll(inside, -1))
-
-        def strip(a0, a1, b0, b1, za, zb):
-            return np.stack(
-                [
-                    np.column_stack([a0, np.full(len(idx), za)]),
-                    np.column_stack([a1, np.full(len(idx), za)]),
-                    np.column_stack([b1, np.full(len(idx), zb)]),
-                    np.column_stack([b0, np.full(len(idx), zb)]),
-                ],
-                axis=1,
-            )
-
-        wall_uv = np.stack(
-            [
-                np.column_stack([u0, np.full_like(u0, v_foot)]),
-                np.column_stack([u1, np.full_like(u0, v_foot)]),
-                np.column_stack([u1, np.ones_like(u0)]),
-                np.column_stack([u0, np.ones_like(u0)]),
-            ],
-            axis=1,
-        )
-        inner = strip(w[idx], w[nxt], w[idx], w[nxt], foot_z, h)
-        shade = _face_shade(inner_n)[:, None] * np.ones(3)
-        quads.add(inner[keep], wall_uv[keep], Layer.WALL, shade[keep], Label.WALL, chunk[keep], inner_n[keep])
-        top = strip(w[idx], w[nxt], top_w[idx], top_w[nxt], h, h)
-        top_uv = np.stack(
-            [
-                np.column_stack([u0, np.zeros_like(u0)]),
-                np.column_stack([u1, np.zeros_like(u0)]),
-                np.column_stack([u1, np.full_like(u0, 0.1)]),
-                np.column_stack([u0, np.full_like(u0, 0.1)]),
-            ],
-            axis=1,
-        )
-        quads.add(top[keep], top_uv[keep], Layer.WALL_TOP, np.ones(3), Label.WALL, chunk[keep], _UP)
-        outer = strip(top_w[idx], top_w[nxt], top_w[idx], top_w[nxt], foot_z, h)
-        shade = _face_shade(-inner_n)[:, None] * np.ones(3)
-        quads.add(outer[keep], wall_uv[keep], Layer.WALL, shade[keep], Label.WALL, chunk[keep], -inner_n[keep])
+        _wall_quads(quads, track, style, origin, sec, xy[:, col], track.normal_left * outward_sign)
     _gantry_quads(quads, track, style, origin, chunk_id=0)
-    return n_chunks
+    return int(sec.chunk.max()) + 1
 
 
 def _gantry_quads(quads: _Quads, track: Track, style: SceneStyle, origin: np.ndarray, chunk_id: int) -> None:
@@ -540,28 +555,27 @@ def _distance_to_track(track: Track, xy_world: np.ndarray) -> np.ndarray:
     return np.hypot(*(xy_world - foot).T)
 
 
-def _scenery_quads(
-    quads: _Quads, track: Track, style: SceneStyle, origin: np.ndarray, first_chunk: int, rng: np.random.Generator
-) -> int:
-    """Landmarks (the ground is the renderer's background pass); returns the next free chunk id."""
-    chunk_id = first_chunk
-    lo = track.centre_xy_m.min(axis=0) - origin
-    hi = track.centre_xy_m.max(axis=0) - origin
-    half_diag = 0.5 * float(np.hypot(*(hi - lo)))
-    max_w = float(np.max(np.maximum(track.width_left_m, track.width_right_m)))
-    palette = np.array(
-        [
-            [1.0, 0.97, 0.9],
-            [0.85, 0.88, 0.95],
-            [0.95, 0.85, 0.75],
-            [0.8, 0.8, 0.82],
-            [0.92, 0.92, 0.85],
-            [0.75, 0.82, 0.9],
-        ]
-    )
+#: Tints of landmark boxes (lighting x colour), drawn at random per box.
+_PALETTE = np.array(
+    [
+        [1.0, 0.97, 0.9],
+        [0.85, 0.88, 0.95],
+        [0.95, 0.85, 0.75],
+        [0.8, 0.8, 0.82],
+        [0.92, 0.92, 0.85],
+        [0.75, 0.82, 0.9],
+    ]
+)
+#: Azimuth sectors of the horizon ring: each is a chunk that a view culls on its own.
+_N_SECTORS = 16
 
-    # Near landmarks: blocks along the track (city) or a few towers (park); rejected when they would touch the road.
-    cell_m = 400.0
+
+def _landmark_sites(
+    track: Track, style: SceneStyle, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World (x, y), half length and half width (m) of the near landmarks: blocks along the track (city) or a few
+    towers (park), rejected where they would touch the road or an earlier one."""
+    max_w = float(np.max(np.maximum(track.width_left_m, track.width_right_m)))
     if style.city:
         n_try, dist_lo, dist_hi, size = 900, 12.0, 220.0, (10.0, 30.0)
     else:
@@ -585,161 +599,182 @@ def _scenery_quads(
         if all(np.hypot(*(base[i] - base[j])) > radius[i] + radius[j] for j in kept):
             kept.append(i)
     kept = np.asarray(kept, dtype=np.int64)
-    base, half_len, half_wid = base[kept] - origin, half_len[kept], half_wid[kept]
-    nb = len(base)
-    if nb:
-        if style.city:
-            height = np.clip(rng.lognormal(math.log(28.0), 0.6, nb), 8.0, 160.0)
-        else:
-            height = rng.uniform(15.0, 60.0, nb)
-        yaw = track.heading_at(track.project(base + origin).s_m) + rng.normal(0.0, 0.05, nb)
-        tint = palette[rng.integers(0, len(palette), nb)]
-        cell = np.floor((base - lo) / cell_m).astype(np.int64)
-        cell_key = cell[:, 0] * 100_000 + cell[:, 1]
-        _, cell_chunk = np.unique(cell_key, return_inverse=True)
-        _box_quads(
-            quads,
-            base,
-            half_len,
-            half_wid,
-            GROUND_Z_M,
-            height,
-            yaw,
-            Layer.FACADE,
-            Layer.ROOF,
-            tint,
-            Label.LANDMARK,
-            chunk_id + cell_chunk,
-            (12.0, 14.0),
-        )
-        chunk_id += int(cell_chunk.max()) + 1
+    return base[kept], half_len[kept], half_wid[kept]
 
+
+def _near_landmarks(
+    quads: _Quads,
+    track: Track,
+    style: SceneStyle,
+    origin: np.ndarray,
+    lo: np.ndarray,
+    chunk_id: int,
+    rng: np.random.Generator,
+) -> int:
+    """The landmarks along the track, chunked in 400 m cells; returns the next free chunk id."""
+    cell_m = 400.0
+    base, half_len, half_wid = _landmark_sites(track, style, rng)
+    base = base - origin
+    nb = len(base)
+    if not nb:
+        return chunk_id
+    if style.city:
+        height = np.clip(rng.lognormal(math.log(28.0), 0.6, nb), 8.0, 160.0)
+    else:
+        height = rng.uniform(15.0, 60.0, nb)
+    yaw = track.heading_at(track.project(base + origin).s_m) + rng.normal(0.0, 0.05, nb)
+    tint = _PALETTE[rng.integers(0, len(_PALETTE), nb)]
+    cell = np.floor((base - lo) / cell_m).astype(np.int64)
+    cell_key = cell[:, 0] * 100_000 + cell[:, 1]
+    _, cell_chunk = np.unique(cell_key, return_inverse=True)
+    _box_quads(
+        quads,
+        base,
+        half_len,
+        half_wid,
+        GROUND_Z_M,
+        height,
+        yaw,
+        Layer.FACADE,
+        Layer.ROOF,
+        tint,
+        Label.LANDMARK,
+        chunk_id + cell_chunk,
+        (12.0, 14.0),
+    )
+    return chunk_id + int(cell_chunk.max()) + 1
+
+
+def _sector(az: np.ndarray) -> np.ndarray:
+    """Horizon sector (0.._N_SECTORS-1) of azimuths in rad."""
+    return np.floor(az / (2 * math.pi) * _N_SECTORS).astype(np.int64) % _N_SECTORS
+
+
+def _ring_towers(
+    quads: _Quads,
+    centre: np.ndarray,
+    distance_m: np.ndarray,
+    az: np.ndarray,
+    h: np.ndarray,
+    shaft: tuple[float, np.ndarray],
+    top: tuple[float, float, int, int, np.ndarray, tuple[float, float]],
+    chunk_id: int,
+) -> None:
+    """Towers on the horizon: a metal shaft (half width, tint) up to h and a top (half width, height, side and top
+    layers, tint, uv scale) on it."""
+    pos = centre + np.stack([np.cos(az), np.sin(az)], axis=1) * distance_m[:, None]
+    sector = _sector(az)
+    shaft_half, shaft_tint = shaft
+    _box_quads(
+        quads,
+        pos,
+        shaft_half,
+        shaft_half,
+        GROUND_Z_M,
+        h,
+        az,
+        Layer.METAL,
+        Layer.METAL,
+        shaft_tint,
+        Label.LANDMARK,
+        chunk_id + sector,
+        (4.0, 8.0),
+    )
+    top_half, top_height, side_layer, top_layer, top_tint, uv_scale = top
+    _box_quads(
+        quads,
+        pos,
+        top_half,
+        top_half,
+        h,
+        h + top_height,
+        az,
+        side_layer,
+        top_layer,
+        top_tint,
+        Label.LANDMARK,
+        chunk_id + sector,
+        uv_scale,
+    )
+
+
+def _city_skyline(quads: _Quads, centre: np.ndarray, ring_r: float, chunk_id: int, rng: np.random.Generator) -> None:
+    """The city's horizon: a ring of blocks and a few thin towers with a masthead (the city's landmarks)."""
+    n_b = 260
+    az = rng.uniform(0.0, 2 * math.pi, n_b)
+    r = ring_r + rng.uniform(0.0, 1400.0, n_b)
+    pos = centre + np.stack([np.cos(az), np.sin(az)], axis=1) * r[:, None]
+    h = np.clip(rng.lognormal(math.log(70.0), 0.55, n_b), 25.0, 320.0)
+    hl = rng.uniform(12.0, 40.0, n_b)
+    hw = rng.uniform(12.0, 40.0, n_b)
+    tint = _PALETTE[rng.integers(0, len(_PALETTE), n_b)] * 0.95
+    _box_quads(
+        quads,
+        pos,
+        hl,
+        hw,
+        GROUND_Z_M,
+        h,
+        az,
+        Layer.FACADE,
+        Layer.ROOF,
+        tint,
+        Label.LANDMARK,
+        chunk_id + _sector(az),
+        (12.0, 14.0),
+    )
+    n_t = 6
+    az_t = (np.arange(n_t) + rng.uniform(0.2, 0.8, n_t)) * 2 * math.pi / n_t
+    distance_m = ring_r + rng.uniform(200, 900, n_t)
+    h_t = rng.uniform(250.0, 450.0, n_t)
+    mast = (2.0, 60.0, Layer.METAL, Layer.METAL, np.array([0.9, 0.25, 0.2]), (4.0, 8.0))
+    _ring_towers(quads, centre, distance_m, az_t, h_t, (9.0, np.array([0.95, 0.92, 0.9])), mast, chunk_id)
+
+
+def _park_hills(quads: _Quads, centre: np.ndarray, ring_r: float, chunk_id: int, rng: np.random.Generator) -> None:
+    """A park's horizon: a ring of hills and a few towers with a deck."""
+    k = 96
+    az = np.arange(k + 1) * 2 * math.pi / k
+    ridge = rng.uniform(60.0, 260.0, k)
+    ridge = np.append(ridge, ridge[0])
+    ridge_r = ring_r + 1500.0
+    ring = centre + np.stack([np.cos(az), np.sin(az)], axis=1) * ridge_r
+    outer = centre + np.stack([np.cos(az), np.sin(az)], axis=1) * (ridge_r + 900.0)
+    p = _corners(
+        np.column_stack([ring[:-1], np.full(k, GROUND_Z_M)]),
+        np.column_stack([ring[1:], np.full(k, GROUND_Z_M)]),
+        np.column_stack([outer[1:], ridge[1:]]),
+        np.column_stack([outer[:-1], ridge[:-1]]),
+    )
+    sector = (np.arange(k) * _N_SECTORS) // k
+    uv = p[:, :, :2] / 200.0
+    inward = np.column_stack([centre - 0.5 * (ring[:-1] + ring[1:]), np.zeros(k)])
+    inward = inward / np.linalg.norm(inward, axis=1, keepdims=True) + _UP
+    quads.add(p, uv, Layer.GRASS, np.array([0.62, 0.72, 0.7]), Label.LANDMARK, chunk_id + sector, inward)
+    n_t = 4
+    az_t = (np.arange(n_t) + rng.uniform(0.2, 0.8, n_t)) * 2 * math.pi / n_t
+    distance_m = ring_r + rng.uniform(100, 600, n_t)
+    h_t = rng.uniform(120.0, 220.0, n_t)
+    deck = (11.0, 14.0, Layer.FACADE, Layer.ROOF, np.array([0.9, 0.9, 0.95]), (12.0, 14.0))
+    _ring_towers(quads, centre, distance_m, az_t, h_t, (5.0, np.array([0.95, 0.95, 0.95])), deck, chunk_id)
+
+
+def _scenery_quads(
+    quads: _Quads, track: Track, style: SceneStyle, origin: np.ndarray, first_chunk: int, rng: np.random.Generator
+) -> int:
+    """Landmarks (the ground is the renderer's background pass); returns the next free chunk id."""
+    lo = track.centre_xy_m.min(axis=0) - origin
+    hi = track.centre_xy_m.max(axis=0) - origin
+    half_diag = 0.5 * float(np.hypot(*(hi - lo)))
+    chunk_id = _near_landmarks(quads, track, style, origin, lo, first_chunk, rng)
     # Horizon ring: a skyline (city) or hills (park), in azimuth sectors that each view culls.
     centre = 0.5 * (lo + hi)
     ring_r = half_diag + 900.0
-    n_sectors = 16
     if style.city:
-        n_b = 260
-        az = rng.uniform(0.0, 2 * math.pi, n_b)
-        r = ring_r + rng.uniform(0.0, 1400.0, n_b)
-        pos = centre + np.stack([np.cos(az), np.sin(az)], axis=1) * r[:, None]
-        h = np.clip(rng.lognormal(math.log(70.0), 0.55, n_b), 25.0, 320.0)
-        hl = rng.uniform(12.0, 40.0, n_b)
-        hw = rng.uniform(12.0, 40.0, n_b)
-        tint = palette[rng.integers(0, len(palette), n_b)] * 0.95
-        sector = np.floor(az / (2 * math.pi) * n_sectors).astype(np.int64) % n_sectors
-        _box_quads(
-            quads,
-            pos,
-            hl,
-            hw,
-            GROUND_Z_M,
-            h,
-            az,
-            Layer.FACADE,
-            Layer.ROOF,
-            tint,
-            Label.LANDMARK,
-            chunk_id + sector,
-            (12.0, 14.0),
-        )
-        # A few thin towers with a masthead: the city's landmarks.
-        n_t = 6
-        az_t = (np.arange(n_t) + rng.uniform(0.2, 0.8, n_t)) * 2 * math.pi / n_t
-        pos_t = centre + np.stack([np.cos(az_t), np.sin(az_t)], axis=1) * (ring_r + rng.uniform(200, 900, n_t))[:, None]
-        h_t = rng.uniform(250.0, 450.0, n_t)
-        sector_t = np.floor(az_t / (2 * math.pi) * n_sectors).astype(np.int64) % n_sectors
-        _box_quads(
-            quads,
-            pos_t,
-            9.0,
-            9.0,
-            GROUND_Z_M,
-            h_t,
-            az_t,
-            Layer.METAL,
-            Layer.METAL,
-            np.array([0.95, 0.92, 0.9]),
-            Label.LANDMARK,
-            chunk_id + sector_t,
-            (4.0, 8.0),
-        )
-        _box_quads(
-            quads,
-            pos_t,
-            2.0,
-            2.0,
-            h_t,
-            h_t + 60.0,
-            az_t,
-            Layer.METAL,
-            Layer.METAL,
-            np.array([0.9, 0.25, 0.2]),
-            Label.LANDMARK,
-            chunk_id + sector_t,
-            (4.0, 8.0),
-        )
+        _city_skyline(quads, centre, ring_r, chunk_id, rng)
     else:
-        k = 96
-        az = np.arange(k + 1) * 2 * math.pi / k
-        ridge = rng.uniform(60.0, 260.0, k)
-        ridge = np.append(ridge, ridge[0])
-        ridge_r = ring_r + 1500.0
-        ring = centre + np.stack([np.cos(az), np.sin(az)], axis=1) * ridge_r
-        outer = centre + np.stack([np.cos(az), np.sin(az)], axis=1) * (ridge_r + 900.0)
-        p = np.stack(
-            [
-                np.column_stack([ring[:-1], np.full(k, GROUND_Z_M)]),
-                np.column_stack([ring[1:], np.full(k, GROUND_Z_M)]),
-                np.column_stack([outer[1:], ridge[1:]]),
-                np.column_stack([outer[:-1], ridge[:-1]]),
-            ],
-            axis=1,
-        )
-        sector = (np.arange(k) * n_sectors) // k
-        uv = p[:, :, :2] / 200.0
-        inward = np.column_stack([centre - 0.5 * (ring[:-1] + ring[1:]), np.zeros(k)])
-        inward = inward / np.linalg.norm(inward, axis=1, keepdims=True) + _UP
-        quads.add(p, uv, Layer.GRASS, np.array([0.62, 0.72, 0.7]), Label.LANDMARK, chunk_id + sector, inward)
-        # Towers on the park's horizon.
-        n_t = 4
-        az_t = (np.arange(n_t) + rng.uniform(0.2, 0.8, n_t)) * 2 * math.pi / n_t
-        pos_t = centre + np.stack([np.cos(az_t), np.sin(az_t)], axis=1) * (ring_r + rng.uniform(100, 600, n_t))[:, None]
-        h_t = rng.uniform(120.0, 220.0, n_t)
-        sector_t = np.floor(az_t / (2 * math.pi) * n_sectors).astype(np.int64) % n_sectors
-        _box_quads(
-            quads,
-            pos_t,
-            5.0,
-            5.0,
-            GROUND_Z_M,
-            h_t,
-            az_t,
-            Layer.METAL,
-            Layer.METAL,
-            np.array([0.95, 0.95, 0.95]),
-            Label.LANDMARK,
-            chunk_id + sector_t,
-            (4.0, 8.0),
-        )
-        _box_quads(
-            quads,
-            pos_t,
-            11.0,
-            11.0,
-            h_t,
-            h_t + 14.0,
-            az_t,
-            Layer.FACADE,
-            Layer.ROOF,
-            np.array([0.9, 0.9, 0.95]),
-            Label.LANDMARK,
-            chunk_id + sector_t,
-            (12.0, 14.0),
-        )
-    chunk_id += n_sectors
-
-    return chunk_id
+        _park_hills(quads, centre, ring_r, chunk_id, rng)
+    return chunk_id + _N_SECTORS
 
 
 def style_for(track: Track) -> SceneStyle:
