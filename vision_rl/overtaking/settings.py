@@ -310,23 +310,7 @@ def evaluate_overtaking(
     if names and len(names) != len(policies):
         raise SettingError(f"--names gives {len(names)} names for {len(policies)} policies")
     loaded = [load_overtaking_policy(p, device) for p in policies]
-    track_obj = load_track(track) if track else None
-    for path, policy in zip(policies, loaded, strict=True):
-        config = policy.config
-        policy_track = load_track(config.track)
-        if track_obj is None:
-            track_obj, car = policy_track, car or config.car
-        if policy_track.geometry_hash != track_obj.geometry_hash:
-            raise PolicyError(
-                f"policy {path} was trained on track {config.track!r} (geometry "
-                f"{policy_track.geometry_hash[:12]}...), not {track_obj.name!r} "
-                f"({track_obj.geometry_hash[:12]}...): evaluate it on its own track"
-            )
-        if car and config.car != car:
-            raise PolicyError(f"policy {path} drives the car {config.car!r}, not {car!r}")
-    if track_obj is None:
-        track_obj = load_track("expressway")
-    car = car or "tt_cup"
+    track_obj, car = _common_track_and_car(policies, loaded, track, car)
     drivers: list[tuple[str, Any, dict[str, Any]]] = []
     for i, (path, policy) in enumerate(zip(policies, loaded, strict=True)):
         driver = policy.driver()
@@ -366,6 +350,28 @@ def evaluate_overtaking(
         "opponent_skill_range": list(OPPONENT_SKILL_RANGE),
         "drivers": rows,
     }
+
+
+def _common_track_and_car(policies: Sequence[str], loaded: Sequence[Any], track: str, car: str) -> tuple[Track, str]:
+    """The track and car every policy was trained for (``track``/``car`` when given, else the first policy's; the
+    expressway and tt_cup with no policy), refusing a policy made for others."""
+    track_obj = load_track(track) if track else None
+    for path, policy in zip(policies, loaded, strict=True):
+        config = policy.config
+        policy_track = load_track(config.track)
+        if track_obj is None:
+            track_obj, car = policy_track, car or config.car
+        if policy_track.geometry_hash != track_obj.geometry_hash:
+            raise PolicyError(
+                f"policy {path} was trained on track {config.track!r} (geometry "
+                f"{policy_track.geometry_hash[:12]}...), not {track_obj.name!r} "
+                f"({track_obj.geometry_hash[:12]}...): evaluate it on its own track"
+            )
+        if car and config.car != car:
+            raise PolicyError(f"policy {path} drives the car {config.car!r}, not {car!r}")
+    if track_obj is None:
+        track_obj = load_track("expressway")
+    return track_obj, car or "tt_cup"
 
 
 def _human_row(path: str | os.PathLike[str], setting: str, track: Track, car: str) -> dict[str, Any]:
