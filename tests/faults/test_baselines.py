@@ -16,13 +16,8 @@ import numpy as np
 import pytest
 
 from tests.helpers.overtaking import tiny_baseline_config
-from vision_rl.overtaking.baselines import (
-    BaselineError,
-    TrainBaselineConfig,
-    check_config,
-    load_baseline,
-    train_baseline,
-)
+from vision_rl.overtaking.baseline_run import BaselineError, TrainBaselineConfig, check_config
+from vision_rl.overtaking.baselines import load_baseline, train_baseline
 from vision_rl.overtaking.demos import DemoError, load_demos, load_demos_for, write_demos
 from vision_rl.overtaking.table3 import Table3Config, table3
 from vision_rl.training.artifact import PolicyError, PolicySpec, sac_policy

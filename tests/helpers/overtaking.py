@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from vision_rl.overtaking.baselines import TrainBaselineConfig
+from vision_rl.overtaking.baseline_run import TrainBaselineConfig
 from vision_rl.overtaking.curriculum import TrainOvertakingConfig
 
 #: The car of the small demonstrations (the root conftest's ``small_demos``).

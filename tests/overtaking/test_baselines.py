@@ -242,3 +242,26 @@ def test_the_commands_record_train_quick_and_refuse_in_one_line(small_track, tmp
         "vision-rl train-baseline: error: --algo must be one of bc, gail, td3, sac, dreamer, got 'planet'; "
         "PlaNet's row is trained as its successor, --algo dreamer"
     ]
+
+
+def test_every_algorithm_has_a_learner_and_a_bad_one_is_refused_by_name():
+    from vision_rl.overtaking.baseline_run import ALGO_NAMES, TrainBaselineConfig, check_config
+    from vision_rl.overtaking.baselines import ALGOS
+
+    assert tuple(ALGOS) == ALGO_NAMES
+    with pytest.raises(ValueError, match="PlaNet's row is trained as its successor, --algo dreamer"):
+        check_config(TrainBaselineConfig(algo="planet"))
+
+
+def test_bc_gives_one_policy_per_seed(small_track, small_demos, tmp_path):
+    demos, _ = small_demos
+    from vision_rl.overtaking.baselines import load_baseline, train_baseline
+
+    weights = []
+    for k in range(2):
+        cfg = tiny_baseline_config(small_track, demos, tmp_path / f"bc{k}", algo="bc", steps=20)
+        train_baseline(cfg)
+        policy = load_baseline(tmp_path / f"bc{k}", algo="bc").policy
+        weights.append(torch.cat([p.flatten() for p in policy.parameters()]))
+        torch.manual_seed(1000 + k)  # whatever the global generator holds when the next run starts
+    assert torch.equal(weights[0], weights[1])

@@ -12,7 +12,8 @@ import torch
 
 from tests.helpers.overtaking import tiny_baseline_config
 from vision_rl.evaluation.protocol import time_laps
-from vision_rl.overtaking.baselines import BaselineError, load_baseline, train_baseline
+from vision_rl.overtaking.baseline_run import BaselineError
+from vision_rl.overtaking.baselines import load_baseline, train_baseline
 from vision_rl.overtaking.dreamer import DreamerAgent, DreamerRecipe, SequenceReplay, lambda_returns
 from vision_rl.training.artifact import PolicyError
 

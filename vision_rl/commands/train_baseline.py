@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
-from vision_rl.overtaking.baselines import TrainBaselineConfig
+from vision_rl.overtaking.baseline_run import TrainBaselineConfig
 
 #: ``--quick``: tiny sizes (2 cars, a few hundred steps, short evaluations) where an option was left at its default.
 QUICK = dict(
@@ -68,7 +68,8 @@ def run_train_baseline(opts: TrainBaselineOptions) -> int:
     """SIGTERM saves and exits like Ctrl-C (exit 130); the same command continues an online run."""
     import dataclasses
 
-    from vision_rl.overtaking.baselines import check_config, total_steps, train_baseline
+    from vision_rl.overtaking.baseline_run import check_config, total_steps
+    from vision_rl.overtaking.baselines import train_baseline
 
     fields = {f.name for f in dataclasses.fields(TrainBaselineConfig)}
     values = {k: v for k, v in dataclasses.asdict(opts).items() if k in fields}

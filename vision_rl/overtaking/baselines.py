@@ -1,369 +1,61 @@
-"""`train-baseline`: what the overtaking paper's Table III baselines share on the single-car race (the curriculum's
-stage 1: alone, Eq. 1 with ``c_w`` 0.005, the 96-D ``overtaking`` observation), all with the paper's network, an
-MLP of 2 x 256 ReLU units: the options, the run folder, the policy sidecar, the table that sends each algorithm to
-its learner (:mod:`.bc`, :mod:`.gail`, :mod:`.online`, :mod:`.dreamer_train`), and loading a trained policy.
-
-The run folder (``--out``, default ``runs/baselines/<algo>-<track>-<car>-s<seed>``): ``policy.pt`` (an agent file
-without pickle, :mod:`vision_rl.training.persist`, whose fingerprint adds ``algo``) + ``policy.json`` (the policy
-sidecar, :class:`~.artifact.PolicySpec`), ``baseline.json`` (settings, status, figures), ``metrics.jsonl`` (bc: one
-line per epoch; online: one per periodic protocol evaluation), and for the online algorithms
-``replay_buffer.npz``. The online algorithms continue a run folder from what it saved (``--steps`` may grow); other
-settings are refused. Notes: docs/notes/overtaking.md, "baselines.py".
-"""
+"""`train-baseline`: each Table III algorithm sent to its learner (:mod:`.bc`, :mod:`.gail` beside
+:mod:`.online`'s SAC, :mod:`.online` for TD3 and SAC, :mod:`.dreamer_train`), and a trained policy loaded back
+whatever its algorithm. What the learners share lives below them, in :mod:`.baseline_run`."""
 
 from __future__ import annotations
 
-import dataclasses
-import importlib
-import json
 import os
-import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
-from vision_rl.envs.core import RacingConfig
-from vision_rl.files import write_json
-from vision_rl.overtaking.curriculum import BUDGETS
-from vision_rl.overtaking.demos import OBS_DIM, OBSERVATION, Demos
-from vision_rl.overtaking.dreamer import DreamerRecipe, LoadedDreamer
-from vision_rl.sim.track_library import load_track
-from vision_rl.training.artifact import (
-    MODEL_NAME,
-    LoadedPolicy,
-    PolicySpec,
-    load_policy,
-    policy_fingerprint,
-    racing_config_to_dict,
-    resolve_policy_paths,
+from vision_rl.overtaking.baseline_run import (
+    HIDDEN_UNITS,
+    BaselineError,
+    Progress,
+    TrainBaselineConfig,
+    baseline_algo,
+    check_config,
 )
-from vision_rl.training.sac import PRESETS, SACPreset
+from vision_rl.overtaking.bc import train_bc
+from vision_rl.overtaking.demos import OBS_DIM, OBSERVATION
+from vision_rl.overtaking.dreamer import LoadedDreamer
+from vision_rl.overtaking.dreamer_train import load_dreamer, train_dreamer
+from vision_rl.overtaking.gail import GAILCompanion
+from vision_rl.overtaking.online import load_td3, train_online
+from vision_rl.training.artifact import LoadedPolicy, PolicySpec, load_policy, resolve_policy_paths
 
 
-class Learner(NamedTuple):
-    """Where an algorithm is trained, by module name: every learner module imports this one, so this one imports
-    a learner only when it dispatches to it."""
+@dataclass(frozen=True)
+class Learner:
+    """How one algorithm trains and loads."""
 
-    trainer: str
-    """``module:function`` under vision_rl.overtaking, called as ``function(cfg, progress[, companion])``."""
-    companion: str = ""
-    """``module:class`` whose ``class(cfg)`` rides along the trainer (gail: a discriminator beside online SAC)."""
-    loader: str = ""
-    """``module:function`` that loads the algorithm's policy as ``function(weights, spec, sidecar, device)``;
-    empty: an SB3 SAC policy, loaded with :func:`~.artifact.load_policy` like every SAC policy."""
+    train: Callable[..., dict[str, Any]]
+    """``train(cfg, progress[, companion])``."""
+    companion: Callable[[TrainBaselineConfig], Any] | None = None
+    """What rides along the trainer (gail: a discriminator beside online SAC)."""
+    load: Callable[[Path, PolicySpec, Path, str], Any] | None = None
+    """``load(weights, spec, sidecar, device)``; None: an SB3 SAC policy, loaded like every SAC policy."""
 
 
 #: Each algorithm and its learner.
 ALGOS: dict[str, Learner] = {
-    "bc": Learner("bc:train_bc"),
-    "gail": Learner("online:train_online", companion="gail:GAILCompanion"),
-    "td3": Learner("online:train_online", loader="online:load_td3"),
-    "sac": Learner("online:train_online"),
-    "dreamer": Learner("dreamer_train:train_dreamer", loader="dreamer_train:load_dreamer"),
+    "bc": Learner(train_bc),
+    "gail": Learner(train_online, companion=GAILCompanion),
+    "td3": Learner(train_online, load=load_td3),
+    "sac": Learner(train_online),
+    "dreamer": Learner(train_dreamer, load=load_dreamer),
 }
-ONLINE = ("gail", "td3", "sac", "dreamer")
-#: The paper's network for every method (section IV-B): 2 hidden layers of 256 ReLU units.
-HIDDEN_UNITS = (256, 256)
-RUN_NAME = "baseline.json"
-METRICS_NAME = "metrics.jsonl"
-RUN_FORMAT = "vision_rl.baseline_run"
-#: bc's default cap on gradient updates (it normally stops earlier, at convergence).
-BC_DEFAULT_STEPS = 200_000
-
-
-class BaselineError(ValueError):
-    """A baseline run or policy that cannot be used as asked; the message says why."""
-
-
-@dataclass(frozen=True)
-class TrainBaselineConfig:
-    """A Table III baseline (bc, gail, td3, sac or dreamer) on the single-car race, MLP 2 x 256, the 96-D
-    observation."""
-
-    algo: str = "bc"
-    """bc, gail, td3, sac or dreamer (the PlaNet row)."""
-    steps: int = 0
-    """bc: cap on gradient updates (0: 200k; it stops at convergence); online: environment steps over all cars
-    (0: our SAC stage 1's budget, 1M)."""
-    seed: int = 0
-    """Seed of the networks, exploration, start points and the bc split."""
-    demos: str = "runs/demos/ai.npz"
-    """Demonstrations (record-demos) for bc and gail."""
-    track: str = "expressway"
-    """Track: built-in name, random:SEED or CSV path (the demonstrations' own)."""
-    car: str = "tt_cup"
-    """Car preset (the paper's Audi TT Cup: tt_cup)."""
-    cars: int = 20
-    """Online algorithms: cars sampled at once in one world (the paper's 20)."""
-    out: str = ""
-    """Run folder (default runs/baselines/<algo>-<track>-<car>-s<seed>)."""
-    force: bool = False
-    """Delete the run folder and start over."""
-    preset: str = "cpu"
-    """Online recipe: cpu (our SAC stage 1's) or paper (Table II)."""
-    episode_s: float = 100.0
-    """Training episode length, s (1,000 steps at 10 Hz)."""
-    learning_rate: float = 0.0
-    """Override the preset's (online) or bc's 1e-3 learning rate (0: keep)."""
-    batch_size: int = 0
-    """Override the preset's (online) or bc's 256 batch size (0: keep)."""
-    buffer_size: int = 0
-    """Override the preset's replay buffer size (0: keep)."""
-    learning_starts: int = -1
-    """Override the preset's random start steps (-1: keep)."""
-    eval_every_steps: int = 100_000
-    """Online: evaluate on the lap-time protocol every N steps (0: off)."""
-    eval_seeds: int = 1
-    """Start seeds of each periodic evaluation."""
-    eval_laps: int = 2
-    """Laps of each periodic evaluation (the last is scored)."""
-    eval_time_limit_s: float = 0.0
-    """Time limit of each periodic evaluation, s (0: the protocol's)."""
-    checkpoint_every_steps: int = 200_000
-    """Online: save weights and replay buffer every N steps (0: off)."""
-    checkpoint_every_min: float = 10.0
-    """Online: save weights, optimisers and counters every N minutes (0: off)."""
-    bc_patience: int = 10
-    """bc: stop after this many epochs without a better held-out error."""
-    bc_min_improvement: float = 0.01
-    """bc: an epoch is better when its held-out error is below (1 - this) x the best so far."""
-    bc_max_epochs: int = 500
-    """bc: cap on epochs."""
-    gail_disc_every_steps: int = 1_000
-    """gail: discriminator updates every N transitions."""
-    gail_disc_updates: int = 10
-    """gail: discriminator gradient steps each time."""
-    gail_disc_batch: int = 256
-    """gail: expert and learner pairs per discriminator step (each)."""
-    gail_disc_lr: float = 3e-4
-    """gail: discriminator learning rate."""
-    td3_noise: float = 0.1
-    """td3: std of the Gaussian exploration noise, as a share of each action's half range."""
-    dreamer_train_every_steps: int = 100
-    """dreamer: transitions (over all cars) per update of the world model, actor and value."""
-    dreamer_sequence_steps: int = 32
-    """dreamer: control steps per training sequence."""
-    device: str = "auto"
-    """Torch device: auto, cpu or cuda."""
-
-
-def default_out(cfg: TrainBaselineConfig) -> Path:
-    track = cfg.track.replace("random:", "random-")
-    if track.endswith(".csv") or os.sep in track:
-        track = Path(track).stem
-    return Path("runs") / "baselines" / f"{cfg.algo}-{track}-{cfg.car}-s{cfg.seed}"
-
-
-def check_config(cfg: TrainBaselineConfig) -> None:
-    """One clear line for a bad option, before anything is built or written."""
-    if cfg.algo not in ALGOS:
-        hint = "; PlaNet's row is trained as its successor, --algo dreamer" if cfg.algo.lower() == "planet" else ""
-        raise ValueError(f"--algo must be one of {', '.join(ALGOS)}, got {cfg.algo!r}{hint}")
-    if cfg.preset not in PRESETS:
-        raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
-    checks = {
-        "steps": cfg.steps >= 0,
-        "cars": 1 <= cfg.cars <= 1000,
-        "episode_s": cfg.episode_s >= 0.1,
-        "learning_rate": cfg.learning_rate >= 0,
-        "batch_size": cfg.batch_size >= 0,
-        "buffer_size": cfg.buffer_size >= 0,
-        "eval_every_steps": cfg.eval_every_steps >= 0,
-        "eval_seeds": cfg.eval_seeds >= 1,
-        "eval_laps": cfg.eval_laps >= 1,
-        "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
-        "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
-        "bc_patience": cfg.bc_patience >= 1,
-        "bc_min_improvement": 0 <= cfg.bc_min_improvement < 1,
-        "bc_max_epochs": cfg.bc_max_epochs >= 1,
-        "gail_disc_every_steps": cfg.gail_disc_every_steps >= 1,
-        "gail_disc_updates": cfg.gail_disc_updates >= 0,
-        "gail_disc_batch": cfg.gail_disc_batch >= 1,
-        "gail_disc_lr": cfg.gail_disc_lr > 0,
-        "td3_noise": cfg.td3_noise >= 0,
-        "dreamer_train_every_steps": cfg.dreamer_train_every_steps >= 1,
-        "dreamer_sequence_steps": cfg.dreamer_sequence_steps >= 2,
-    }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        raise ValueError(f"--{bad[0].replace('_', '-')} {getattr(cfg, bad[0])} is out of range")
-    if cfg.algo in ONLINE:
-        preset = resolve_recipe(cfg)
-        if total_steps(cfg) <= preset.learning_starts:
-            raise ValueError(
-                f"--steps {total_steps(cfg)} is not above the {preset.learning_starts} random start "
-                "steps (--learning-starts): it would make no update"
-            )
-        if preset.buffer_size < cfg.cars:
-            raise ValueError(f"--buffer-size {preset.buffer_size} holds less than one step of {cfg.cars} cars")
-
-
-def resolve_recipe(cfg: TrainBaselineConfig) -> SACPreset:
-    """The online recipe: the preset with the options' overrides, always the paper's 2 x 256 network."""
-    base = PRESETS[cfg.preset]
-    return dataclasses.replace(
-        base,
-        hidden_units=HIDDEN_UNITS,
-        learning_rate=cfg.learning_rate or base.learning_rate,
-        batch_size=cfg.batch_size or base.batch_size,
-        buffer_size=cfg.buffer_size or base.buffer_size,
-        learning_starts=base.learning_starts if cfg.learning_starts < 0 else cfg.learning_starts,
-    )
-
-
-def dreamer_recipe(cfg: TrainBaselineConfig) -> DreamerRecipe:
-    """Dreamer's recipe with the options' overrides (sequences per update, the world model's step size)."""
-    base = DreamerRecipe(hidden_units=HIDDEN_UNITS)
-    return dataclasses.replace(
-        base,
-        batch_sequences=cfg.batch_size or base.batch_sequences,
-        sequence_steps=cfg.dreamer_sequence_steps,
-        model_lr=cfg.learning_rate or base.model_lr,
-    )
-
-
-def total_steps(cfg: TrainBaselineConfig) -> int:
-    if cfg.steps:
-        return cfg.steps
-    return BC_DEFAULT_STEPS if cfg.algo == "bc" else BUDGETS[cfg.preset].stage1_max_steps
-
-
-def baseline_fingerprint(config: RacingConfig, algo: str) -> dict[str, Any]:
-    """The policy fingerprint of :func:`~.artifact.policy_fingerprint` plus the algorithm."""
-    return {**policy_fingerprint(config, OBSERVATION, OBS_DIM, None), "algo": algo}
-
-
-def settings_of(cfg: TrainBaselineConfig, demos: Demos | None) -> dict[str, Any]:
-    """What a run folder must keep when it is continued (``steps`` may grow)."""
-    keep = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("steps", "out", "force", "device")}
-    if cfg.algo in ONLINE:
-        keep["recipe"] = json.loads(json.dumps(dataclasses.asdict(resolve_recipe(cfg))))
-    if cfg.algo == "dreamer":
-        keep["dreamer"] = json.loads(json.dumps(dataclasses.asdict(dreamer_recipe(cfg))))
-    if demos is not None:
-        keep["demos_sha256"] = demos.sha256
-    return keep
-
-
-def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise BaselineError(f"{path}: unreadable ({exc}); start over with --force") from None
-    if not isinstance(data, dict) or data.get("format") != RUN_FORMAT:
-        raise BaselineError(f"{path}: not a train-baseline record; start over with --force")
-    return data
-
-
-def eval_figures(summary: dict[str, Any]) -> dict[str, Any]:
-    """A periodic evaluation's protocol figures in metrics.jsonl: the best lap, the starts finished and why each
-    start did not (None where it finished)."""
-    return {
-        "lap_time_s": summary["best_lap_time_s"],
-        "finished": summary["n_finished"],
-        "dnf_reasons": [seed["dnf_reason"] for seed in summary["seeds"]],
-    }
-
-
-def append_metrics(folder: Path, record: dict[str, Any]) -> None:
-    with open(folder / METRICS_NAME, "a") as f:
-        f.write(json.dumps(record) + "\n")
-
-
-#: ``progress(phase, done, total, figures)``: bc reports epochs, the online algorithms environment steps.
-Progress = Callable[[str, int, int, "dict[str, Any] | None"], None]
-
-
-# ------------------------------------------------------------------------------------------------- the run folder
-
-
-class RunFolder:
-    """``baseline.json`` of a run: created fresh, or continued with the same settings."""
-
-    def __init__(self, cfg: TrainBaselineConfig, demos: Demos | None) -> None:
-        self.cfg = cfg
-        self.out = Path(cfg.out) if cfg.out else default_out(cfg)
-        self.settings = settings_of(cfg, demos)
-        path = self.out / RUN_NAME
-        if cfg.force and self.out.exists():
-            shutil.rmtree(self.out)
-        if path.is_file():
-            record = _read_json(path)
-            recorded = record.get("settings") or {}
-            for key, want in self.settings.items():
-                if recorded.get(key) != want:
-                    raise BaselineError(
-                        f"{path} was started with {key} = {recorded.get(key)!r}, not {want!r}: use "
-                        "its settings, another --out, or --force to start over"
-                    )
-            self.record = record
-        else:
-            if self.out.exists() and any(self.out.iterdir()):
-                raise BaselineError(f"{self.out} is not empty and holds no {RUN_NAME}: give another --out")
-            self.record = {"format": RUN_FORMAT, "algo": cfg.algo, "settings": self.settings, "status": "new"}
-            write_json(path, self.record)
-
-    def update(self, **fields: Any) -> None:
-        self.record.update(fields)
-        write_json(self.out / RUN_NAME, self.record)
-
-
-def policy_spec(
-    cfg: TrainBaselineConfig,
-    racing: RacingConfig,
-    normalizer,
-    fingerprint: dict[str, Any],
-    sha256: str,
-    recipe: dict[str, Any],
-    num_timesteps: int,
-    train_time_s: float,
-    settings: dict[str, Any],
-) -> PolicySpec:
-    """The sidecar every learner writes beside its weights: the policy file's description, the run's settings."""
-    return PolicySpec(
-        observation=OBSERVATION,
-        racing_config=racing_config_to_dict(racing),
-        obs_normalizer=normalizer.to_dict(),
-        fingerprint=fingerprint,
-        weights_sha256=sha256,
-        model=MODEL_NAME,
-        preset=cfg.preset,
-        sac={**recipe, "hidden_units": list(HIDDEN_UNITS)},
-        seed=cfg.seed,
-        num_timesteps=int(num_timesteps),
-        train_time_s=round(train_time_s, 2),
-        train_config={**settings, "algo": cfg.algo},
-    )
-
-
-# ------------------------------------------------------------------------------------------------- dispatch
-
-
-def _resolve(target: str) -> Any:
-    """``module:name`` under vision_rl.overtaking, imported now (see :class:`Learner`)."""
-    module, name = target.split(":")
-    return getattr(importlib.import_module(f"vision_rl.overtaking.{module}"), name)
 
 
 def train_baseline(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Train (or continue) one Table III baseline; returns its run record, the policy folder and the figures."""
     check_config(cfg)
     learner = ALGOS[cfg.algo]
-    train = _resolve(learner.trainer)
-    if learner.companion:
-        return train(cfg, progress, _resolve(learner.companion)(cfg))
-    return train(cfg, progress)
-
-
-# ------------------------------------------------------------------------------------------------- loading
-
-
-def baseline_algo(spec: PolicySpec) -> str:
-    """The algorithm of a policy sidecar: its fingerprint's ``algo``; a policy without one is SAC (train-policy
-    and train-overtaking write SAC policies)."""
-    return str(spec.fingerprint.get("algo", "sac"))
+    if learner.companion is not None:
+        return learner.train(cfg, progress, learner.companion(cfg))
+    return learner.train(cfg, progress)
 
 
 def load_baseline(
@@ -371,7 +63,7 @@ def load_baseline(
 ) -> LoadedPolicy | LoadedDreamer:
     """A Table III policy (a train-baseline folder, or a train-overtaking stage-1 folder as SAC) ready to drive,
     refusing, in one line, a policy of another observation, network size or algorithm (``algo``), and every
-    check of :func:`~.artifact.load_policy` (checksum, fingerprint against the track as it loads today)."""
+    check of :func:`~vision_rl.training.artifact.load_policy` (checksum, fingerprint against the track)."""
     weights, sidecar = resolve_policy_paths(path)
     spec = PolicySpec.read(sidecar)
     if spec.observation != OBSERVATION:
@@ -387,37 +79,7 @@ def load_baseline(
     units = spec.sac.get("hidden_units")
     if [int(u) for u in units or []] != list(HIDDEN_UNITS):
         raise BaselineError(f"{sidecar}: hidden units {units}, not the paper's {list(HIDDEN_UNITS)}")
-    loader = ALGOS[recorded].loader
-    if not loader:
+    loader = ALGOS[recorded].load
+    if loader is None:
         return load_policy(path, device=device)
-    return _resolve(loader)(weights, spec, sidecar, device)
-
-
-def check_table_track(loaded: LoadedPolicy, track: str, car: str) -> None:
-    """Refuse a policy trained on another track geometry or car than the table's."""
-    fp = loaded.spec.fingerprint
-    want = load_track(track).geometry_hash
-    if fp.get("track_geometry_hash") != want or fp.get("car") != car:
-        raise BaselineError(
-            f"{loaded.spec_path}: trained on track {loaded.spec.racing_config.get('track')!r} "
-            f"({str(fp.get('track_geometry_hash'))[:12]}...) with car {fp.get('car')!r}, not {track!r} "
-            f"({want[:12]}...) with {car!r}"
-        )
-
-
-__all__ = [
-    "ALGOS",
-    "BaselineError",
-    "Learner",
-    "LoadedDreamer",
-    "Progress",
-    "RunFolder",
-    "TrainBaselineConfig",
-    "baseline_algo",
-    "baseline_fingerprint",
-    "check_config",
-    "check_table_track",
-    "load_baseline",
-    "policy_spec",
-    "train_baseline",
-]
+    return loader(weights, spec, sidecar, device)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from vision_rl.overtaking.baselines import (
+from vision_rl.overtaking.baseline_run import (
     HIDDEN_UNITS,
     METRICS_NAME,
     BaselineError,
@@ -147,6 +147,7 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
     (run.out / METRICS_NAME).unlink(missing_ok=True)  # bc starts over: its epochs are its own
     torch.set_num_threads(1)
     device = torch_device(cfg.device)
+    torch.manual_seed(cfg.seed)  # the network's initial weights too: a seed gives one policy
     policy = sac_policy(OBS_DIM, list(HIDDEN_UNITS), device)
     train_idx, val_idx = split_episodes(demos, cfg.seed)
     scaled = policy.scale_action(demos.expert_actions.astype(np.float64)).astype(np.float32)

@@ -23,7 +23,7 @@ import torch
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import time_laps
 from vision_rl.files import atomic_write
-from vision_rl.overtaking.baselines import (
+from vision_rl.overtaking.baseline_run import (
     HIDDEN_UNITS,
     BaselineError,
     Progress,

@@ -18,7 +18,7 @@ import torch
 from stable_baselines3.common.buffers import ReplayBuffer
 from torch import nn
 
-from vision_rl.overtaking.baselines import HIDDEN_UNITS, BaselineError, TrainBaselineConfig
+from vision_rl.overtaking.baseline_run import HIDDEN_UNITS, BaselineError, TrainBaselineConfig
 from vision_rl.overtaking.demos import OBS_DIM, Demos, load_demos_for
 from vision_rl.training.sac import next_multiple
 

@@ -32,7 +32,7 @@ from stable_baselines3.common.vec_env import VecMonitor
 from vision_rl.envs.racing_env import action_space
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import time_laps
-from vision_rl.overtaking.baselines import (
+from vision_rl.overtaking.baseline_run import (
     HIDDEN_UNITS,
     BaselineError,
     Progress,

@@ -23,7 +23,8 @@ from typing import Any
 
 from vision_rl.evaluation.leaderboard import aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
-from vision_rl.overtaking.baselines import ALGOS, BaselineError, baseline_algo, check_table_track, load_baseline
+from vision_rl.overtaking.baseline_run import BaselineError, baseline_algo, check_table_track
+from vision_rl.overtaking.baselines import load_baseline
 from vision_rl.overtaking.demos import HeldAIDriver
 from vision_rl.sim.track_library import load_track
 from vision_rl.training.artifact import SIDECAR_NAME, PolicyError
@@ -230,4 +231,4 @@ def _beside_the_paper(row: dict[str, Any], ai: dict[str, Any]) -> None:
     )
 
 
-__all__ = ["ALGOS", "PAPER_TABLE3", "ROW_OF_ALGO", "Table3Config", "find_runs", "table3"]
+__all__ = ["PAPER_TABLE3", "ROW_OF_ALGO", "Table3Config", "find_runs", "table3"]
