@@ -239,6 +239,127 @@ def driver_steps_per_frame(fps: float, control_dt_s: float) -> int:
     return steps
 
 
+def _world_timing(cfg: CaptureConfig, driver) -> tuple[WorldConfig, float, int]:
+    """(world configuration, control step in s, control steps per frame) of a capture driven by the AI or by
+    ``driver``."""
+    if driver is None:
+        physics_dt, control_dt, steps_per_frame = physics_step_for(cfg.fps)
+        return WorldConfig(physics_dt_s=physics_dt, control_dt_s=control_dt), control_dt, steps_per_frame
+    if cfg.disrupt_ai:
+        raise ValueError("a capture driven by a policy is not disrupted: give --no-disrupt")
+    control_dt, steps_per_frame = driver.control_dt_s, driver_steps_per_frame(cfg.fps, driver.control_dt_s)
+    return (
+        WorldConfig(control_dt_s=control_dt),
+        control_dt,
+        steps_per_frame,
+    )  # as in the policy's training and the protocol
+
+
+def _open_or_resume(
+    path: Path, track: Track, cfg: CaptureConfig, renderer_settings: dict, identity: dict | None, frame_dt_s: float
+) -> tuple[CaptureWriter, int, np.ndarray, float]:
+    """The writer, the frames already in the file, each car's next lap index and the time of the next frame, s."""
+    writer = open_writer(path, track, cfg, renderer_settings, "sim", identity)
+    if not (cfg.resume and writer.n_frames):
+        return writer, 0, np.zeros(0, dtype=np.int64), 0.0
+    writer.close()
+    frames_before, lap_offset, t_before = _done_so_far(path)
+    t_before += frame_dt_s  # the first new frame comes one frame after the last kept one
+    return open_writer(path, track, cfg, renderer_settings, "sim", identity), frames_before, lap_offset, t_before
+
+
+def _start_driving(
+    world: World, cfg: CaptureConfig, driver, rng: np.random.Generator
+) -> tuple[Callable[..., None], Callable[[int], None]]:
+    """Place the cars spread over the lap; returns ``place(ids, s_m, speed_share=1.0)``, which puts cars on the AI's
+    racing line, and ``advance(steps)``, which drives every car that many control steps (the AI, or ``driver``)."""
+    track, n = world.track, world.n_cars
+    line, profile = line_and_profile(track, world.car)
+    disruption = DisruptionParams(steer_offset_rad=cfg.disrupt_steer_offset_rad) if cfg.disrupt_ai else None
+    skill = disruption.skill if disruption is not None else DEFAULT_SKILL
+    fleet_seed = int(rng.integers(2**31))  # drawn with a driver too, so the start points do not depend on who drives
+    if driver is None:
+        fleet = AIFleet(world, line, profile, skill=skill, disruption=disruption, seed=fleet_seed)
+        place, advance = fleet.place, fleet.advance
+    else:  # the AI only places the cars on its line, at its speed
+
+        def place(ids: np.ndarray, s_m: np.ndarray, speed_share: float = 1.0) -> None:
+            place_on_line(world, line, profile, ids, s_m, speed_share * skill)
+
+        def advance(steps: int) -> None:
+            for _ in range(steps):
+                action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(n, 2)
+                world.step(action[:, 0], action[:, 1])
+
+    s0 = np.mod(rng.uniform(0, track.length_m) + np.arange(n) * track.length_m / n, track.length_m)
+    place(np.arange(n), s0)
+    if driver is not None:
+        driver.reset(world, np.arange(n))
+    return place, advance
+
+
+class _Placements:
+    """Each car's lap bookkeeping across its placements: the lap index of its frames (never reused: a lap cut by an
+    interruption or a stuck-reset is not continued), the whole laps recorded and where its placement began; and the
+    re-placing of stuck cars."""
+
+    def __init__(self, world: World, place, driver, lap_offset: np.ndarray, frame_dt_s: float, disrupted: bool):
+        n = world.n_cars
+        self.world, self.place, self.driver, self.disrupted = world, place, driver, disrupted
+        self.lap_index_base = np.pad(lap_offset, (0, max(0, n - len(lap_offset))))[:n]
+        self.lap_count_base = np.maximum(self.lap_index_base - 1, 0)
+        self.start_u = world.state.unwrapped_s_m.copy()
+        # The disrupted AI may end up facing a wall: the project's stuck rule, checked every frame.
+        self.stuck_detector = StuckDetector(world.state.unwrapped_s_m, frame_dt_s)
+        self.resets = self.turned_resets = 0
+
+    def completed(self) -> np.ndarray:
+        """Whole laps each car has driven since its placement."""
+        return np.floor((self.world.state.unwrapped_s_m - self.start_u) / self.world.track.length_m).astype(np.int64)
+
+    def replace_stuck(self) -> None:
+        """Capture wants frames, not a race: a stuck (or, disrupted, turned) car goes back on the racing line a little
+        ahead, at half the AI's speed, and starts a new lap index: a lap never mixes two placements."""
+        world, state = self.world, self.world.state
+        stuck = self.stuck_detector.update(state.unwrapped_s_m)
+        self.resets += len(stuck)
+        if self.disrupted:
+            turned = np.setdiff1d(turned_round(world.track, state), stuck)
+            self.turned_resets += len(turned)
+            stuck = np.union1d(stuck, turned)
+        if not len(stuck):
+            return
+        done_now = np.floor((state.unwrapped_s_m[stuck] - self.start_u[stuck]) / world.track.length_m)
+        self.lap_count_base[stuck] += done_now.astype(np.int64)
+        self.lap_index_base[stuck] += done_now.astype(np.int64) + 1
+        self.place(stuck, state.s_m[stuck] + 5.0, speed_share=0.5)
+        self.start_u[stuck] = world.state.unwrapped_s_m[stuck]
+        self.stuck_detector.reset(stuck, world.state.unwrapped_s_m)
+        if self.driver is not None:  # its steering memory and frame history start again from the new poses
+            self.driver.reset(world, np.arange(world.n_cars))
+
+
+def _write_frame(
+    writer: CaptureWriter, renderer, world: World, caster: sensors.WallRayCaster, time_s: float, lap: np.ndarray
+) -> None:
+    """Every car's driver's view with the targets, the dedicated features and the pose at this instant."""
+    st = world.state
+    v = st.vehicle
+    n = world.n_cars
+    images = renderer.render(v.x_m, v.y_m, v.yaw_rad, groups=world.model.groups)
+    targets = sensors.environment_targets(world.track, caster, v.x_m, v.y_m, v.yaw_rad, st.s_m, st.lateral_m)
+    dedicated = sensors.dedicated_features(v, st.wall_contact, st.prev_steer_cmd_rad)
+    writer.append(
+        images=images,
+        targets=targets.astype(np.float32),
+        dedicated=dedicated.astype(np.float32),
+        pose=np.stack([v.x_m, v.y_m, v.yaw_rad], axis=1),
+        time_s=np.full(n, time_s),
+        lap=lap.astype(np.int32),
+        car_id=np.arange(n, dtype=np.int32),
+    )
+
+
 def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None = None, driver=None) -> dict:
     """Drive, render and record until ``cfg.laps`` laps (over all cars) are in the file; returns a summary.
 
@@ -252,55 +373,21 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
     path = Path(cfg.out)
     track = load_track(cfg.track)
     car = get_preset(cfg.car)
-    if driver is None:
-        physics_dt, control_dt, steps_per_frame = physics_step_for(cfg.fps)
-        world_config = WorldConfig(physics_dt_s=physics_dt, control_dt_s=control_dt)
-    else:
-        if cfg.disrupt_ai:
-            raise ValueError("a capture driven by a policy is not disrupted: give --no-disrupt")
-        control_dt, steps_per_frame = driver.control_dt_s, driver_steps_per_frame(cfg.fps, driver.control_dt_s)
-        world_config = WorldConfig(control_dt_s=control_dt)  # as in the policy's training and the protocol
+    world_config, control_dt, steps_per_frame = _world_timing(cfg, driver)
     identity = None if driver is None else dict(driver.identity)
     n = cfg.cars
     render_cfg = RenderConfig(width_px=cfg.width, height_px=cfg.height, max_views=n)
     renderer_settings = {**asdict(render_cfg), "camera": asdict(render_cfg.camera)}
-    writer = open_writer(path, track, cfg, renderer_settings, "sim", identity)
-    frames_before, lap_offset, t_before = (0, np.zeros(0, dtype=np.int64), 0.0)
-    if cfg.resume and writer.n_frames:
-        writer.close()
-        frames_before, lap_offset, t_before = _done_so_far(path)
-        t_before += steps_per_frame * control_dt  # the first new frame comes one frame after the last kept one
-        writer = open_writer(path, track, cfg, renderer_settings, "sim", identity)
-    # Lap bookkeeping per car: the lap index of its frames (never reused: a lap cut by an interruption or a
-    # stuck-reset is not continued) and the number of whole laps recorded.
-    lap_index_base = np.pad(lap_offset, (0, max(0, n - len(lap_offset))))[:n]
-    lap_count_base = np.maximum(lap_index_base - 1, 0)
-    laps_before = int(lap_count_base.sum())
-
+    writer, frames_before, lap_offset, t_before = _open_or_resume(
+        path, track, cfg, renderer_settings, identity, steps_per_frame * control_dt
+    )
     # A resumed run restarts the world from a state derived from the seed and the frames already kept.
     rng = np.random.default_rng([cfg.seed, frames_before])
     world = World(track, car, n_cars=n, config=world_config)
-    line, profile = line_and_profile(track, car)
-    disruption = DisruptionParams(steer_offset_rad=cfg.disrupt_steer_offset_rad) if cfg.disrupt_ai else None
-    skill = disruption.skill if disruption is not None else DEFAULT_SKILL
-    fleet_seed = int(rng.integers(2**31))  # drawn with a driver too, so the start points do not depend on who drives
-    if driver is None:
-        fleet = AIFleet(world, line, profile, skill=skill, disruption=disruption, seed=fleet_seed)
-        place = fleet.place
-    else:  # the AI only places the cars on its line, at its speed
-
-        def place(ids: np.ndarray, s_m: np.ndarray, speed_share: float = 1.0) -> None:
-            place_on_line(world, line, profile, ids, s_m, speed_share * skill)
-
-    s0 = np.mod(rng.uniform(0, track.length_m) + np.arange(n) * track.length_m / n, track.length_m)
-    place(np.arange(n), s0)
-    if driver is not None:
-        driver.reset(world, np.arange(n))
-    start_u = world.state.unwrapped_s_m.copy()
+    place, advance = _start_driving(world, cfg, driver, rng)
+    run = _Placements(world, place, driver, lap_offset, steps_per_frame * control_dt, cfg.disrupt_ai)
+    laps_before = int(run.lap_count_base.sum())
     caster = sensors.WallRayCaster(track)
-    # The disrupted AI may end up facing a wall: the project's stuck rule, checked every frame.
-    stuck_detector = StuckDetector(world.state.unwrapped_s_m, steps_per_frame * control_dt)
-    resets = turned_resets = 0
     frames = 0
     laps_done = laps_before
     t0 = time.perf_counter()
@@ -309,51 +396,18 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
         with Renderer(track, render_cfg, car_length_m=car.length_m, car_width_m=car.width_m) as renderer:
             frame_step = 0
             while True:
-                st = world.state
-                v = st.vehicle
-                completed = np.floor((st.unwrapped_s_m - start_u) / track.length_m).astype(np.int64)
-                laps_done = int((lap_count_base + completed).sum())
+                completed = run.completed()
+                laps_done = int((run.lap_count_base + completed).sum())
                 if laps_done >= cfg.laps or 0 < cfg.max_frames <= frames:
                     break
-                images = renderer.render(v.x_m, v.y_m, v.yaw_rad, groups=world.model.groups)
-                targets = sensors.environment_targets(track, caster, v.x_m, v.y_m, v.yaw_rad, st.s_m, st.lateral_m)
-                dedicated = sensors.dedicated_features(v, st.wall_contact, st.prev_steer_cmd_rad)
-                writer.append(
-                    images=images,
-                    targets=targets.astype(np.float32),
-                    dedicated=dedicated.astype(np.float32),
-                    pose=np.stack([v.x_m, v.y_m, v.yaw_rad], axis=1),
-                    time_s=np.full(n, t_before + frame_step * steps_per_frame * control_dt),
-                    lap=(lap_index_base + completed).astype(np.int32),
-                    car_id=np.arange(n, dtype=np.int32),
-                )
+                frame_time_s = t_before + frame_step * steps_per_frame * control_dt
+                _write_frame(writer, renderer, world, caster, frame_time_s, run.lap_index_base + completed)
                 frames += n
                 if progress is not None:
                     progress(laps_done - laps_before, frames)
                 frame_step += 1
-                if driver is None:
-                    fleet.advance(steps_per_frame)
-                else:
-                    for _ in range(steps_per_frame):
-                        action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(n, 2)
-                        world.step(action[:, 0], action[:, 1])
-                stuck = stuck_detector.update(world.state.unwrapped_s_m)
-                resets += len(stuck)
-                if disruption is not None:
-                    turned = np.setdiff1d(turned_round(track, world.state), stuck)
-                    turned_resets += len(turned)
-                    stuck = np.union1d(stuck, turned)
-                if len(stuck):
-                    # Capture wants frames, not a race: a stuck (or turned) car goes back on the racing line a little
-                    # ahead, at half the AI's speed, and starts a new lap index: a lap never mixes two placements.
-                    done_now = np.floor((world.state.unwrapped_s_m[stuck] - start_u[stuck]) / track.length_m)
-                    lap_count_base[stuck] += done_now.astype(np.int64)
-                    lap_index_base[stuck] += done_now.astype(np.int64) + 1
-                    place(stuck, world.state.s_m[stuck] + 5.0, speed_share=0.5)
-                    start_u[stuck] = world.state.unwrapped_s_m[stuck]
-                    stuck_detector.reset(stuck, world.state.unwrapped_s_m)
-                    if driver is not None:  # its steering memory and frame history start again from the new poses
-                        driver.reset(world, np.arange(n))
+                advance(steps_per_frame)
+                run.replace_stuck()
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -367,8 +421,8 @@ def capture_sim(cfg: CaptureConfig, progress: Callable[[int, int], None] | None 
         "laps_in_file": laps_done,
         "complete": complete,
         "interrupted": interrupted,
-        "stuck_resets": resets,
-        "turned_resets": turned_resets,
+        "stuck_resets": run.resets,
+        "turned_resets": run.turned_resets,
         "capture_fps": frames / elapsed if elapsed > 0 else 0.0,
         "bytes_per_frame": path.stat().st_size / max(frames_before + frames, 1),
         "elapsed_s": elapsed,

@@ -266,6 +266,156 @@ def world_tick_s(control_dt_s: float) -> tuple[float, int]:
     )
 
 
+class _HeldCommand:
+    """The driver's command, asked every ``act_every`` world ticks and held in between. A driver holding its command
+    over several ticks sees the contacts of all of them, as its training environment shows them over a control step
+    (vision_rl.sim.fleet.AIFleet.advance)."""
+
+    def __init__(self, driver: Driver, n: int, act_every: int) -> None:
+        self.driver, self.n, self.act_every = driver, n, act_every
+        self.ticks = 0
+        self.wall_since_ask, self.car_since_ask = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        self.action = np.zeros((n, 2))
+
+    def command(self, state: WorldState) -> np.ndarray:
+        """The (n, 2) command of the next tick: the driver's answer on an asking tick, else the held one."""
+        if self.ticks % self.act_every == 0:
+            seen = state
+            if self.act_every > 1:
+                seen = seen._replace(wall_contact=self.wall_since_ask, car_contact=self.car_since_ask)
+                self.wall_since_ask, self.car_since_ask = np.zeros(self.n, dtype=bool), np.zeros(self.n, dtype=bool)
+            self.action = np.asarray(self.driver.act(seen), dtype=np.float64).reshape(self.n, 2)
+        self.ticks += 1
+        return self.action
+
+    def saw(self, state: WorldState) -> None:
+        """Remember a tick's contacts for the next asking tick."""
+        self.wall_since_ask |= state.wall_contact
+        self.car_since_ask |= state.car_contact
+
+
+class _Tally:
+    """What the protocol counts per seed while it runs: which cars still drive, why one stopped, when, and each lap's
+    figures (cumulative wall, car, off-track, distance and wall hits at each lap's end: a lap's figures are the
+    differences)."""
+
+    def __init__(self, n: int) -> None:
+        self.active = np.ones(n, dtype=bool)
+        self.dnf: list[str | None] = [None] * n
+        self.end_time_s = np.zeros(n)
+        self.off_track_s = np.zeros(n)
+        self.distance_m = np.zeros(n)
+        self.marks: list[list[np.ndarray]] = [[np.zeros(5)] for _ in range(n)]
+        self.wall_hits = np.zeros(n)
+        self.fastest_hit_mps = np.zeros(n)  # of the lap under way
+        self.fastest_hit_per_lap_mps: list[list[float]] = [[] for _ in range(n)]
+
+    def count_tick(self, track: Track, st: WorldState, events, touching_before: np.ndarray, speed_before_mps, dt):
+        """Add one world tick of ``dt`` seconds that ended in ``st``; the tick's contacts began where they touch now
+        and did not before."""
+        veh = st.vehicle
+        active = self.active
+        hit = active & st.wall_contact & ~touching_before
+        self.wall_hits += hit
+        self.fastest_hit_mps = np.maximum(self.fastest_hit_mps, np.where(hit, speed_before_mps, 0.0))
+        self.off_track_s += dt * (active & track.beyond_edge_line(st.s_m, st.lateral_m))
+        self.distance_m += dt * active * np.hypot(veh.vx_mps, veh.vy_mps)
+        for i in np.flatnonzero(events.lap_completed & active):
+            self.marks[i].append(
+                np.array(
+                    [
+                        st.wall_contact_time_s[i],
+                        st.car_contact_time_s[i],
+                        self.off_track_s[i],
+                        self.distance_m[i],
+                        self.wall_hits[i],
+                    ]
+                )
+            )
+            self.fastest_hit_per_lap_mps[i].append(float(self.fastest_hit_mps[i]))
+            self.fastest_hit_mps[i] = 0.0
+
+    def end_step(self, st: WorldState, laps: int, stuck: StuckDetector) -> None:
+        """After a protocol step: cars that completed ``laps`` laps are done, stuck cars are a DNF."""
+        finished = self.active & (st.laps_completed >= laps)
+        self.end_time_s[finished] = st.time_s[finished]
+        self.active &= ~finished
+        stuck_now = np.intersect1d(stuck.update(st.unwrapped_s_m), np.flatnonzero(self.active))
+        for i in stuck_now:
+            self.dnf[i] = f"stuck: {STUCK_RULE.describe()}, at {st.time_s[i]:.1f} s, {st.s_m[i]:.0f} m into the lap"
+        self.end_time_s[stuck_now] = st.time_s[stuck_now]
+        self.active[stuck_now] = False
+
+    def lap_records(self, i: int, lap_times_s: list[float], laps: int, lap_length_m: float) -> list[LapRecord]:
+        """Seed i's completed laps, at most ``laps``."""
+        marks = self.marks[i]
+        records = []
+        for k, lap_time_s in enumerate(lap_times_s[: len(marks) - 1][:laps]):
+            wall, car_s, off, dist, hits = marks[k + 1] - marks[k]
+            records.append(
+                LapRecord(
+                    lap_time_s=float(lap_time_s),
+                    wall_contact_s=float(wall),
+                    car_contact_s=float(car_s),
+                    off_track_s=float(off),
+                    avg_speed_kmh=float(3.6 * lap_length_m / lap_time_s),
+                    distance_m=float(dist),
+                    wall_hits=round(float(hits)),
+                    fastest_wall_hit_kmh=3.6 * self.fastest_hit_per_lap_mps[i][k],
+                )
+            )
+        return records
+
+
+_RECORDED = ("t", "x", "y", "yaw", "v", "wall", "steer", "omega")
+
+
+def _record_step(rec: dict[str, list[np.ndarray]], st: WorldState, wall_step: np.ndarray) -> None:
+    """One protocol step's poses of every seed, for :class:`LapTiming`'s recorded arrays."""
+    veh = st.vehicle
+    rec["t"].append(st.time_s[0])
+    rec["x"].append(veh.x_m.copy())
+    rec["y"].append(veh.y_m.copy())
+    rec["yaw"].append(veh.yaw_rad.copy())
+    rec["v"].append(np.hypot(veh.vx_mps, veh.vy_mps))
+    rec["wall"].append(wall_step)
+    rec["steer"].append(veh.steer_rad.copy())
+    rec["omega"].append(veh.omega.copy())
+
+
+def _store_recording(timing: LapTiming, rec: dict[str, list[np.ndarray]]) -> None:
+    timing.time_s = np.asarray(rec["t"])
+    timing.x_m, timing.y_m, timing.yaw_rad = (np.stack(rec[k]) for k in ("x", "y", "yaw"))
+    timing.speed_mps, timing.wall_contact = np.stack(rec["v"]), np.stack(rec["wall"])
+    timing.steer_rad, timing.omega = np.stack(rec["steer"]), np.stack(rec["omega"])
+
+
+def _protocol_step(world: World, held: _HeldCommand, tally: _Tally, world_steps: int, dt: float) -> np.ndarray:
+    """One protocol step of ``world_steps`` ticks of ``dt`` seconds; returns which cars touched a wall in it."""
+    wall_step = np.zeros(world.n_cars, dtype=bool)
+    for _ in range(world_steps):
+        action = held.command(world.state)
+        touching_before = world.state.wall_contact.copy()
+        speed_before_mps = np.hypot(world.state.vehicle.vx_mps, world.state.vehicle.vy_mps)
+        events = world.step(action[:, 0], action[:, 1])
+        st = world.state
+        wall_step |= st.wall_contact
+        held.saw(st)
+        tally.count_tick(world.track, st, events, touching_before, speed_before_mps, dt)
+    return wall_step
+
+
+def _checked_seeds(seeds: Sequence[int], laps: int) -> list[int]:
+    seeds = [int(s) for s in seeds]
+    if len(seeds) < 1:
+        raise ValueError("the protocol needs at least one seed")
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"seeds must differ, got {seeds}")
+    if laps < 1:
+        raise ValueError(f"laps must be >= 1, got {laps}")
+    return seeds
+
+
 def time_laps(
     driver: Driver,
     track: Track | str,
@@ -281,124 +431,41 @@ def time_laps(
     """
     track = track if isinstance(track, Track) else load_track(track)
     car = car if isinstance(car, VehicleParams) else get_preset(car)
-    seeds = [int(s) for s in seeds]
+    seeds = _checked_seeds(seeds, laps)
     n = len(seeds)
-    if n < 1:
-        raise ValueError("the protocol needs at least one seed")
-    if len(set(seeds)) != n:
-        raise ValueError(f"seeds must differ, got {seeds}")
-    if laps < 1:
-        raise ValueError(f"laps must be >= 1, got {laps}")
     dt, act_every = world_tick_s(driver.control_dt_s)
     world_steps = round(STEP_S / dt)
     world = World(track, car, n_cars=n, groups=np.arange(n), config=WorldConfig(control_dt_s=dt))
     lateral, speed, limit_lap_s = _start(track, car, seeds)
     world.reset(s_m=np.zeros(n), lateral_m=lateral, speed_mps=speed)
-    ids = np.arange(n)
-    driver.reset(world, ids)
+    driver.reset(world, np.arange(n))
     limit_s = time_limit_s if time_limit_s > 0 else laps * TIME_LIMIT_LIMIT_LAPS * limit_lap_s
-
-    active = np.ones(n, dtype=bool)
-    dnf: list[str | None] = [None] * n
-    end_time_s = np.zeros(n)
-    off_track_s = np.zeros(n)
-    distance_m = np.zeros(n)
-    # Cumulative (wall, car, off-track, distance, wall hits) at each lap's end; a lap's figures are the differences.
-    marks: list[list[np.ndarray]] = [[np.zeros(5)] for _ in range(n)]
-    wall_hits = np.zeros(n)
-    fastest_hit_mps = np.zeros(n)  # of the lap under way
-    fastest_hit_per_lap_mps: list[list[float]] = [[] for _ in range(n)]
+    tally = _Tally(n)
+    held = _HeldCommand(driver, n, act_every)
     stuck = StuckDetector(world.state.unwrapped_s_m, STEP_S, STUCK_RULE)
-    rec: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "x", "y", "yaw", "v", "wall", "steer", "omega")}
-    ticks = 0
-    # A driver holding its command over several ticks sees the contacts of all of them, as its training environment
-    # shows them over a control step (vision_rl.sim.fleet.AIFleet.advance).
-    wall_since_ask, car_since_ask = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    rec: dict[str, list[np.ndarray]] = {k: [] for k in _RECORDED}
     for _ in range(math.ceil(limit_s / STEP_S - 1e-9)):
-        wall_step = np.zeros(n, dtype=bool)
-        for _ in range(world_steps):
-            if ticks % act_every == 0:
-                seen = world.state
-                if act_every > 1:
-                    seen = seen._replace(wall_contact=wall_since_ask, car_contact=car_since_ask)
-                    wall_since_ask, car_since_ask = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-                action = np.asarray(driver.act(seen), dtype=np.float64).reshape(n, 2)
-            ticks += 1
-            touching_before = world.state.wall_contact.copy()
-            speed_before_mps = np.hypot(world.state.vehicle.vx_mps, world.state.vehicle.vy_mps)
-            events = world.step(action[:, 0], action[:, 1])
-            st = world.state
-            veh = st.vehicle
-            wall_step |= st.wall_contact
-            wall_since_ask |= st.wall_contact
-            car_since_ask |= st.car_contact
-            hit = active & st.wall_contact & ~touching_before
-            wall_hits += hit
-            fastest_hit_mps = np.maximum(fastest_hit_mps, np.where(hit, speed_before_mps, 0.0))
-            off_track_s += dt * (active & track.beyond_edge_line(st.s_m, st.lateral_m))
-            distance_m += dt * active * np.hypot(veh.vx_mps, veh.vy_mps)
-            for i in np.flatnonzero(events.lap_completed & active):
-                marks[i].append(
-                    np.array(
-                        [
-                            st.wall_contact_time_s[i],
-                            st.car_contact_time_s[i],
-                            off_track_s[i],
-                            distance_m[i],
-                            wall_hits[i],
-                        ]
-                    )
-                )
-                fastest_hit_per_lap_mps[i].append(float(fastest_hit_mps[i]))
-                fastest_hit_mps[i] = 0.0
-        st = world.state
+        wall_step = _protocol_step(world, held, tally, world_steps, dt)
         if record:
-            veh = st.vehicle
-            rec["t"].append(st.time_s[0])
-            rec["x"].append(veh.x_m.copy())
-            rec["y"].append(veh.y_m.copy())
-            rec["yaw"].append(veh.yaw_rad.copy())
-            rec["v"].append(np.hypot(veh.vx_mps, veh.vy_mps))
-            rec["wall"].append(wall_step)
-            rec["steer"].append(veh.steer_rad.copy())
-            rec["omega"].append(veh.omega.copy())
-        finished = active & (st.laps_completed >= laps)
-        end_time_s[finished] = st.time_s[finished]
-        active &= ~finished
-        stuck_now = np.intersect1d(stuck.update(st.unwrapped_s_m), np.flatnonzero(active))
-        for i in stuck_now:
-            dnf[i] = f"stuck: {STUCK_RULE.describe()}, at {st.time_s[i]:.1f} s, {st.s_m[i]:.0f} m into the lap"
-        end_time_s[stuck_now] = st.time_s[stuck_now]
-        active[stuck_now] = False
-        if not active.any():
+            _record_step(rec, world.state, wall_step)
+        tally.end_step(world.state, laps, stuck)
+        if not tally.active.any():
             break
     st = world.state
-    for i in np.flatnonzero(active):
-        dnf[i] = f"time limit: {laps} laps not done in {limit_s:.0f} s"
-        end_time_s[i] = st.time_s[i]
-
-    runs = []
-    for i, seed in enumerate(seeds):
-        lap_records = []
-        for k, lap_time_s in enumerate(world.lap_times_s[i][: len(marks[i]) - 1][:laps]):
-            wall, car_s, off, dist, hits = marks[i][k + 1] - marks[i][k]
-            lap_records.append(
-                LapRecord(
-                    lap_time_s=float(lap_time_s),
-                    wall_contact_s=float(wall),
-                    car_contact_s=float(car_s),
-                    off_track_s=float(off),
-                    avg_speed_kmh=float(3.6 * track.length_m / lap_time_s),
-                    distance_m=float(dist),
-                    wall_hits=round(float(hits)),
-                    fastest_wall_hit_kmh=3.6 * fastest_hit_per_lap_mps[i][k],
-                )
-            )
-        runs.append(SeedRun(seed, lap_records, dnf[i], float(distance_m[i]), float(end_time_s[i])))
+    for i in np.flatnonzero(tally.active):
+        tally.dnf[i] = f"time limit: {laps} laps not done in {limit_s:.0f} s"
+        tally.end_time_s[i] = st.time_s[i]
+    runs = [
+        SeedRun(
+            seed,
+            tally.lap_records(i, world.lap_times_s[i], laps, track.length_m),
+            tally.dnf[i],
+            float(tally.distance_m[i]),
+            float(tally.end_time_s[i]),
+        )
+        for i, seed in enumerate(seeds)
+    ]
     timing = LapTiming(track, car, laps, runs, float(limit_lap_s), float(limit_s), speed)
     if record and rec["t"]:
-        timing.time_s = np.asarray(rec["t"])
-        timing.x_m, timing.y_m, timing.yaw_rad = (np.stack(rec[k]) for k in ("x", "y", "yaw"))
-        timing.speed_mps, timing.wall_contact = np.stack(rec["v"]), np.stack(rec["wall"])
-        timing.steer_rad, timing.omega = np.stack(rec["steer"]), np.stack(rec["omega"])
+        _store_recording(timing, rec)
     return timing

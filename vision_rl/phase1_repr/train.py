@@ -451,20 +451,9 @@ def _quiet_lightning() -> Iterator[None]:
         logger.setLevel(level)
 
 
-def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> dict[str, Any]:
-    """Run training as configured; returns the paths written and the kept epoch's figures. Prints nothing;
-    ``progress`` (see :data:`TrainProgress`) hears of every step."""
-    from lightning.pytorch.callbacks import ModelCheckpoint
-    from lightning.pytorch.loggers import TensorBoardLogger
-
-    from vision_rl.datasets.datamodule import CaptureDataModule
-
-    if not cfg.data:
-        raise ValueError("training needs data: one or more capture files (--data)")
-    out = Path(cfg.out)
-    last_ckpt = _lightning_dir(out) / "last.ckpt"
-    # A process the DDP launcher started: rank 0 has checked and prepared the run folder; this one only trains.
-    rank = launch_rank()
+def _check_run_folder(cfg: TrainReprConfig, out: Path, last_ckpt: Path, rank: int) -> None:
+    """Refuse a resume without a last checkpoint or from one that could run code, and a folder holding a run unless
+    ``force`` (then it is emptied, by rank 0)."""
     if cfg.resume and not last_ckpt.is_file():
         raise FileNotFoundError(f"{out}: nothing to resume (no {last_ckpt.name})")
     if cfg.resume:
@@ -473,7 +462,12 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
         if not cfg.force:
             raise FileExistsError(f"{out} holds a run: resume it (--resume) or start over (--force)")
         shutil.rmtree(out)
-    L.seed_everything(cfg.seed, workers=True, verbose=False)
+
+
+def _data(cfg: TrainReprConfig, out: Path, rank: int):
+    """The data module, set up, and the record of its capture files (``data.json``, checked against the run's on a
+    resume, written by rank 0)."""
+    from vision_rl.datasets.datamodule import CaptureDataModule
 
     dm = CaptureDataModule(
         cfg.data,
@@ -485,10 +479,9 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
     )
     dm.prepare_data()
     dm.setup("fit")  # reads the targets and refuses non-finite or absurd ones, before anything is trained
-    catalogue = dm.catalogue
     assert dm.standardiser is not None and dm.val_set is not None
     dataset = {
-        "train": [dict(s) for s in catalogue.sources],
+        "train": [dict(s) for s in dm.catalogue.sources],
         "val": [dict(s) for s in dm.val_set.catalogue.sources] if cfg.val else "laps held out of train",
     }
     data_json = out / "data.json"
@@ -497,10 +490,12 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
     if rank == 0:
         out.mkdir(parents=True, exist_ok=True)
         write_json(data_json, dataset)
-    on_cpu = cfg.device == "cpu" or (cfg.device == "auto" and not torch.cuda.is_available())
-    if on_cpu and cfg.devices > 1:
-        # Processes share the machine's cores: torch's threads per process are the cores' share, not all of them.
-        torch.set_num_threads(max(1, len(os.sched_getaffinity(0)) // cfg.devices))
+    return dm, dataset
+
+
+def _repr_module(cfg: TrainReprConfig, dm) -> tuple[EncoderConfig, ReprModule]:
+    """The encoder's configuration for the data's frame size and the Lightning module that trains it."""
+    catalogue = dm.catalogue
     h, w = catalogue.image_hw_px
     enc_cfg = EncoderConfig(
         backbone=cfg.backbone,
@@ -524,11 +519,13 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
         mirror=cfg.mirror,
         balance_groups=cfg.balance_groups,
     )
-    history = MetricsHistory(out / "metrics.json", catalogue.target_units, catalogue.target_names)
-    best_weights = BestWeights()
-    throughput = _Throughput()
-    # Only last.ckpt, for --resume: the best weights travel in BestWeights' state inside it.
-    last_keeper = ModelCheckpoint(dirpath=_lightning_dir(out), save_last=True, save_top_k=0)
+    return enc_cfg, module
+
+
+def _fit(cfg: TrainReprConfig, out: Path, module: ReprModule, dm, callbacks: list[L.Callback]) -> L.Trainer:
+    """Lightning's fit of ``module`` on ``dm`` (from ``last.ckpt`` on a resume); returns the trainer."""
+    from lightning.pytorch.loggers import TensorBoardLogger
+
     with _quiet_lightning():
         trainer = L.Trainer(
             accelerator=cfg.device if cfg.device != "auto" else "auto",
@@ -538,31 +535,38 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
             max_epochs=cfg.epochs,
             max_steps=cfg.max_steps,
             logger=TensorBoardLogger(save_dir=str(out), name="tensorboard", version=""),
-            callbacks=[
-                best_weights,
-                history,
-                last_keeper,
-                throughput,
-                *([_ReportProgress(progress)] if progress else []),
-            ],
+            callbacks=callbacks,
             enable_progress_bar=False,
             enable_model_summary=False,
             num_sanity_val_steps=0,
             log_every_n_steps=max(1, min(50, len(dm.train_set) // max(1, cfg.batch_size))),
             deterministic=False,
         )
+        last_ckpt = _lightning_dir(out) / "last.ckpt"
         trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if cfg.resume else None, weights_only=True)
-    if not trainer.is_global_zero:  # rank 0 writes ckpt.pt, the figure and metrics.json
-        dm.train_set.close()
-        dm.val_set.close()
-        return {"rank": int(trainer.global_rank)}
+    return trainer
 
-    # The kept weights: the best validation epoch's, or the last ones when no validation finished (max_steps
-    # stopped the run inside its first epoch).
+
+def _write_kept(
+    out: Path,
+    enc_cfg: EncoderConfig,
+    module: ReprModule,
+    best_weights: BestWeights,
+    history: MetricsHistory,
+    dm,
+    dataset: dict[str, Any],
+    device: torch.device,
+) -> tuple[Path, Path, dict[str, Any]]:
+    """Write ``ckpt.pt``, the predicted-vs-true figure and the final ``metrics.json``; returns their paths and the
+    kept epoch's figures.
+
+    The kept weights: the best validation epoch's, or the last ones when no validation finished (max_steps stopped
+    the run inside its first epoch)."""
     net = ReprNet(EncoderConfig.from_dict(enc_cfg.to_dict()))
     net.load_state_dict(best_weights.weights or {k: v.detach().cpu() for k, v in module.net.state_dict().items()})
     net.eval()
     best = next((e for e in history.epochs if e["epoch"] == best_weights.epoch), None) or {}
+    catalogue = dm.catalogue
     ckpt_path = save_checkpoint(
         out / "ckpt.pt",
         net,
@@ -573,9 +577,43 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
         metrics={k: best[k] for k in ("epoch", "val_loss", "val_r2", "val_rmse") if k in best},
         dataset=dataset,
     )
-    pred, true = predict_dataset(net, dm.val_dataloader(), dm.standardiser, trainer.strategy.root_device)
+    pred, true = predict_dataset(net, dm.val_dataloader(), dm.standardiser, device)
     figure = plot_predictions(pred, true, catalogue.target_names, catalogue.target_units, out / "pred_vs_true.png")
     history.write({"ckpt": str(ckpt_path), "figure": str(figure)})
+    return ckpt_path, figure, best
+
+
+def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> dict[str, Any]:
+    """Run training as configured; returns the paths written and the kept epoch's figures. Prints nothing;
+    ``progress`` (see :data:`TrainProgress`) hears of every step."""
+    from lightning.pytorch.callbacks import ModelCheckpoint
+
+    if not cfg.data:
+        raise ValueError("training needs data: one or more capture files (--data)")
+    out = Path(cfg.out)
+    # A process the DDP launcher started: rank 0 has checked and prepared the run folder; this one only trains.
+    rank = launch_rank()
+    _check_run_folder(cfg, out, _lightning_dir(out) / "last.ckpt", rank)
+    L.seed_everything(cfg.seed, workers=True, verbose=False)
+    dm, dataset = _data(cfg, out, rank)
+    on_cpu = cfg.device == "cpu" or (cfg.device == "auto" and not torch.cuda.is_available())
+    if on_cpu and cfg.devices > 1:
+        # Processes share the machine's cores: torch's threads per process are the cores' share, not all of them.
+        torch.set_num_threads(max(1, len(os.sched_getaffinity(0)) // cfg.devices))
+    enc_cfg, module = _repr_module(cfg, dm)
+    history = MetricsHistory(out / "metrics.json", dm.catalogue.target_units, dm.catalogue.target_names)
+    best_weights = BestWeights()
+    throughput = _Throughput()
+    # Only last.ckpt, for --resume: the best weights travel in BestWeights' state inside it.
+    last_keeper = ModelCheckpoint(dirpath=_lightning_dir(out), save_last=True, save_top_k=0)
+    callbacks = [best_weights, history, last_keeper, throughput, *([_ReportProgress(progress)] if progress else [])]
+    trainer = _fit(cfg, out, module, dm, callbacks)
+    if not trainer.is_global_zero:  # rank 0 writes ckpt.pt, the figure and metrics.json
+        dm.train_set.close()
+        dm.val_set.close()
+        return {"rank": int(trainer.global_rank)}
+    device = trainer.strategy.root_device
+    ckpt_path, figure, best = _write_kept(out, enc_cfg, module, best_weights, history, dm, dataset, device)
     dm.train_set.close()
     dm.val_set.close()
     tensorboard = out / "tensorboard"
