@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from vision_rl.config import from_flat
 from vision_rl.overtaking.baseline_run import TrainBaselineConfig
 from vision_rl.overtaking.curriculum import TrainOvertakingConfig
 
@@ -34,7 +35,7 @@ def tiny_overtaking_config(track: str, out: Path, **kw) -> TrainOvertakingConfig
         checkpoint_every_steps=0,
         device="cpu",
     )
-    return TrainOvertakingConfig(**{**base, **kw})
+    return from_flat(TrainOvertakingConfig, {**base, **kw})
 
 
 def tiny_baseline_config(track: str, demos, out, **kw) -> TrainBaselineConfig:

@@ -67,16 +67,14 @@ def format_train_overtaking(result: dict[str, Any]) -> list[str]:
 
 def run_train_overtaking(opts: TrainOvertakingOptions) -> int:
     """SIGTERM saves and exits like Ctrl-C (exit 130); the same command continues the run."""
-    import dataclasses
-
+    from vision_rl.config import flat_values, from_flat
     from vision_rl.overtaking.curriculum import check_config, stages_of, train_overtaking
 
-    fields = {f.name for f in dataclasses.fields(TrainOvertakingConfig)}
-    values = {k: v for k, v in dataclasses.asdict(opts).items() if k in fields}
+    defaults = flat_values(TrainOvertakingConfig())
+    values = {k: v for k, v in flat_values(opts).items() if k in defaults}
     if opts.quick:  # tiny sizes where the option was left at its default: options given explicitly win
-        defaults = TrainOvertakingConfig()
-        values.update({k: v for k, v in QUICK.items() if values[k] == getattr(defaults, k)})
-    cfg = TrainOvertakingConfig(**values)
+        values.update({k: v for k, v in QUICK.items() if values[k] == defaults[k]})
+    cfg = from_flat(TrainOvertakingConfig, values)
     check_config(cfg)
     total = sum(s.steps for s in stages_of(cfg))
     previous = interrupt_on_sigterm()

@@ -19,7 +19,7 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,6 +32,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecMonitor
 
+from vision_rl.config import flat_values, nested
 from vision_rl.envs.core import RacingConfig, RacingCore
 from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
@@ -52,8 +53,17 @@ from vision_rl.training.artifact import (
 )
 from vision_rl.training.interrupts import learn_between_interrupts
 from vision_rl.training.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
-from vision_rl.training.sac import PRESETS, SaveClock, next_multiple, resolve_preset, sampler_setup, torch_device
+from vision_rl.training.sac import (
+    PRESETS,
+    SACOverrides,
+    SaveClock,
+    next_multiple,
+    resolve_preset,
+    sampler_setup,
+    torch_device,
+)
 from vision_rl.training.sac import read_metrics as read_train_metrics
+from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule, SamplerOptions
 
 OBSERVATION = "overtaking"
 OBS_DIM = len(OBS_NAMES[OBSERVATION])
@@ -103,16 +113,62 @@ class OvertakingRunError(ValueError):
 class TrainOvertakingConfig:
     """Curriculum SAC (stages 1-3, Agents 1-3) or standard SAC on the overtaking task."""
 
+    @staticmethod
+    def check_options(options: Mapping[str, Any]) -> None:
+        _check_ranges(options)
+
     agent: str = "1"
     """1 (stages 1-2), 2 (1-3, c 0.005 in stage 3), 3 (1-3, c 0.01 in stage 3) or standard (Eq. 2 from scratch)."""
-    track: str = "expressway"
-    """Track: built-in name, random:SEED or CSV path."""
-    car: str = "tt_cup"
-    """Car preset (the paper's Audi TT Cup: tt_cup)."""
-    cars: int = 20
-    """Ego cars in the one world, each with its own opponents (the paper's 20)."""
-    preset: str = "cpu"
-    """`paper` (Table II) or `cpu` (learns on 2 cores); also sets the stage budgets."""
+    racing: RacingConfig = nested(
+        RacingConfig(car="tt_cup", n_groups=20, observation=OBSERVATION),
+        only=("track", "car", "n_groups", "episode_s", "overtake_gain_c_r", "detection_range_c_d_m"),
+        rename={"n_groups": "cars"},
+        help={
+            "track": "Track: built-in name, random:SEED or CSV path.",
+            "car": "Car preset (the paper's Audi TT Cup: tt_cup).",
+            "n_groups": "Ego cars in the one world, each with its own opponents (the paper's 20).",
+            "episode_s": "Training episode length, s (the paper's 1,000 steps at 10 Hz).",
+            "overtake_gain_c_r": "c_r of Eq. 2 (the paper gives none).",
+            "detection_range_c_d_m": "c_d of Eq. 2, m (the paper gives none).",
+        },
+    )
+    """The racing every stage builds on (each stage sets its scenario and penalties)."""
+    evaluation: EvaluationSchedule = nested(
+        EvaluationSchedule(),
+        prefix="eval_",
+        help={
+            "every_steps": "Evaluate every N cumulative steps (0: off; stage 1 then runs to its cap).",
+            "seeds": "Start seeds of the protocol lap of each evaluation.",
+            "laps": "Laps of that protocol run (the last is scored).",
+        },
+    )
+    """The periodic evaluations."""
+    checkpoints: CheckpointSchedule = nested(
+        CheckpointSchedule(),
+        prefix="checkpoint_",
+        help={
+            "every_steps": "Save weights and buffer every N steps (0: off).",
+            "every_min": "Save weights, optimisers and counters every N minutes (0: off).",
+        },
+    )
+    """The periodic saves."""
+    sac: SACOverrides = nested(
+        SACOverrides(),
+        only=("preset", "learning_rate", "batch_size", "buffer_size", "learning_starts", "gradient_steps"),
+        help={
+            "preset": "`paper` (Table II) or `cpu` (learns on 2 cores); also sets the stage budgets.",
+            "buffer_size": "Override the preset's buffer size of stages 1-2 and standard SAC (0: preset).",
+        },
+    )
+    """The SAC preset (it also sets the stage budgets) and its overrides."""
+    samplers: SamplerOptions = nested(
+        SamplerOptions(),
+        help={
+            "workers": "Sampler actors (Ray), each a world of --cars ego cars in its own process, while this process "
+            "learns; leave it out to sample in this process."
+        },
+    )
+    """Sampling in Ray actors."""
     out: str = ""
     """Run folder shared by Agents 1-3 and standard SAC of one seed (default runs/overtaking/<track>-<car>-s<seed>)."""
     seed: int = 0
@@ -134,49 +190,14 @@ class TrainOvertakingConfig:
     ablation, since racing alone does not depend on c_r or c_d; every other shared setting must agree."""
     standard_steps: int = 0
     """Steps of standard SAC (0: stage-1 cap + stage 2 + stage 3, the curriculum's budget)."""
-    episode_s: float = 100.0
-    """Training episode length, s (the paper's 1,000 steps at 10 Hz)."""
-    overtake_gain_c_r: float = 1.0
-    """c_r of Eq. 2 (the paper gives none)."""
-    detection_range_c_d_m: float = 50.0
-    """c_d of Eq. 2, m (the paper gives none)."""
-    eval_every_steps: int = 100_000
-    """Evaluate every N cumulative steps (0: off; stage 1 then runs to its cap)."""
-    eval_seeds: int = 1
-    """Start seeds of the protocol lap of each evaluation."""
-    eval_laps: int = 2
-    """Laps of that protocol run (the last is scored)."""
     eval_time_limit_s: float = 0.0
     """Time limit of that protocol run, s (0: the protocol's)."""
     eval_episodes: int = 4
     """Stage-2 episodes of the overtaking return of each evaluation (0: none)."""
     eval_episode_s: float = 0.0
     """Length of those episodes, s (0: --episode-s)."""
-    checkpoint_every_steps: int = 200_000
-    """Save weights and buffer every N steps (0: off)."""
-    checkpoint_every_min: float = 10.0
-    """Save weights, optimisers and counters every N minutes (0: off)."""
-    learning_rate: float = 0.0
-    """Override the preset's learning rate (0: preset)."""
-    batch_size: int = 0
-    """Override the preset's batch size (0: preset)."""
-    buffer_size: int = 0
-    """Override the preset's buffer size of stages 1-2 and standard SAC (0: preset)."""
-    learning_starts: int = -1
-    """Override the preset's random start steps (-1: preset)."""
-    gradient_steps: int = 0
-    """Override the preset's updates per vector step (0: preset)."""
     device: str = "auto"
     """Torch device: auto, cpu or cuda."""
-    workers: int | None = None
-    """Sampler actors (Ray), each a world of --cars ego cars in its own process, while this process learns; leave
-    it out to sample in this process."""
-    address: str = ""
-    """With --workers: the Ray cluster to join (auto, host:port or ray://host:port); empty: start one here."""
-    max_staleness: int = 1
-    """With --workers: weight versions a sampler's policy may lag the learner's (0: synchronous)."""
-    version_every_updates: int = 20
-    """With --workers: learner updates per weight version sent to the samplers."""
 
 
 # ------------------------------------------------------------------------------------------------- the sidecar
@@ -252,7 +273,7 @@ class Stage:
 
 
 def resolve_budget(cfg: TrainOvertakingConfig) -> CurriculumBudget:
-    base = BUDGETS[cfg.preset]
+    base = BUDGETS[cfg.sac.preset]
     return CurriculumBudget(
         cfg.stage1_max_steps or base.stage1_max_steps,
         cfg.stage2_steps or base.stage2_steps,
@@ -262,7 +283,7 @@ def resolve_budget(cfg: TrainOvertakingConfig) -> CurriculumBudget:
 
 def stages_of(cfg: TrainOvertakingConfig) -> list[Stage]:
     """The chain of stages that makes ``cfg.agent``."""
-    sac, budget = resolve_preset(cfg), resolve_budget(cfg)
+    sac, budget = resolve_preset(cfg.sac), resolve_budget(cfg)
     if cfg.agent == "standard":
         steps = cfg.standard_steps or budget.stage1_max_steps + budget.stage2_steps + budget.stage3_steps
         return [Stage("standard", "stage2", PENALTY_STAGE2, steps, sac.buffer_size, None)]
@@ -275,7 +296,7 @@ def stages_of(cfg: TrainOvertakingConfig) -> list[Stage]:
     if cfg.agent == "1":
         return [stage1, stage2]
     penalty = PENALTY_STAGE2 if cfg.agent == "2" else PENALTY_AGENT3
-    fifo = cfg.stage3_buffer_size or max(budget.stage3_steps // 2, cfg.cars)
+    fifo = cfg.stage3_buffer_size or max(budget.stage3_steps // 2, cfg.racing.n_groups)
     stage3 = Stage(
         f"agent{cfg.agent}-stage3", "stage2", penalty, budget.stage3_steps, fifo, "stage2", fifo_from_previous=True
     )
@@ -286,69 +307,77 @@ def shared_settings(cfg: TrainOvertakingConfig) -> dict[str, Any]:
     """What every agent of one run folder must agree on (``run.json``)."""
     budget = resolve_budget(cfg)
     return {
-        "track": cfg.track,
-        "car": cfg.car,
-        "cars": cfg.cars,
+        "track": cfg.racing.track,
+        "car": cfg.racing.car,
+        "cars": cfg.racing.n_groups,
         "seed": cfg.seed,
-        "preset": cfg.preset,
-        "sac": json.loads(json.dumps(dataclasses.asdict(resolve_preset(cfg)))),
+        "preset": cfg.sac.preset,
+        "sac": json.loads(json.dumps(dataclasses.asdict(resolve_preset(cfg.sac)))),
         "stage1_max_steps": budget.stage1_max_steps,
         "stage1_margin": cfg.stage1_margin,
         "stage2_steps": budget.stage2_steps,
-        "episode_s": cfg.episode_s,
-        "overtake_gain_c_r": cfg.overtake_gain_c_r,
-        "detection_range_c_d_m": cfg.detection_range_c_d_m,
-        "eval_every_steps": cfg.eval_every_steps,
-        "eval_seeds": cfg.eval_seeds,
-        "eval_laps": cfg.eval_laps,
+        "episode_s": cfg.racing.episode_s,
+        "overtake_gain_c_r": cfg.racing.overtake_gain_c_r,
+        "detection_range_c_d_m": cfg.racing.detection_range_c_d_m,
+        "eval_every_steps": cfg.evaluation.every_steps,
+        "eval_seeds": cfg.evaluation.seeds,
+        "eval_laps": cfg.evaluation.laps,
         "eval_time_limit_s": cfg.eval_time_limit_s,
     }
 
 
-def check_config(cfg: TrainOvertakingConfig) -> None:
-    """One clear line for a bad option, before anything is built or written."""
-    if cfg.agent not in AGENTS:
-        raise ValueError(f"--agent must be one of {', '.join(AGENTS)}, got {cfg.agent!r}")
-    if cfg.preset not in PRESETS or cfg.preset not in BUDGETS:
-        raise ValueError(f"--preset must be one of {sorted(BUDGETS)}, got {cfg.preset!r}")
+def _check_ranges(o: Mapping[str, Any]) -> None:
+    """The flat options' values in their own words (:func:`~vision_rl.config.flat_values`)."""
+    if o["agent"] not in AGENTS:
+        raise ValueError(f"--agent must be one of {', '.join(AGENTS)}, got {o['agent']!r}")
+    if o["preset"] not in PRESETS or o["preset"] not in BUDGETS:
+        raise ValueError(f"--preset must be one of {sorted(BUDGETS)}, got {o['preset']!r}")
     checks = {
-        "cars": 1 <= cfg.cars <= MAX_CARS,
-        "stage1_max_steps": cfg.stage1_max_steps >= 0,
-        "stage1_margin": cfg.stage1_margin >= 0,
-        "stage2_steps": cfg.stage2_steps >= 0,
-        "stage3_steps": cfg.stage3_steps >= 0,
-        "stage3_buffer_size": cfg.stage3_buffer_size >= 0,
-        "standard_steps": cfg.standard_steps >= 0,
-        "episode_s": cfg.episode_s > 0,
-        "overtake_gain_c_r": cfg.overtake_gain_c_r >= 0,
-        "detection_range_c_d_m": cfg.detection_range_c_d_m > 0,
-        "eval_every_steps": cfg.eval_every_steps >= 0,
-        "eval_seeds": cfg.eval_seeds >= 1,
-        "eval_laps": cfg.eval_laps >= 1,
-        "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
-        "eval_episodes": cfg.eval_episodes >= 0,
-        "eval_episode_s": cfg.eval_episode_s >= 0,
-        "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
-        "learning_rate": cfg.learning_rate >= 0,
-        "batch_size": cfg.batch_size >= 0,
-        "buffer_size": cfg.buffer_size >= 0,
-        "gradient_steps": cfg.gradient_steps >= 0,
+        "cars": 1 <= o["cars"] <= MAX_CARS,
+        "stage1_max_steps": o["stage1_max_steps"] >= 0,
+        "stage1_margin": o["stage1_margin"] >= 0,
+        "stage2_steps": o["stage2_steps"] >= 0,
+        "stage3_steps": o["stage3_steps"] >= 0,
+        "stage3_buffer_size": o["stage3_buffer_size"] >= 0,
+        "standard_steps": o["standard_steps"] >= 0,
+        "episode_s": o["episode_s"] > 0,
+        "overtake_gain_c_r": o["overtake_gain_c_r"] >= 0,
+        "detection_range_c_d_m": o["detection_range_c_d_m"] > 0,
+        "eval_every_steps": o["eval_every_steps"] >= 0,
+        "eval_seeds": o["eval_seeds"] >= 1,
+        "eval_laps": o["eval_laps"] >= 1,
+        "eval_time_limit_s": o["eval_time_limit_s"] >= 0,
+        "eval_episodes": o["eval_episodes"] >= 0,
+        "eval_episode_s": o["eval_episode_s"] >= 0,
+        "checkpoint_every_steps": o["checkpoint_every_steps"] >= 0,
+        "checkpoint_every_min": o["checkpoint_every_min"] >= 0,
+        "learning_rate": o["learning_rate"] >= 0,
+        "batch_size": o["batch_size"] >= 0,
+        "buffer_size": o["buffer_size"] >= 0,
+        "gradient_steps": o["gradient_steps"] >= 0,
     }
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
-        raise ValueError(f"--{bad[0].replace('_', '-')} {getattr(cfg, bad[0])} is out of range")
-    if cfg.workers is not None or cfg.address:
+        raise ValueError(f"--{bad[0].replace('_', '-')} {o[bad[0]]} is out of range")
+
+
+def check_config(cfg: TrainOvertakingConfig) -> None:
+    """One clear line for a bad option, before anything is built or written."""
+    _check_ranges(flat_values(cfg))
+    if cfg.samplers.workers is not None or cfg.samplers.address:
         from vision_rl.training.distributed import check_workers
 
-        if cfg.workers is None:
-            raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
-        check_workers(cfg.workers, cfg.max_staleness, cfg.version_every_updates)
-    sac = resolve_preset(cfg)
-    for stage in stages_of(cfg):
-        if stage.buffer_size < cfg.cars:
+        if cfg.samplers.workers is None:
             raise ValueError(
-                f"{stage.name}: a buffer of {stage.buffer_size} transitions holds less than one step of {cfg.cars} cars"
+                f"--address {cfg.samplers.address} needs --workers: the samplers are what runs on the cluster"
+            )
+        check_workers(cfg.samplers.workers, cfg.samplers.max_staleness, cfg.samplers.version_every_updates)
+    sac = resolve_preset(cfg.sac)
+    for stage in stages_of(cfg):
+        if stage.buffer_size < cfg.racing.n_groups:
+            raise ValueError(
+                f"{stage.name}: a buffer of {stage.buffer_size} transitions holds less than one step of "
+                f"{cfg.racing.n_groups} cars"
             )
         if stage.previous is None and stage.steps <= sac.learning_starts:
             raise ValueError(
@@ -358,10 +387,10 @@ def check_config(cfg: TrainOvertakingConfig) -> None:
 
 
 def default_out(cfg: TrainOvertakingConfig) -> Path:
-    track = cfg.track.replace("random:", "random-")
+    track = cfg.racing.track.replace("random:", "random-")
     if track.endswith(".csv") or os.sep in track:
         track = Path(track).stem
-    return Path("runs") / "overtaking" / f"{track}-{cfg.car}-s{cfg.seed}"
+    return Path("runs") / "overtaking" / f"{track}-{cfg.racing.car}-s{cfg.seed}"
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -419,8 +448,8 @@ class _StageLoop(BaseCallback):
         self.progress = progress
         cfg = session.cfg
         start = session.start_steps_now
-        self.next_eval = next_multiple(start, cfg.eval_every_steps)
-        self.saves = SaveClock(start, cfg.checkpoint_every_steps, cfg.checkpoint_every_min)
+        self.next_eval = next_multiple(start, cfg.evaluation.every_steps)
+        self.saves = SaveClock(start, cfg.checkpoints.every_steps, cfg.checkpoints.every_min)
 
     def _on_step(self) -> bool:
         n = self.num_timesteps
@@ -428,7 +457,7 @@ class _StageLoop(BaseCallback):
         go_on = True
         if self.next_eval is not None and n >= self.next_eval:
             record = session.evaluate(self.model)
-            self.next_eval = next_multiple(n, session.cfg.eval_every_steps)
+            self.next_eval = next_multiple(n, session.cfg.evaluation.every_steps)
             if session.stage.until_criterion and record["criterion_met"]:
                 session.criterion_met_at = n
                 go_on = False
@@ -454,17 +483,8 @@ class _StageSession:
 
     def racing(self) -> RacingConfig:
         cfg, stage = self.cfg, self.stage
-        return RacingConfig(
-            track=cfg.track,
-            car=cfg.car,
-            observation=OBSERVATION,
-            scenario=stage.scenario,
-            n_groups=cfg.cars,
-            episode_s=cfg.episode_s,
-            wall_penalty_c_w=stage.penalty_c,
-            car_penalty_c_c=stage.penalty_c,
-            overtake_gain_c_r=cfg.overtake_gain_c_r,
-            detection_range_c_d_m=cfg.detection_range_c_d_m,
+        return dataclasses.replace(
+            cfg.racing, scenario=stage.scenario, wall_penalty_c_w=stage.penalty_c, car_penalty_c_c=stage.penalty_c
         )
 
     # ------------------------------------------------------------------ set-up
@@ -545,7 +565,7 @@ class _StageSession:
                     model.observation_space,
                     model.action_space,
                     device="cpu",
-                    n_envs=self.cfg.cars,
+                    n_envs=self.cfg.racing.n_groups,
                 )
                 load_buffer(kept, source / BUFFER_NAME, self.fingerprint)
                 self.buffer_restored = copy_newest(kept, model.replay_buffer)
@@ -567,7 +587,7 @@ class _StageSession:
             "status": "running",
             "start_steps": int(model.num_timesteps),
             "start_train_time_s": round(self.train_time_before_s, 2),
-            "buffer_at_start": int(self.buffer_restored) * self.cfg.cars,
+            "buffer_at_start": int(self.buffer_restored) * self.cfg.racing.n_groups,
             "racing_config": racing_config_to_dict(self.racing_config),
         }
 
@@ -591,7 +611,12 @@ class _StageSession:
                 self.racing_config,
             )
         timing = time_laps(
-            self.eval_driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps, cfg.eval_time_limit_s
+            self.eval_driver,
+            cfg.racing.track,
+            cfg.racing.car,
+            range(cfg.evaluation.seeds),
+            cfg.evaluation.laps,
+            cfg.eval_time_limit_s,
         )
         summary = timing.summary()
         lap = summary["best_lap_time_s"]
@@ -632,7 +657,7 @@ class _StageSession:
             fingerprint=self.fingerprint,
             weights_sha256=sha256,
             model=MODEL_NAME,
-            preset=self.cfg.preset,
+            preset=self.cfg.sac.preset,
             sac=self.run.settings["sac"],
             seed=self.cfg.seed,
             num_timesteps=int(model.num_timesteps),
@@ -661,7 +686,7 @@ class _StageSession:
             ai = self.run.ai_lap_time_s()
             self.record["criterion"] = {
                 "rule": f"protocol lap time <= (1 + {self.cfg.stage1_margin}) x the built-in AI's "
-                f"(evaluated every {self.cfg.eval_every_steps} steps)",
+                f"(evaluated every {self.cfg.evaluation.every_steps} steps)",
                 "met": self.criterion_met_at is not None,
                 "met_at_steps": self.criterion_met_at,
                 "ai_lap_time_s": ai,
@@ -671,7 +696,7 @@ class _StageSession:
         return self.record
 
     def learn_with_samplers(self, model: SAC, loop: _StageLoop, cluster: Any) -> None:
-        """The stage's steps from ``cfg.workers`` sampler actors, each a world of this stage's scenario; a lost
+        """The stage's steps from ``cfg.samplers.workers`` sampler actors, each a world of this stage's scenario; a lost
         sampler is a line of the stage's metrics.jsonl; when none is left, the stage is saved and the error raised."""
         from vision_rl.training.distributed import SamplersLostError, learn_like_sb3
 
@@ -696,9 +721,9 @@ class _StageSession:
                 model,
                 setup,
                 cluster,
-                workers=int(cfg.workers or 0),
-                max_staleness=cfg.max_staleness,
-                version_every_updates=cfg.version_every_updates,
+                workers=int(cfg.samplers.workers or 0),
+                max_staleness=cfg.samplers.max_staleness,
+                version_every_updates=cfg.samplers.version_every_updates,
                 total_timesteps=self.end_steps,
                 callback=loop,
                 log_event=log_event,
@@ -727,18 +752,14 @@ def _differs(path: Path, recorded: dict[str, Any], wanted: dict[str, Any]) -> st
 def overtaking_return(model: SAC, normalizer: ObsNormalizer, cfg: TrainOvertakingConfig) -> dict[str, float]:
     """Mean summed Eq. 2 reward (``c_w = c_c = 0.005``) and mean opponents passed over ``cfg.eval_episodes``
     fixed-seed stage-2 episodes of the deterministic policy (all episodes at once, one world)."""
-    episode_s = cfg.eval_episode_s or cfg.episode_s
-    config = RacingConfig(
-        track=cfg.track,
-        car=cfg.car,
-        observation=OBSERVATION,
+    episode_s = cfg.eval_episode_s or cfg.racing.episode_s
+    config = dataclasses.replace(
+        cfg.racing,
         scenario="stage2",
         n_groups=cfg.eval_episodes,
         episode_s=episode_s,
         wall_penalty_c_w=PENALTY_STAGE2,
         car_penalty_c_c=PENALTY_STAGE2,
-        overtake_gain_c_r=cfg.overtake_gain_c_r,
-        detection_range_c_d_m=cfg.detection_range_c_d_m,
     )
     core = RacingCore(config, seed=EVAL_EPISODE_SEED)
     core.observer.normalizer = normalizer
@@ -763,7 +784,7 @@ class OvertakingRun:
         self.cfg = cfg
         self.out = Path(cfg.out) if cfg.out else default_out(cfg)
         self.device = torch_device(cfg.device)
-        self.sac = resolve_preset(cfg)
+        self.sac = resolve_preset(cfg.sac)
         self.settings = shared_settings(cfg)
         self.stages = stages_of(cfg)
         run_path = self.out / RUN_NAME
@@ -816,7 +837,12 @@ class OvertakingRun:
         if "ai_timing" not in self.record:
             cfg = self.cfg
             timing = time_laps(
-                BuiltinAI(), cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps, cfg.eval_time_limit_s
+                BuiltinAI(),
+                cfg.racing.track,
+                cfg.racing.car,
+                range(cfg.evaluation.seeds),
+                cfg.evaluation.laps,
+                cfg.eval_time_limit_s,
             ).summary()
             self.record.update(ai_lap_time_s=timing["best_lap_time_s"], ai_timing={"n_finished": timing["n_finished"]})
             write_json(self.out / RUN_NAME, self.record)
@@ -833,9 +859,11 @@ def train_overtaking(cfg: TrainOvertakingConfig, progress: Progress | None = Non
     returns with ``interrupted``."""
     from vision_rl.training.distributed import cluster_for
 
-    if cfg.workers is not None:  # Ray's cluster and the worker count are checked before the run folder is touched
+    if (
+        cfg.samplers.workers is not None
+    ):  # Ray's cluster and the worker count are checked before the run folder is touched
         check_config(cfg)
-    with cluster_for(cfg.workers, cfg.address) as cluster:
+    with cluster_for(cfg.samplers.workers, cfg.samplers.address) as cluster:
         return _train_stages(cfg, cluster, progress)
 
 
