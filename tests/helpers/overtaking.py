@@ -58,4 +58,4 @@ def tiny_baseline_config(track: str, demos, out, **kw) -> TrainBaselineConfig:
         bc_max_epochs=30,
         device="cpu",
     )
-    return TrainBaselineConfig(**{**base, **kw})
+    return from_flat(TrainBaselineConfig, {**base, **kw})

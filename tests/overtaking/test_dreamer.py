@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from tests.helpers.overtaking import tiny_baseline_config
+from vision_rl.config import replace_flat
 from vision_rl.evaluation.protocol import time_laps
 from vision_rl.overtaking.baseline_run import BaselineError
 from vision_rl.overtaking.baselines import load_baseline, train_baseline
@@ -141,10 +142,9 @@ def test_a_dreamer_run_drives_the_protocol_the_same_way_twice(dreamer_run, small
 
 def test_a_dreamer_run_continues_with_its_sequences_and_refuses_a_damaged_buffer(dreamer_run, tmp_path):
     out, cfg, _ = dreamer_run
-    import dataclasses
     import shutil
 
-    more = train_baseline(dataclasses.replace(cfg, steps=400))
+    more = train_baseline(replace_flat(cfg, steps=400))
     assert more["num_timesteps"] == 400 and more["session"]["steps"] == 100
     assert more["buffer_restored"] == 2 * 151  # 2 cars x (150 steps + the first observation)
     state = torch.load(out / "policy.pt", weights_only=True)
@@ -153,9 +153,9 @@ def test_a_dreamer_run_continues_with_its_sequences_and_refuses_a_damaged_buffer
     shutil.copytree(out, copy)
     (copy / "replay_buffer.npz").write_bytes(b"not a zip")
     with pytest.raises(BaselineError, match="damaged or mismatched sequence-replay file"):
-        train_baseline(dataclasses.replace(cfg, out=str(copy), steps=500))
+        train_baseline(replace_flat(cfg, out=str(copy), steps=500))
     (copy / "replay_buffer.npz").unlink()  # without its sequences it collects again, then updates at the same rate
-    refilled = train_baseline(dataclasses.replace(cfg, out=str(copy), steps=600))
+    refilled = train_baseline(replace_flat(cfg, out=str(copy), steps=600))
     assert refilled["buffer_restored"] == 0 and refilled["session"]["updates"] == (600 - 400 - 100) // 50
     weights = copy / "policy.pt"
     weights.write_bytes(weights.read_bytes()[:-10])

@@ -66,18 +66,16 @@ def format_train_baseline(result: dict[str, Any]) -> list[str]:
 
 def run_train_baseline(opts: TrainBaselineOptions) -> int:
     """SIGTERM saves and exits like Ctrl-C (exit 130); the same command continues an online run."""
-    import dataclasses
-
+    from vision_rl.config import flat_values, from_flat
     from vision_rl.overtaking.baseline_run import check_config, total_steps
     from vision_rl.overtaking.baselines import train_baseline
 
-    fields = {f.name for f in dataclasses.fields(TrainBaselineConfig)}
-    values = {k: v for k, v in dataclasses.asdict(opts).items() if k in fields}
+    defaults = flat_values(TrainBaselineConfig())
+    values = {k: v for k, v in flat_values(opts).items() if k in defaults}
     if opts.quick:
-        defaults = TrainBaselineConfig()
         quick = {k: v for k, v in QUICK.items() if not (k == "steps" and values["algo"] == "bc")}  # bc: epoch cap
-        values.update({k: v for k, v in quick.items() if values[k] == getattr(defaults, k)})
-    cfg = TrainBaselineConfig(**values)
+        values.update({k: v for k, v in quick.items() if values[k] == defaults[k]})
+    cfg = from_flat(TrainBaselineConfig, values)
     check_config(cfg)
     total = cfg.bc_max_epochs if cfg.algo == "bc" else total_steps(cfg)
     unit = "epoch" if cfg.algo == "bc" else "step"

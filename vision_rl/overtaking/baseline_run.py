@@ -12,15 +12,16 @@ import dataclasses
 import json
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from vision_rl.config import flat_values, nested
 from vision_rl.envs.core import RacingConfig
 from vision_rl.files import write_json
 from vision_rl.overtaking.curriculum import BUDGETS
-from vision_rl.overtaking.demos import OBS_DIM, OBSERVATION, Demos
+from vision_rl.overtaking.demos import OBS_DIM, OBSERVATION, Demos, race_config
 from vision_rl.overtaking.dreamer import DreamerRecipe
 from vision_rl.sim.track_library import load_track
 from vision_rl.training.artifact import (
@@ -30,7 +31,8 @@ from vision_rl.training.artifact import (
     policy_fingerprint,
     racing_config_to_dict,
 )
-from vision_rl.training.sac import PRESETS, SACPreset
+from vision_rl.training.sac import PRESETS, SACOverrides, SACPreset
+from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule
 
 #: The Table III algorithms (each trained by its own module; :mod:`.baselines` sends each to its learner).
 ALGO_NAMES = ("bc", "gail", "td3", "sac", "dreamer")
@@ -53,6 +55,10 @@ class TrainBaselineConfig:
     """A Table III baseline (bc, gail, td3, sac or dreamer) on the single-car race, MLP 2 x 256, the 96-D
     observation."""
 
+    @staticmethod
+    def check_options(options: Mapping[str, Any]) -> None:
+        _check_ranges(options)
+
     algo: str = "bc"
     """bc, gail, td3, sac or dreamer (the PlaNet row)."""
     steps: int = 0
@@ -62,40 +68,55 @@ class TrainBaselineConfig:
     """Seed of the networks, exploration, start points and the bc split."""
     demos: str = "runs/demos/ai.npz"
     """Demonstrations (record-demos) for bc and gail."""
-    track: str = "expressway"
-    """Track: built-in name, random:SEED or CSV path (the demonstrations' own)."""
-    car: str = "tt_cup"
-    """Car preset (the paper's Audi TT Cup: tt_cup)."""
-    cars: int = 20
-    """Online algorithms: cars sampled at once in one world (the paper's 20)."""
+    racing: RacingConfig = nested(
+        race_config("expressway", "tt_cup", n_groups=20),
+        only=("track", "car", "n_groups", "episode_s"),
+        rename={"n_groups": "cars"},
+        help={
+            "track": "Track: built-in name, random:SEED or CSV path (the demonstrations' own).",
+            "car": "Car preset (the paper's Audi TT Cup: tt_cup).",
+            "n_groups": "Online algorithms: cars sampled at once in one world (the paper's 20).",
+            "episode_s": "Training episode length, s (1,000 steps at 10 Hz).",
+        },
+    )
+    """The single-car race of Table III (its scenario, observation and reward are the paper's)."""
+    sac: SACOverrides = nested(
+        SACOverrides(),
+        only=("preset", "learning_rate", "batch_size", "buffer_size", "learning_starts"),
+        help={
+            "preset": "Online recipe: cpu (our SAC stage 1's) or paper (Table II).",
+            "learning_rate": "Override the preset's (online) or bc's 1e-3 learning rate (0: keep).",
+            "batch_size": "Override the preset's (online) or bc's 256 batch size (0: keep).",
+            "buffer_size": "Override the preset's replay buffer size (0: keep).",
+            "learning_starts": "Override the preset's random start steps (-1: keep).",
+        },
+    )
+    """The online recipe: a SAC preset and its overrides (bc reads the learning rate and batch size)."""
+    evaluation: EvaluationSchedule = nested(
+        EvaluationSchedule(),
+        prefix="eval_",
+        help={
+            "every_steps": "Online: evaluate on the lap-time protocol every N steps (0: off).",
+            "seeds": "Start seeds of each periodic evaluation.",
+            "laps": "Laps of each periodic evaluation (the last is scored).",
+        },
+    )
+    """The periodic evaluations of the online algorithms."""
+    checkpoints: CheckpointSchedule = nested(
+        CheckpointSchedule(),
+        prefix="checkpoint_",
+        help={
+            "every_steps": "Online: save weights and replay buffer every N steps (0: off).",
+            "every_min": "Online: save weights, optimisers and counters every N minutes (0: off).",
+        },
+    )
+    """The periodic saves of the online algorithms."""
     out: str = ""
     """Run folder (default runs/baselines/<algo>-<track>-<car>-s<seed>)."""
     force: bool = False
     """Delete the run folder and start over."""
-    preset: str = "cpu"
-    """Online recipe: cpu (our SAC stage 1's) or paper (Table II)."""
-    episode_s: float = 100.0
-    """Training episode length, s (1,000 steps at 10 Hz)."""
-    learning_rate: float = 0.0
-    """Override the preset's (online) or bc's 1e-3 learning rate (0: keep)."""
-    batch_size: int = 0
-    """Override the preset's (online) or bc's 256 batch size (0: keep)."""
-    buffer_size: int = 0
-    """Override the preset's replay buffer size (0: keep)."""
-    learning_starts: int = -1
-    """Override the preset's random start steps (-1: keep)."""
-    eval_every_steps: int = 100_000
-    """Online: evaluate on the lap-time protocol every N steps (0: off)."""
-    eval_seeds: int = 1
-    """Start seeds of each periodic evaluation."""
-    eval_laps: int = 2
-    """Laps of each periodic evaluation (the last is scored)."""
     eval_time_limit_s: float = 0.0
     """Time limit of each periodic evaluation, s (0: the protocol's)."""
-    checkpoint_every_steps: int = 200_000
-    """Online: save weights and replay buffer every N steps (0: off)."""
-    checkpoint_every_min: float = 10.0
-    """Online: save weights, optimisers and counters every N minutes (0: off)."""
     bc_patience: int = 10
     """bc: stop after this many epochs without a better held-out error."""
     bc_min_improvement: float = 0.01
@@ -121,46 +142,51 @@ class TrainBaselineConfig:
 
 
 def default_out(cfg: TrainBaselineConfig) -> Path:
-    track = cfg.track.replace("random:", "random-")
+    track = cfg.racing.track.replace("random:", "random-")
     if track.endswith(".csv") or os.sep in track:
         track = Path(track).stem
-    return Path("runs") / "baselines" / f"{cfg.algo}-{track}-{cfg.car}-s{cfg.seed}"
+    return Path("runs") / "baselines" / f"{cfg.algo}-{track}-{cfg.racing.car}-s{cfg.seed}"
+
+
+def _check_ranges(o: Mapping[str, Any]) -> None:
+    """The flat options' values in their own words (:func:`~vision_rl.config.flat_values`)."""
+    if o["algo"] not in ALGO_NAMES:
+        hint = "; PlaNet's row is trained as its successor, --algo dreamer" if o["algo"].lower() == "planet" else ""
+        raise ValueError(f"--algo must be one of {', '.join(ALGO_NAMES)}, got {o['algo']!r}{hint}")
+    if o["preset"] not in PRESETS:
+        raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {o['preset']!r}")
+    checks = {
+        "steps": o["steps"] >= 0,
+        "cars": 1 <= o["cars"] <= 1000,
+        "episode_s": o["episode_s"] >= 0.1,
+        "learning_rate": o["learning_rate"] >= 0,
+        "batch_size": o["batch_size"] >= 0,
+        "buffer_size": o["buffer_size"] >= 0,
+        "eval_every_steps": o["eval_every_steps"] >= 0,
+        "eval_seeds": o["eval_seeds"] >= 1,
+        "eval_laps": o["eval_laps"] >= 1,
+        "eval_time_limit_s": o["eval_time_limit_s"] >= 0,
+        "checkpoint_every_steps": o["checkpoint_every_steps"] >= 0,
+        "checkpoint_every_min": o["checkpoint_every_min"] >= 0,
+        "bc_patience": o["bc_patience"] >= 1,
+        "bc_min_improvement": 0 <= o["bc_min_improvement"] < 1,
+        "bc_max_epochs": o["bc_max_epochs"] >= 1,
+        "gail_disc_every_steps": o["gail_disc_every_steps"] >= 1,
+        "gail_disc_updates": o["gail_disc_updates"] >= 0,
+        "gail_disc_batch": o["gail_disc_batch"] >= 1,
+        "gail_disc_lr": o["gail_disc_lr"] > 0,
+        "td3_noise": o["td3_noise"] >= 0,
+        "dreamer_train_every_steps": o["dreamer_train_every_steps"] >= 1,
+        "dreamer_sequence_steps": o["dreamer_sequence_steps"] >= 2,
+    }
+    bad = [name for name, ok in checks.items() if not ok]
+    if bad:
+        raise ValueError(f"--{bad[0].replace('_', '-')} {o[bad[0]]} is out of range")
 
 
 def check_config(cfg: TrainBaselineConfig) -> None:
     """One clear line for a bad option, before anything is built or written."""
-    if cfg.algo not in ALGO_NAMES:
-        hint = "; PlaNet's row is trained as its successor, --algo dreamer" if cfg.algo.lower() == "planet" else ""
-        raise ValueError(f"--algo must be one of {', '.join(ALGO_NAMES)}, got {cfg.algo!r}{hint}")
-    if cfg.preset not in PRESETS:
-        raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {cfg.preset!r}")
-    checks = {
-        "steps": cfg.steps >= 0,
-        "cars": 1 <= cfg.cars <= 1000,
-        "episode_s": cfg.episode_s >= 0.1,
-        "learning_rate": cfg.learning_rate >= 0,
-        "batch_size": cfg.batch_size >= 0,
-        "buffer_size": cfg.buffer_size >= 0,
-        "eval_every_steps": cfg.eval_every_steps >= 0,
-        "eval_seeds": cfg.eval_seeds >= 1,
-        "eval_laps": cfg.eval_laps >= 1,
-        "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
-        "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
-        "bc_patience": cfg.bc_patience >= 1,
-        "bc_min_improvement": 0 <= cfg.bc_min_improvement < 1,
-        "bc_max_epochs": cfg.bc_max_epochs >= 1,
-        "gail_disc_every_steps": cfg.gail_disc_every_steps >= 1,
-        "gail_disc_updates": cfg.gail_disc_updates >= 0,
-        "gail_disc_batch": cfg.gail_disc_batch >= 1,
-        "gail_disc_lr": cfg.gail_disc_lr > 0,
-        "td3_noise": cfg.td3_noise >= 0,
-        "dreamer_train_every_steps": cfg.dreamer_train_every_steps >= 1,
-        "dreamer_sequence_steps": cfg.dreamer_sequence_steps >= 2,
-    }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        raise ValueError(f"--{bad[0].replace('_', '-')} {getattr(cfg, bad[0])} is out of range")
+    _check_ranges(flat_values(cfg))
     if cfg.algo in ONLINE:
         preset = resolve_recipe(cfg)
         if total_steps(cfg) <= preset.learning_starts:
@@ -168,20 +194,22 @@ def check_config(cfg: TrainBaselineConfig) -> None:
                 f"--steps {total_steps(cfg)} is not above the {preset.learning_starts} random start "
                 "steps (--learning-starts): it would make no update"
             )
-        if preset.buffer_size < cfg.cars:
-            raise ValueError(f"--buffer-size {preset.buffer_size} holds less than one step of {cfg.cars} cars")
+        if preset.buffer_size < cfg.racing.n_groups:
+            raise ValueError(
+                f"--buffer-size {preset.buffer_size} holds less than one step of {cfg.racing.n_groups} cars"
+            )
 
 
 def resolve_recipe(cfg: TrainBaselineConfig) -> SACPreset:
     """The online recipe: the preset with the options' overrides, always the paper's 2 x 256 network."""
-    base = PRESETS[cfg.preset]
+    base = PRESETS[cfg.sac.preset]
     return dataclasses.replace(
         base,
         hidden_units=HIDDEN_UNITS,
-        learning_rate=cfg.learning_rate or base.learning_rate,
-        batch_size=cfg.batch_size or base.batch_size,
-        buffer_size=cfg.buffer_size or base.buffer_size,
-        learning_starts=base.learning_starts if cfg.learning_starts < 0 else cfg.learning_starts,
+        learning_rate=cfg.sac.learning_rate or base.learning_rate,
+        batch_size=cfg.sac.batch_size or base.batch_size,
+        buffer_size=cfg.sac.buffer_size or base.buffer_size,
+        learning_starts=base.learning_starts if cfg.sac.learning_starts < 0 else cfg.sac.learning_starts,
     )
 
 
@@ -190,16 +218,16 @@ def dreamer_recipe(cfg: TrainBaselineConfig) -> DreamerRecipe:
     base = DreamerRecipe(hidden_units=HIDDEN_UNITS)
     return dataclasses.replace(
         base,
-        batch_sequences=cfg.batch_size or base.batch_sequences,
+        batch_sequences=cfg.sac.batch_size or base.batch_sequences,
         sequence_steps=cfg.dreamer_sequence_steps,
-        model_lr=cfg.learning_rate or base.model_lr,
+        model_lr=cfg.sac.learning_rate or base.model_lr,
     )
 
 
 def total_steps(cfg: TrainBaselineConfig) -> int:
     if cfg.steps:
         return cfg.steps
-    return BC_DEFAULT_STEPS if cfg.algo == "bc" else BUDGETS[cfg.preset].stage1_max_steps
+    return BC_DEFAULT_STEPS if cfg.algo == "bc" else BUDGETS[cfg.sac.preset].stage1_max_steps
 
 
 def baseline_fingerprint(config: RacingConfig, algo: str) -> dict[str, Any]:
@@ -209,7 +237,7 @@ def baseline_fingerprint(config: RacingConfig, algo: str) -> dict[str, Any]:
 
 def settings_of(cfg: TrainBaselineConfig, demos: Demos | None) -> dict[str, Any]:
     """What a run folder must keep when it is continued (``steps`` may grow)."""
-    keep = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("steps", "out", "force", "device")}
+    keep = {k: v for k, v in flat_values(cfg).items() if k not in ("steps", "out", "force", "device")}
     if cfg.algo in ONLINE:
         keep["recipe"] = json.loads(json.dumps(dataclasses.asdict(resolve_recipe(cfg))))
     if cfg.algo == "dreamer":
@@ -301,7 +329,7 @@ def policy_spec(
         fingerprint=fingerprint,
         weights_sha256=sha256,
         model=MODEL_NAME,
-        preset=cfg.preset,
+        preset=cfg.sac.preset,
         sac={**recipe, "hidden_units": list(HIDDEN_UNITS)},
         seed=cfg.seed,
         num_timesteps=int(num_timesteps),

@@ -139,8 +139,8 @@ def fit_bc(
 
 def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Behaviour cloning on the demonstrations (see the module's docstring); writes the run folder."""
-    racing = race_config(cfg.track, cfg.car)
-    demos = load_demos_for(cfg.demos, cfg.track, cfg.car)
+    racing = race_config(cfg.racing.track, cfg.racing.car)
+    demos = load_demos_for(cfg.demos, cfg.racing.track, cfg.racing.car)
     run = RunFolder(cfg, demos)
     if run.record.get("status") == "done" and run.record.get("steps") == total_steps(cfg):
         return {**run.record, "out": str(run.out), "trained_now": False}
@@ -168,8 +168,8 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
             scaled,
             train_idx,
             val_idx,
-            learning_rate=cfg.learning_rate or 1e-3,
-            batch_size=cfg.batch_size or 256,
+            learning_rate=cfg.sac.learning_rate or 1e-3,
+            batch_size=cfg.sac.batch_size or 256,
             max_updates=total_steps(cfg),
             max_epochs=max_epochs,
             patience=cfg.bc_patience,
@@ -193,8 +193,8 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
     sha = write_agent_state(state, run.out / MODEL_NAME, fingerprint)
     normalizer = _demo_normalizer(demos)
     recipe = {
-        "learning_rate": cfg.learning_rate or 1e-3,
-        "batch_size": cfg.batch_size or 256,
+        "learning_rate": cfg.sac.learning_rate or 1e-3,
+        "batch_size": cfg.sac.batch_size or 256,
         "loss": "mse of tanh actions in [-1, 1]",
     }
     policy_spec(cfg, racing, normalizer, fingerprint, sha, recipe, 0, train_time_s, run.settings).write(

@@ -37,7 +37,7 @@ from vision_rl.overtaking.baseline_run import (
     resolve_recipe,
     total_steps,
 )
-from vision_rl.overtaking.demos import OBS_DIM, race_config
+from vision_rl.overtaking.demos import OBS_DIM
 from vision_rl.overtaking.dreamer import (
     DreamerAgent,
     DreamerDriver,
@@ -117,9 +117,9 @@ class _DreamerSession:
         self.out, self.preset, self.recipe = self.run.out, resolve_recipe(cfg), dreamer_recipe(cfg)
         torch.set_num_threads(max(self.preset.torch_threads, 1))
         device = torch_device(cfg.device)
-        self.racing = race_config(cfg.track, cfg.car, cfg.cars, cfg.episode_s)
+        self.racing = cfg.racing
         self.fingerprint = baseline_fingerprint(self.racing, "dreamer")
-        self.end_steps, self.n_cars = total_steps(cfg), cfg.cars
+        self.end_steps, self.n_cars = total_steps(cfg), cfg.racing.n_groups
         self.agent = DreamerAgent(OBS_DIM, 2, self.recipe, seed=cfg.seed, device=device)
         self.replay = SequenceReplay(
             max(self.preset.buffer_size // self.n_cars, self.recipe.sequence_steps), self.n_cars, OBS_DIM, 2
@@ -165,8 +165,8 @@ class _DreamerSession:
         self.running_return = np.zeros(n_cars)
         self.last_eval: dict[str, Any] | None = None
         self.last_terms: dict[str, float] = {}
-        self.next_eval = next_multiple(steps, cfg.eval_every_steps)
-        self.saves = SaveClock(steps, cfg.checkpoint_every_steps, cfg.checkpoint_every_min)
+        self.next_eval = next_multiple(steps, cfg.evaluation.every_steps)
+        self.saves = SaveClock(steps, cfg.checkpoints.every_steps, cfg.checkpoints.every_min)
         self.all_cars = np.arange(n_cars)
         self.obs = self.venv.reset()
         self.carry = self.agent.initial(n_cars)
@@ -221,7 +221,7 @@ class _DreamerSession:
         """After a step: the evaluation, the progress and the checkpoint that are due."""
         if self.next_eval is not None and self.steps >= self.next_eval:
             self.evaluate()
-            self.next_eval = next_multiple(self.steps, self.cfg.eval_every_steps)
+            self.next_eval = next_multiple(self.steps, self.cfg.evaluation.every_steps)
         if progress is not None:
             progress("step", self.steps, self.end_steps, self.last_eval)
         kind = self.saves.due(self.steps)
@@ -235,7 +235,12 @@ class _DreamerSession:
         driver = DreamerDriver(self.agent, self.racing, self.normalizer, {"driver": "policy", "algo": "dreamer"})
         try:
             summary = time_laps(
-                driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps, cfg.eval_time_limit_s
+                driver,
+                cfg.racing.track,
+                cfg.racing.car,
+                range(cfg.evaluation.seeds),
+                cfg.evaluation.laps,
+                cfg.eval_time_limit_s,
             ).summary()
         finally:
             driver.close()

@@ -152,7 +152,7 @@ class GAILCompanion:
 
     def __init__(self, cfg: TrainBaselineConfig) -> None:
         self.cfg = cfg
-        self.demos: Demos = load_demos_for(cfg.demos, cfg.track, cfg.car)
+        self.demos: Demos = load_demos_for(cfg.demos, cfg.racing.track, cfg.racing.car)
         self.updater: GAILUpdater | None = None
         self.next_update: int | None = None
 

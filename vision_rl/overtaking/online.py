@@ -45,7 +45,7 @@ from vision_rl.overtaking.baseline_run import (
     resolve_recipe,
     total_steps,
 )
-from vision_rl.overtaking.demos import OBS_DIM, OBSERVATION, Demos, race_config
+from vision_rl.overtaking.demos import OBS_DIM, OBSERVATION, Demos
 from vision_rl.training.artifact import (
     BUFFER_NAME,
     MODEL_NAME,
@@ -90,8 +90,8 @@ class _OnlineLoop(BaseCallback):
         super().__init__()
         self.session, self.progress = session, progress
         cfg, start = session.cfg, session.start_steps
-        self.next_eval = next_multiple(start, cfg.eval_every_steps)
-        self.saves = SaveClock(start, cfg.checkpoint_every_steps, cfg.checkpoint_every_min)
+        self.next_eval = next_multiple(start, cfg.evaluation.every_steps)
+        self.saves = SaveClock(start, cfg.checkpoints.every_steps, cfg.checkpoints.every_min)
         if session.companion is not None:
             session.companion.begin(start)
 
@@ -102,7 +102,7 @@ class _OnlineLoop(BaseCallback):
         # As train-policy's loop: the evaluation at the last step waits for SB3's last update (evaluate_held_back).
         if self._eval_due() and n < session.end_steps:
             session.evaluate(self.model)
-            self.next_eval = next_multiple(n, session.cfg.eval_every_steps)
+            self.next_eval = next_multiple(n, session.cfg.evaluation.every_steps)
         if self.progress is not None:
             self.progress("step", n, session.end_steps, session.last_eval)
         kind = self.saves.due(n)
@@ -130,7 +130,7 @@ class _OnlineSession:
         self.run = RunFolder(cfg, companion.demos if companion is not None else None)
         self.recipe = resolve_recipe(cfg)
         self.device = torch_device(cfg.device)
-        self.racing = race_config(cfg.track, cfg.car, cfg.cars, cfg.episode_s)
+        self.racing = cfg.racing
         self.fingerprint = baseline_fingerprint(self.racing, cfg.algo)
         self.end_steps = total_steps(cfg)
         self.last_eval: dict[str, Any] | None = None
@@ -217,7 +217,12 @@ class _OnlineSession:
                 lambda obs: model.predict(obs, deterministic=True)[0], OBSERVATION, self.normalizer, None, self.racing
             )
         summary = time_laps(
-            self.eval_driver, cfg.track, cfg.car, range(cfg.eval_seeds), cfg.eval_laps, cfg.eval_time_limit_s
+            self.eval_driver,
+            cfg.racing.track,
+            cfg.racing.car,
+            range(cfg.evaluation.seeds),
+            cfg.evaluation.laps,
+            cfg.eval_time_limit_s,
         ).summary()
         eval_time_s = time.perf_counter() - t0
         self.session_start += eval_time_s  # evaluation time is not training time
@@ -299,7 +304,7 @@ def train_online(
     session.close()
     return {
         **_record(session, interrupted=interrupted, trained_now=steps_now > 0),
-        "buffer_restored": int(session.buffer_restored) * cfg.cars,
+        "buffer_restored": int(session.buffer_restored) * cfg.racing.n_groups,
         "session": {
             "steps": steps_now,
             "updates": updates_now,
