@@ -1,52 +1,8 @@
 """The capture HDF5 file, the hand-over from capture to Phase 1: writer and validating reader.
 
-Layout of one file (one run or one shard), N frames:
-
-====================  =========  ===============  ==============================================================
-dataset               dtype      shape            notes
-====================  =========  ===============  ==============================================================
-``images``            uint8      (N, H, W, 3)     RGB, one frame per chunk (random reads decode only one frame),
-                                                  zstd-compressed (see :data:`COMPRESSIONS`)
-``targets``           float32    (N, 27)          the Phase-1 targets, attributes ``names`` and ``units``
-``dedicated``         float32    (N, 11)          the dedicated features, attributes ``names`` and ``units``
-``pose``              float64    (N, 3)           x_m, y_m, yaw_rad in the world frame
-``time``              float64    (N,)             simulation time, s
-``lap``               int32      (N,)             lap index of the car at that frame (datasets split on it)
-``car_id``            int32      (N,)             which car's view the frame is
-``image_crc32``       uint32     (N,)             CRC-32 of each frame's stored image chunk (see below)
-====================  =========  ===============  ==============================================================
-
-File attributes: ``format_version``, ``target_names``, ``target_units``, ``dedicated_names``, ``dedicated_units``,
-``image_height``, ``image_width``, ``compression``, ``package_version``, ``complete`` and ``n_frames`` (frames
-committed by the last flush), plus the caller's attributes; :data:`REQUIRED_ATTRS` are mandatory (track name and
-geometry hash, car preset, renderer settings, seed). Dict or list values are stored as JSON text and listed in the
-attribute ``json_attrs`` so the reader gives them back decoded.
-
-Fingerprint: ``fingerprint`` (JSON) holds what the frames were made from (:data:`FINGERPRINT_KEYS` that the file
-has: source, track and its geometry hash, car, number of cars, fps, disruption, renderer settings with the frame
-size, seed, target names, package version at creation) and ``fingerprint_sha256`` its hash; a resumed writer
-refuses any difference but the package version, naming the field. A completed file also records
-``content_sha256`` (:meth:`CaptureFile.content_sha256`), the digest a trained encoder records of its data.
-
-Checksums (format version 2), checked on every read: the image chunks are written directly (HDF5's filter pipeline
-is bypassed, so its fletcher32 filter cannot cover them): ``image_crc32`` holds the CRC-32 of each stored chunk
-(zstd or deflate stream; of the raw frame bytes for the codecs h5py decodes, attribute ``image_crc32_of``), checked
-before a frame is decoded. Every other dataset, ``image_crc32`` included, carries HDF5's fletcher32 filter, checked
-by HDF5 on read per chunk of 4,096 rows. A mismatch raises :class:`CaptureFormatError` naming the file, the dataset
-and the frame (for a table, the frames of the damaged chunk). Files of format version 1 carry no checksums and are
-refused with the advice to capture again: nothing would tell a damaged frame from a good one.
-
-Crash safety: the writer flushes at most every ``flush_interval_s`` seconds, data first and then ``n_frames``, so
-the count on disk never covers frames whose bytes are not there. Between flushes the rows of the small datasets
-wait in memory and the last batch's image chunks are being compressed in threads; a kill loses them with everything
-else after the last flush. A kill between flushes can leave datasets longer than ``n_frames``; the reader and a
-resumed writer trust ``n_frames`` and ignore the tail. HDF5 is not journalled: appending rows rewrites the last,
-partly filled chunk of every table, committed rows included, so a kill inside that rewrite could damage frames
-already counted. Before each such write the writer therefore replaces ``PATH.journal.npz`` (written whole and renamed)
-with the rows from that chunk's start to the end of the write; a resumed writer rewrites the committed rows of the
-partly filled chunk from it, and a complete file has none. HDF5's default (earliest) file format is used on purpose:
-the newer superblock records "open for writing" and then refuses to reopen a file whose writer was killed without
-the ``h5clear`` tool.
+One file holds one run's (or shard's) frames, targets, dedicated features and poses, every chunk checksummed, with a
+fingerprint of what the frames were made from; a killed writer leaves a valid file that a resume continues. The
+layout, the fingerprint, the checksums and the crash guarantees: docs/notes/capture.md.
 """
 
 from __future__ import annotations
@@ -318,7 +274,7 @@ def _is_disk_full(exc: BaseException) -> bool:
 
 
 class CaptureWriter:
-    """Appends batches of frames to a capture file; see the module doc for the layout and the crash guarantees.
+    """Appends batches of frames to a capture file; the layout and the crash guarantees: docs/notes/capture.md.
 
     Args:
         path: the ``.h5`` file.
@@ -769,7 +725,7 @@ class CaptureFile:
 
     @property
     def fingerprint(self) -> dict[str, Any]:
-        """What the frames were made from (see the module doc), as a dict."""
+        """What the frames were made from (docs/notes/capture.md), as a dict."""
         return dict(self.attrs.get("fingerprint", {}))
 
     def content_sha256(self) -> str:

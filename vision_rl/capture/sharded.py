@@ -1,22 +1,8 @@
 """Sharded capture: N Ray tasks, each an ordinary simulator capture into its own shard file, and a manifest.
 
-``capture_sharded(cfg)`` splits a capture of ``cfg.laps`` laps into ``cfg.workers`` shards. Shard i is exactly
-:func:`vision_rl.capture.sim_capture.capture_sim` run with the seed :func:`shard_seed` (seed, i) (so its own
-disruptions and start points on the track) and its share of the laps, written to ``<out stem>.shards/shard_<i>.h5``
-(capture format 2, checksummed, resumable like any capture file). The shards run as Ray tasks of one CPU each, on
-the machine or on a cluster (``address``).
-
-The manifest at ``out`` (JSON) lists the shards by paths relative to its folder, with each shard's seed, laps, frame
-count, completion flag, fingerprint and content SHA-256, the settings all shards share, and its own SHA-256. The
-datasets layer opens a manifest like a capture file (:func:`open_manifest` verifies every shard on open: a missing,
-changed or foreign shard is refused naming it).
-
-Faults: a shard whose worker dies is rerun by Ray up to ``task_retries`` times (the rerun continues the shard file
-with capture's own resume); a shard that still fails leaves the run incomplete, its frames so far kept, and
-``resume`` reruns only the unfinished shards. Ctrl-C (a ``KeyboardInterrupt`` raised in ``progress``) stops every
-shard after its current batch; the manifest is rewritten from the shard files whatever happened.
-
-Ray is imported only when a sharded capture runs: ``import vision_rl.capture.sharded`` does not need it.
+A shard is :func:`vision_rl.capture.sim_capture.capture_sim` with its own seed and share of the laps; the manifest
+lists and checksums the shards, and a lost shard is rerun or resumed. Ray is imported only when a sharded capture
+runs. The shards, the manifest and the faults: docs/notes/capture.md.
 """
 
 from __future__ import annotations

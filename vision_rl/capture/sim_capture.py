@@ -1,20 +1,8 @@
 """Simulator capture: game-screen frames paired with the 27 targets and 11 dedicated features, written to HDF5.
 
-Two frame sources play the part of the vision paper's HDMI grabber (section 4.1):
-
-- the simulator (:func:`capture_sim`): N built-in AI cars drive one world together (each its own collision group,
-  so they are ghosts to each other and every frame shows the bare track), disrupted by uniform random offsets held
-  for random durations ("the built-in AI with uniform random disruptions"); every car's driver's view is rendered
-  at the capture rate and the targets are computed at the same instant.
-  With a ``driver`` (a trained policy, as the lap-time protocol's drivers act), that driver drives every car instead
-  of the AI, undisrupted: Phase 1 frames of the states Phase 2's policy visits, which the AI's laps do not show
-  (``evaluate --encoder-error`` measures the difference).
-- a grabber or a recorded video (:func:`vision_rl.capture.video_source.capture_video`): frames from
-  ``cv2.VideoCapture`` paired by timestamp with a telemetry log, the targets computed from the track geometry.
-
-``CaptureConfig.laps`` counts laps over all cars. A capture stopped by Ctrl-C or a kill keeps the frames flushed so
-far in a valid file marked incomplete; ``resume`` continues it up to the requested laps (the world restarts from a
-state derived from the seed and the frames already written, lap indices continue per car).
+The simulator's AI cars (or a trained policy) drive and every car's driver's view is rendered at the capture rate,
+in place of the vision paper's HDMI grabber (section 4.1); a stopped capture keeps its frames and resumes. The two
+frame sources, how laps are counted and resumed: docs/notes/capture.md.
 """
 
 from __future__ import annotations

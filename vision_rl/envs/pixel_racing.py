@@ -1,19 +1,8 @@
 """``vision_rl/PixelRacing-v0``: the asymmetric actor-critic environment of the Project CARS 2 DDPG paper.
 
-The actor sees pixels, the critic sees motion and the racing line:
-
-- ``image``: the driver's-view frame at (89, 120) px, the top third black (:data:`MASK_TOP_SHARE`, rows
-  ``0 .. ceil(89 / 3) - 1``), as the paper resizes its 635x800 capture and masks the sky and grandstands;
-- ``motion`` (15,): position (3), orientation roll/pitch/yaw (3), body-frame velocity (3), angular velocity
-  roll/pitch/yaw rate (3), body-frame acceleration without gravity (3), in SI units (:data:`MOTION_NAMES`);
-- ``goal`` (3,): the racing-line point matched to the car (:func:`racing_line_goal`), in the world frame (the
-  paper's ``racing_line``, default) or as its offset from the car in the body frame (``goal_frame="body"``).
-
-Everything is batched over cars (:class:`PixelRacingCore`: one world, every car alone in its own collision group),
-with one renderer call per step for all cars' frames and no Python loop over cars on the step path. The pure
-functions (:func:`keys_to_action`, :func:`crash_state`, :func:`pixel_reward`, :func:`process_frames`) are what the
-tests pin down; :class:`PixelObserver` is the one place a world state becomes this environment's observation (the
-lap-time protocol's DDPG driver uses it too).
+The actor sees the driver's-view pixels, the critic motion and the racing line; everything is batched over cars
+(:class:`PixelRacingCore`), and :class:`PixelObserver` is the one place a world state becomes this environment's
+observation. The observation's parts and the functions the tests pin down: docs/notes/envs.md.
 """
 
 from __future__ import annotations

@@ -126,10 +126,7 @@ class TimeTrial(_RacingEnv):
     world use :func:`vision_rl.envs.make_vector_env`.
 
     ## Version History
-    - v1: the world steps at the built-in AI's 0.02 s (an action is held over the five substeps, the same physics
-      as one 0.1 s step), per-group seeding (``reset(seed=k)`` equals group 0 of a vector env seeded with k),
-      normalisation statistics always from a 20-group disrupted-AI drive, frame size ``image_hw_px`` (height,
-      width), stuck termination by the one rule of ``vision_rl.sim.fleet``. v0 is no longer registered.
+    - v1: 0.02 s world ticks, per-group seeding, fixed normalisation, the one stuck rule (docs/notes/envs.md).
     - v0: first version.
     """
 

@@ -1,19 +1,9 @@
 """A person as a driver of the lap-time protocol: keyboard or gamepad, a pygame window, the run kept as
 demonstrations.
 
-The driver draws and reads its input every 0.02 s (the built-in AI's rate, so the picture moves smoothly) but
-takes a new command only every 0.1 s and holds it, as the environments do: what it records is then exactly the
-environments' transitions (observation, held ``[steer rad, omega]``, reward of Eq. 1), and replaying the actions
-in ``vision_rl/Overtaking-v1`` (scenario ``stage1``) drives the same lap.
-
-Keyboard: arrows or W/A/S/D; up/W throttle (omega +1), down/S brake (omega -1), left/A and right/D steer. A key
-cannot say how far to steer, so a held steering key turns the wheel at :data:`KEY_STEER_RATE_RADPS` up to a lock
-that shrinks with speed (:func:`speed_lock_rad`), as racing games do; releasing both centres the wheel at the same
-rate. Gamepad: the left stick's x axis steers (full deflection = the speed lock), the right trigger is throttle
-and the left trigger brake (SDL's axes 5 and 2, -1 released .. +1 pressed). Escape or closing the window ends the
-run (a :class:`HumanQuit`).
-
-pygame is imported only when a window is opened (the ``play`` extra).
+It takes a new command every 0.1 s and holds it, as the environments do, so that what it records is the
+environments' transitions. Its rates, the keys and the gamepad's axes: docs/notes/evaluation.md. pygame is imported
+only when a window is opened (the ``play`` extra).
 """
 
 from __future__ import annotations
@@ -62,7 +52,7 @@ def speed_lock_rad(speed_mps: float) -> float:
 
 @dataclass
 class KeyboardSteering:
-    """The commanded wheel angle of a keyboard driver (see the module docstring)."""
+    """The commanded wheel angle of a keyboard driver (docs/notes/evaluation.md)."""
 
     steer_rad: float = 0.0
 
@@ -116,7 +106,7 @@ class Recording:
 
 
 class HumanDriver:
-    """A protocol driver for one car driven by a person (see the module docstring).
+    """A protocol driver for one car driven by a person (docs/notes/evaluation.md).
 
     Args:
         camera: ``chase`` or ``hood``.

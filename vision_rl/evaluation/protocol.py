@@ -1,35 +1,9 @@
 """The one lap-time protocol. Every lap time in the project comes from :func:`time_laps`, whoever drives.
 
-Rules (:data:`PROTOCOL_VERSION` 1; the vision paper's Sec. 4, after Fuchs et al.):
-
-- **Rate**: the protocol advances in steps of :data:`STEP_S` = 0.1 s, the policies' 10 Hz. A driver acts every
-  ``driver.control_dt_s``, a whole fraction of the step (a policy every 0.1 s, the built-in AI every 0.02 s, its
-  50 Hz controller) or a whole multiple of the AI's 0.02 s (a 0.04 s policy: the world ticks at 0.02 s and the
-  command is held over two ticks, as in its training environment). Physics runs in 0.01 s substeps either way, so
-  the rate changes nobody's physics.
-- **Start**: rolling, the same for every driver. Seed k's car is placed on the start/finish line (s = 0) on the
-  car's racing line, heading along the centre line, at the built-in AI's default-skill speed there (0.92 x the QSS
-  limit profile), jittered by seed: lateral offset uniform in +-0.25 m, speed in +-2 %
-  (``numpy.random.default_rng(k)``). Placing a car on the line starts its first lap's clock.
-- **Laps**: ``laps`` consecutive laps (2); the last one is the score, so the start does not enter it.
-- **Seeds**: the seeds drive at once, each car alone (its own collision group: no contact between seeds). The
-  leaderboard's figure is the best scored lap over seeds (the papers' "best lap score"); the median is beside it.
-  A driver that computes its cars' actions with networks does so in batches of :data:`DRIVER_BATCH_CARS` (all at
-  once for 3 seeds or fewer), so seeds 0-2 lap the same among any number of seeds as in the protocol's 3 (a batch's
-  size changes a network's products in the last bit, and laps are chaotic in that bit).
-- **Stuck**: :data:`vision_rl.sim.fleet.STUCK_RULE` (less than 5 m of progress in 5 s). A stuck car's run ends
-  there: its unfinished laps are a DNF with the reason; nobody is put back on track.
-- **Time limit**: 3 x the QSS limit lap time per lap (``time_limit_s`` overrides); laps not done by then are a DNF.
-- **Per lap**: lap time; wall-contact, car-contact and off-track seconds (off track: the car's centre beyond the
-  painted edge line, on the kerb or shoulder band); average speed (centre-line length over lap time, km/h);
-  distance driven (the path length of the car's centre, m); wall hits (contacts that begin in the lap) and the
-  fastest of them (the car's speed at the start of the world tick in which the contact began, km/h: a car that
-  brakes on a wall shows here). Contact, hits and distance are counted at the world's tick (the driver's step, or
-  0.02 s for a driver whose step does not divide 0.1 s), so a lap's figures are exact to one tick.
-- **Clean**: a scored lap with at most :data:`CLEAN_WALL_CONTACT_S` of wall contact.
-
-A driver (:class:`Driver`) is anything with ``control_dt_s``, ``reset(world, car_ids)`` and
-``act(state) -> (n, 2) [steer rad, omega]`` for its batch of cars; the built-in AI is one (:class:`BuiltinAI`).
+A rolling start per seed, ``laps`` laps of which the last is scored, every car alone, a stuck rule and a time limit
+(:data:`PROTOCOL_VERSION`; :func:`rules` is recorded with every evaluation). A driver (:class:`Driver`) is anything
+with ``control_dt_s``, ``reset(world, car_ids)`` and ``act(state) -> (n, 2) [steer rad, omega]`` for its batch of
+cars; the built-in AI is one (:class:`BuiltinAI`). The rules in full: docs/notes/evaluation.md.
 """
 
 from __future__ import annotations
@@ -253,7 +227,8 @@ def _start(track: Track, car: VehicleParams, seeds: Sequence[int]) -> tuple[np.n
 
 def world_tick_s(control_dt_s: float) -> tuple[float, int]:
     """The protocol world's tick for a driver acting every ``control_dt_s`` seconds and how many ticks it holds a
-    command: the driver's own step where that divides :data:`STEP_S`, else the AI's 0.02 s (see the rules)."""
+    command: the driver's own step where that divides :data:`STEP_S`, else the AI's 0.02 s (docs/notes/evaluation.md,
+    the rules)."""
     per_step = round(STEP_S / control_dt_s) if control_dt_s > 0 else 0
     if per_step >= 1 and abs(per_step * control_dt_s - STEP_S) < 1e-9:
         return control_dt_s, 1
@@ -425,7 +400,7 @@ def time_laps(
     time_limit_s: float = 0.0,
     record: bool = False,
 ) -> LapTiming:
-    """Run the protocol: ``driver`` drives one car per seed for ``laps`` laps (see the module's rules).
+    """Run the protocol: ``driver`` drives one car per seed for ``laps`` laps (the rules: docs/notes/evaluation.md).
 
     ``time_limit_s`` 0: 3 x the QSS limit lap time per lap. ``record`` keeps every step's poses (plots, videos).
     """

@@ -1,23 +1,8 @@
 """The encoder checkpoint ``ckpt.pt``, the hand-over from Phase 1 to Phase 2, and :func:`load_encoder`.
 
-``ckpt.pt`` is a plain dict that ``torch.load(path, weights_only=True)`` reads:
-
-- ``format`` ("vision_rl.encoder") and ``format_version`` (2);
-- ``encoder_config``: :class:`EncoderConfig` as a dict; it holds the input size (``input_height_px``,
-  ``input_width_px``) and the pixel normalisation (``pixel_mean``, ``pixel_std`` of pixels scaled to [0, 1]);
-- ``state_dict``: the trained (unfused) :class:`ReprNet` weights;
-- ``target_names``, ``target_units`` and ``target_mean`` / ``target_std`` (float32 tensors, physical units), the
-  standardisation phi_reg was trained against: physical = standardised * std + mean;
-- ``package_version`` and ``metrics`` (the validation figures of the kept weights; may be empty);
-- ``dataset``: what the weights were trained on, per split (``train``, ``val``) a list of the capture files' names,
-  frame counts, ``fingerprint_sha256``, ``content_sha256``, track geometry hash and car (empty when unknown);
-- checksums: ``tensor_sha256`` (each tensor: ``state_dict.<name>``, ``target_mean``, ``target_std``),
-  ``field_sha256`` (every other field's canonical JSON) and ``content_sha256`` over both. :func:`read_checkpoint`
-  verifies them all and refuses a mismatch naming the field or tensor; :func:`load_encoder` can also require the
-  dataset to be a given one.
-
-Checkpoints of format version 1 carry no checksums and are refused with the advice to train again: their weights
-cannot be told from damaged or edited ones.
+``ckpt.pt`` is a plain dict that ``torch.load(path, weights_only=True)`` reads, with checksums of every tensor and
+field that :func:`read_checkpoint` verifies; checkpoints without them (format version 1) are refused. The fields
+one by one: docs/notes/phase1_repr.md.
 """
 
 from __future__ import annotations
@@ -78,7 +63,7 @@ def _json_sha256(value: Any) -> str:
 
 
 def checkpoint_checksums(payload: Mapping[str, Any]) -> dict[str, Any]:
-    """``tensor_sha256``, ``field_sha256`` and ``content_sha256`` of a checkpoint dict (see the module doc)."""
+    """``tensor_sha256``, ``field_sha256`` and ``content_sha256`` of a checkpoint dict (docs/notes/phase1_repr.md)."""
     tensors = {f"state_dict.{k}": tensor_sha256(v) for k, v in payload["state_dict"].items()}
     tensors.update({k: tensor_sha256(payload[k]) for k in _TENSOR_KEYS})
     fields = {k: _json_sha256(v) for k, v in payload.items() if k not in ("state_dict", *_TENSOR_KEYS, *_CHECKSUM_KEYS)}
@@ -101,7 +86,7 @@ def save_checkpoint(
     dataset: Mapping[str, Any] | None = None,
 ) -> Path:
     """Write ``ckpt.pt`` for ``net`` (trained form, not fused) with its checksums; returns the path. ``dataset``
-    describes the training data (see the module doc); plain JSON types only. A failed write (a full disk) raises
+    describes the training data (docs/notes/phase1_repr.md); plain JSON types only. A failed write (a full disk) raises
     an ``OSError`` naming the file and leaves neither a partial checkpoint nor a temporary file."""
     from vision_rl.files import package_version
 

@@ -1,22 +1,8 @@
 """`train-repr`: learn phi_rep by regressing the 27 targets from frames (vision paper, section 3, equation 1).
 
-The loss is the MSE on standardised targets; per-target RMSE in physical units and R^2 per target group go to
-TensorBoard and ``metrics.json`` every epoch; the weights with the lowest validation loss are kept (the paper keeps
-the best of 50 epochs on undisturbed-driving frames) and written as ``ckpt.pt`` with a predicted-vs-true figure.
-
-Nothing here loads a file that can run code: the kept weights are a state dict held by :class:`BestWeights` (in
-memory, and in the callback state of Lightning's ``last.ckpt``), and ``--resume`` loads ``last.ckpt`` with
-``weights_only=True`` after checking that it holds only tensors and plain values. ``data.json`` in the run folder
-records the fingerprints and content digests of the capture files; a resumed run refuses other data, naming the
-field, and ``ckpt.pt`` records the same under ``dataset``. Non-finite or absurd targets are refused before training
-(:data:`vision_rl.datasets.capture_dataset.TARGET_MAGNITUDE_BOUNDS`).
-
-Several devices (``devices=N, strategy="ddp"``): Lightning's DDP runs N processes (gloo on CPUs, NCCL on GPUs), each
-on its share of every epoch's batches; validation losses and metrics are gathered over all of them (the distributed
-sampler pads the last batches with a few repeated frames so that every process holds as many). Lightning starts the
-other processes by running the same command line again with ``LOCAL_RANK`` set, so train on several devices from a
-command (``vision-rl train-repr``), not from a notebook; those processes skip every write but Lightning's own, and
-``ckpt.pt``, ``metrics.json`` and the figure are written once, by rank 0, in the format of a one-device run.
+The loss is the MSE on standardised targets; the weights with the lowest validation loss are kept and written as
+``ckpt.pt``, and nothing here loads a file that can run code. What is logged, what a resume checks and how several
+devices train: docs/notes/phase1_repr.md.
 """
 
 from __future__ import annotations

@@ -1,19 +1,8 @@
 """Offscreen OpenGL renderer of the simulator: many cars' driver views in one pass, one read-back.
 
-How a batch is drawn. Every view owns a tile of one tall framebuffer. The static track mesh is drawn with a single
-multi-draw-indirect call: each command is a run of chunks visible from one view, and its ``baseInstance`` selects
-the view, whose camera the vertex shader reads from a uniform block and whose tile it maps the clip position into
-(with four clip distances so that no triangle leaks into a neighbouring tile). Other cars are one instanced draw
-over the visible (view, car) pairs. Last comes the background, one instanced pair of quads per tile at the far
-plane: a sky gradient above the horizon and, below it, an infinite textured ground plane intersected per pixel, so
-only pixels nothing else covered are shaded. Then one ``glReadPixels`` brings all tiles back; tiles are stacked so
-that the rows come back already in (view, row, column) order, and the y axis is flipped in the shader so no copy
-is needed to turn the image upright.
-
-Frames are a pure function of (track, config, poses, groups, colours, tile): the mesh and textures are built
-deterministically and the GL state is the same for every call. The same view rendered into another tile (another
-position in a batch) may differ in a few edge pixels, because float rounding of the tile offset can move a polygon
-edge by a sub-pixel. A Renderer owns its GL context: use it from one thread.
+Frames are a pure function of (track, config, poses, groups, colours, tile). A Renderer owns its GL context: use it
+from one thread. How a batch is drawn and why a view may differ in a few edge pixels from tile to tile:
+docs/notes/render.md.
 """
 
 from __future__ import annotations

@@ -1,28 +1,8 @@
 """The built-in AI driver, batched over cars: racing-line following, speed tracking, car following, disruption.
 
-Steering, three terms added as road-wheel angles:
-
-- feedforward: the line's curvature a short time ahead (the steering lag), ``wheelbase * kappa``, plus the
-  steady-state difference of the front and rear slip angles, so that the car does not run wide near the limit;
-- path feedback: a curvature that brings the lateral error back over a preview distance,
-  ``kappa_fb = -2 (e + L_p sin(psi_e)) / L_p^2`` with ``L_p = v * preview_time_s``, a damped (zeta = 0.71)
-  path-following law in the distance domain; the heading error ``psi_e`` is that of the body less the steady-state
-  body slip angle, so a drifting car (rear stepping out) counts as an error;
-- yaw damping: counter-steer on the difference between the yaw rate and the commanded path's ``v * kappa``,
-  which catches oversteer (braking into a corner) long before the car slides;
-- and, near the limit, a cap: the command does not ask the front tyres for more than their peak slip angle (more
-  lock past the peak loses front grip: on corner exits the gt3 ran 0.8 m wide with 0.35 rad of lock).
-
-Speed: a reference profile, the QSS limit profile recomputed with ``grip_usage`` of the tyres' friction (a driver
-at the exact peak of the tyre curve has no cornering stiffness left and spins), scaled by the driver's ``skill``
-in (0, 1] and read a little ahead (the throttle/brake lag); a force feedforward from its acceleration, a
-proportional feedback on the speed error, and drive and brake forces capped where an axle would leave its
-friction ellipse (the profile's braking zones are the braking look-ahead). A car running wide of the line in a turn
-lifts (``wide_lift_per_m``), as a driver does: at skill 1.0 the gt3 and tt_cup otherwise touched the outside walls
-on corner exits under power (0.1-1.6 s over two laps).
-
-Opponent mode: with ``groups``, a car with another car of its group ahead of it in the same lane slows to keep a
-time gap. Disruption (:class:`Disruptor`) adds uniform random offsets to the commands for data collection.
+It steers by curvature feedforward, path feedback and yaw damping, and tracks the QSS limit profile scaled by its
+``skill``: the reference driver of the lap-time protocol and the driver of the captures. The control laws and why
+each term is there: docs/notes/sim.md.
 """
 
 from __future__ import annotations

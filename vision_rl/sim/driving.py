@@ -60,7 +60,7 @@ def line_and_profile(track: Track, car: VehicleParams) -> tuple[RacingLine, Spee
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError):
         pass
     # Both curvature models: the iterative QP's line is the faster one on most real tracks, the exact
-    # minimum-curvature line on long constant-radius arcs (racing_line's docstring).
+    # minimum-curvature line on long constant-radius arcs (docs/notes/sim.md, racing_line.py).
     margin_m = 0.5 * car.width_m + LINE_SAFETY_MARGIN_M
     line, profile = (None, None)
     for model in CURVATURE_MODELS:

@@ -1,22 +1,7 @@
 """Minimum-curvature racing line: lateral offsets of the centre line that minimise the summed squared curvature.
 
-The line is ``p_i = c_i + a_i * n_i`` on the track's centre-line samples, with ``a`` bounded by the walls less a
-margin. The first QP linearises the curvature with the centre line's tangent held fixed, as Heilmeier et al.
-(2019), "Minimum curvature trajectory planning and control for an autonomous race car", Vehicle System Dynamics
-58(10), do. That linearisation sees ``k - k^2 a`` where an offset curve has ``k + k^2 a``, so it puts the line on the
-inside of long constant-radius corners (on a ring: the inner wall). The further QPs (``iterations``) either
-
-- ``"iqp"`` (default): hold the tangent of the previous QP's line instead of the centre line's, as the iterative QP
-  of Heilmeier et al.'s optimiser (``mincurv_iqp``, which re-linearises about the previous line) does: it removes
-  the error of linearising about a centre line metres away and keeps the inside bias, which on a real corner is a
-  lap-time gain (on a ring of radius R the lap time grows as sqrt(R), so the inside is faster). It is the closest
-  to the racetrack-database's lines: 0.42-0.58 m mean distance on its five tracks at a 1.25 m margin (the one-QP
-  line 0.43-0.91 m, the exact line below 0.72-1.76 m), and its QSS lap is 0.7-4.3 % faster than the one-QP line's;
-- ``"exact"``: Gauss-Newton steps on the exact polyline curvature ``cross(p', p'') / |p'|^3``, converging to the
-  true minimum-curvature line (on a ring: the outer wall). Its QSS lap is 0.3-1.4 % faster on the built-in tracks'
-  long arcs (expressway, flowing), 0.04-0.27 % faster on Monza and Spa and 0.1-0.9 % slower on the others, so
-  :func:`~vision_rl.sim.driving.line_and_profile` computes both and takes the exact line only where it is clearly
-  faster (``EXACT_LINE_MIN_GAIN`` there).
+Quadratic programs on the centre line's samples, the offsets bounded by the walls less a margin. The curvature
+models (:data:`CURVATURE_MODELS`) and how their lines and laps compare: docs/notes/sim.md.
 """
 
 from __future__ import annotations
@@ -42,7 +27,7 @@ DEFAULT_OPT_STEP_M = 1.0
 #: moves the line by centimetres: 6 QPs change QSS laps by < 0.05 %).
 DEFAULT_ITERATIONS = 3
 
-#: How the QPs after the first linearise the curvature (see the module docstring).
+#: How the QPs after the first linearise the curvature (docs/notes/sim.md).
 CURVATURE_MODELS = ("iqp", "exact")
 
 #: Interior-point iterations before falling back to OSQP; 20-30 are typical.

@@ -1,20 +1,7 @@
 """Quasi-steady-state (QSS) speed profile and lap time of a car on a racing line: the physical-limit lap.
 
-The car is the dynamic single-track model of :mod:`vision_rl.sim.vehicle` taken at steady state, point by point:
-
-- axle loads: static weight split, aero downforce split by ``downforce_front_share``, longitudinal load transfer
-  ``m h a_x / L``; lateral load transfer ``m h a_y / track_width`` split by ``roll_stiffness_front_share``;
-- axle grip: per-wheel ``mu(Fz) Fz`` with the tyres' load sensitivity (the vehicle model's own formula), lateral forces
-  in yaw equilibrium ``Fy_f = m a_y lr / L``, ``Fy_r = m a_y lf / L``, and each axle's (Fx, Fy) inside its friction
-  ellipse (longitudinal radius ``long_to_lat_mu_ratio`` times the lateral one);
-- drive: ``min(max_drive_force_n, efficiency * power / v)`` with the rev limit, limited by the driven axles' traction;
-  brakes: ``max_brake_force_n`` with the fixed front/rear split, limited by whichever axle saturates first;
-- resistances: aerodynamic drag, rolling resistance on the total load, and the tyres' cornering drag
-  ``Fy_f sin(alpha_f) + Fy_r sin(alpha_r)`` (the power the slip angles dissipate: at the grip limit about a tenth of
-  the lateral force, which a point-mass QSS leaves out and the dynamic model does not).
-
-A forward pass (acceleration limits) and a backward pass (braking limits) under the cornering limit speed give the
-profile; both run lap after lap until the lap closes on itself. They are sequential loops over points: numba.
+The car is the dynamic single-track model of :mod:`vision_rl.sim.vehicle` at steady state, point by point; a forward
+and a backward pass under the cornering limit (numba loops) give the profile. The model's terms: docs/notes/sim.md.
 """
 
 from __future__ import annotations

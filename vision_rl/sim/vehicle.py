@@ -1,43 +1,9 @@
 """Batched vehicle dynamics: a dynamic single-track (bicycle) model with Pacejka Magic Formula tyres.
 
-Model, per car and per substep (explicit / semi-implicit Euler, default ``dt_s`` = 0.01 s):
-
-- Actuators: the steering command is clipped to ``params.steer_limit_rad``, followed with a first-order lag and
-  a rate limit; the throttle/brake command ``omega`` (throttle > 0, brake < 0) is clipped to [-1, 1] and lagged.
-  A NaN command counts as 0 (straight ahead, coasting); +-inf is clipped like any out-of-range value.
-- Normal loads: static axle loads, longitudinal load transfer from last substep's body acceleration, aero downforce
-  split front/rear. Lateral load transfer (split by the front roll-stiffness share) lowers each axle's grip through
-  the tyres' load sensitivity, which is what makes a front-heavy car understeer.
-- Tyres: one lumped tyre per axle. Lateral force from the Magic Formula
-  ``F = D sin(C atan(B a - E (B a - atan(B a))))`` with ``D = mu(Fz) Fz``; the slip angle is taken in the wheel frame,
-  so reversing and sliding sideways are handled. The longitudinal force needs no wheel-spin state: each axle's
-  drive/brake demand is capped by its longitudinal capacity, and the (longitudinal, lateral) pair is scaled back onto
-  the friction ellipse (ABS and traction control are assumed; wheel ODEs would force tiny steps).
-- Engine: wheel force ``min(max_drive_force_n, efficiency * max_power_w / vx)``, faded to zero over the last
-  metre per second below ``max_speed_mps`` (the rev limit in top gear). FWD, RWD or AWD (an active centre
-  differential: torque split in proportion to the axles' longitudinal grip).
-- Brakes: ``max_brake_force_n`` split ``brake_front_share`` / rest; they and rolling resistance act along the wheels
-  against the motion; at low speed they stop a car on exactly vx = 0 and never push it backwards.
-- Aero: drag ``0.5 rho CdA vx|vx|``, downforce ``0.5 rho ClA vx^2``.
-- Low speed: below ``kinematic_below_mps`` the lateral/yaw states follow the kinematic bicycle model (no tyre slip),
-  above ``dynamic_above_mps`` the dynamic model; in between the two updates are blended linearly (CommonRoad and
-  f1tenth switch the same way). This keeps the stiff low-speed tyre dynamics from destabilising the explicit step
-  (checked for dt <= 0.01 s). The kinematic values are approached no faster than the tyres' grip allows, so a car
-  still sliding when it slows down keeps sliding instead of snapping onto the no-slip state.
-- Body motion for the angular-rate features: quasi-static roll and pitch with a first-order lag.
-
-Sign conventions (the whole package's): world x, y on the ground, z up, yaw counter-clockwise from +x; body x
-forward, y left, z up. ``vx_mps, vy_mps`` and ``ax_mps2, ay_mps2`` are in the body frame; ``ax, ay`` are what an
-accelerometer without gravity reads (``dv/dt + omega x v``). Roll is the right-handed rotation about body x, so a
-left turn (ay > 0) rolls the body to the right: roll > 0. Pitch is the right-handed rotation about body y (left),
-so braking (ax < 0) dives the nose: pitch > 0.
-
-The physics lives in one function, :func:`_car_step`, written element-wise with numpy functions, so that it runs
-both on whole arrays (numpy) and, compiled by numba, on one car's floats inside a loop over cars and substeps.
-:func:`step` and :func:`advance` run the compiled loop: it keeps each car's state in registers across substeps and
-allocates nothing per operation. Measured per substep (2-core dev machine, medians): about 1.5x faster than numpy at
-1,000 cars (0.31 vs 0.47 ms) and about 15x at 20 cars (14 vs 220 us), where numpy's per-call overhead dominates.
-The tests check that both paths agree.
+The physics is one element-wise function, :func:`_car_step`, that runs on whole arrays (numpy) and, compiled by
+numba, on one car's floats in a loop over cars and substeps (:func:`step`, :func:`advance`): one source for both
+paths. Signs: world x, y on the ground, z up, yaw counter-clockwise from +x; body x forward, y left, z up.
+The model term by term, the roll and pitch signs and the two paths' speed: docs/notes/sim.md.
 """
 
 from __future__ import annotations
@@ -384,7 +350,7 @@ _N_PACKED = 40
 
 
 class VehicleState(NamedTuple):
-    """State of n cars; every field is a float64 array of shape (n_cars,). Signs: see the module docstring."""
+    """State of n cars; every field is a float64 array of shape (n_cars,). Signs: docs/notes/sim.md (vehicle.py)."""
 
     x_m: np.ndarray
     y_m: np.ndarray
