@@ -170,6 +170,7 @@ def test_a_saved_and_loaded_agent_acts_identically(track, tmp_path):
 
 
 def test_train_ddpg_tiny_run_evaluates_saves_and_resumes(gl_available, track, tmp_path):
+    from vision_rl.config import from_flat
     from vision_rl.ddpg.train import TrainDDPGConfig, evaluate_ddpg, train_ddpg
 
     out = tmp_path / "run"
@@ -188,7 +189,7 @@ def test_train_ddpg_tiny_run_evaluates_saves_and_resumes(gl_available, track, tm
         eval_time_limit_s=3.0,
         checkpoint_every_steps=10,
     )
-    result = train_ddpg(TrainDDPGConfig(**base))
+    result = train_ddpg(from_flat(TrainDDPGConfig, base))
     assert result["num_steps"] == 24 and result["n_updates"] > 0 and not result["interrupted"]
     assert result["last_eval"]["distance_m"] > 10.0  # the actor drove the protocol's car
     side = json.loads((out / "ddpg.json").read_text())
@@ -204,7 +205,7 @@ def test_train_ddpg_tiny_run_evaluates_saves_and_resumes(gl_available, track, tm
         if stop_at["n"] == 3:
             raise KeyboardInterrupt
 
-    resumed = train_ddpg(TrainDDPGConfig(**{**base, "steps": 60, "resume": True}), interrupt)
+    resumed = train_ddpg(from_flat(TrainDDPGConfig, {**base, "steps": 60, "resume": True}), interrupt)
     assert resumed["interrupted"] and resumed["num_steps"] == 30 and resumed["buffer_restored"] > 0
     assert resumed["n_updates"] == result["n_updates"] + 3  # updates go on at once on the restored buffer
     assert json.loads((out / "ddpg.json").read_text())["counters"]["num_steps"] == 30
@@ -266,6 +267,7 @@ def test_bench_times_each_layout_and_refuses_an_unknown_one(track):
 def test_train_minutes_stop_a_run_and_a_resume_with_more_continues_it(track, tmp_path):
     """The equal wall-clock budget: a run stops when its training time reaches --train-minutes, long before its
     steps, and a resume with a larger budget trains on from where it stopped."""
+    from vision_rl.config import from_flat
     from vision_rl.ddpg.train import TrainDDPGConfig, train_ddpg
 
     base = dict(
@@ -282,11 +284,11 @@ def test_train_minutes_stop_a_run_and_a_resume_with_more_continues_it(track, tmp
         checkpoint_every_steps=0,
         train_minutes=0.02,
     )
-    first = train_ddpg(TrainDDPGConfig(**base))
+    first = train_ddpg(from_flat(TrainDDPGConfig, base))
     assert first["stopped_by"] == "train_minutes" and 0 < first["num_steps"] < 10**7
     assert 1.2 <= first["train_time_s"] < 10.0
-    second = train_ddpg(TrainDDPGConfig(**{**base, "train_minutes": 0.04, "resume": True}))
+    second = train_ddpg(from_flat(TrainDDPGConfig, {**base, "train_minutes": 0.04, "resume": True}))
     assert second["stopped_by"] == "train_minutes" and second["num_steps"] > first["num_steps"]
     assert 2.4 <= second["train_time_s"] < 12.0
     with pytest.raises(ValueError, match="--train-minutes -1"):
-        train_ddpg(TrainDDPGConfig(**{**base, "train_minutes": -1.0, "force": True}))
+        train_ddpg(from_flat(TrainDDPGConfig, {**base, "train_minutes": -1.0, "force": True}))

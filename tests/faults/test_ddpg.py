@@ -66,13 +66,14 @@ def test_a_symmetric_checkpoint_loaded_as_asymmetric_is_refused(track, tmp_path,
 def test_resuming_a_symmetric_run_as_asymmetric_is_refused(track, tmp_path, fault):
     import json
 
+    from vision_rl.config import from_flat
     from vision_rl.ddpg.train import TrainDDPGConfig, train_ddpg
 
     out = tmp_path / "run"
     _saved(track, out, "symmetric")
     (out / "ddpg.json").write_text(json.dumps({"format": "vision_rl.ddpg_run", "hyper": {"variant": "symmetric"}}))
     with pytest.raises(DDPGError, match="variant 'symmetric', not 'asymmetric'") as excinfo:
-        train_ddpg(TrainDDPGConfig(track=track, out=str(out), resume=True, variant="asymmetric"))
+        train_ddpg(from_flat(TrainDDPGConfig, track=track, out=str(out), resume=True, variant="asymmetric"))
     fault.refused("train-ddpg --resume --variant asymmetric of a symmetric run", str(excinfo.value))
 
 
@@ -125,6 +126,7 @@ def test_a_changed_replay_chunk_is_refused(tmp_path, fault):
 
 
 def test_episodes_logged_after_the_last_checkpoint_are_dropped_on_resume(track, tmp_path, fault):
+    from vision_rl.config import from_flat
     from vision_rl.ddpg.train import TrainDDPGConfig, train_ddpg
 
     base = dict(
@@ -141,14 +143,14 @@ def test_episodes_logged_after_the_last_checkpoint_are_dropped_on_resume(track, 
         checkpoint_every_steps=0,
         train_minutes=0.02,
     )
-    first = train_ddpg(TrainDDPGConfig(**base))
+    first = train_ddpg(from_flat(TrainDDPGConfig, base))
     episodes = tmp_path / "run" / "episodes.jsonl"
     logged = episodes.read_text().splitlines()
     assert len(logged) == first["episodes"] > 0
     # What a kill after the checkpoint leaves: an episode the resume drives again, and a line torn mid-write.
     with open(episodes, "a") as f:
         f.write(json.dumps({"episode": first["episodes"], "num_steps": first["num_steps"]}) + '\n{"episode": 9, "nu')
-    second = train_ddpg(TrainDDPGConfig(**{**base, "train_minutes": 0.03, "resume": True}))
+    second = train_ddpg(from_flat(TrainDDPGConfig, {**base, "train_minutes": 0.03, "resume": True}))
     records = [json.loads(line) for line in episodes.read_text().splitlines()]
     assert [r["episode"] for r in records] == list(range(second["episodes"]))  # each episode once, in order
     assert records[: len(logged)] == [json.loads(line) for line in logged]

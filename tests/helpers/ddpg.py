@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+from vision_rl.config import from_flat
 from vision_rl.ddpg.train import TrainDDPGConfig
 
 #: Frames of the tiny runs, (height, width) px.
@@ -13,7 +14,7 @@ HW = (32, 48)
 
 def ddpg_config(track: str, out, **kw) -> TrainDDPGConfig:
     """train-ddpg for 24 steps of 2 cars on ``track`` with one sampler actor, no evaluation and no checkpoint;
-    ``kw`` overrides any field."""
+    ``kw`` overrides any option (flat names)."""
     base = dict(
         track=track,
         cars=2,
@@ -30,7 +31,7 @@ def ddpg_config(track: str, out, **kw) -> TrainDDPGConfig:
         max_staleness=0,
         version_every_updates=2,
     )
-    return TrainDDPGConfig(**{**base, **kw})
+    return from_flat(TrainDDPGConfig, {**base, **kw})
 
 
 def hand_made_run(

@@ -121,8 +121,8 @@ class BenchDDPGOptions:
 def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
     import torch
 
-    from vision_rl.ddpg.agent import BENCH_LAYOUTS, DDPGHyper, bench_updates
-    from vision_rl.envs.pixel_racing import PixelRacingConfig
+    from vision_rl.ddpg.agent import BENCH_LAYOUTS, bench_updates
+    from vision_rl.ddpg.train import TrainDDPGConfig
     from vision_rl.phase1_repr.bench import require_device
 
     if opts.updates < 1 or opts.torch_threads < 1:
@@ -134,16 +134,16 @@ def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
     torch.set_num_threads(opts.torch_threads)
     rows = []
     for variant in [v.strip() for v in opts.variants.split(",") if v.strip()]:
-        env = PixelRacingConfig(frames=variant != "state-actor")
+        hyper, env = TrainDDPGConfig(variant=variant).agent_configs()  # what train-ddpg trains by default
         # The state-only actor has no convolutions: one row says what it costs.
         for layout in layouts if env.frames else layouts[:1]:
-            figures = bench_updates(DDPGHyper(variant=variant), env, opts.updates, layout=layout, device=str(device))
+            figures = bench_updates(hyper, env, opts.updates, layout=layout, device=str(device))
             rounded = {k: round(v, 3) for k, v in figures.items()}
             rows.append(
                 {
                     "variant": variant,
                     "layout": layout if env.frames else "no convolutions",
-                    "batch_size": 32,
+                    "batch_size": hyper.batch_size,
                     "image_hw_px": list(env.image_hw_px),
                     **rounded,
                 }

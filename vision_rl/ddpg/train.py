@@ -20,7 +20,7 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from vision_rl.config import flat_values, nested
 from vision_rl.ddpg.agent import (
     AGENT_NAME,
     REPLAY_DIR,
@@ -48,9 +49,9 @@ from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.protocol import time_laps
 from vision_rl.files import atomic_write, write_json
-from vision_rl.sim.ai_driver import DEFAULT_SKILL
 from vision_rl.training.interrupts import HeldSignal
 from vision_rl.training.persist import ArtifactError, check_fingerprint
+from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule, SamplerOptions
 
 METRICS_NAME = "metrics.jsonl"
 EPISODES_NAME = "episodes.jsonl"
@@ -60,18 +61,53 @@ MAX_CARS = 64
 Progress = Callable[[int, int, dict[str, Any] | None], None]
 
 
+#: The environment's fields that are train-ddpg options, with the command's help for them (PixelRacingConfig's own
+#: docstrings say more); the rest (control step, frames, crash and stuck rules) keep their defaults or follow --variant.
+ENV_OPTIONS_HELP = {
+    "track": "Track (the paper's Barcelona-Catalunya).",
+    "car": "Car preset (the paper's Porsche 911 GT3 R).",
+    "n_cars": "Cars driving at once, each alone (one frame each per step, rendered in one call).",
+    "episode_s": "Episode time limit, s.",
+    "image_hw_px": "The actor's frame, height and width px (the paper's 89x120).",
+    "render_scale": "Render at this multiple of the frame size and box-average down (antialiasing).",
+    "goal_frame": "The critic's goal: world (the racing-line point, the paper) or body (its offset from the car).",
+    "racing_line": "car (the car's minimum-curvature line) or reference (the racetrack-database's race line).",
+    "line_distance_alpha": "alpha of the reward V - alpha |racing-line distance| - beta crashState, (m/s) per m.",
+    "crash_penalty_beta": "beta of the reward (0: the paper's simple reward).",
+    "max_line_distance_m": "An episode ends farther than this from the racing line, m.",
+    "start": "Episodes start at a random point (random) or on the start/finish line (line).",
+    "start_skill": (
+        "Episodes start at this share of the limit speed there (the built-in AI's; 0: from standstill, as a race in "
+        "the game restarts)."
+    ),
+}
+
+#: train-ddpg's help for the agent's hyper-parameters, where it words them otherwise than :class:`DDPGHyper`.
+HYPER_OPTIONS_HELP = {
+    "buffer_size": "Replay capacity, frames over all cars (100,000 89x120 frames: 3.2 GB).",
+    "tau": "Soft target update.",
+    "gamma": "Discount per 0.1 s step.",
+    "ou_theta": "OU noise mean reversion.",
+    "ou_sigma": "OU noise scale.",
+    "reward_scale": "Rewards are multiplied by this in the critic's targets.",
+    "pedal_activation": (
+        "Output activation of the accelerate and brake keys: relu (the paper's) or sigmoid (a pedal never loses its "
+        "gradient; not in the paper)."
+    ),
+    "channels_last": "Channels-last convolutions (faster on CPUs).",
+}
+
+
 @dataclass(frozen=True)
 class TrainDDPGConfig:
     """What `train-ddpg` trains, for how long, and where it writes."""
 
+    @staticmethod
+    def check_options(options: Mapping[str, Any]) -> None:
+        check_bounds(options)
+
     variant: str = "asymmetric"
     """asymmetric (pixel actor; critic on motion + racing line), symmetric (critic on pixels too), state-actor."""
-    track: str = "Catalunya"
-    """Track (the paper's Barcelona-Catalunya)."""
-    car: str = "gt3"
-    """Car preset (the paper's Porsche 911 GT3 R)."""
-    cars: int = 1
-    """Cars driving at once, each alone (one frame each per step, rendered in one call)."""
     steps: int = 100_000
     """Transitions to train on (all cars together), including those of a resumed run."""
     train_minutes: float = 0.0
@@ -85,144 +121,108 @@ class TrainDDPGConfig:
     """Continue the run in --out (its variant, track, car and settings win)."""
     force: bool = False
     """Start over in a folder that holds a run."""
-    image_hw_px: tuple[int, int] = (89, 120)
-    """The actor's frame, height and width px (the paper's 89x120)."""
-    render_scale: int = 1
-    """Render at this multiple of the frame size and box-average down (antialiasing)."""
-    goal_frame: str = "world"
-    """The critic's goal: world (the racing-line point, the paper) or body (its offset from the car)."""
-    racing_line: str = "car"
-    """car (the car's minimum-curvature line) or reference (the racetrack-database's race line)."""
-    line_distance_alpha: float = 1.0
-    """alpha of the reward V - alpha |racing-line distance| - beta crashState, (m/s) per m."""
-    crash_penalty_beta: float = 0.0
-    """beta of the reward (0: the paper's simple reward)."""
-    max_line_distance_m: float = 5.0
-    """An episode ends farther than this from the racing line, m."""
-    episode_s: float = 300.0
-    """Episode time limit, s."""
-    start: str = "random"
-    """Episodes start at a random point (random) or on the start/finish line (line)."""
-    start_speed_share: float = DEFAULT_SKILL
-    """Episodes start at this share of the limit speed there (the built-in AI's; 0: from standstill, as a race in
-    the game restarts)."""
-    buffer_size: int = 100_000
-    """Replay capacity, frames over all cars (100,000 89x120 frames: 3.2 GB)."""
-    batch_size: int = 32
-    """Transitions per update."""
+    env: PixelRacingConfig = nested(
+        PixelRacingConfig(),
+        only=tuple(ENV_OPTIONS_HELP),
+        rename={"n_cars": "cars", "start_skill": "start_speed_share"},
+        help=ENV_OPTIONS_HELP,
+    )
+    """The environment (its ``frames`` follow --variant: :meth:`agent_configs`)."""
+    hyper: DDPGHyper = nested(
+        DDPGHyper(),
+        only=(
+            "actor_lr",
+            "critic_lr",
+            "tau",
+            "gamma",
+            "batch_size",
+            "buffer_size",
+            "ou_theta",
+            "ou_sigma",
+            "pedal_activation",
+            "reward_scale",
+            "channels_last",
+        ),
+        help=HYPER_OPTIONS_HELP,
+    )
+    """The agent's hyper-parameters (its ``variant`` is --variant's: :meth:`agent_configs`)."""
     learning_starts: int = 1_000
     """Transitions collected before the first update."""
     updates_per_step: int = 1
     """Updates after each step of all cars."""
-    actor_lr: float = 1e-3
-    """Adam step size of the actor."""
-    critic_lr: float = 1e-4
-    """Adam step size of the critic."""
-    tau: float = 0.01
-    """Soft target update."""
-    gamma: float = 0.98
-    """Discount per 0.1 s step."""
-    ou_theta: float = 0.8
-    """OU noise mean reversion."""
-    ou_sigma: float = 0.3
-    """OU noise scale."""
-    reward_scale: float = 1.0
-    """Rewards are multiplied by this in the critic's targets."""
-    pedal_activation: str = "relu"
-    """Output activation of the accelerate and brake keys: relu (the paper's) or sigmoid (a pedal never loses its
-    gradient; not in the paper)."""
-    channels_last: bool = True
-    """Channels-last convolutions (faster on CPUs)."""
-    eval_every_steps: int = 10_000
-    """Time the deterministic actor with the lap-time protocol every this many transitions (0: only at the end)."""
-    eval_seeds: int = 1
-    """Protocol seeds per evaluation."""
-    eval_laps: int = 2
-    """Protocol laps per evaluation (the last is scored)."""
+    evaluation: EvaluationSchedule = nested(
+        EvaluationSchedule(every_steps=10_000),
+        prefix="eval_",
+        help={
+            "every_steps": (
+                "Time the deterministic actor with the lap-time protocol every this many transitions (0: only at "
+                "the end)."
+            ),
+            "seeds": "Protocol seeds per evaluation.",
+            "laps": "Protocol laps per evaluation (the last is scored).",
+        },
+    )
+    """The periodic evaluations."""
     eval_time_limit_s: float = 0.0
     """Time limit of an evaluation run, s (0: the protocol's 3 limit laps per lap)."""
-    checkpoint_every_steps: int = 10_000
-    """Save the agent and the buffer every this many transitions (0: only at the end)."""
-    checkpoint_every_min: float = 10.0
-    """Save the agent (no buffer) every this many minutes of wall-clock time (0: never)."""
+    checkpoints: CheckpointSchedule = nested(
+        CheckpointSchedule(every_steps=10_000),
+        prefix="checkpoint_",
+        help={
+            "every_steps": "Save the agent and the buffer every this many transitions (0: only at the end).",
+            "every_min": "Save the agent (no buffer) every this many minutes of wall-clock time (0: never).",
+        },
+    )
+    """The periodic saves."""
     torch_threads: int = 1
     """torch threads (0: torch's default); the renderer and the simulator use the other core."""
     device: str = "cpu"
     """torch device."""
-    workers: int | None = None
-    """Sampler actors (Ray), each a world of --cars cars in its own process, while this process learns; leave it
-    out to sample in this process."""
-    address: str = ""
-    """With --workers: the Ray cluster to join (auto, host:port or ray://host:port); empty: start one here."""
-    max_staleness: int = 1
-    """With --workers: weight versions a sampler's actor may lag the learner's (0: synchronous)."""
-    version_every_updates: int = 20
-    """With --workers: learner updates per weight version sent to the samplers."""
+    samplers: SamplerOptions = nested(
+        SamplerOptions(),
+        help={
+            "max_staleness": "With --workers: weight versions a sampler's actor may lag the learner's (0: synchronous)."
+        },
+    )
+    """Sampling in Ray actors."""
 
-    def hyper(self) -> DDPGHyper:
-        return DDPGHyper(
-            variant=self.variant,
-            actor_lr=self.actor_lr,
-            critic_lr=self.critic_lr,
-            tau=self.tau,
-            gamma=self.gamma,
-            batch_size=self.batch_size,
-            buffer_size=self.buffer_size,
-            ou_theta=self.ou_theta,
-            ou_sigma=self.ou_sigma,
-            reward_scale=self.reward_scale,
-            channels_last=self.channels_last,
-            pedal_activation=self.pedal_activation,
-        )
-
-    def env(self) -> PixelRacingConfig:
-        return PixelRacingConfig(
-            track=self.track,
-            car=self.car,
-            n_cars=self.cars,
-            episode_s=self.episode_s,
-            image_hw_px=self.image_hw_px,
-            render_scale=self.render_scale,
-            frames=self.variant != "state-actor",
-            goal_frame=self.goal_frame,
-            racing_line=self.racing_line,
-            line_distance_alpha=self.line_distance_alpha,
-            crash_penalty_beta=self.crash_penalty_beta,
-            max_line_distance_m=self.max_line_distance_m,
-            start=self.start,
-            start_skill=self.start_speed_share,
-        )
+    def agent_configs(self) -> tuple[DDPGHyper, PixelRacingConfig]:
+        """The agent's hyper-parameters and environment: the held ones with what --variant decides (the
+        hyper-parameters' variant; frames unless the actor is state-only)."""
+        hyper = dataclasses.replace(self.hyper, variant=self.variant)
+        return hyper, dataclasses.replace(self.env, frames=hyper.pixel_actor)
 
 
-def check_bounds(cfg: TrainDDPGConfig) -> None:
-    """One clear line for an option out of range, before anything is built or written."""
+def check_bounds(o: Mapping[str, Any]) -> None:
+    """One clear line for an option out of range, before anything is built or written: ``o`` holds the flat
+    options (:func:`~vision_rl.config.flat_values` of a config)."""
     checks = {
-        "cars": 1 <= cfg.cars <= MAX_CARS,
-        "steps": cfg.steps >= 1,
-        "learning_starts": cfg.learning_starts >= 0,
-        "updates_per_step": cfg.updates_per_step >= 0,
-        "eval_every_steps": cfg.eval_every_steps >= 0,
-        "eval_seeds": cfg.eval_seeds >= 0,
-        "eval_laps": cfg.eval_laps >= 1,
-        "checkpoint_every_steps": cfg.checkpoint_every_steps >= 0,
-        "checkpoint_every_min": cfg.checkpoint_every_min >= 0,
-        "train_minutes": cfg.train_minutes >= 0,
-        "start_speed_share": 0 <= cfg.start_speed_share <= 1,
-        "torch_threads": cfg.torch_threads >= 0,
-        "eval_time_limit_s": cfg.eval_time_limit_s >= 0,
+        "cars": 1 <= o["cars"] <= MAX_CARS,
+        "steps": o["steps"] >= 1,
+        "learning_starts": o["learning_starts"] >= 0,
+        "updates_per_step": o["updates_per_step"] >= 0,
+        "eval_every_steps": o["eval_every_steps"] >= 0,
+        "eval_seeds": o["eval_seeds"] >= 0,
+        "eval_laps": o["eval_laps"] >= 1,
+        "checkpoint_every_steps": o["checkpoint_every_steps"] >= 0,
+        "checkpoint_every_min": o["checkpoint_every_min"] >= 0,
+        "train_minutes": o["train_minutes"] >= 0,
+        "start_speed_share": 0 <= o["start_speed_share"] <= 1,
+        "torch_threads": o["torch_threads"] >= 0,
+        "eval_time_limit_s": o["eval_time_limit_s"] >= 0,
     }
     for name, ok in checks.items():
         if not ok:
-            raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
-    columns = cfg.cars * (cfg.workers or 1)
-    if cfg.buffer_size < 4 * columns:
-        raise ValueError(f"--buffer-size {cfg.buffer_size} leaves fewer than 4 rows per car for {columns} cars")
-    if cfg.workers is not None or cfg.address:
+            raise ValueError(f"--{name.replace('_', '-')} {o[name]} is out of range")
+    columns = o["cars"] * (o["workers"] or 1)
+    if o["buffer_size"] < 4 * columns:
+        raise ValueError(f"--buffer-size {o['buffer_size']} leaves fewer than 4 rows per car for {columns} cars")
+    if o["workers"] is not None or o["address"]:
         from vision_rl.training.distributed import check_workers
 
-        if cfg.workers is None:
-            raise ValueError(f"--address {cfg.address} needs --workers: the samplers are what runs on the cluster")
-        check_workers(cfg.workers, cfg.max_staleness, cfg.version_every_updates)
+        if o["workers"] is None:
+            raise ValueError(f"--address {o['address']} needs --workers: the samplers are what runs on the cluster")
+        check_workers(o["workers"], o["max_staleness"], o["version_every_updates"])
 
 
 def _read_sidecar(path: Path) -> dict[str, Any]:
@@ -254,9 +254,9 @@ def _drop_lost_episodes(path: Path, num_steps: int) -> None:
 
 class _Run:
     def __init__(self, cfg: TrainDDPGConfig) -> None:
-        check_bounds(cfg)
+        check_bounds(flat_values(cfg))
         self.cfg = cfg
-        default = f"runs/ddpg/{cfg.variant}-{cfg.track}-{cfg.car}-s{cfg.seed}".replace(os.sep, "_")
+        default = f"runs/ddpg/{cfg.variant}-{cfg.env.track}-{cfg.env.car}-s{cfg.seed}".replace(os.sep, "_")
         self.out = Path(cfg.out or default)
         self.previous: dict[str, Any] | None = None
         if cfg.resume:
@@ -271,7 +271,7 @@ class _Run:
             self.hyper = DDPGHyper(**self.previous["hyper"])
             self.env = PixelRacingConfig.from_dict(self.previous["env"])
         else:
-            self.hyper, self.env = cfg.hyper(), cfg.env()
+            self.hyper, self.env = cfg.agent_configs()
             if (self.out / SIDECAR_NAME).exists() or (self.out / AGENT_NAME).exists():
                 if not cfg.force:
                     raise FileExistsError(
@@ -310,7 +310,7 @@ class _Run:
     def save(self, agent: DDPGAgent, buffer: FrameReplay | None) -> None:
         """The agent, then its sidecar (which names the agent's SHA-256), then the buffer's changed chunks."""
         counters = self.counters(agent)
-        train_config = json.loads(json.dumps(dataclasses.asdict(self.cfg)))
+        train_config = json.loads(json.dumps(flat_values(self.cfg)))  # the options, flat
         sha = save_agent_file(agent, self.out / AGENT_NAME, self.fingerprint, counters)
         sidecar = {
             "format": SIDECAR_FORMAT,
@@ -337,8 +337,8 @@ class _Run:
             self.driver,
             self.env.track,
             self.env.car,
-            range(max(cfg.eval_seeds, 1)),
-            cfg.eval_laps,
+            range(max(cfg.evaluation.seeds, 1)),
+            cfg.evaluation.laps,
             time_limit_s=cfg.eval_time_limit_s,
         )
         summary = timing.summary()
@@ -372,8 +372,9 @@ def train_ddpg(cfg: TrainDDPGConfig, progress: Progress | None = None) -> dict[s
     (Ctrl-C, or SIGTERM where the caller maps it) saves everything and returns with ``interrupted``."""
     from vision_rl.training.distributed import cluster_for
 
-    check_bounds(cfg)  # options, Ray's cluster and the worker count are checked before the run folder is touched
-    with cluster_for(cfg.workers, cfg.address) as cluster:
+    # The options, Ray's cluster and the worker count are checked before the run folder is touched.
+    check_bounds(flat_values(cfg))
+    with cluster_for(cfg.samplers.workers, cfg.samplers.address) as cluster:
         return _train(cfg, cluster, progress)
 
 
@@ -382,7 +383,7 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
     if cfg.torch_threads > 0:
         torch.set_num_threads(cfg.torch_threads)
     hyper, env = run.hyper, run.env
-    workers = cfg.workers or 0
+    workers = cfg.samplers.workers or 0
     trained_with = (run.previous or {}).get("train_config", {}).get("workers") or 0
     if run.previous is not None and trained_with != workers:
         raise DDPGError(
@@ -416,7 +417,7 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
                     hooks.log_episode,
                     hooks.after_step,
                 )
-        if cfg.eval_seeds > 0 and (run.last_eval is None or run.last_eval["num_steps"] != run.num_steps):
+        if cfg.evaluation.seeds > 0 and (run.last_eval is None or run.last_eval["num_steps"] != run.num_steps):
             run.evaluate(agent)
     except KeyboardInterrupt:
         interrupted = True
@@ -470,8 +471,8 @@ class _StepHooks:
     def __init__(self, run: _Run, agent: DDPGAgent, buffer: FrameReplay, progress: Progress | None) -> None:
         cfg = run.cfg
         self.run, self.agent, self.buffer, self.progress = run, agent, buffer, progress
-        self.next_eval = _next_multiple(run.num_steps, cfg.eval_every_steps)
-        self.next_checkpoint = _next_multiple(run.num_steps, cfg.checkpoint_every_steps)
+        self.next_eval = _next_multiple(run.num_steps, cfg.evaluation.every_steps)
+        self.next_checkpoint = _next_multiple(run.num_steps, cfg.checkpoints.every_steps)
         self.last_light_s = time.perf_counter()
         self.episodes_file = open(run.out / EPISODES_NAME, "a")  # closed by close()
         self.held = HeldSignal()
@@ -479,14 +480,14 @@ class _StepHooks:
     def after_step(self) -> None:
         run, cfg = self.run, self.run.cfg
         self.held.release()  # the step is counted and stored: an interrupt held since acts here
-        if self.next_eval is not None and run.num_steps >= self.next_eval and cfg.eval_seeds > 0:
+        if self.next_eval is not None and run.num_steps >= self.next_eval and cfg.evaluation.seeds > 0:
             run.evaluate(self.agent)
-            self.next_eval += cfg.eval_every_steps
+            self.next_eval += cfg.evaluation.every_steps
         if self.next_checkpoint is not None and run.num_steps >= self.next_checkpoint:
             run.save(self.agent, self.buffer)
-            self.next_checkpoint += cfg.checkpoint_every_steps
+            self.next_checkpoint += cfg.checkpoints.every_steps
             self.last_light_s = time.perf_counter()
-        elif cfg.checkpoint_every_min and time.perf_counter() - self.last_light_s >= 60.0 * cfg.checkpoint_every_min:
+        elif cfg.checkpoints.every_min and time.perf_counter() - self.last_light_s >= 60.0 * cfg.checkpoints.every_min:
             run.save(self.agent, None)
             self.last_light_s = time.perf_counter()
         if self.progress is not None:
@@ -576,7 +577,7 @@ def _learn_with_samplers(
     log_episode: Callable[[dict[str, Any]], None],
     after_vector_step: Callable[[], None],
 ) -> dict[str, Any]:
-    """The session's steps from ``cfg.workers`` sampler actors (:mod:`vision_rl.ddpg.sampling`), the same
+    """The session's steps from ``cfg.samplers.workers`` sampler actors (:mod:`vision_rl.ddpg.sampling`), the same
     updates per step, evaluations and checkpoints as :func:`_learn_here`. A lost sampler is a line of
     metrics.jsonl; when none is left, the run is saved and the error raised."""
     from vision_rl.ddpg.sampling import DDPGLearner, sampler_setup
@@ -598,14 +599,14 @@ def _learn_with_samplers(
             f.write(json.dumps(record) + "\n")
 
     pacing = Pacing(
-        workers=int(cfg.workers or 0),
+        workers=int(cfg.samplers.workers or 0),
         n_cars=n,
         gradient_steps=cfg.updates_per_step,
         learning_starts=learning_starts if restored else max(learning_starts, run.hyper.batch_size),
         start_timesteps=0,
         total_timesteps=max(0, cfg.steps - run.num_steps),
-        version_every_updates=cfg.version_every_updates,
-        max_staleness=cfg.max_staleness,
+        version_every_updates=cfg.samplers.version_every_updates,
+        max_staleness=cfg.samplers.max_staleness,
     )
     setup = sampler_setup(run.hyper, env, run.fingerprint, cfg.seed + run.num_steps)
     learner = DDPGLearner(agent, buffer, n, rng, restored, on_vector_step)
