@@ -188,7 +188,7 @@ def test_a_full_disk_while_saving_the_checkpoint_leaves_nothing(tmp_path: Path, 
     real_save = torch.save
 
     def full_disk(obj, f, *args, **kwargs):
-        if str(f).endswith("ckpt.pt.tmp"):
+        if Path(str(f)).name.startswith(".ckpt.pt.") and str(f).endswith(".tmp"):  # the staged checkpoint
             Path(f).write_bytes(b"partial")  # as a write cut off by ENOSPC leaves it
             raise OSError(errno.ENOSPC, "No space left on device")
         return real_save(obj, f, *args, **kwargs)

@@ -7,7 +7,6 @@ one by one: docs/notes/phase1_repr.md.
 
 from __future__ import annotations
 
-import errno
 import functools
 import hashlib
 import io
@@ -88,7 +87,7 @@ def save_checkpoint(
     """Write ``ckpt.pt`` for ``net`` (trained form, not fused) with its checksums; returns the path. ``dataset``
     describes the training data (docs/notes/phase1_repr.md); plain JSON types only. A failed write (a full disk) raises
     an ``OSError`` naming the file and leaves neither a partial checkpoint nor a temporary file."""
-    from vision_rl.files import package_version
+    from vision_rl.files import atomic_write, package_version
 
     if net.fused:
         raise ValueError("save the trained network, not the fused inference copy")
@@ -113,17 +112,7 @@ def save_checkpoint(
     payload.update(checkpoint_checksums(payload))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    try:
-        torch.save(payload, tmp)
-        os.replace(tmp, path)  # a crash mid-write never leaves a half checkpoint under the real name
-    except (OSError, RuntimeError) as exc:  # torch reports a failed write as RuntimeError too
-        tmp.unlink(missing_ok=True)
-        error = OSError(
-            f"{path}: cannot write the checkpoint ({getattr(exc, 'strerror', None) or exc}); no partial file was left"
-        )
-        error.errno = getattr(exc, "errno", None) or (errno.ENOSPC if "No space left" in str(exc) else errno.EIO)
-        raise error from exc
+    atomic_write(path, lambda tmp: torch.save(payload, tmp))  # a kill never leaves half a checkpoint
     return path
 
 

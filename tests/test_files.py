@@ -1,0 +1,83 @@
+"""The package's one atomic write: what it guarantees, and that nothing else writes a file by renaming it."""
+
+from __future__ import annotations
+
+import ast
+import errno
+import hashlib
+import json
+from pathlib import Path
+
+import pytest
+
+from vision_rl.files import ArtifactWriteError, atomic_write, file_sha256, temporary_path, write_json
+
+PACKAGE_DIR = Path(__file__).resolve().parents[1] / "vision_rl"
+
+
+def test_a_write_returns_the_sha256_of_what_it_wrote_and_leaves_no_staging_file(tmp_path):
+    path = tmp_path / "a.bin"
+    sha = atomic_write(path, lambda tmp: tmp.write_bytes(b"abc"))
+    assert sha == hashlib.sha256(b"abc").hexdigest() == file_sha256(path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bin"]
+    assert temporary_path(path).parent == tmp_path and temporary_path(path).name.startswith(".a.bin.")
+
+
+def test_a_failed_write_keeps_the_previous_file_and_names_it(tmp_path):
+    path = tmp_path / "a.json"
+    write_json(path, {"x": 1})
+
+    def full_disk(tmp: Path) -> None:
+        tmp.write_bytes(b"{partial")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with pytest.raises(ArtifactWriteError, match=r"cannot write .*a\.json: No space left on device") as info:
+        atomic_write(path, full_disk)
+    assert info.value.errno == errno.ENOSPC
+    assert json.loads(path.read_text()) == {"x": 1} and sorted(p.name for p in tmp_path.iterdir()) == ["a.json"]
+
+
+def test_an_interrupted_write_keeps_the_previous_file(tmp_path):
+    path = tmp_path / "a.txt"
+    path.write_text("old")
+
+    def interrupted(tmp: Path) -> None:
+        tmp.write_text("new, half")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write(path, interrupted)
+    assert path.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+
+
+def renames_outside_files(source: str) -> list[int]:
+    """Lines that rename or replace a file (``os.replace``, ``os.rename``, ``Path.rename``/``replace``,
+    ``shutil.move``): only vision_rl/files.py may."""
+    lines = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
+            owner = node.func.value
+            name = node.func.attr
+            if name in ("replace", "rename") and isinstance(owner, ast.Name) and owner.id == "os":
+                lines.append(node.lineno)
+            elif name == "move" and isinstance(owner, ast.Name) and owner.id == "shutil":
+                lines.append(node.lineno)
+            elif name == "rename" and node.args:
+                lines.append(node.lineno)
+    return lines
+
+
+def test_the_checker_finds_a_hand_written_rename():
+    assert renames_outside_files("import os\nos.replace(a, b)\nx.rename(y)\nshutil.move(a, b)\n") == [2, 3, 4]
+    assert renames_outside_files("s = 'a'.replace('a', 'b')\n") == []
+
+
+def test_only_files_py_renames_files():
+    found = {
+        str(path.relative_to(PACKAGE_DIR)): lines
+        for path in sorted(PACKAGE_DIR.rglob("*.py"))
+        if path.name != "files.py" or path.parent != PACKAGE_DIR
+        for lines in [renames_outside_files(path.read_text(encoding="utf-8"))]
+        if lines
+    }
+    assert not found, f"write through vision_rl.files.atomic_write instead: {found}"
