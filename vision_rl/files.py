@@ -72,11 +72,12 @@ def write_json(path: str | os.PathLike[str], data: Mapping[str, Any] | list[Any]
 
 
 def package_version() -> str:
-    """The installed vision_rl version, or the source tree's when it is run without installing."""
+    """The installed version of vision_rl's distribution, vision-rl-racing (the package index's ``vision_rl`` is
+    another project), or the source tree's when it is run without installing."""
     try:
         from importlib.metadata import PackageNotFoundError, version
 
-        return version("vision_rl")
+        return version("vision-rl-racing")
     except PackageNotFoundError:
         import vision_rl
 
