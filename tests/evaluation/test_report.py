@@ -1,0 +1,125 @@
+"""The result tables of the README and the docs come from the records: a changed record changes the table, a page's
+text outside its markers stays as it was, links resolve from each page, and a missing record or marker is an error."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from vision_rl.evaluation.report import (
+    AI_HATCHBACK,
+    QUICK_JOB,
+    RESULTS,
+    TABLE3,
+    TABLES,
+    ReportError,
+    build_tables,
+    fill_page,
+    gap_text,
+    lap_text,
+    mean_std_s,
+    page_results_href,
+    render_pages,
+)
+
+RESULTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "results"
+
+
+@pytest.fixture
+def results_copy(tmp_path: Path) -> Path:
+    """The committed records (JSON only) in a folder a test may change."""
+    target = tmp_path / "docs" / "results"
+    shutil.copytree(RESULTS_DIR, target, ignore=shutil.ignore_patterns("*.png", "*.mp4", "*.csv", "*.md", "*.txt"))
+    return target
+
+
+def edit_record(results: Path, relative_path: str, change) -> None:
+    path = results / relative_path
+    record = json.loads(path.read_text(encoding="utf-8"))
+    change(record)
+    path.write_text(json.dumps(record), encoding="utf-8")
+
+
+def test_laps_and_gaps_read_as_the_papers_write_them():
+    assert lap_text(129.29302339) == "2:09.293"
+    assert lap_text(59.9996) == "1:00.000" and lap_text(45.5) == "45.500 s" and lap_text(None) == "DNF"
+    assert gap_text(129.293, 139.299) == "-7.18 %" and gap_text(110.0, 100.0) == "+10.00 %"
+    assert mean_std_s([1.0, 2.0, 3.0]) == (2.0, 1.0) and mean_std_s([4.0]) == (4.0, 0.0)
+    with pytest.raises(ReportError):
+        mean_std_s([])
+
+
+def test_the_committed_records_give_the_tables_figures():
+    tables = build_tables(RESULTS_DIR)
+    assert set(tables) == set(TABLES)
+    vision = tables["vision"]
+    # the state agent: 6 training seeds pooled from two records, the chosen weights; the AI and the limit from the
+    # protocol's evaluation of the AI; the paper's Table 1
+    assert "**2:09.293** ± 0.31 s over 6 training seeds, 18/18 starts, clean" in vision
+    assert "7.18 % faster than the AI" in vision and "2:19.299" in vision and "2:06.603 (ours +2.12 %)" in vision
+    assert "1:39.408 (11.30 % faster than its AI)" in vision and "1:42.717 (8.35 % faster than its AI)" in vision
+    assert "**2:10.826** ± 0.70 s over 8 training seeds, 104/104 starts, not clean" in vision
+    assert "vision 2:10.560, state 2:12.197 (3/3 starts each) in 10.6 min" in vision
+    assert "| 388 s | lap 2:10.560 (3/3 starts) |" in tables["quick"]
+    assert "| 0.989 | 0.999 | 0.999 | 0.992 | 0.994 |" in tables["phase1"]
+    assert "**89.82 s** (0.893 of the AI's), 9/9 starts finished" in tables["overtaking"]
+    assert "9/10, 9/10, 8/10; fastest 28.5, 29.1, 29.2 s" in tables["overtaking"]
+    assert "symmetric **2:10.339** (+22.59 % on the limit, 97.9 s of wall contact)" in tables["ddpg"]
+    assert all(f"]({RESULTS}" in table for table in tables.values())  # each table links its records
+
+
+def test_a_changed_record_changes_its_tables(results_copy):
+    before = build_tables(results_copy)
+    edit_record(results_copy, AI_HATCHBACK, lambda r: r.update(best_lap_time_s=150.0))
+    edit_record(results_copy, QUICK_JOB, lambda r: r["vision"].update(lap_time_s=128.5, train_seconds=401))
+    edit_record(results_copy, TABLE3, lambda r: next(x for x in r["rows"] if x["key"] == "sac").update(lap_time_s=88.0))
+    after = build_tables(results_copy)
+    assert "| 2:30.000 |" in after["vision"] and "| 2:19.299 |" in before["vision"]
+    assert "13.80 % faster than the AI" in after["vision"]  # 2:09.293 against 2:30.000
+    assert "vision 2:08.500" in after["vision"] and "| 401 s | lap 2:08.500 (3/3 starts) |" in after["quick"]
+    assert "**88.00 s** (0.875 of the AI's)" in after["overtaking"]
+    assert after["ddpg"] == before["ddpg"] and after["phase1"] == before["phase1"]
+
+
+def test_a_missing_record_or_figure_is_an_error(results_copy):
+    (results_copy / QUICK_JOB).unlink()
+    with pytest.raises(ReportError, match=r"job\.json is missing"):
+        build_tables(results_copy, ["quick"])
+    assert build_tables(results_copy, ["ddpg"])  # the other tables do not need it
+    edit_record(results_copy, AI_HATCHBACK, lambda r: r.pop("best_lap_time_s"))
+    with pytest.raises(KeyError):
+        build_tables(results_copy, ["vision"])
+
+
+def test_a_page_keeps_its_text_and_gets_its_tables_with_links_from_its_folder():
+    page = (
+        "# Title\n\nbefore\n<!-- report:t -->\nold table\n<!-- /report -->\n"
+        "after\n<!-- report:u -->\n<!-- /report -->\n"
+    )
+    tables = {"t": f"| a |\n| --- |\n| [r]({RESULTS}x/y.json) |\n", "u": "| b |\n"}
+    filled = fill_page(page, tables, "../results")
+    assert filled.startswith("# Title\n\nbefore\n<!-- report:t -->\n| a |")
+    assert "[r](../results/x/y.json)" in filled and "old table" not in filled
+    assert filled.endswith("after\n<!-- report:u -->\n| b |\n<!-- /report -->\n")
+    assert fill_page(filled, tables, "../results") == filled  # filling twice changes nothing
+    with pytest.raises(ReportError, match="no table called 'v'"):
+        fill_page("<!-- report:v -->\n<!-- /report -->\n", tables, ".")
+    with pytest.raises(ReportError, match="without its"):
+        fill_page("<!-- report:t -->\nno end\n", tables, ".")
+
+
+def test_pages_at_different_depths_link_the_same_records(tmp_path, results_copy):
+    readme, paper_page = tmp_path / "README.md", tmp_path / "docs" / "papers" / "vision.md"
+    paper_page.parent.mkdir(parents=True)
+    for page in (readme, paper_page):
+        page.write_text("<!-- report:quick -->\n<!-- /report -->\n", encoding="utf-8")
+    (tmp_path / "plain.md").write_text("no tables here\n", encoding="utf-8")
+    assert page_results_href(readme, results_copy) == "docs/results"
+    assert page_results_href(paper_page, results_copy) == "../results"
+    rendered = render_pages([readme, paper_page, tmp_path / "plain.md"], results_copy)
+    assert set(rendered) == {readme, paper_page}
+    assert "(docs/results/make-quick/job.json)" in rendered[readme][1]
+    assert "(../results/make-quick/job.json)" in rendered[paper_page][1]

@@ -1,0 +1,502 @@
+"""The result tables of the README and of the docs site, built from the JSON records under docs/results/.
+
+A page marks a table's place with ``<!-- report:NAME -->`` and ``<!-- /report -->``; :func:`fill_page` writes between
+them the table that :data:`TABLES` builds from the records, so every figure such a table states is its record's, and
+a changed record leaves the page stale until ``vision-rl report`` runs again (``--check`` fails on a stale page).
+A table links its records as ``RESULTS/...``, resolved against each page's own folder.
+
+The papers' own figures are records too (``docs/results/papers/``), the built-in AI's lap and the physical limit come
+from the protocol's evaluations of the AI (``docs/results/reference-laps/``), and the figures that exist only as a
+command's printed summary are transcribed into a record that says so (``make-quick/job.json``,
+``phase1-expressway-hatchback/r2.json``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import statistics
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+#: How a table names the results folder in its links; :func:`fill_page` puts the page's path to it there.
+RESULTS = "RESULTS/"
+#: A generated table's place on a page: the opening marker names the table, the closing one ends it.
+MARKER = re.compile(r"(?P<open><!-- report:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(?P<close><!-- /report -->)", re.S)
+
+VISION_PAPER = "papers/gts-vision-representation-sac.json"
+OVERTAKING_PAPER = "papers/gts-overtaking-curriculum-sac.json"
+DDPG_PAPER = "papers/pcars2-ddpg-asymmetric-actor-critic.json"
+AI_HATCHBACK = "reference-laps/ai_expressway_hatchback.json"
+AI_TT_CUP = "reference-laps/ai_expressway_tt_cup.json"
+AI_GT3 = "reference-laps/ai_catalunya_gt3.json"
+STATE_2M = (
+    "state-expressway-hatchback-25hz/dt04-ent4-lrf-select-2m_experiment.json",
+    "state-expressway-hatchback-25hz/dt04-ent4-lrf-select-2m-seeds345_experiment.json",
+)
+VISION_25HZ = tuple(f"vision-expressway-hatchback/dt04_seed{seed}_experiment.json" for seed in (0, 1, 2))
+VISION_QUICK_8_SEEDS = "vision-expressway-hatchback/quick_critic_state_starts13.json"
+QUICK_JOB = "make-quick/job.json"
+PHASE1_R2 = "phase1-expressway-hatchback/r2.json"
+TABLE3 = "table3-expressway-tt_cup/table3.json"
+SETTINGS = "overtaking-expressway-tt_cup/{agents}_setting_{setting}.json"
+CURRICULUM_CURVES = "overtaking-expressway-tt_cup/learning_curves_num_timesteps.json"
+DDPG_EVALUATIONS = "ddpg-catalunya-gt3/evaluation_set3/{variant}-s{seed}.json"
+DDPG_COMPARE = "ddpg-catalunya-gt3/standing_start_sigmoid_compare.json"
+DDPG_VARIANTS = ("asymmetric", "symmetric", "state-actor")
+R2_GROUPS = ("edge_distances", "min_edge_distances", "centre_offset", "heading_angle", "curvature_ahead")
+
+
+class ReportError(ValueError):
+    """A record is missing or lacks a figure a table states, or a page's markers do not pair."""
+
+
+class Records:
+    """The JSON records under ``results_dir``, each read once, by their path relative to it."""
+
+    def __init__(self, results_dir: str | os.PathLike[str]) -> None:
+        self.results_dir = Path(results_dir)
+        self._read: dict[str, Any] = {}
+
+    def __call__(self, relative_path: str) -> Any:
+        if relative_path not in self._read:
+            path = self.results_dir / relative_path
+            if not path.is_file():
+                raise ReportError(f"the record {path} is missing")
+            self._read[relative_path] = json.loads(path.read_text(encoding="utf-8"))
+        return self._read[relative_path]
+
+
+def lap_text(seconds: float | None) -> str:
+    """A lap as the papers write it: ``2:09.293``; ``DNF`` for none."""
+    if seconds is None:
+        return "DNF"
+    minutes, rest_s = divmod(round(seconds * 1000) / 1000, 60.0)
+    return f"{int(minutes)}:{rest_s:06.3f}" if minutes else f"{rest_s:.3f} s"
+
+
+def gap_pct(seconds: float, reference_s: float) -> float:
+    """How much longer ``seconds`` is than ``reference_s``, in percent (negative: faster)."""
+    return 100.0 * (seconds / reference_s - 1.0)
+
+
+def gap_text(seconds: float, reference_s: float) -> str:
+    return f"{gap_pct(seconds, reference_s):+.2f} %"
+
+
+def faster_text(seconds: float, ai_s: float) -> str:
+    """``7.18 % faster than the AI`` (or slower)."""
+    gap = gap_pct(seconds, ai_s)
+    return f"{abs(gap):.2f} % {'faster' if gap < 0 else 'slower'} than the AI"
+
+
+def mean_std_s(laps_s: Iterable[float]) -> tuple[float, float]:
+    """Mean and sample standard deviation (0 for one value) of lap times, s."""
+    laps_s = list(laps_s)
+    if not laps_s:
+        raise ReportError("no lap to average")
+    return statistics.fmean(laps_s), statistics.stdev(laps_s) if len(laps_s) > 1 else 0.0
+
+
+def _row(cells: Iterable[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def markdown_table(header: Iterable[str], rows: Iterable[Iterable[str]]) -> str:
+    header = list(header)
+    lines = [_row(header), _row("---" for _ in header), *(_row(row) for row in rows)]
+    return "\n".join(lines) + "\n"
+
+
+def _link(text: str, relative_path: str) -> str:
+    return f"[{text}]({RESULTS}{relative_path})"
+
+
+def experiment_seeds(records: Records, paths: Iterable[str], selected: bool = False) -> list[dict[str, Any]]:
+    """The per-seed rows of ``vision-rl experiment`` records, pooled: the last weights', or with ``selected`` those of
+    the weights chosen by held-out starts."""
+    rows: list[dict[str, Any]] = []
+    for path in paths:
+        record = records(path)
+        part = record["selected"] if selected else record
+        rows += part["per_seed"]
+    return rows
+
+
+def seeds_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Mean and spread of the seeds that lapped, starts finished and whether every seed was clean."""
+    laps_s = [row["lap_time_s"] for row in rows if row.get("lap_time_s") is not None]
+    mean_s, std_s = mean_std_s(laps_s)
+    done, total = (sum(int(row["finished"].split("/")[i]) for row in rows) for i in (0, 1))
+    return {
+        "mean_s": mean_s,
+        "std_s": std_s,
+        "seeds": len(rows),
+        "finished": f"{done}/{total}",
+        "clean": all(row.get("clean") for row in rows),
+    }
+
+
+def _reference(records: Records, path: str) -> tuple[float, float]:
+    """The built-in AI's protocol lap and the physical limit (QSS) of a track and car, s."""
+    ai = records(path)
+    return ai["best_lap_time_s"], ai["limit_lap_time_s"]
+
+
+def _paper_lap(seconds: float, paper_ai_s: float) -> str:
+    return f"{lap_text(seconds)} ({faster_text(seconds, paper_ai_s).replace('the AI', 'its AI')})"
+
+
+def _vision_cells(records: Records) -> dict[str, Any]:
+    """The figures of the vision paper's table: its laps, ours, the AI and the limit."""
+    paper = records(VISION_PAPER)["lap_time_s"]
+    ai_s, limit_s = _reference(records, AI_HATCHBACK)
+    state = seeds_summary(experiment_seeds(records, STATE_2M, selected=True))
+    vision_25hz = seeds_summary(experiment_seeds(records, VISION_25HZ))
+    quick8 = records(VISION_QUICK_8_SEEDS)["critic_state"]
+    return {
+        "paper": paper,
+        "ai_s": ai_s,
+        "limit_s": limit_s,
+        "state": state,
+        "vision_25hz": vision_25hz,
+        "quick8": {**quick8, "mean_s": quick8["protocol_lap_mean_s"], "std_s": quick8["protocol_lap_std_s"]},
+        "job": records(QUICK_JOB),
+    }
+
+
+def _lap_row(
+    result: str, paper_cell: str, summary: Mapping[str, Any], record: str, c: Mapping[str, Any], command: str
+) -> tuple[str, ...]:
+    """A row of the vision table for a recipe over training seeds: its mean lap, spread, starts and cleanness."""
+    spread = f" ± {summary['std_s']:.2f} s" if summary.get("std_s") else ""
+    clean = "clean" if summary.get("clean") else "not clean"
+    ours = (
+        f"**{lap_text(summary['mean_s'])}**{spread} over {summary['seeds']} training seeds, {summary['finished']} "
+        f"starts, {clean} ({_link('record', record)}); {faster_text(summary['mean_s'], c['ai_s'])}"
+    )
+    limit = f"{lap_text(c['limit_s'])} (ours {gap_text(summary['mean_s'], c['limit_s'])})"
+    return (result, paper_cell, ours, lap_text(c["ai_s"]), limit, command)
+
+
+def vision_table(records: Records) -> str:
+    """The vision paper (Table 1 and Phase 1) beside our runs: paper, ours, the built-in AI, the limit, command."""
+    c = _vision_cells(records)
+    paper, job, state, quick8 = c["paper"], c["job"], c["state"], c["quick8"]
+    vision_paper = _paper_lap(paper["vision"], paper["built_in_ai"])
+    r2 = job["train_repr"]["r2_clean_laps"]
+    rows = [
+        _lap_row(
+            "state SAC (the 38-D state of Fuchs et al.), lap 2",
+            _paper_lap(paper["state_fuchs_et_al"], paper["built_in_ai"]),
+            state,
+            STATE_2M[0],
+            c,
+            "`make experiment`",
+        ),
+        _lap_row(
+            "vision SAC (64-D embedding + 11 features), `make quick`'s recipe",
+            vision_paper,
+            {**quick8, "seeds": len(quick8["per_seed"]), "clean": False},
+            VISION_QUICK_8_SEEDS,
+            c,
+            "`make quick` (its vision stage, 8 seeds)",
+        ),
+        _lap_row(
+            "vision SAC, the state agent's 25 Hz recipe",
+            vision_paper,
+            c["vision_25hz"],
+            VISION_25HZ[0],
+            c,
+            "`capture --policy`, `train-repr`, `experiment`",
+        ),
+        (
+            "the vision agent's gap to the state agent",
+            gap_text(paper["vision"], paper["state_fuchs_et_al"]),
+            f"{gap_text(quick8['mean_s'], state['mean_s'])} (`make quick`'s recipe against the state row)",
+            "-",
+            "-",
+            "-",
+        ),
+        (
+            "`make quick`'s own run, one training seed each",
+            "-",
+            f"vision {lap_text(job['vision']['lap_time_s'])}, state {lap_text(job['state']['lap_time_s'])} "
+            f"({job['vision']['finished']} starts each) in {job['job_minutes']:.1f} min ({_link('record', QUICK_JOB)})",
+            lap_text(job["built_in_ai_lap_time_s"]),
+            lap_text(job["limit_lap_time_s"]),
+            "`make quick`",
+        ),
+        (
+            "Phase 1: R² of the 27 targets on a clean lap, per group",
+            "not reported",
+            f"{min(r2.values()):.3f}-{max(r2.values()):.3f} (`make quick`'s encoder)",
+            "-",
+            "-",
+            "`make quick`",
+        ),
+    ]
+    return markdown_table(("result", "paper (GT Sport)", "ours", "built-in AI", "physical limit", "command"), rows)
+
+
+def quick_table(records: Records) -> str:
+    """`make quick`'s stages: what each does, its time, what it gave."""
+    job = records(QUICK_JOB)
+    cap, rep, state, vision = job["capture"], job["train_repr"], job["state"], job["vision"]
+    r2 = rep["r2_clean_laps"]
+    rows = [
+        ("capture", f"{cap['train']}; {cap['eval']}", f"{cap['seconds']} s", f"{cap['train_frames']:,} frames"),
+        (
+            "Phase 1 (`train-repr`)",
+            f"the 64-D encoder, {rep['epochs']} epochs",
+            f"{rep['seconds']} s",
+            f"R² {min(r2.values()):.3f}-{max(r2.values()):.3f} on the clean lap",
+        ),
+        (
+            "Phase 2, state",
+            f"SAC on the 38-D state, {state['steps']:,} steps of {state['cars']} cars",
+            f"{state['train_seconds']} s",
+            f"lap {lap_text(state['lap_time_s'])} ({state['finished']} starts)",
+        ),
+        (
+            "Phase 2, vision",
+            f"SAC on the embedding + 11 features, {vision['steps']:,} steps of {vision['cars']} cars",
+            f"{vision['train_seconds']} s",
+            f"lap {lap_text(vision['lap_time_s'])} ({vision['finished']} starts)",
+        ),
+        (
+            "the whole job",
+            "the stages above, the state run beside the others",
+            f"{job['job_minutes']:.1f} min ({job['job_with_setup_minutes']:.1f} with the set-up)",
+            f"target {job['target_minutes']:.0f} min ({_link('record', QUICK_JOB)})",
+        ),
+    ]
+    return markdown_table(("stage", "what", "time", "result"), rows)
+
+
+def phase1_table(records: Records) -> str:
+    """Phase 1's R² per target group for each training set-up."""
+    record = records(PHASE1_R2)
+    rows = [
+        (
+            row["training_data"],
+            row["frame"],
+            str(row["epochs"]),
+            *(f"{row['r2'][group]:.3f}" for group in R2_GROUPS),
+            row["train_time"],
+        )
+        for row in record["rows"]
+    ]
+    header = ("training data", "frame", "epochs", "edge rays", "min. edge distances", "centre offset", "heading")
+    table = markdown_table((*header, "curvature ahead", "training time"), rows)
+    return f"{table}\nR² per target group of the kept epoch on a clean lap ({_link('record', PHASE1_R2)}).\n"
+
+
+def _table3_rows(records: Records) -> list[tuple[str, ...]]:
+    paper = records(OVERTAKING_PAPER)["table3"]["lap_time_s"]
+    ai_s, limit_s = _reference(records, AI_TT_CUP)
+    rows = {row["key"]: row for row in records(TABLE3)["rows"]}
+    names = {"sac": "SAC", "td3": "TD3", "bc": "BC", "gail": "GAIL", "planet": "PlaNet (ours: as Dreamer)"}
+    out = []
+    for key, name in names.items():
+        row, seeds = rows[key], rows[key]["over_training_seeds"]
+        lap_s = row["lap_time_s"]
+        ours = "DNF" if lap_s is None else f"**{lap_s:.2f} s** ({lap_s / ai_s:.3f} of the AI's)"
+        out.append(
+            (
+                f"Table III, {name}: lap 2, the best start of {seeds['n_training_seeds']} training "
+                + ("seed" if seeds["n_training_seeds"] == 1 else "seeds"),
+                f"{paper[key]:.1f} s ({paper[key] / paper['built_in_ai']:.3f} of its AI's {paper['built_in_ai']} s)",
+                f"{ours}, {seeds['finished']} starts finished ({_link('record', TABLE3)})",
+                f"{ai_s:.2f} s",
+                f"{limit_s:.2f} s" + ("" if lap_s is None else f" (ours {gap_text(lap_s, limit_s)})"),
+                f"`vision-rl train-baseline --algo {'dreamer' if key == 'planet' else key}`, `vision-rl table3`",
+            )
+        )
+    return out
+
+
+def _settings_rows(records: Records) -> list[tuple[str, ...]]:
+    separation = records(OVERTAKING_PAPER)["settings"]["separation_m"]
+    out = []
+    for setting in ("A", "B"):
+        drivers = [
+            driver
+            for agents in ("agent1", "agents23")
+            for driver in records(SETTINGS.format(agents=agents, setting=setting))["drivers"]
+        ]
+        agents = [d for d in drivers if not d["reference"]]
+        ai = next(d for d in drivers if d["reference"])["summary"]
+        counts = ", ".join(f"{d['summary']['all_overtaken_runs']}/{d['summary']['runs']}" for d in agents)
+        fastest = ", ".join(f"{d['summary']['fastest_all_five_s']:.1f}" for d in agents)
+        out.append(
+            (
+                f"setting {setting} (5 cars {separation[setting]:.0f} m ahead): runs with all five overtaken, "
+                "Agents 1, 2, 3 (one training seed)",
+                "all five, by each agent (Figs. 4-5)",
+                f"{counts}; fastest {fastest} s "
+                f"({_link('record', SETTINGS.format(agents='agents23', setting=setting))})",
+                f"{ai['all_overtaken_runs']}/{ai['runs']} (in the agent's car)",
+                "-",
+                f"`vision-rl evaluate-overtaking --setting {setting} --runs 10 --policy ...`",
+            )
+        )
+    return out
+
+
+def overtaking_table(records: Records) -> str:
+    """The overtaking paper (Table III, settings A and B, Fig. 3) beside our runs."""
+    curves = records(CURRICULUM_CURVES)
+    rows = [*_table3_rows(records), *_settings_rows(records)]
+    rows.append(
+        (
+            "Fig. 3: curriculum (Agent 3) against standard SAC, steps to standard SAC's final overtaking return",
+            "fewer for the curriculum",
+            f"{curves['curriculum_steps_to_standard_final'] / 1e6:.2f}M, "
+            f"{curves['share_of_standard_steps']:.2f}x standard SAC's (one training seed; "
+            f"{_link('record', CURRICULUM_CURVES)})",
+            "-",
+            "-",
+            "`vision-rl evaluate-overtaking --curves ...`",
+        )
+    )
+    return markdown_table(("result", "paper (GT Sport)", "ours", "built-in AI", "physical limit", "command"), rows)
+
+
+def _ddpg_laps(records: Records, limit_s: float) -> str:
+    """Each variant's best start over its two training seeds through the protocol."""
+    parts = []
+    for variant in DDPG_VARIANTS:
+        evaluations = [records(DDPG_EVALUATIONS.format(variant=variant, seed=seed)) for seed in (0, 1)]
+        lapped = [e for e in evaluations if e["best_lap_time_s"] is not None]
+        if lapped:
+            best = min(lapped, key=lambda e: e["best_lap_time_s"])
+            lap_s, wall_s = best["best_lap_time_s"], best["best_lap"]["wall_contact_s"]
+            parts.append(
+                f"{variant} **{lap_text(lap_s)}** ({gap_text(lap_s, limit_s)} on the limit, "
+                f"{wall_s:.1f} s of wall contact)"
+            )
+        else:
+            farthest_m = max(seed["distance_m"] for e in evaluations for seed in e["seeds"])
+            parts.append(f"{variant} DNF (at most {farthest_m:,.0f} m)")
+    return "; ".join(parts)
+
+
+def ddpg_table(records: Records) -> str:
+    """The DDPG paper beside our first trainings: laps through the protocol, distance per training episode."""
+    paper = records(DDPG_PAPER)
+    ai_s, limit_s = _reference(records, AI_GT3)
+    compare = records(DDPG_COMPARE)
+    by_variant = {v: [r for r in compare["runs"] if r["variant"] == v] for v in DDPG_VARIANTS}
+    distances = " / ".join(
+        ", ".join(f"{r['mean_distance_last_m']:.0f}" for r in sorted(by_variant[v], key=lambda r: r["seed"]))
+        for v in DDPG_VARIANTS
+    )
+    rows = [
+        (
+            "lap 2 through the protocol, the best start of 2 training seeds (standing starts, sigmoid pedals)",
+            "no lap time (a reward plot over laps 1-3)",
+            f"{_ddpg_laps(records, limit_s)} ({_link('record', DDPG_EVALUATIONS.format(variant='symmetric', seed=0))})",
+            lap_text(ai_s),
+            lap_text(limit_s),
+            "`vision-rl evaluate-ddpg --agent RUN`",
+        ),
+        (
+            f"distance per training episode, last third of {compare['common_minutes']:.0f} training minutes, "
+            "asymmetric / symmetric / state-actor (seeds 0, 1)",
+            f"the asymmetric agent learns in about {paper['training_episodes']} episodes "
+            f"(more than {paper['training_hours_at_least']:.0f} h)",
+            f"{distances} m ({_link('record', DDPG_COMPARE)})",
+            "-",
+            "-",
+            "`vision-rl train-ddpg --variant V`, `vision-rl compare-ddpg`",
+        ),
+    ]
+    return markdown_table(
+        ("result", "paper (Project Cars 2)", "ours", "built-in AI", "physical limit", "command"), rows
+    )
+
+
+def reference_table(records: Records) -> str:
+    """The built-in AI's protocol lap and the physical limit of each track and car the papers' tables use."""
+    rows = []
+    for path, pair in (
+        (AI_HATCHBACK, "expressway, hatchback"),
+        (AI_TT_CUP, "expressway, tt_cup"),
+        (AI_GT3, "Catalunya, gt3"),
+    ):
+        ai_s, limit_s = _reference(records, path)
+        skill = records(path)["driver"]["skill"]
+        rows.append(
+            (
+                pair,
+                f"{lap_text(ai_s)} (skill {skill})",
+                lap_text(limit_s),
+                gap_text(ai_s, limit_s),
+                _link("record", path),
+            )
+        )
+    return markdown_table(("track, car", "built-in AI", "physical limit", "the AI above the limit", "record"), rows)
+
+
+#: Every table a page can name in a marker, built from the records.
+TABLES: dict[str, Callable[[Records], str]] = {
+    "reference": reference_table,
+    "vision": vision_table,
+    "quick": quick_table,
+    "phase1": phase1_table,
+    "overtaking": overtaking_table,
+    "ddpg": ddpg_table,
+}
+
+
+def build_tables(results_dir: str | os.PathLike[str], names: Iterable[str] | None = None) -> dict[str, str]:
+    """The tables named (all of :data:`TABLES` by default) from the records under ``results_dir``."""
+    records = Records(results_dir)
+    return {name: TABLES[name](records) for name in (TABLES if names is None else names)}
+
+
+def marked_tables(text: str) -> list[str]:
+    """The names of the tables a page marks, in order; :class:`ReportError` on a marker without its end."""
+    names = [m.group("name") for m in MARKER.finditer(text)]
+    if text.count("<!-- report:") != len(names) or text.count("<!-- /report -->") != len(names):
+        raise ReportError("a <!-- report:NAME --> marker without its <!-- /report --> (or the other way round)")
+    return names
+
+
+def fill_page(text: str, tables: Mapping[str, str], results_href: str) -> str:
+    """``text`` with every marked table replaced by ``tables[name]``, its record links made relative to the page
+    (``results_href``: the page's path to the results folder)."""
+    marked_tables(text)
+    href = results_href.rstrip("/") + "/"
+
+    def table(match: re.Match) -> str:
+        name = match.group("name")
+        if name not in tables:
+            raise ReportError(f"no table called {name!r}; known: {', '.join(sorted(tables))}")
+        body = tables[name].replace(RESULTS, href)
+        return f"{match.group('open')}{body}{match.group('close')}"
+
+    return MARKER.sub(table, text)
+
+
+def page_results_href(page: str | os.PathLike[str], results_dir: str | os.PathLike[str]) -> str:
+    """The relative path from ``page``'s folder to ``results_dir``, with forward slashes."""
+    return Path(os.path.relpath(Path(results_dir).resolve(), Path(page).resolve().parent)).as_posix()
+
+
+def render_pages(
+    pages: Iterable[str | os.PathLike[str]],
+    results_dir: str | os.PathLike[str],
+    extra_tables: Mapping[str, str] | None = None,
+) -> dict[Path, tuple[str, str]]:
+    """``{page: (text now, text with its tables regenerated)}`` for each page that marks a table."""
+    texts = {Path(p): Path(p).read_text(encoding="utf-8") for p in pages}
+    marked = {page: text for page, text in texts.items() if marked_tables(text)}
+    wanted = {name for text in marked.values() for name in marked_tables(text)} - set(extra_tables or {})
+    tables = {**build_tables(results_dir, sorted(wanted & set(TABLES))), **(extra_tables or {})}
+    return {
+        page: (text, fill_page(text, tables, page_results_href(page, results_dir))) for page, text in marked.items()
+    }
