@@ -8,7 +8,7 @@ TORCH_INDEX ?=
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup quick experiment test faults lint bench clean
+.PHONY: setup quick experiment test faults lint bench docs report clean
 
 $(BIN)/vision-rl: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,7 +32,9 @@ experiment: setup
 		--n-step 8 --guide-label-weight 30 --wall-hit-throttle-cut-s 3.0 --pedal-full-at 0.9 --wall-penalty-c-w 0.002 \
 		--target-entropy -4 --learning-rate-final 1e-4 --select-starts 3
 
-# Two test processes: most tests use one core, and those on the shared Ray cluster run in one of them.
+# Two test processes: most tests use one core, and those on the shared Ray cluster run in one of them. The suite
+# builds the docs site with warnings as errors (tests/test_docs.py), checks that the README's and the docs' result
+# tables are what the records give (tests/commands/test_report.py) and builds the wheel (tests/test_wheel.py).
 test: setup
 	$(BIN)/python -m pytest -q -n 2 --dist loadgroup
 
@@ -47,5 +49,14 @@ lint: setup
 bench: setup
 	$(BIN)/vision-rl bench sim
 
+# The docs site as `make test` builds it (any warning, a broken link included, is an error), into build/site;
+# `$(BIN)/mkdocs serve` shows it while it is edited.
+docs: setup
+	$(BIN)/mkdocs build --strict --site-dir build/site
+
+# The README's and the docs' result tables, regenerated from the JSON records under docs/results/.
+report: setup
+	$(BIN)/vision-rl report
+
 clean:
-	rm -rf $(VENV) .pytest_cache .ruff_cache *.egg-info
+	rm -rf $(VENV) .pytest_cache .ruff_cache *.egg-info build dist
