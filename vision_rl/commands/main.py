@@ -134,6 +134,12 @@ COMMANDS: dict[str, Command] = {
         "CompareDDPGOptions",
         "run_compare_ddpg",
     ),
+    "report": Command(
+        "the README's and the docs' result tables from the records (--check: fail if stale)",
+        f"{_C}.report",
+        "ReportOptions",
+        "run_report",
+    ),
 }
 
 
@@ -161,6 +167,11 @@ def run_command(name: str, argv: Sequence[str]) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["--version"]:
+        from vision_rl.files import package_version
+
+        print(f"vision-rl {package_version()}")
+        return 0
     for words in (2, 1):
         name = " ".join(argv[:words])
         if len(argv) >= words and name in COMMANDS:
@@ -170,7 +181,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     shown = group or COMMANDS
     width = max(len(n) for n in shown)
     listing = "\n".join(f"  {n:<{width}}  {c.help}" for n, c in shown.items())
-    usage = f"usage: vision-rl COMMAND [options]\n\n{__doc__.splitlines()[0]}\n\ncommands:\n{listing}\n"
+    usage = f"usage: vision-rl COMMAND [options] | --version\n\n{__doc__.splitlines()[0]}\n\ncommands:\n{listing}\n"
     rest = argv[1:] if group else argv
     if not rest or rest[0] in ("-h", "--help"):
         print(usage)
