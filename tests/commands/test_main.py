@@ -88,9 +88,14 @@ def test_console_script_aliases_run_the_same_commands(monkeypatch, capsys):
     assert "usage: vision-rl capture" in capsys.readouterr().out
 
 
-def test_unknown_command_fails_with_the_listing(capsys):
+def test_unknown_command_fails_in_one_line_with_a_suggestion(capsys):
     assert main(["fly"]) == 2
-    assert "unknown command 'fly'" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "unknown command 'fly'" in err and "--help lists the commands" in err and err.count("\n") == 1
+    assert main(["trian-policy"]) == 2
+    assert capsys.readouterr().err == "vision-rl: error: unknown command 'trian-policy'; did you mean 'train-policy'?\n"
+    assert main(["bench", "rendr"]) == 2
+    assert "did you mean 'bench render'?" in capsys.readouterr().err
     assert main(["--help"]) == 0
     assert "bench sim" in capsys.readouterr().out
 

@@ -7,6 +7,7 @@ same commands).
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import inspect
 import os
@@ -186,8 +187,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not rest or rest[0] in ("-h", "--help"):
         print(usage)
         return 0 if rest else 2
-    print(f"{usage}\nvision-rl: error: unknown command {' '.join(argv[:2])!r}", file=sys.stderr)
+    unknown = " ".join(argv[:2]) if group else argv[0]
+    print(f"vision-rl: error: unknown command {unknown!r}{_suggestion(unknown)}", file=sys.stderr)
     return 2
+
+
+def _suggestion(word: str) -> str:
+    """``"; did you mean 'train-policy'?"`` for a near miss of a command's name, else a pointer to the listing."""
+    close = difflib.get_close_matches(word, list(COMMANDS), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else " (vision-rl --help lists the commands)"
 
 
 def _alias(command: str) -> Callable[[], int]:
