@@ -1,6 +1,6 @@
-"""Gymnasium environments over the simulator: ``vision_rl/TimeTrial-v1`` and ``vision_rl/Overtaking-v1`` (registered
-by ``import vision_rl``), and the batched vector environments (gymnasium ``VectorEnv`` and Stable-Baselines3
-``VecEnv``) with M groups per world."""
+"""Gymnasium environments over the simulator: ``vision_rl/TimeTrial`` and ``vision_rl/Overtaking`` (v1, v2) and
+``vision_rl/PixelRacing`` (v0, v1), registered by ``import vision_rl`` (entry points: :mod:`.registration`), and the
+batched vector environments (gymnasium ``VectorEnv`` and Stable-Baselines3 ``VecEnv``) with M groups per world."""
 
 from vision_rl.envs.core import SCENARIOS, RacingConfig, RacingCore
 from vision_rl.envs.racing_env import Overtaking, TimeTrial

@@ -26,6 +26,7 @@ from vision_rl.files import write_json
 from vision_rl.sim import sensors
 from vision_rl.sim.driving import cache_dir
 from vision_rl.sim.track import Track
+from vision_rl.sim.vehicle import ACTION_STEER_LIMIT_RAD
 from vision_rl.sim.world import WorldState
 
 STATE_OBS_NAMES: tuple[str, ...] = (
@@ -90,6 +91,28 @@ class ObservationKind(str, enum.Enum):
 
 
 OBS_NAMES = {kind.value: kind.names for kind in ObservationKind if kind.names}
+
+
+def feature_bounds(names: tuple[str, ...], track: Track) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) float64 of the raw features ``names`` on ``track`` that hold by their definitions, -inf/inf where
+    none does: edge rays within [0, 200] m (their range), wall distances >= 0 m, the heading angle to the centre line
+    within [-pi, pi] rad, curvature ahead within the track's least and greatest, lidar beams within [0, 20] m,
+    contact flags 0 or 1, the previous steering command within +-pi/6 rad (every command is clipped to it). Speeds,
+    accelerations, rates and the centre-line offset have no such bound."""
+    curvature = (float(track.curvature_1pm.min()), float(track.curvature_1pm.max()))
+    by_prefix = {
+        "edge_distance_": (0.0, sensors.EDGE_RAY_RANGE_M),
+        "min_distance_": (0.0, np.inf),
+        "heading_angle_to_centre_line": (-np.pi, np.pi),
+        "curvature_": curvature,
+        "lidar_": (0.0, sensors.LIDAR_RANGE_M),
+        "wall_contact": (0.0, 1.0),
+        "car_contact": (0.0, 1.0),
+        "previous_steering": (-ACTION_STEER_LIMIT_RAD, ACTION_STEER_LIMIT_RAD),
+    }
+    bounds = [next((b for p, b in by_prefix.items() if name.startswith(p)), (-np.inf, np.inf)) for name in names]
+    low, high = np.array(bounds, dtype=np.float64).reshape(-1, 2).T
+    return low, high
 
 
 #: Bump when an observation's definition or its statistics' sampling changes: cached statistics of older versions

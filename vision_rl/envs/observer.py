@@ -17,6 +17,7 @@ import numpy as np
 from gymnasium import spaces
 
 from vision_rl.envs import observations as obs_lib
+from vision_rl.envs.scaling import bounded_box
 from vision_rl.sim import sensors
 from vision_rl.sim.track import Track
 from vision_rl.sim.vehicle import VehicleParams
@@ -171,6 +172,23 @@ class Observer:
                 }
             )
         return spaces.Box(-np.inf, np.inf, (self.dim,), dtype=np.float32)
+
+    def bounded_space(self) -> spaces.Space:
+        """:attr:`space` with the bounds its features have by definition
+        (:func:`~vision_rl.envs.observations.feature_bounds`), normalised as the observation is; -inf/inf where
+        none is known (the newer environment versions' observation space)."""
+        dedicated = obs_lib.feature_bounds(sensors.DEDICATED_NAMES, self.track)
+        if self.dim is None:
+            return spaces.Dict({"image": self.space["image"], "features": bounded_box(*dedicated)})
+        names = self.kind.names
+        if self.kind.sees_frames:
+            state_names = obs_lib.STATE_OBS_NAMES if self.critic_state else ()
+            names = ("",) * int(self.encoder.rep_dim) + sensors.DEDICATED_NAMES + state_names
+        low, high = obs_lib.feature_bounds(names, self.track)
+        if self.normalizer is not None:
+            offset, scale = self.normalizer.offset, self.normalizer.scale
+            low, high = (low - offset) / scale, (high - offset) / scale
+        return bounded_box(low, high)
 
     def frames(self, state: WorldState, ids: np.ndarray) -> np.ndarray:
         """Driver's-view frames (len(ids), H, W, 3) uint8 of cars ``ids``; each sees the cars of its group."""

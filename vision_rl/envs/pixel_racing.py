@@ -1,4 +1,4 @@
-"""``vision_rl/PixelRacing-v0``: the asymmetric actor-critic environment of the Project CARS 2 DDPG paper.
+"""``vision_rl/PixelRacing-v0``/``-v1``: the asymmetric actor-critic environment of the Project CARS 2 DDPG paper.
 
 The actor sees the driver's-view pixels, the critic motion and the racing line; everything is batched over cars
 (:class:`PixelRacingCore`), and :class:`PixelObserver` is the one place a world state becomes this environment's
@@ -18,6 +18,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from vision_rl.envs.observer import Observer
+from vision_rl.envs.scaling import bounded_box, to_physical, unit_box
 from vision_rl.sim.ai_driver import DEFAULT_SKILL
 from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.fleet import STUCK_RULE, StuckDetector
@@ -155,10 +156,25 @@ class PixelRacingConfig:
 # ------------------------------------------------------------------------------------------------ pure functions
 
 
-def action_space() -> spaces.Box:
+#: The range of the actor's four outputs ``[accelerate, left, right, brake]``, float64.
+KEYS_LOW = np.array([0.0, -1.0, -1.0, 0.0])
+KEYS_HIGH = np.ones(4)
+
+
+def action_space(normalized: bool = False) -> spaces.Box:
     """The actor's four outputs ``[accelerate, left, right, brake]``: accelerate and brake in [0, 1] (relu outputs,
-    clipped at 1), left and right in [-1, 1] (tanh outputs)."""
-    return spaces.Box(np.array([0, -1, -1, 0], np.float32), np.ones(4, np.float32), dtype=np.float32)
+    clipped at 1), left and right in [-1, 1] (tanh outputs); ``Box(-1, 1, (4,))`` with ``normalized`` (mapped onto
+    those ranges by :func:`physical_keys`)."""
+    if normalized:
+        return unit_box(4)
+    return spaces.Box(KEYS_LOW.astype(np.float32), KEYS_HIGH.astype(np.float32), dtype=np.float32)
+
+
+def physical_keys(actions: np.ndarray, normalized: bool) -> np.ndarray:
+    """Actions (..., 4) as the actor's outputs, float64: normalized ones mapped linearly onto their ranges (accelerate
+    and brake ``(a + 1) / 2``, left and right as they are; clipped to [-1, 1] first), the others as they are."""
+    actions = np.asarray(actions, dtype=np.float64)
+    return to_physical(actions, KEYS_LOW, KEYS_HIGH) if normalized else actions
 
 
 def keys_to_action(keys: np.ndarray) -> np.ndarray:
@@ -321,6 +337,16 @@ class PixelObserver:
         d["goal"] = spaces.Box(-np.inf, np.inf, (3,), dtype=np.float32)
         return spaces.Dict(d)
 
+    def bounded_space(self) -> spaces.Dict:
+        """:attr:`space` with the bounds known by definition (PixelRacing-v1): a world-frame goal lies on the racing
+        line, within its bounding box in x and y; the rest stays (-inf, inf)."""
+        d = dict(self.space.spaces)
+        if self.config.goal_frame == "world":
+            low, high = np.full(3, -np.inf), np.full(3, np.inf)
+            low[:2], high[:2] = self.line.xy_m.min(axis=0), self.line.xy_m.max(axis=0)
+            d["goal"] = bounded_box(low, high)
+        return spaces.Dict(d)
+
     def frames(self, state: WorldState, ids: np.ndarray) -> np.ndarray:
         """The actor's frames (len(ids), H, W, 3) uint8: rendered, box-averaged, top third black."""
         raw = self._frames.frames(state, ids)
@@ -476,7 +502,9 @@ class PixelRacing(gym.Env):
     (the paper's keys). Each is the share of the 0.1 s step its key is held (the paper's 0.1-1.5 s key presses as a
     duty cycle): accelerate and brake directly, left and right as ``(t + 1) / 2`` of their tanh outputs. They become
     our action by ``steering = (left - right) * pi/6`` rad and ``omega = accelerate - brake``
-    (:func:`keys_to_action`).
+    (:func:`keys_to_action`). v1: ``Box(-1, 1, (4,), float32)``, mapped linearly onto those ranges inside the
+    environment (accelerate and brake ``(a + 1) / 2``: -1 releases the key, +1 holds it the whole step; left and right
+    as they are; :func:`physical_keys`).
 
     ## Observation Space
     ``Dict(image=Box(0, 255, (89, 120, 3), uint8), motion=Box(15,), goal=Box(3,))``:
@@ -490,6 +518,9 @@ class PixelRacing(gym.Env):
       cross-section of the track), world x, y, z in m (``goal_frame="world"``, the paper) or its offset from the
       car in the body frame (``goal_frame="body"``). The line is the car's minimum-curvature line
       (``racing_line="car"``) or the racetrack-database's (``racing_line="reference"``, its circuits only).
+
+    v0 declares ``motion`` and ``goal`` ``(-inf, inf)``; v1 bounds a world-frame goal's x and y by the racing
+    line's bounding box (:meth:`PixelObserver.bounded_space`); nothing else has a bound by definition.
 
     ## Rewards
     ``r = V - alpha |d| - beta crashState``: V the forward (body-frame x) speed in m/s, d the distance from the car
@@ -510,32 +541,38 @@ class PixelRacing(gym.Env):
     ## Episode End
     Termination, the paper's next-step rule: a non-zero crashState (``terminate_on_crash``), or a racing-line
     distance above ``max_line_distance_m`` (5 m), or stuck by the project's one rule (less than 5 m of progress in
-    5 s; ``terminate_when_stuck``). Truncation after ``episode_s`` (300 s: three laps of Catalunya in a GT3).
+    5 s; ``terminate_when_stuck``). Truncation after ``episode_s`` (300 s: three laps of Catalunya in a GT3), also
+    ``max_episode_steps`` of the spec ``gymnasium.make`` gives (``episode_s / control_dt_s``, 3,000 by default).
 
     ## Info
     ``crash_state``, ``line_distance_m``, ``forward_speed_mps``, ``lap_distance_m`` (the paper's
-    mCurrentLapDistance), ``progress_m`` (this episode), ``laps_completed``, ``lap_completed``, ``lap_time_s``,
-    ``wall_contact_s``, ``stuck``, ``episode_return``, ``episode_steps``.
+    mCurrentLapDistance), ``progress_m`` (this episode), ``laps_completed``, ``lap_completed``, ``lap_time_s`` (of
+    the lap completed in this step, s; None in other steps), ``wall_contact_s``, ``stuck``, ``episode_return``,
+    ``episode_steps``.
 
     ## Arguments
     Any field of :class:`PixelRacingConfig` but ``n_cars``: ``track`` (default ``Catalunya``), ``car`` (``gt3``),
     ``episode_s``, ``image_hw_px``, ``render_scale``, ``frames``, ``goal_frame``, ``racing_line``,
     ``line_distance_alpha``, ``crash_penalty_beta``, ``max_line_distance_m``, ``terminate_on_crash``,
-    ``terminate_when_stuck``, ``spin_slip_deg``, ``start``, ``start_skill``. Several cars in one world:
-    :class:`PixelRacingVectorEnv`.
+    ``terminate_when_stuck``, ``spin_slip_deg``, ``start``, ``start_skill``; and ``normalized_spaces`` (v1's spaces;
+    its spec sets it). Several cars in one world: :class:`PixelRacingVectorEnv`, or ``gymnasium.make_vec(id,
+    num_envs, vectorization_mode="vector_entry_point")``.
 
     ## Version History
-    - v0: first version.
+    - v1: actions in [-1, 1] mapped onto the keys' ranges inside the environment; the goal bounded where known.
+    - v0: first version (``info["lap_time_s"]`` None, no longer NaN, in steps without a lap: gymnasium's checker).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, render_mode: str | None = None, **config: Any) -> None:
+    def __init__(self, render_mode: str | None = None, *, normalized_spaces: bool = False, **config: Any) -> None:
         self.config = _config(config, 1)
         self.render_mode = render_mode
-        self.action_space = action_space()
+        self.normalized_spaces = bool(normalized_spaces)
+        self.action_space = action_space(self.normalized_spaces)
         self.core = PixelRacingCore(self.config)
-        self.observation_space = self.core.observer.space
+        observer = self.core.observer
+        self.observation_space = observer.bounded_space() if self.normalized_spaces else observer.space
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -545,8 +582,11 @@ class PixelRacing(gym.Env):
         return take(self.core.observation(), 0), {}
 
     def step(self, action):
-        obs, reward, terminated, truncated, info = self.core.step(np.asarray(action, dtype=np.float64)[None, :])
+        keys = physical_keys(np.asarray(action, dtype=np.float64)[None, :], self.normalized_spaces)
+        obs, reward, terminated, truncated, info = self.core.step(keys)
         single = {k: v[0].item() if np.ndim(v[0]) == 0 else v[0] for k, v in info.items()}
+        if math.isnan(single["lap_time_s"]):
+            single["lap_time_s"] = None  # not NaN: an info must equal itself (gymnasium's determinism check)
         return take(obs, 0), float(reward[0]), bool(terminated[0]), bool(truncated[0]), single
 
     def render(self):
@@ -564,12 +604,16 @@ class PixelRacingVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
-    def __init__(self, n_cars: int = 4, seed: int | None = None, **config: Any) -> None:
+    def __init__(
+        self, n_cars: int = 4, seed: int | None = None, *, normalized_spaces: bool = False, **config: Any
+    ) -> None:
         self.config = _config(config, n_cars)
         self.core = PixelRacingCore(self.config, seed=seed)
         self.num_envs = n_cars
-        self.single_action_space = action_space()
-        self.single_observation_space = self.core.observer.space
+        self.normalized_spaces = bool(normalized_spaces)
+        self.single_action_space = action_space(self.normalized_spaces)
+        observer = self.core.observer
+        self.single_observation_space = observer.bounded_space() if self.normalized_spaces else observer.space
         self.action_space = batch_space(self.single_action_space, n_cars)
         self.observation_space = batch_space(self.single_observation_space, n_cars)
 
@@ -580,7 +624,7 @@ class PixelRacingVectorEnv(VectorEnv):
         return self.core.observation(), {}
 
     def step(self, actions):
-        obs, reward, terminated, truncated, info = self.core.step(actions)
+        obs, reward, terminated, truncated, info = self.core.step(physical_keys(actions, self.normalized_spaces))
         done = terminated | truncated
         if done.any():
             ids = np.flatnonzero(done)

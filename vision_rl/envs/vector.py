@@ -16,20 +16,31 @@ from gymnasium.vector.utils import batch_space
 
 from vision_rl.envs.core import RacingConfig, RacingCore
 from vision_rl.envs.observer import Observer
-from vision_rl.envs.racing_env import action_space
+from vision_rl.envs.racing_env import action_space, physical_actions
 
 
 class RacingVectorEnv(VectorEnv):
-    """``config.n_groups`` racing sub-environments stepped together in one World (see :class:`RacingCore`)."""
+    """``config.n_groups`` racing sub-environments stepped together in one World (see :class:`RacingCore`); with
+    ``normalized_spaces`` the spaces of TimeTrial-v2 (actions in [-1, 1] mapped onto the physical ranges,
+    observations bounded where known)."""
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
-    def __init__(self, config: RacingConfig, seed: int | None = None, observer: Observer | None = None) -> None:
+    def __init__(
+        self,
+        config: RacingConfig,
+        seed: int | None = None,
+        observer: Observer | None = None,
+        *,
+        normalized_spaces: bool = False,
+    ) -> None:
         self.config = config
         self.core = RacingCore(config, seed=seed, observer=observer)
         self.num_envs = config.n_groups
-        self.single_action_space = action_space()
-        self.single_observation_space = self.core.observer.space
+        self.normalized_spaces = bool(normalized_spaces)
+        self.single_action_space = action_space(self.normalized_spaces)
+        observer = self.core.observer
+        self.single_observation_space = observer.bounded_space() if self.normalized_spaces else observer.space
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._needs_reset = True
@@ -44,6 +55,7 @@ class RacingVectorEnv(VectorEnv):
     def step(self, actions):
         if self._needs_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
+        actions = physical_actions(actions, self.normalized_spaces)
         obs, reward, terminated, truncated, infos = self.core.step(actions, autoreset=True)
         done = terminated | truncated
         out: dict[str, Any] = {}
