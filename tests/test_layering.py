@@ -29,6 +29,11 @@ FLOORS = (
     ("phase2_rl", "overtaking", "ddpg"),
     ("commands",),
 )
+#: The one exception to "the package root imports only gymnasium": ``vision_rl.evaluate``, the public door for agents
+#: trained outside the project, which the root's module-level ``__getattr__`` imports from this module on first use
+#: (so ``import vision_rl`` still loads gymnasium alone). Imported anywhere else in the root, or any other module of
+#: the package imported there, breaks the rule; the lazy edge is left out of the layer and cycle checks.
+ROOT_DOOR = "vision_rl.training.outside"
 LAYERS = tuple(layer for floor in FLOORS for layer in floor)
 PAPERS = FLOORS[-2]
 #: Third-party packages kept out of some layers: name -> the layers that may import it.
@@ -84,6 +89,39 @@ def import_graph() -> tuple[dict[str, set[str]], dict[str, set[str]]]:
             deps |= subs if names and len(subs) == len(names) else subs | {target}
         graph[mod] = {d for d in deps if d in known and d != mod}
     return graph, {mod: outside for mod, (_, outside) in parsed.items()}
+
+
+def without_the_door(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    """The import graph less the root's lazy import of :data:`ROOT_DOOR` (made only after the package is imported,
+    from ``__getattr__``: neither a layer's import nor a cycle at import time)."""
+    return {m: deps - {ROOT_DOOR} if m == PACKAGE else deps for m, deps in graph.items()}
+
+
+def root_rule_violations(source: str) -> list[str]:
+    """What the package root's ``source`` imports beyond gymnasium, except :data:`ROOT_DOOR` inside a module-level
+    ``def __getattr__``: one line each."""
+    tree = ast.parse(source)
+    lazy = {
+        id(node)
+        for fn in tree.body
+        if isinstance(fn, ast.FunctionDef) and fn.name == "__getattr__"
+        for node in ast.walk(fn)
+    }
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            names = [f"{PACKAGE}.{node.module}" if node.level and node.module else node.module or PACKAGE]
+        else:
+            continue
+        for name in names:
+            top = name.split(".")[0]
+            door = name == ROOT_DOOR and id(node) in lazy
+            if top not in {"gymnasium", "__future__"} and not door:
+                where = "in __getattr__" if id(node) in lazy else f"line {node.lineno}"
+                found.append(f"{name} ({where})")
+    return found
 
 
 def layer_of(module: str) -> str | None:
@@ -147,7 +185,7 @@ def test_every_module_belongs_to_a_layer():
 
 
 def test_imports_point_down_the_layers():
-    graph, _ = import_graph()
+    graph = without_the_door(import_graph()[0])
     upward = sorted(
         f"{m} ({layer_of(m) or 'package root'}) -> {d} ({layer_of(d)})"
         for m, deps in graph.items()
@@ -169,15 +207,28 @@ def test_the_paper_packages_import_nothing_of_each_other():
 
 
 def test_no_import_cycles():
-    graph, _ = import_graph()
+    graph = without_the_door(import_graph()[0])
     cycles = strongly_connected(graph)
     assert not cycles, "import cycles:\n" + "\n".join(", ".join(c) for c in cycles)
 
 
 def test_the_package_root_imports_only_gymnasium():
     graph, outside = import_graph()
-    assert graph[PACKAGE] == set()
+    assert graph[PACKAGE] <= {ROOT_DOOR}
     assert outside[PACKAGE] <= {"gymnasium", "__future__"}
+    assert root_rule_violations((PACKAGE_DIR / "__init__.py").read_text(encoding="utf-8")) == []
+
+
+def test_the_root_rule_allows_the_lazy_door_and_nothing_else():
+    door = f"def __getattr__(name):\n    from {ROOT_DOOR} import evaluate\n    return evaluate\n"
+    assert root_rule_violations("import gymnasium\n" + door) == []
+    assert root_rule_violations(f"from {ROOT_DOOR} import evaluate\n") == [f"{ROOT_DOOR} (line 1)"]
+    assert root_rule_violations(door.replace(ROOT_DOOR, "vision_rl.sim")) == ["vision_rl.sim (in __getattr__)"]
+    assert root_rule_violations(door + "def load():\n    import numpy\n") == ["numpy (line 5)"]
+    assert root_rule_violations(door.replace("evaluate\n", "evaluate\n    import torch\n", 1)) == [
+        "torch (in __getattr__)"
+    ]
+    assert root_rule_violations("from .sim import world\n") == ["vision_rl.sim (line 1)"]
 
 
 def test_heavy_dependencies_stay_in_their_layers():
@@ -204,7 +255,7 @@ def test_import_vision_rl_registers_the_environments_and_loads_nothing_heavy():
         "assert 'vision_rl/Overtaking-v1' in gymnasium.registry"
     )
     loaded = _modules_after(probe)
-    assert not {"torch", "moderngl", "vision_rl.envs"} & loaded
+    assert not {"torch", "moderngl", "vision_rl.envs", "vision_rl.training"} & loaded
     assert not {"torch", "moderngl", "vision_rl.commands"} & _modules_after("import vision_rl.sim")
 
 

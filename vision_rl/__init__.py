@@ -26,3 +26,15 @@ for _name, _entry, _old, _new in _ENVIRONMENTS:
                 vector_entry_point=f"vision_rl.envs.registration:{_entry}_vector",
                 kwargs=_kwargs,
             )
+
+
+def __getattr__(name: str):
+    """``vision_rl.evaluate``: the door for agents trained outside the project
+    (:func:`vision_rl.training.outside.evaluate`), imported on first use, so that ``import vision_rl`` loads gymnasium
+    alone (the one exception tests/test_layering.py allows this module)."""
+    if name == "evaluate":
+        from vision_rl.training.outside import evaluate
+
+        globals()["evaluate"] = evaluate
+        return evaluate
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from vision_rl.commands.output import emit
@@ -90,7 +91,24 @@ class EvaluateOptions:
     and median over start seeds; stores evaluation.json beside the policy for the leaderboard."""
 
     policy: str = ""
-    """Policy: a train-policy run folder or its policy.pt."""
+    """Policy: a train-policy run folder or its policy.pt; or, with ``env_id``, a Stable-Baselines3 zip (PPO, A2C, SAC,
+    TD3, DDPG with an MLP policy), read from its tensors, never its pickled parts."""
+    python: str = ""
+    """An agent trained elsewhere, module:function or path/to/file.py:function (with ``env_id``): the function itself
+    maps a batch of the environment's observations to a batch of its actions (vision_rl.evaluate's predict; build one
+    at import with predict = make_agent()). Imports the module, running its code."""
+    env_id: str = ""
+    """With ``python`` or an SB3 zip: the registered environment the agent was trained on (vision_rl/TimeTrial-v1...):
+    what it observes and how it acts."""
+    track: str = ""
+    """With ``env_id``: the environment's track, built-in name, random:SEED or CSV path (empty: its default)."""
+    car: str = ""
+    """With ``env_id``: the environment's car preset (empty: its default)."""
+    env_kwargs: str = ""
+    """With ``env_id``: more arguments of the environment as a JSON object, as gymnasium.make takes them
+    ('{"observation": "vision"}'; vision's encoder is ``encoder``)."""
+    runs: str = "runs"
+    """With ``env_id``: the record goes to RUNS/NAME/evaluation.json, where leaderboard finds it."""
     laps: int = 2
     """Consecutive laps; the last one is the score (the papers: 2)."""
     seeds: int = 3
@@ -109,7 +127,7 @@ class EvaluateOptions:
     """Write every seed's run, one row per 0.1 s step up to its finish or DNF (csv): pose, arc length and lateral
     offset, speed, heading against the track's, steering, pedal, wall contact; how a start got stuck."""
     name: str = ""
-    """Name on the leaderboard (default: the run folder's name)."""
+    """Name on the leaderboard (default: the run folder's name; an outside agent's module:function or zip name)."""
     device: str = "cpu"
     """Torch device of the policy and encoder."""
     write: bool = True
@@ -135,8 +153,20 @@ TOP_SECTIONS = 8
 def run_evaluate(opts: EvaluateOptions) -> int:
     from vision_rl.training.evaluate import evaluate_policy
 
+    if opts.python or opts.env_id:
+        emit(_evaluate_outside(opts), opts.json, format_timing)
+        return 0
     if not opts.policy:
-        raise ValueError("evaluate needs --policy: a train-policy run folder or its policy.pt")
+        raise ValueError(
+            "evaluate needs --policy (a train-policy run folder or its policy.pt) or --python with --env-id"
+        )
+    if opts.track or opts.car or opts.env_kwargs:
+        raise ValueError("--track, --car and --env-kwargs describe an outside agent's environment: give --env-id")
+    if opts.policy.endswith(".zip") and not (Path(opts.policy).parent / "policy.json").is_file():
+        raise ValueError(
+            f"{opts.policy} is a Stable-Baselines3 zip: give --env-id, the environment it was trained on "
+            "(it is read from its tensors, never its pickled parts)"
+        )
     result = evaluate_policy(
         opts.policy,
         laps=opts.laps,
@@ -157,6 +187,93 @@ def run_evaluate(opts: EvaluateOptions) -> int:
     )
     emit(result, opts.json, format_timing)
     return 0
+
+
+def _evaluate_outside(opts: EvaluateOptions) -> dict[str, Any]:
+    """``--python module:function`` or ``--policy agent.zip``, with ``--env-id``, through :func:`vision_rl.evaluate`."""
+    from vision_rl.training.evaluate import ProtocolRun
+    from vision_rl.training.outside import evaluate_agent, load_python_agent, read_sb3_actor, sb3_zip_source
+
+    if not opts.env_id:
+        raise ValueError("--python needs --env-id: the registered environment the agent was trained on")
+    if bool(opts.python) == bool(opts.policy):
+        raise ValueError("--env-id times one outside agent: give --python module:function or --policy agent.zip")
+    if opts.policy and not opts.policy.endswith(".zip"):
+        raise ValueError(
+            f"--policy {opts.policy} with --env-id: give a Stable-Baselines3 zip (a train-policy run "
+            "carries its environment: drop --env-id)"
+        )
+    env_kwargs = _env_kwargs(opts)
+    if opts.python:
+        agent, source = load_python_agent(opts.python), {"python": opts.python}
+        name = opts.name or opts.python.replace(".py:", ":").rsplit("/", 1)[-1]
+    else:
+        agent = read_sb3_actor(opts.policy)
+        source, name = sb3_zip_source(agent), opts.name or Path(opts.policy).stem
+    source["remeasure"] = _remeasure_line(opts, name)
+    run = ProtocolRun(
+        opts.laps,
+        opts.seeds,
+        opts.seed,
+        opts.time_limit_s,
+        opts.video,
+        opts.plot,
+        opts.trace,
+        opts.sections_m,
+        opts.reference_skill,
+        opts.encoder_error,
+    )
+    return evaluate_agent(
+        agent,
+        opts.env_id,
+        name,
+        env_kwargs,
+        run,
+        opts.runs,
+        opts.write,
+        opts.encoder or None,
+        opts.device,
+        opts.encoder_runtime,
+        source,
+    )
+
+
+def _env_kwargs(opts: EvaluateOptions) -> dict[str, Any]:
+    """--env-kwargs (a JSON object) with --track and --car."""
+    import json
+
+    try:
+        kwargs = json.loads(opts.env_kwargs) if opts.env_kwargs else {}
+    except ValueError as exc:
+        raise ValueError(f"--env-kwargs is not JSON: {exc}") from None
+    if not isinstance(kwargs, dict):
+        raise ValueError(f"--env-kwargs must be a JSON object of the environment's arguments, got {opts.env_kwargs}")
+    if "encoder" in kwargs:
+        raise ValueError("give vision's encoder as --encoder, not in --env-kwargs")
+    kwargs.update({k: v for k, v in (("track", opts.track), ("car", opts.car)) if v})
+    return kwargs
+
+
+def _remeasure_line(opts: EvaluateOptions, name: str) -> str:
+    """The command line that times this outside agent again."""
+    import shlex
+
+    agent = f"--python {shlex.quote(opts.python)}" if opts.python else f"--policy {shlex.quote(opts.policy)}"
+    extra = [
+        (flag, v)
+        for flag, v in (
+            ("--track", opts.track),
+            ("--car", opts.car),
+            ("--env-kwargs", opts.env_kwargs),
+            ("--encoder", opts.encoder),
+            ("--runs", opts.runs),
+        )
+        if v
+    ]
+    return " ".join(
+        [f"vision-rl evaluate {agent} --env-id {shlex.quote(opts.env_id)} --name {shlex.quote(name)}"]
+        + [f"{flag} {shlex.quote(v)}" for flag, v in extra]
+    )
 
 
 def format_leaderboard(result: dict[str, Any]) -> list[str]:

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import Dataset, default_collate, get_worker_info
+from torch.utils.data import DataLoader, Dataset, default_collate, get_worker_info
 
 from vision_rl.capture.h5format import CaptureFile, CaptureFormatError, open_capture
 from vision_rl.capture.sharded import open_manifest
@@ -258,11 +258,22 @@ def _batch_tensor(shape: tuple[int, ...]) -> torch.Tensor:
     return torch.empty(shape, dtype=torch.uint8)
 
 
+#: The frames :meth:`CaptureDataset.from_path` gives: all of them, or one side of the split by lap.
+SPLITS = ("all", "train", "val")
+
+
 class CaptureDataset(Dataset):
     """Frames ``rows`` of a catalogue as ``(image uint8 (H, W, 3), targets float32 (n_targets,))`` pairs.
 
     Targets are standardised when a standardiser is given. Images are left as uint8: the model converts them
-    (on the GPU when there is one), and uint8 batches cost workers a quarter of the float copies.
+    (on the GPU when there is one), and uint8 batches cost workers a quarter of the float copies. From capture files
+    in one call, batches included::
+
+        from vision_rl.datasets import CaptureDataset
+
+        train = CaptureDataset.from_path("runs/capture/ai.h5", split="train", standardise=True)
+        for images, targets in train.loader(batch_size=64, shuffle=True):
+            ...  # images uint8 (64, H, W, 3), targets float32 (64, 27), standardised over the training laps
     """
 
     def __init__(
@@ -278,6 +289,45 @@ class CaptureDataset(Dataset):
         self.standardiser = standardiser
         self._handles: dict[int, CaptureFile] = {}
         self._pid = os.getpid()
+
+    @classmethod
+    def from_path(
+        cls,
+        paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+        split: str = "all",
+        *,
+        val_fraction: float = 0.1,
+        split_seed: int = 0,
+        standardise: bool = False,
+    ) -> CaptureDataset:
+        """The frames of capture file(s) (a path, a comma-separated list, globs or a sharded capture's manifest; see
+        :func:`expand_paths`) as a dataset: ``split`` ``all``, or the ``train`` or ``val`` side of
+        :func:`split_by_lap` (``val_fraction`` of the frames in whole laps, chosen with ``split_seed``, as
+        ``train-repr`` splits them). ``standardise``: targets to zero mean and unit variance over the training side
+        (all frames for ``all``); the statistics are the dataset's :attr:`standardiser`. Batches:
+        :meth:`loader`."""
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
+        catalogue = FrameCatalogue.open(paths)
+        rows = train = None
+        if split != "all":
+            train, val = split_by_lap(catalogue, val_fraction, split_seed)
+            rows = train if split == "train" else val
+        fitted = catalogue.targets if train is None else catalogue.targets[train]
+        return cls(catalogue, rows, TargetStandardiser.from_targets(fitted) if standardise else None)
+
+    def loader(self, batch_size: int = 64, shuffle: bool = False, num_workers: int = 0, **kwargs: Any) -> DataLoader:
+        """A torch ``DataLoader`` of (images uint8 (k, H, W, 3), targets float32 (k, n_targets)) batches, collated by
+        :func:`collate_frames` (whole batches decoded at once); ``kwargs`` go to the ``DataLoader``."""
+        return DataLoader(
+            self,
+            batch_size=batch_size,
+            shuffle=shuffle,
+            num_workers=num_workers,
+            collate_fn=collate_frames,
+            persistent_workers=num_workers > 0,
+            **kwargs,
+        )
 
     def __len__(self) -> int:
         return len(self.rows)

@@ -107,6 +107,24 @@ def find_experiments(runs: str | os.PathLike[str]) -> list[dict[str, Any]]:
     return found
 
 
+def remeasure_hint(record: dict[str, Any]) -> str:
+    """How to time a record's driver again: an outside agent's record says so itself (``driver.remeasure``,
+    :mod:`vision_rl.training.outside`), a train-policy run's is ``vision-rl evaluate --policy``."""
+    driver = record.get("driver") or {}
+    if driver.get("remeasure"):
+        return str(driver["remeasure"])
+    return f"vision-rl evaluate --policy {driver.get('policy') or record.get('policy') or 'POLICY'}"
+
+
+def row_kind(driver: dict[str, Any]) -> str:
+    """A policy row's kind: ``human``, ``agent (<observation>)`` for an agent trained outside the project (timed by
+    ``vision_rl.evaluate``) or ``policy (<observation>)``."""
+    if driver.get("driver") == "human":
+        return "human"
+    who = "agent" if driver.get("agent") == "outside" else "policy"
+    return f"{who} ({driver.get('observation', '?')})"
+
+
 def find_evaluations(runs: str | os.PathLike[str]) -> tuple[list[dict[str, Any]], list[str]]:
     """(records of this protocol version, refusals) from every ``*evaluation.json`` under ``runs``. A refusal
     names the file and how to re-measure it; unreadable or foreign JSON files are not evaluations and are skipped."""
@@ -123,10 +141,9 @@ def find_evaluations(runs: str | os.PathLike[str]) -> tuple[list[dict[str, Any]]
             continue
         version = (data.get("protocol") or {}).get("version")
         if version != PROTOCOL_VERSION:
-            policy = (data.get("driver") or {}).get("policy") or data.get("policy") or "POLICY"
             refused.append(
                 f"{path}: measured under protocol version {version or 'none (before versions)'}, this is version "
-                f"{PROTOCOL_VERSION}; re-measure it: vision-rl evaluate --policy {policy}"
+                f"{PROTOCOL_VERSION}; re-measure it: {remeasure_hint(data)}"
             )
             continue
         found.append({**data, "evaluation_json": str(path)})
@@ -148,9 +165,7 @@ def leaderboard(track: str = "expressway", car: str = "hatchback", runs: str = "
         if any(path.is_relative_to(f) and path.relative_to(f).parts[0].startswith("seed-") for f in inside):
             continue  # a training seed of an experiment (its last or its selected weights): the experiment's rows
         if record["track_geometry_hash"] == ai.track.geometry_hash and record["car"] == ai.car.name:
-            driver = record["driver"]
-            kind = "human" if driver.get("driver") == "human" else f"policy ({driver.get('observation', '?')})"
-            rows.append({**row(record, kind), "evaluation_json": record["evaluation_json"]})
+            rows.append({**row(record, row_kind(record["driver"])), "evaluation_json": record["evaluation_json"]})
     for e in experiments:
         # The weights chosen by held-out starts get a row of their own, beside the last weights'.
         for summary, chosen in ((e["summary"], ""), ((e.get("selected") or {}).get("summary"), ", selected")):

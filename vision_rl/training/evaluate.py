@@ -5,11 +5,12 @@ consecutive laps from a rolling start, the second scored, best and median over s
 
 from __future__ import annotations
 
-import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from vision_rl.envs.core import RacingConfig
 from vision_rl.evaluation.controls import lap_controls
 from vision_rl.evaluation.encoder_error import encoder_error_on_lap
 from vision_rl.evaluation.leaderboard import evaluation_record
@@ -22,9 +23,9 @@ from vision_rl.evaluation.outputs import (
 )
 from vision_rl.evaluation.protocol import BuiltinAI, LapTiming, time_laps
 from vision_rl.evaluation.sections import compare_sections, lap_sections
-from vision_rl.files import atomic_write
+from vision_rl.files import write_json
 from vision_rl.sim.ai_driver import DEFAULT_SKILL
-from vision_rl.training.artifact import BEST_DIR, MODEL_NAME, LoadedPolicy, load_policy
+from vision_rl.training.artifact import BEST_DIR, MODEL_NAME, LoadedPolicy, PolicyDriver, load_policy
 
 #: A run's evaluation record, beside its ``policy.pt``.
 EVALUATION_NAME = "evaluation.json"
@@ -44,6 +45,87 @@ def default_policy_name(weights: Path) -> str:
     if weights.parent.name == "checkpoints":
         return f"{weights.parent.parent.name}/{weights.stem}"
     return weights.stem
+
+
+@dataclass(frozen=True)
+class ProtocolRun:
+    """How :func:`timed_record` times a driver and what it adds to the record (``evaluate``'s options)."""
+
+    laps: int = 2
+    seeds: int = 3
+    seed: int = 0
+    time_limit_s: float = 0.0
+    video: str = ""
+    plot: str = ""
+    trace: str = ""
+    sections_m: float = 0.0
+    reference_skill: float = 1.0
+    encoder_error: bool = False
+
+    def check(self) -> None:
+        """Refuse, before any driving, what cannot be run or written."""
+        if self.seeds < 1:
+            raise ValueError(f"seeds must be >= 1, got {self.seeds}")
+        if self.sections_m < 0 or not 0.0 < self.reference_skill <= 1.0:
+            raise ValueError(
+                f"--sections-m must be >= 0 and --reference-skill in (0, 1], got {self.sections_m}, "
+                f"{self.reference_skill}"
+            )
+        for flag, out in (("--plot", self.plot), ("--video", self.video), ("--trace", self.trace)):
+            if out and Path(out).is_dir():  # found now, not after the whole evaluation
+                raise ValueError(f"{flag} {out} is a folder: give the file to write")
+        if self.video:
+            check_video_dependencies()
+
+    @property
+    def records_steps(self) -> bool:
+        return bool(self.plot or self.video or self.sections_m or self.encoder_error or self.trace)
+
+
+def timed_record(
+    driver: PolicyDriver,
+    config: RacingConfig,
+    name: str,
+    run: ProtocolRun,
+    encoder: Any = None,
+) -> dict[str, Any]:
+    """The protocol's record of ``driver`` on ``config``'s track and car: what ``evaluation.json`` holds, with the
+    outputs ``run`` asks for (plot, video, trace, sections, the encoder's error). Closes the driver."""
+    if run.encoder_error and encoder is None:
+        raise ValueError("--encoder-error measures a vision policy's encoder: this policy observes the state")
+    try:
+        timing = time_laps(
+            driver,
+            config.track,
+            config.car,
+            range(run.seed, run.seed + run.seeds),
+            run.laps,
+            run.time_limit_s,
+            record=run.records_steps,
+        )
+    finally:
+        driver.close()
+    result = evaluation_record(timing, driver.identity, name)
+    best = timing.best_index()
+    title = (
+        f"{result['name']}: lap {run.laps} {format_lap_time(result['best_lap_time_s'])} "
+        f"(seed {result['best_seed']}, {timing.track.name}, {timing.car.name})"
+    )
+    result["plot"] = str(plot_trajectory(timing, best, run.plot, title)) if run.plot else None
+    result["video"] = str(write_video(timing, best, run.video, config.image_hw_px)) if run.video else None
+    result["trace"] = str(write_trace(timing, run.trace)) if run.trace else None
+    if run.sections_m > 0:
+        result["sections"] = _sections(timing, best, run.sections_m, run.reference_skill)
+    if run.encoder_error:
+        result["encoder_error"] = _encoder_error(timing, best, encoder, config.image_hw_px)
+    return result
+
+
+def write_record(result: dict[str, Any], out: Path) -> dict[str, Any]:
+    """Store ``result`` as ``out`` (where the leaderboard finds it); the record then names its file."""
+    write_json(out, result)
+    result["evaluation_json"] = str(out)
+    return result
 
 
 def evaluate_policy(
@@ -70,61 +152,20 @@ def evaluate_policy(
     (:mod:`vision_rl.evaluation.sections`). ``encoder_error`` (vision) adds ``encoder_error``: the encoder's error on
     the 27 targets along the best scored lap and along the built-in AI's lap from the same start
     (:mod:`vision_rl.evaluation.encoder_error`). ``trace``: a CSV of every seed's run, step by step
-    (:func:`~vision_rl.evaluation.outputs.write_trace`)."""
-    if seeds < 1:
-        raise ValueError(f"seeds must be >= 1, got {seeds}")
-    if sections_m < 0 or not 0.0 < reference_skill <= 1.0:
-        raise ValueError(
-            f"--sections-m must be >= 0 and --reference-skill in (0, 1], got {sections_m}, {reference_skill}"
-        )
-    for flag, out in (("--plot", plot), ("--video", video), ("--trace", trace)):
-        if out and Path(out).is_dir():  # found now, not after the whole evaluation
-            raise ValueError(f"{flag} {out} is a folder: give the file to write")
-    if video:
-        check_video_dependencies()
+    (:func:`~vision_rl.evaluation.outputs.write_trace`). An agent trained elsewhere: :func:`vision_rl.evaluate`."""
+    run = ProtocolRun(laps, seeds, seed, time_limit_s, video, plot, trace, sections_m, reference_skill, encoder_error)
+    run.check()
     loaded = policy if isinstance(policy, LoadedPolicy) else load_policy(policy, encoder, device, encoder_runtime)
-    if encoder_error and loaded.encoder is None:
-        raise ValueError("--encoder-error measures a vision policy's encoder: this policy observes the state")
-    config = loaded.config
-    driver = loaded.driver()
-    try:
-        timing = time_laps(
-            driver,
-            config.track,
-            config.car,
-            range(seed, seed + seeds),
-            laps,
-            time_limit_s,
-            record=bool(plot or video or sections_m or encoder_error or trace),
-        )
-    finally:
-        driver.close()
-    result = evaluation_record(timing, driver.identity, name or default_policy_name(loaded.weights_path))
-    best = timing.best_index()
-    title = (
-        f"{result['name']}: lap {laps} {format_lap_time(result['best_lap_time_s'])} "
-        f"(seed {result['best_seed']}, {timing.track.name}, {timing.car.name})"
-    )
-    result["plot"] = str(plot_trajectory(timing, best, plot, title)) if plot else None
-    result["video"] = str(write_video(timing, best, video, config.image_hw_px)) if video else None
-    result["trace"] = str(write_trace(timing, trace)) if trace else None
-    if sections_m > 0:
-        result["sections"] = _sections(timing, best, sections_m, reference_skill)
-    if encoder_error:
-        result["encoder_error"] = _encoder_error(timing, best, loaded)
-    if write:
-        out = evaluation_path(loaded.weights_path)
-        atomic_write(out, lambda tmp: tmp.write_text(json.dumps(result, indent=2)))
-        result["evaluation_json"] = str(out)
-    return result
+    name = name or default_policy_name(loaded.weights_path)
+    result = timed_record(loaded.driver(), loaded.config, name, run, loaded.encoder)
+    return write_record(result, evaluation_path(loaded.weights_path)) if write else result
 
 
-def _encoder_error(timing: LapTiming, best: int, loaded: LoadedPolicy) -> dict[str, Any]:
-    hw = loaded.config.image_hw_px
+def _encoder_error(timing: LapTiming, best: int, encoder: Any, hw: tuple[int, int]) -> dict[str, Any]:
     ai = time_laps(BuiltinAI(), timing.track, timing.car, [timing.runs[best].seed], timing.laps, record=True)
     return {
-        "policy": encoder_error_on_lap(timing, best, loaded.encoder, hw),
-        "built_in_ai": {"skill": DEFAULT_SKILL, **encoder_error_on_lap(ai, 0, loaded.encoder, hw)},
+        "policy": encoder_error_on_lap(timing, best, encoder, hw),
+        "built_in_ai": {"skill": DEFAULT_SKILL, **encoder_error_on_lap(ai, 0, encoder, hw)},
     }
 
 
