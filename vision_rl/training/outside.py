@@ -35,6 +35,7 @@ import os
 import pickle
 import re
 import sys
+import warnings
 import zipfile
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
@@ -185,7 +186,9 @@ def describe_env(env_id: str, env_kwargs: Mapping[str, Any]) -> EnvFacts:
     if "pixel_racing" in str(gym.spec(env_id).entry_point):
         raise ValueError(f"{env_id} (the DDPG paper's environment) is timed by vision-rl evaluate-ddpg, not here")
     try:
-        env = gym.make(env_id, **env_kwargs)
+        with warnings.catch_warnings():  # an agent is timed on the version it was trained on, newer ones or not
+            warnings.filterwarnings("ignore", message=".*is out of date", category=DeprecationWarning)
+            env = gym.make(env_id, **env_kwargs)
     except (TypeError, ValueError, OSError) as exc:
         raise ValueError(f"{env_id}: {_first_line(exc)}") from None
     try:
