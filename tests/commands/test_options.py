@@ -104,3 +104,42 @@ def test_every_config_of_these_commands_is_frozen_with_a_docstring_per_field():
         missing = {f.name for f in dataclasses.fields(cls)} - set(field_docs(cls))
         assert not missing, f"{cls.__name__}: {missing}"
         assert cls.__dataclass_params__.frozen, cls.__name__
+
+
+@dataclass(frozen=True)
+class SwitchesConfig:
+    quick: bool = False
+    """Small job."""
+    progress: bool = True
+    """Show a bar."""
+    disrupt_ai: bool = True
+    """Disrupt the AI."""
+    algo: str = field(default="sac", metadata={"choices": ("sac", "td3")})
+    """Algorithm."""
+    track: str = "expressway"
+    """Track."""
+    out: str = ""
+    """Output file (required)."""
+    encoder: str = ""
+    """Encoder; empty: the state."""
+
+    positive_switches: ClassVar[tuple[str, ...]] = ("disrupt_ai",)
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"track": ("expressway", "technical")}
+
+
+def test_booleans_have_no_meaningless_twin_and_choices_and_required_are_enforced(capsys):
+    parser = argparse.ArgumentParser(prog="x")
+    add_config_arguments(parser, SwitchesConfig)
+    flags = {flag for action in parser._actions for flag in action.option_strings}
+    assert {"--quick", "--no-progress", "--disrupt-ai", "--no-disrupt-ai"} <= flags
+    assert not {"--no-quick", "--progress"} & flags
+    opts = parse_config(SwitchesConfig, ["--out", "a.h5", "--quick", "--no-progress", "--algo", "td3"])
+    assert opts.quick and not opts.progress and opts.disrupt_ai and opts.algo == "td3" and opts.out == "a.h5"
+    for argv in (["--out", "a.h5", "--algo", "ppo"], ["--out", "a.h5", "--track", "moon"], ["--quick"]):
+        with pytest.raises(SystemExit):
+            parse_config(SwitchesConfig, argv)
+    err = capsys.readouterr().err
+    assert "invalid choice: 'ppo'" in err and "invalid choice: 'moon'" in err and "--out" in err
+    text = _help(SwitchesConfig)
+    assert "{sac,td3}" in text and "{expressway,technical}" in text and "(default: )" not in text
+    assert "Encoder; empty: the state" in text and "Algorithm (default: sac)" in text

@@ -26,7 +26,6 @@ def test_train_repr_command_prints_json(tmp_path, capsys):
         "0.25",
         "--out",
         str(out),
-        "--progress",
         "--json",
     ]
     assert main(argv) == 0

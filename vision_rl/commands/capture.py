@@ -32,7 +32,10 @@ class CaptureOptions(CaptureConfig):
     """Record frames, the 27 targets and the 11 dedicated features to an HDF5 file."""
 
     negative_switches: ClassVar[dict[str, str]] = {"disrupt_ai": "--no-disrupt"}
+    positive_switches: ClassVar[tuple[str, ...]] = ("disrupt_ai",)  # the design card's `capture --disrupt-ai`
 
+    out: str = ""
+    """Output .h5 file (empty: capture.h5 in the current folder; with --workers, the manifest, capture.json)."""
     source: str = "sim"
     """'sim' or 'video:DEVICE_OR_FILE' (an HDMI grabber or a video)."""
     poses: str = ""
@@ -89,8 +92,8 @@ def run_capture(opts: CaptureOptions) -> int:
     """A progress bar in laps (frames after it), then the summary."""
     from vision_rl.capture.sim_capture import capture_sim
 
-    if not opts.out:
-        raise ValueError("--out PATH.h5 is required")
+    if not opts.out:  # the design card's `vision-rl capture --disrupt-ai --laps 50` writes here
+        opts = dataclasses.replace(opts, out="capture.json" if opts.workers is not None else "capture.h5")
     if opts.policy and (opts.workers is not None or opts.source != "sim"):
         raise ValueError("--policy drives a simulator capture in this process: leave out --workers and --source")
     if opts.workers is not None and opts.source != "sim":
