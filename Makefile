@@ -27,7 +27,7 @@ quick: setup
 # best of the protocol's lap (docs/results/state-expressway-hatchback-25hz). The three seeds train side by side, one
 # process each: a run uses about one core, so on 2 cores three at once finish before two rounds would.
 experiment: setup
-	$(BIN)/vision-rl experiment --seeds 0,1,2 --seeds-at-once 3 --steps 2000000 --control-dt-s 0.04 \
+	$(BIN)/vision-rl experiment --training-seeds 0,1,2 --seeds-at-once 3 --steps 2000000 --control-dt-s 0.04 \
 		--steer-action rate_scaled \
 		--n-step 8 --guide-label-weight 30 --wall-hit-throttle-cut-s 3.0 --pedal-full-at 0.9 --wall-penalty-c-w 0.002 \
 		--target-entropy -4 --learning-rate-final 1e-4 --select-starts 3

@@ -104,6 +104,8 @@ def test_a_group_word_lists_only_its_commands(capsys):
     assert main(["bench", "--help"]) == 0
     out = capsys.readouterr().out
     assert "bench render" in out and "bench train-repr" in out and "train-policy" not in out
+    assert "  bench latency  " in out and "  bench-latency  " not in out  # beside the other benches; the alias stays
+    assert COMMANDS["bench latency"].options == COMMANDS["bench-latency"].options
     assert main(["bench"]) == 2
     assert main(["bench", "fly"]) == 2
     assert "unknown command 'bench fly'" in capsys.readouterr().err
@@ -116,7 +118,7 @@ def test_bad_input_is_a_one_line_error_not_a_traceback(tmp_path, capsys, monkeyp
     err = capsys.readouterr().err
     assert "bench sim: error:" in err and "bad.csv" in err
     assert main(["bench", "ddpg", "--device", "gpu"]) == 2
-    assert "--device 'gpu' is not a torch device: cpu, cuda or cuda:N" in capsys.readouterr().err
+    assert "--device 'gpu' is not a torch device: auto, cpu, cuda or cuda:N" in capsys.readouterr().err
     monkeypatch.setattr("torch.cuda.is_available", lambda: False)
     for command in (["bench", "ddpg"], ["bench-latency"], ["bench", "train-repr"]):  # the benchmarks' one check
         assert main([*command, "--device", "cuda"]) == 2

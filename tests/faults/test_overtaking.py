@@ -167,7 +167,7 @@ def test_the_analysis_takes_one_policy_and_writes_its_figures(agent1_run, tmp_pa
         run_evaluate_overtaking(EvaluateOvertakingOptions(analysis=True, policy=f"{policy},{policy}"))
     assert "--analysis takes one --policy, got 2" in str(excinfo.value)
     fault.refused("evaluate-overtaking --analysis with two policies", str(excinfo.value))
-    opts = EvaluateOvertakingOptions(analysis=True, policy=policy, quick=True, time_limit_s=5.0, out=str(tmp_path))
+    opts = EvaluateOvertakingOptions(analysis=True, policy=policy, tiny=True, time_limit_s=5.0, out=str(tmp_path))
     assert run_evaluate_overtaking(opts) == 0
     analysis = json.loads((tmp_path / "overtaking_analysis.json").read_text())
     assert analysis["reference"]["name"] == "built-in AI" and analysis["agent"]["run"]["seed"] == analysis["run"]

@@ -304,7 +304,7 @@ def _experiment_process(track: str, out: Path, steps: int) -> subprocess.Popen:
         "-m",
         "vision_rl.commands.main",
         "experiment",
-        "--seeds",
+        "--training-seeds",
         "0,1",
         "--seeds-at-once",
         "2",

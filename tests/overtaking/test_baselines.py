@@ -219,7 +219,7 @@ def test_the_commands_record_train_quick_and_refuse_in_one_line(small_track, tmp
                 "train-baseline",
                 "--algo",
                 "td3",
-                "--quick",
+                "--tiny",
                 "--track",
                 small_track,
                 "--demos",

@@ -112,8 +112,9 @@ class BenchDDPGOptions:
     """Timed updates per case (after 2 untimed)."""
     torch_threads: int = 1
     """torch intra-op threads."""
-    device: str = "cpu"
-    """torch device of the networks and the batch: cpu, cuda or cuda:N (the GPU's updates are timed to their end)."""
+    device: str = "auto"
+    """torch device of the networks and the batch: auto (cuda when torch sees a GPU), cpu, cuda or cuda:N (the GPU's
+    updates are timed to their end)."""
     json: bool = False
     """Print the figures as JSON."""
 

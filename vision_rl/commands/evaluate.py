@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -128,8 +128,8 @@ class EvaluateOptions:
     offset, speed, heading against the track's, steering, pedal, wall contact; how a start got stuck."""
     name: str = ""
     """Name on the leaderboard (default: the run folder's name; an outside agent's module:function or zip name)."""
-    device: str = "cpu"
-    """Torch device of the policy and encoder."""
+    device: str = "auto"
+    """Torch device of the policy and encoder: auto (cuda when torch sees a GPU, else cpu), cpu or cuda."""
     write: bool = True
     """Store evaluation.json beside the policy for the leaderboard."""
     encoder_runtime: str = "auto"
@@ -152,6 +152,9 @@ TOP_SECTIONS = 8
 
 def run_evaluate(opts: EvaluateOptions) -> int:
     from vision_rl.training.evaluate import evaluate_policy
+    from vision_rl.training.sac import torch_device
+
+    opts = replace(opts, device=torch_device(opts.device))
 
     if opts.python or opts.env_id:
         emit(_evaluate_outside(opts), opts.json, format_timing)

@@ -45,7 +45,7 @@ class EvaluateOvertakingOptions:
     analysis: bool = False
     """With one --policy: the paper's Fig. 6 for its fastest run of --setting (cars overtaken against time with the
     collisions, the path of each pass, the driver view at each) beside the built-in AI's run with the same opponents."""
-    quick: bool = False
+    tiny: bool = False
     """2 runs of at most 20 s each (for a check in seconds)."""
     json: bool = False
     """Print the result as JSON."""
@@ -149,7 +149,7 @@ def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
         emit(result, opts.json, format_curves)
         return 0
     check_setting(opts.setting)
-    runs, limit = (2, opts.time_limit_s or 20.0) if opts.quick else (opts.runs, opts.time_limit_s)
+    runs, limit = (2, opts.time_limit_s or 20.0) if opts.tiny else (opts.runs, opts.time_limit_s)
     if opts.analysis:
         return _analysis(opts, runs, limit)
     result = evaluate_overtaking(

@@ -16,7 +16,7 @@ class ExperimentOptions(TrainPolicyConfig):
     """Train one SAC recipe once per training seed (each a train-policy run), time each with the lap-time protocol
     and report the mean and standard deviation over seeds and the best of them. Resumes unfinished seeds."""
 
-    seeds: str = "0,1,2"
+    training_seeds: str = "0,1,2"
     """Training seeds, comma-separated (each trains its own policy)."""
     seeds_at_once: int = 1
     """Seeds trained side by side, each in its own process (about one core each with the cpu preset; 1: one after
@@ -24,7 +24,7 @@ class ExperimentOptions(TrainPolicyConfig):
     out: str = ""
     """Experiment folder (default runs/experiment/<kind>-<track>-<car>); one train-policy run per seed inside."""
     seed: int = 0
-    """Unused here: --seeds gives the training seeds."""
+    """Unused here: --training-seeds gives the training seeds."""
     resume: bool = False
     """Unused here: an experiment always resumes its unfinished seeds."""
     force: bool = False
@@ -82,7 +82,7 @@ def format_experiment(result: dict[str, Any]) -> list[str]:
 def run_experiment_command(opts: ExperimentOptions) -> int:
     from vision_rl.phase2_rl.experiment import parse_seeds, run_experiment
 
-    seeds = parse_seeds(opts.seeds)
+    seeds = parse_seeds(opts.training_seeds)
     train = TrainPolicyConfig(**{f.name: getattr(opts, f.name) for f in fields(TrainPolicyConfig)})
     previous = interrupt_on_sigterm()
     try:

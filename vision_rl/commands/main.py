@@ -1,7 +1,7 @@
 """vision-rl: simulate, capture, train and race cars that drive from what they see.
 
 `capture`, `train-repr`, `train-policy` and `bench-latency` are also console scripts of their own (aliases of the
-same commands).
+same commands); `vision-rl bench-latency` is `vision-rl bench latency`, the name the design card gives it.
 """
 
 from __future__ import annotations
@@ -51,6 +51,12 @@ COMMANDS: dict[str, Command] = {
         "BenchTrainReprOptions",
         "run_bench_train_repr",
     ),
+    "bench latency": Command(
+        "Phase 1: encoder latency, batch 1 (also the console script bench-latency)",
+        f"{_C}.bench_latency",
+        "BenchLatencyOptions",
+        "run_bench_latency",
+    ),
     "bench scaling": Command(
         "capture, Phase-1 training and sampling, 1 vs 2 workers",
         f"{_C}.bench_scaling",
@@ -62,7 +68,10 @@ COMMANDS: dict[str, Command] = {
         "Phase 1: train the frame encoder on capture files", f"{_C}.train_repr", "TrainReprOptions", "run_train_repr"
     ),
     "bench-latency": Command(
-        "Phase 1: encoder latency, batch 1", f"{_C}.bench_latency", "BenchLatencyOptions", "run_bench_latency"
+        "Phase 1: encoder latency, batch 1 (as bench latency)",
+        f"{_C}.bench_latency",
+        "BenchLatencyOptions",
+        "run_bench_latency",
     ),
     "train-policy": Command(
         "Phase 2: SAC on the state or the frozen embedding",

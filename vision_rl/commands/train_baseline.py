@@ -9,8 +9,8 @@ from typing import Any
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.overtaking.baseline_run import TrainBaselineConfig
 
-#: ``--quick``: tiny sizes (2 cars, a few hundred steps, short evaluations) where an option was left at its default.
-QUICK = dict(
+#: ``--tiny``: tiny sizes (2 cars, a few hundred steps, short evaluations) where an option was left at its default.
+TINY = dict(
     steps=300,
     cars=2,
     learning_starts=100,
@@ -30,7 +30,7 @@ class TrainBaselineOptions(TrainBaselineConfig):
     """A Table III baseline on the single-car race (MLP 2 x 256, the 96-D observation); online ones (gail, td3, sac,
     dreamer) continue their run folder when run again."""
 
-    quick: bool = False
+    tiny: bool = False
     """Tiny sizes for options left at their defaults: seconds."""
     progress: bool = True
     """Show a progress bar on stderr."""
@@ -72,9 +72,9 @@ def run_train_baseline(opts: TrainBaselineOptions) -> int:
 
     defaults = flat_values(TrainBaselineConfig())
     values = {k: v for k, v in flat_values(opts).items() if k in defaults}
-    if opts.quick:
-        quick = {k: v for k, v in QUICK.items() if not (k == "steps" and values["algo"] == "bc")}  # bc: epoch cap
-        values.update({k: v for k, v in quick.items() if values[k] == defaults[k]})
+    if opts.tiny:
+        tiny = {k: v for k, v in TINY.items() if not (k == "steps" and values["algo"] == "bc")}  # bc: epoch cap
+        values.update({k: v for k, v in tiny.items() if values[k] == defaults[k]})
     cfg = from_flat(TrainBaselineConfig, values)
     check_config(cfg)
     total = cfg.bc_max_epochs if cfg.algo == "bc" else total_steps(cfg)

@@ -8,8 +8,8 @@ from typing import Any
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.overtaking.curriculum import TrainOvertakingConfig
 
-#: ``--quick``: the whole chain at tiny sizes (2 cars, a few hundred steps per stage, short evaluations).
-QUICK = dict(
+#: ``--tiny``: the whole chain at tiny sizes (2 cars, a few hundred steps per stage, short evaluations).
+TINY = dict(
     cars=2,
     stage1_max_steps=200,
     stage2_steps=100,
@@ -31,7 +31,7 @@ QUICK = dict(
 class TrainOvertakingOptions(TrainOvertakingConfig):
     """Curriculum SAC of the overtaking paper (Agents 1-3 share stages 1-2 in one --out) or standard SAC."""
 
-    quick: bool = False
+    tiny: bool = False
     """Tiny sizes (2 cars, a few hundred steps per stage) for options left at their defaults: seconds."""
     progress: bool = True
     """Show a progress bar on stderr."""
@@ -72,8 +72,8 @@ def run_train_overtaking(opts: TrainOvertakingOptions) -> int:
 
     defaults = flat_values(TrainOvertakingConfig())
     values = {k: v for k, v in flat_values(opts).items() if k in defaults}
-    if opts.quick:  # tiny sizes where the option was left at its default: options given explicitly win
-        values.update({k: v for k, v in QUICK.items() if values[k] == defaults[k]})
+    if opts.tiny:  # tiny sizes where the option was left at its default: options given explicitly win
+        values.update({k: v for k, v in TINY.items() if values[k] == defaults[k]})
     cfg = from_flat(TrainOvertakingConfig, values)
     check_config(cfg)
     total = sum(s.steps for s in stages_of(cfg))

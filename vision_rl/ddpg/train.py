@@ -51,6 +51,7 @@ from vision_rl.evaluation.protocol import time_laps
 from vision_rl.files import atomic_write, write_json
 from vision_rl.training.interrupts import HeldSignal
 from vision_rl.training.persist import ArtifactError, check_fingerprint
+from vision_rl.training.sac import torch_device
 from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule, SamplerOptions
 
 METRICS_NAME = "metrics.jsonl"
@@ -176,8 +177,8 @@ class TrainDDPGConfig:
     """The periodic saves."""
     torch_threads: int = 1
     """torch threads (0: torch's default); the renderer and the simulator use the other core."""
-    device: str = "cpu"
-    """torch device."""
+    device: str = "auto"
+    """torch device: auto (cuda when torch sees a GPU, else cpu), cpu or cuda."""
     samplers: SamplerOptions = nested(
         SamplerOptions(),
         help={
@@ -392,7 +393,7 @@ def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dic
         )
     # A resumed session draws new start points and noise: reusing the first session's would replay its episodes.
     session_seed = cfg.seed + run.num_steps
-    agent = DDPGAgent(hyper, env, n_cars=env.n_cars, seed=session_seed, device=cfg.device)
+    agent = DDPGAgent(hyper, env, n_cars=env.n_cars, seed=session_seed, device=torch_device(cfg.device))
     buffer = FrameReplay(hyper.buffer_size, env.n_cars * max(workers, 1), env.image_hw_px if env.frames else None)
     restored, learning_starts = _restore(run, agent, buffer)
     rng = np.random.default_rng(session_seed + 1)

@@ -37,8 +37,8 @@ class BenchLatencyConfig:
     """ckpt.pt to measure; empty: a freshly initialised default encoder."""
     backbone: str = "s2d"
     """Backbone of the fresh encoder: s2d or mobilenet_v3_small (a checkpoint fixes its own)."""
-    device: str = "cpu"
-    """cpu or cuda."""
+    device: str = "auto"
+    """auto (cuda when torch sees a GPU, else cpu), cpu or cuda."""
     runtime: str = "auto"
     """The timed default path: auto (what Phase 2 runs: ONNX Runtime on a CPU when installed, else torch), torch or
     onnxruntime."""
@@ -101,11 +101,14 @@ def _compiled_path(net: ReprNet, device: torch.device) -> Callable[[np.ndarray],
 
 
 def require_device(name: str) -> torch.device:
-    """``name`` as a torch device, or one clear line: a name torch does not know, or a GPU torch cannot see."""
+    """``name`` as a torch device (``auto``: cuda when torch sees a GPU, else cpu), or one clear line: a name torch
+    does not know, or a GPU torch cannot see."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
     try:
         device = torch.device(name)
     except RuntimeError:
-        raise ValueError(f"--device {name!r} is not a torch device: cpu, cuda or cuda:N") from None
+        raise ValueError(f"--device {name!r} is not a torch device: auto, cpu, cuda or cuda:N") from None
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ValueError(f"--device {name}: torch sees no CUDA GPU here (or is a CPU build)")
     return device
@@ -213,8 +216,8 @@ class BenchTrainStepConfig:
     """Time Phase 1's training step (train-repr's augmentation, network, loss and AdamW) on random frames already on
     the device, for each batch size and precision: the ceiling a data pipeline has to feed."""
 
-    device: str = "cpu"
-    """cpu or cuda."""
+    device: str = "auto"
+    """auto (cuda when torch sees a GPU, else cpu), cpu or cuda."""
     image_hw_px: tuple[int, int] = (280, 470)
     """Frame height and width, px (the paper's game screen: 280 x 470)."""
     batch_sizes: tuple[int, ...] = (64, 256)
