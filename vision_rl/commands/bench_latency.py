@@ -4,8 +4,9 @@ beside the paper's 8 ms budget."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
+from vision_rl.commands.choices import BACKBONES, ENCODER_RUNTIMES
 from vision_rl.commands.output import emit
 from vision_rl.phase1_repr.bench import BenchLatencyConfig
 
@@ -13,6 +14,8 @@ from vision_rl.phase1_repr.bench import BenchLatencyConfig
 @dataclass(frozen=True)
 class BenchLatencyOptions(BenchLatencyConfig):
     """Measure the encoder's batch-1 latency (uint8 frame in, 64-D out) and batched throughput."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"backbone": BACKBONES, "runtime": ENCODER_RUNTIMES}
 
     json: bool = False
     """Print one JSON object."""

@@ -24,12 +24,15 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from vision_rl.capture.sim_capture import CaptureConfig
+from vision_rl.commands.choices import COMPRESSIONS
 from vision_rl.commands.output import emit, progress_bar, show
 
 
 @dataclass(frozen=True)
 class CaptureOptions(CaptureConfig):
     """Record frames, the 27 targets and the 11 dedicated features to an HDF5 file."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"compression": COMPRESSIONS}
 
     negative_switches: ClassVar[dict[str, str]] = {"disrupt_ai": "--no-disrupt"}
     positive_switches: ClassVar[tuple[str, ...]] = ("disrupt_ai",)  # the design card's `capture --disrupt-ai`

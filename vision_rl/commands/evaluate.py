@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
+from vision_rl.commands.choices import ENCODER_RUNTIMES
 from vision_rl.commands.output import emit
 
 
@@ -89,6 +90,8 @@ def format_timing(result: dict[str, Any]) -> list[str]:
 class EvaluateOptions:
     """Evaluate a policy with the lap-time protocol: two consecutive laps from a rolling start, lap 2 scored, best
     and median over start seeds; stores evaluation.json beside the policy for the leaderboard."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"encoder_runtime": ENCODER_RUNTIMES}
 
     policy: str = ""
     """Policy: a train-policy run folder or its policy.pt; or, with ``env_id``, a Stable-Baselines3 zip (PPO, A2C, SAC,

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
+from vision_rl.commands.choices import DDPG_VARIANTS
 from vision_rl.commands.output import emit
 
 
@@ -11,6 +13,8 @@ from vision_rl.commands.output import emit
 class EvaluateDDPGOptions:
     """Time a train-ddpg agent with the lap-time protocol on its own track and car (two laps, the second scored,
     best and median over start seeds); stores evaluation.json beside the agent."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"variant": ("", *DDPG_VARIANTS)}
 
     agent: str = ""
     """A train-ddpg run folder or its ddpg.pt."""

@@ -4,8 +4,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
+from vision_rl.commands.choices import SETTINGS
 from vision_rl.commands.output import emit
 
 
@@ -13,6 +14,8 @@ from vision_rl.commands.output import emit
 class EvaluateOvertakingOptions:
     """Overtaking policies and the built-in AI through setting A or B (five AI opponents 50 / 200 m apart): the
     paper's four metrics per run, mean, spread and best, bar charts; or, with --curves, the learning curves."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"setting": SETTINGS}
 
     setting: str = "A"
     """A (opponents 50 m apart) or B (200 m)."""

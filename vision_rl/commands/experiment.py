@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, ClassVar
 
+from vision_rl.commands.choices import POLICY_CHOICES
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.config import nested
 from vision_rl.phase2_rl.train import TrainPolicyConfig
@@ -15,6 +16,8 @@ from vision_rl.training.schedules import EvaluationSchedule
 class ExperimentOptions(TrainPolicyConfig):
     """Train one SAC recipe once per training seed (each a train-policy run), time each with the lap-time protocol
     and report the mean and standard deviation over seeds and the best of them. Resumes unfinished seeds."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = POLICY_CHOICES
 
     training_seeds: str = "0,1,2"
     """Training seeds, comma-separated (each trains its own policy)."""

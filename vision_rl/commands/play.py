@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, ClassVar
 
+from vision_rl.commands.choices import SETTINGS
 from vision_rl.commands.output import emit
 from vision_rl.overtaking.play import PlayConfig
 
@@ -14,6 +15,8 @@ class PlayOptions(PlayConfig):
     """Drive with keyboard (arrows or WASD, Escape quits) or gamepad in a pygame window (chase or hood camera); the
     lap is timed by the one protocol and shows on the leaderboard as "human (alias)"; the drive is saved as
     demonstrations for the imitation baselines."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"setting": ("", *SETTINGS)}
 
     json: bool = False
     """Print the result as JSON."""

@@ -4,8 +4,9 @@ race."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
+from vision_rl.commands.choices import BASELINE_ALGOS, SAC_PRESETS
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.overtaking.baseline_run import TrainBaselineConfig
 
@@ -29,6 +30,8 @@ TINY = dict(
 class TrainBaselineOptions(TrainBaselineConfig):
     """A Table III baseline on the single-car race (MLP 2 x 256, the 96-D observation); online ones (gail, td3, sac,
     dreamer) continue their run folder when run again."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"algo": BASELINE_ALGOS, "preset": SAC_PRESETS}
 
     tiny: bool = False
     """Tiny sizes for options left at their defaults: seconds."""

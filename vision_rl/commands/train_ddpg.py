@@ -4,8 +4,9 @@ vision_rl/PixelRacing-v0, and its ablations (--variant symmetric, state-actor)."
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
+from vision_rl.commands.choices import DDPG_VARIANTS
 from vision_rl.commands.output import emit, format_sampling, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.ddpg.train import TrainDDPGConfig
 
@@ -14,6 +15,8 @@ from vision_rl.ddpg.train import TrainDDPGConfig
 class TrainDDPGOptions(TrainDDPGConfig):
     """Train DDPG with an asymmetric actor-critic on PixelRacing-v0 (Catalunya, GT3 by default); evaluates through the
     lap-time protocol, saves without pickle, resumes, and saves on Ctrl-C or SIGTERM."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"variant": DDPG_VARIANTS}
 
     progress: bool = True
     """Show a progress bar on stderr."""

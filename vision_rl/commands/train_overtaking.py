@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
+from vision_rl.commands.choices import OVERTAKING_AGENTS, SAC_PRESETS
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.overtaking.curriculum import TrainOvertakingConfig
 
@@ -30,6 +31,8 @@ TINY = dict(
 @dataclass(frozen=True)
 class TrainOvertakingOptions(TrainOvertakingConfig):
     """Curriculum SAC of the overtaking paper (Agents 1-3 share stages 1-2 in one --out) or standard SAC."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"agent": OVERTAKING_AGENTS, "preset": SAC_PRESETS}
 
     tiny: bool = False
     """Tiny sizes (2 cars, a few hundred steps per stage) for options left at their defaults: seconds."""

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
+from vision_rl.commands.choices import POLICY_CHOICES
 from vision_rl.commands.output import emit, format_sampling, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.phase2_rl.train import TrainPolicyConfig
 
@@ -12,6 +13,8 @@ from vision_rl.phase2_rl.train import TrainPolicyConfig
 @dataclass(frozen=True)
 class TrainPolicyOptions(TrainPolicyConfig):
     """Train a SAC driving policy on the batched time-trial env (state, or vision with --encoder)."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = POLICY_CHOICES
 
     progress: bool = True
     """Show a progress bar on stderr."""

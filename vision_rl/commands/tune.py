@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, ClassVar
 
+from vision_rl.commands.choices import POLICY_CHOICES
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.phase2_rl.train import TrainPolicyConfig
 from vision_rl.phase2_rl.tune import SEARCH_SPACE
@@ -15,6 +16,8 @@ class TuneOptions(TrainPolicyConfig):
     """Search train-policy's recipe with Optuna (TPE, median pruning): each trial trains a policy from the base
     recipe (the train-policy options given here) with the --space options drawn, and scores it by the protocol.
     Resumable: run it again with the same --out (or in a second terminal, to use the other core)."""
+
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = POLICY_CHOICES
 
     out: str = "runs/tune/study"
     """Study folder: study.db (Optuna's SQLite), study.json and one train-policy run per trial."""
