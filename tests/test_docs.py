@@ -29,7 +29,7 @@ def test_the_readme_is_a_front_page():
     assert any(line.startswith("**Contents**") for line in lines[:25]), "no contents list on the first screen"
     assert heading_line(lines, "## Install") <= 60 and heading_line(lines, "## Quick start") <= 60
     quick_start = "\n".join(lines[heading_line(lines, "## Quick start") :])
-    assert 'gym.make("vision_rl/TimeTrial-v1"' in quick_start and "vision_rl.evaluate(" in quick_start
+    assert 'gym.make("vision_rl/TimeTrial-v2"' in quick_start and "vision_rl.evaluate(" in quick_start
     for heading in ("## The two commands", "## Results", "## Commands", "## Citation", "## Licence"):
         heading_line(lines, heading)  # each section is there
     dated = [line for line in lines if re.search(r"\b20\d\d-\d\d-\d\d\b", line)]
