@@ -6,11 +6,13 @@ import ast
 import errno
 import hashlib
 import json
+import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from vision_rl.files import ArtifactWriteError, atomic_write, file_sha256, temporary_path, write_json
+from vision_rl.files import ArtifactWriteError, atomic_write, file_sha256, json_text, temporary_path, write_json
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1] / "vision_rl"
 
@@ -35,6 +37,26 @@ def test_a_failed_write_keeps_the_previous_file_and_names_it(tmp_path):
         atomic_write(path, full_disk)
     assert info.value.errno == errno.ENOSPC
     assert json.loads(path.read_text()) == {"x": 1} and sorted(p.name for p in tmp_path.iterdir()) == ["a.json"]
+
+
+def strict_loads(text: str):
+    """``json.loads`` that refuses the bare NaN, Infinity and -Infinity of Python's default JSON."""
+
+    def refuse(constant: str):
+        raise ValueError(f"not JSON: {constant}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_a_missing_or_non_finite_number_is_written_as_null(tmp_path):
+    record = {"lap": float("nan"), "laps": [1.5, float("inf"), (float("-inf"), 2)], "deep": {"x": [{"y": math.nan}]}}
+    expected = {"lap": None, "laps": [1.5, None, [None, 2]], "deep": {"x": [{"y": None}]}}
+    assert strict_loads(json_text(record)) == expected
+    write_json(tmp_path / "r.json", record)
+    assert strict_loads((tmp_path / "r.json").read_text()) == expected
+    assert json_text({"b": 1, "a": np.float64("nan")}, sort_keys=True) == '{"a": null, "b": 1}'
+    with pytest.raises(ValueError, match="not JSON: NaN"):
+        strict_loads(json.dumps({"lap": float("nan")}))  # what the writers wrote before
 
 
 def test_an_interrupted_write_keeps_the_previous_file(tmp_path):

@@ -1,4 +1,5 @@
-"""Files on disk, once for the whole package: the one atomic write, JSON records, SHA-256 of files, the version.
+"""Files on disk, once for the whole package: the one atomic write, JSON records (strict JSON, through
+:func:`json_text`), SHA-256 of files, the version.
 
 The lowest layer: any layer that writes or checks a file imports it; it imports nothing of vision_rl.
 """
@@ -8,6 +9,7 @@ from __future__ import annotations
 import errno
 import hashlib
 import json
+import math
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -64,11 +66,29 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None]) ->
     return sha256
 
 
+def finite_or_none(data: Any) -> Any:
+    """``data`` with every NaN or infinite float, at any depth of dicts, lists and tuples, replaced by None."""
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, Mapping):
+        return {key: finite_or_none(value) for key, value in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [finite_or_none(value) for value in data]
+    return data
+
+
+def json_text(data: Any, indent: int | None = None, **dumps: Any) -> str:
+    """``data`` as strict JSON: a missing or non-finite number (NaN, inf) is ``null``, never the bare ``NaN`` that
+    :func:`json.dumps` writes by default and other readers refuse. Every record and log line of the package is
+    written through it; ``dumps`` goes to :func:`json.dumps` (``sort_keys``, ``default``)."""
+    return json.dumps(finite_or_none(data), indent=indent, allow_nan=False, **dumps)
+
+
 def write_json(path: str | os.PathLike[str], data: Mapping[str, Any] | list[Any], indent: int | None = 2) -> str:
-    """``data`` as JSON, written atomically (folders made); returns the file's SHA-256."""
+    """``data`` as strict JSON (:func:`json_text`), written atomically (folders made); returns the file's SHA-256."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    return atomic_write(path, lambda tmp: tmp.write_text(json.dumps(data, indent=indent)))
+    return atomic_write(path, lambda tmp: tmp.write_text(json_text(data, indent=indent)))
 
 
 def package_version() -> str:

@@ -88,6 +88,23 @@ def test_ctrl_c_saves_and_resume_finishes(small_track, tmp_path, monkeypatch):
     assert train_policy(tiny_train_config(small_track, out, resume=True))["num_timesteps"] == 200
 
 
+def test_every_record_and_log_the_trainer_writes_is_strict_json(state_run):
+    """No bare NaN (a tiny run drives no whole lap, so its mean wall contact per lap is missing: null)."""
+
+    def refuse(constant: str):
+        raise AssertionError(f"not JSON: {constant}")
+
+    out, _ = state_run
+    files = sorted(p for p in out.rglob("*") if p.suffix in (".json", ".jsonl"))
+    assert out / "metrics.jsonl" in files and out / "policy.json" in files
+    for path in files:
+        text = path.read_text()
+        lines = text.splitlines() if path.suffix == ".jsonl" else [text]
+        for line in lines:
+            json.loads(line, parse_constant=refuse)
+    assert any(m["wall_contact_per_lap_s"] is None for m in read_metrics(out / "metrics.jsonl"))
+
+
 def test_existing_run_and_missing_run_are_refused(state_run, tmp_path):
     out, _ = state_run
     with pytest.raises(FileExistsError, match="--resume"):

@@ -23,7 +23,7 @@ import numpy as np
 
 from vision_rl.capture.h5format import CaptureFormatError, first_difference, open_capture
 from vision_rl.capture.sim_capture import CaptureConfig
-from vision_rl.files import atomic_write
+from vision_rl.files import atomic_write, json_text
 
 #: The ``format`` field of a manifest, and the version this module writes and reads.
 MANIFEST_FORMAT = "vision_rl capture manifest"
@@ -187,7 +187,7 @@ def write_manifest(cfg: ShardedCaptureConfig, shards: list[CaptureConfig], setti
     }
     body["manifest_sha256"] = _manifest_digest(body)
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(body, indent=1, sort_keys=True)))
+    atomic_write(path, lambda tmp: tmp.write_text(json_text(body, indent=1, sort_keys=True)))
     return body
 
 

@@ -48,7 +48,7 @@ from vision_rl.ddpg.sampling import episode_record
 from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.protocol import time_laps
-from vision_rl.files import atomic_write, write_json
+from vision_rl.files import atomic_write, json_text, write_json
 from vision_rl.training.interrupts import HeldSignal
 from vision_rl.training.persist import ArtifactError, check_fingerprint
 from vision_rl.training.sac import torch_device
@@ -359,7 +359,7 @@ class _Run:
             "eval_time_s": round(eval_time, 2),
         }
         with open(self.out / METRICS_NAME, "a") as f:
-            f.write(json.dumps(record) + "\n")
+            f.write(json_text(record) + "\n")
         self.last_eval = record
         return record
 
@@ -502,7 +502,7 @@ class _StepHooks:
             **record,
             "train_time_s": round(run.train_time_s, 2),
         }
-        self.episodes_file.write(json.dumps(line) + "\n")
+        self.episodes_file.write(json_text(line) + "\n")
         self.episodes_file.flush()
         run.episodes += 1
 
@@ -597,7 +597,7 @@ def _learn_with_samplers(
     def log_event(record: dict[str, Any]) -> None:
         record = {**record, "num_steps": run.num_steps, "train_time_s": round(run.train_time_s, 2)}
         with open(run.out / METRICS_NAME, "a") as f:
-            f.write(json.dumps(record) + "\n")
+            f.write(json_text(record) + "\n")
 
     pacing = Pacing(
         workers=int(cfg.samplers.workers or 0),

@@ -19,7 +19,7 @@ from typing import Any
 
 from vision_rl.config import flat_values, nested
 from vision_rl.envs.core import RacingConfig
-from vision_rl.files import write_json
+from vision_rl.files import json_text, write_json
 from vision_rl.overtaking.curriculum import BUDGETS
 from vision_rl.overtaking.demos import OBS_DIM, OBSERVATION, Demos, race_config
 from vision_rl.overtaking.dreamer import DreamerRecipe
@@ -269,7 +269,7 @@ def eval_figures(summary: dict[str, Any]) -> dict[str, Any]:
 
 def append_metrics(folder: Path, record: dict[str, Any]) -> None:
     with open(folder / METRICS_NAME, "a") as f:
-        f.write(json.dumps(record) + "\n")
+        f.write(json_text(record) + "\n")
 
 
 #: ``progress(phase, done, total, figures)``: bc reports epochs, the online algorithms environment steps.

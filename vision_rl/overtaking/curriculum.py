@@ -37,7 +37,7 @@ from vision_rl.envs.core import RacingConfig, RacingCore
 from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
-from vision_rl.files import write_json
+from vision_rl.files import json_text, write_json
 from vision_rl.training.artifact import (
     BUFFER_NAME,
     MODEL_NAME,
@@ -640,7 +640,7 @@ class _StageSession:
             "eval_time_s": round(eval_time_s, 2),
         }
         with open(self.folder / METRICS_NAME, "a") as f:
-            f.write(json.dumps(record) + "\n")
+            f.write(json_text(record) + "\n")
         if record["overtaking_return"] is not None:
             model.logger.record("eval/overtaking_return", record["overtaking_return"])
         if lap is not None:
@@ -713,7 +713,7 @@ class _StageSession:
         def log_event(record: dict[str, Any]) -> None:
             with open(self.folder / METRICS_NAME, "a") as f:
                 f.write(
-                    json.dumps({**record, "stage": self.stage.name, "train_time_s": round(self.train_time_s, 2)}) + "\n"
+                    json_text({**record, "stage": self.stage.name, "train_time_s": round(self.train_time_s, 2)}) + "\n"
                 )
 
         try:

@@ -29,7 +29,7 @@ import numpy as np
 from vision_rl.envs.core import RacingConfig, RacingCore
 from vision_rl.envs.observations import OBS_NAMES, OBS_VERSION, ObsNormalizer
 from vision_rl.envs.racing_env import action_space
-from vision_rl.files import atomic_write
+from vision_rl.files import atomic_write, json_text
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver
 from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.fleet import AI_CONTROL_DT_S
@@ -200,7 +200,7 @@ def write_demos(path: str | os.PathLike[str], arrays: Mapping[str, np.ndarray], 
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
-            np.savez(f, meta=np.array(json.dumps(record)), **checked)
+            np.savez(f, meta=np.array(json_text(record)), **checked)
 
     path.parent.mkdir(parents=True, exist_ok=True)
     return atomic_write(path, write)

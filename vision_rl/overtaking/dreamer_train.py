@@ -22,7 +22,7 @@ import torch
 
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import time_laps
-from vision_rl.files import atomic_write
+from vision_rl.files import atomic_write, json_text
 from vision_rl.overtaking.baseline_run import (
     HIDDEN_UNITS,
     BaselineError,
@@ -60,7 +60,7 @@ def save_sequence_replay(replay: SequenceReplay, path: Path, fingerprint: dict[s
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
-            np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
+            np.savez(f, meta=np.array(json_text(meta)), **arrays)
 
     return atomic_write(path, write)
 

@@ -24,7 +24,7 @@ import numpy as np
 from vision_rl.config import flat_values
 from vision_rl.evaluation.leaderboard import AI_SEEDS, EXPERIMENT_FORMAT, aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
-from vision_rl.files import atomic_write, file_sha256
+from vision_rl.files import atomic_write, file_sha256, json_text
 from vision_rl.phase2_rl.train import TrainPolicyConfig, check_bounds, train_policy
 from vision_rl.training.artifact import SIDECAR_NAME, PolicySpec, chosen_weights
 from vision_rl.training.evaluate import EVALUATION_NAME, evaluate_policy
@@ -164,7 +164,7 @@ def run_experiment(
         "seeds": list(seeds),
         "seeds_at_once": seeds_at_once,
     }
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
+    atomic_write(path, lambda tmp: tmp.write_text(json_text(record, indent=2)))
     steps_done = {seed: cfg.steps if _seed_is_done(_seed_run(root, seed), cfg.steps) else 0 for seed in seeds}
     todo = [seed for seed in seeds if steps_done[seed] < cfg.steps]
 
@@ -190,7 +190,7 @@ def run_experiment(
         record["learning_curves"] = write_learning_curves(
             root, seeds, evaluations[0]["limit_lap_time_s"], ai, cfg.racing.control_dt_s
         )
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
+    atomic_write(path, lambda tmp: tmp.write_text(json_text(record, indent=2)))
     return {**record, "experiment_json": str(path)}
 
 
@@ -446,7 +446,7 @@ def write_learning_curves(
     png = root / "learning_curves.png"
     plot_learning_curves([("SAC", curves)], limit_lap_time_s, ai_lap_time_s, png, seeds_drawn=True)
     data = root / "learning_curves.json"
-    atomic_write(data, lambda tmp: tmp.write_text(json.dumps(curves, indent=2)))
+    atomic_write(data, lambda tmp: tmp.write_text(json_text(curves, indent=2)))
     return {"png": str(png), "json": str(data)}
 
 
@@ -479,5 +479,5 @@ def compare_learning_curves(
         "ai_lap_time_s": ai_lap_time_s,
         "series": [{"name": n, "file": str(f), **c} for (n, c), f in zip(series, files, strict=True)],
     }
-    atomic_write(out / "compare.json", lambda tmp: tmp.write_text(json.dumps(record, indent=2)))
+    atomic_write(out / "compare.json", lambda tmp: tmp.write_text(json_text(record, indent=2)))
     return {**record, "files": {"png": str(out / "compare.png"), "json": str(out / "compare.json")}}

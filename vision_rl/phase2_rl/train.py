@@ -31,6 +31,7 @@ from vision_rl.envs.core import STEER_ACTIONS, STEER_CHANGE_PENALTY_SCALES, WALL
 from vision_rl.envs.observations import ObservationKind, ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import CLEAN_WALL_CONTACT_S, time_laps
+from vision_rl.files import json_text
 from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
 from vision_rl.sim.fleet import AI_CONTROL_DT_S, ai_ticks
 from vision_rl.training.artifact import (
@@ -539,7 +540,7 @@ class _Run:
         self.session_start += eval_time  # evaluation time is not training time
         record["eval_time_s"] = round(eval_time, 2)
         with open(self.out / METRICS_NAME, "a") as f:
-            f.write(json.dumps(record) + "\n")
+            f.write(json_text(record) + "\n")
         logger = model.logger
         logger.record("eval/distance_m", record["distance_m"])
         logger.record("eval/laps_finished", record["finished"])
@@ -821,7 +822,7 @@ def _learn_with_samplers(run: _Run, model: SAC, loop: _TrainingLoop, cluster: An
     def log_event(record: dict[str, Any]) -> None:
         record = {**record, "train_time_s": round(run.train_time_s, 2)}
         with open(run.out / METRICS_NAME, "a") as f:
-            f.write(json.dumps(record) + "\n")
+            f.write(json_text(record) + "\n")
 
     try:
         return learn_like_sb3(

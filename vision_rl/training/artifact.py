@@ -23,7 +23,7 @@ from vision_rl.envs.observations import ObservationKind, ObsNormalizer
 from vision_rl.envs.observer import Observer, in_batches_of
 from vision_rl.envs.racing_env import action_space
 from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
-from vision_rl.files import atomic_write
+from vision_rl.files import atomic_write, json_text
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.world import World, WorldState
 from vision_rl.training.persist import ArtifactError, check_fingerprint, read_agent, read_sb3_zip, write_agent_state
@@ -173,7 +173,7 @@ class PolicySpec:
     def write(self, path: str | os.PathLike[str]) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write(path, lambda tmp: tmp.write_text(json.dumps(self.to_dict(), indent=2)))
+        atomic_write(path, lambda tmp: tmp.write_text(json_text(self.to_dict(), indent=2)))
         return path
 
     @classmethod

@@ -28,7 +28,7 @@ import torch
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-from vision_rl.files import atomic_write, file_sha256
+from vision_rl.files import atomic_write, file_sha256, json_text
 
 AGENT_FORMAT = "vision_rl.agent"
 BUFFER_FORMAT = "vision_rl.replay_buffer"
@@ -213,7 +213,7 @@ def save_buffer(buffer: ReplayBuffer, path: str | os.PathLike[str], fingerprint:
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
-            np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
+            np.savez(f, meta=np.array(json_text(meta)), **arrays)
 
     return atomic_write(path, write)
 
