@@ -103,3 +103,34 @@ def test_only_files_py_renames_files():
         if lines
     }
     assert not found, f"write through vision_rl.files.atomic_write instead: {found}"
+
+
+def json_written_unchecked(source: str) -> list[int]:
+    """Lines where ``json.dumps(...)`` or ``json.dump(...)`` is written (an argument of a ``write``, ``write_text``
+    or ``np.array`` call, or ``json.dump`` itself): every writer goes through vision_rl.files.json_text."""
+    lines = []
+    for node in ast.walk(ast.parse(source)):
+        if not isinstance(node, ast.Call) or not isinstance(node.func, ast.Attribute):
+            continue
+        if node.func.attr == "dump" and isinstance(node.func.value, ast.Name) and node.func.value.id == "json":
+            lines.append(node.lineno)
+        elif node.func.attr in ("write", "write_text", "array") or getattr(node.func, "id", "") == "print":
+            for arg in ast.walk(ast.Module(body=[ast.Expr(a) for a in node.args], type_ignores=[])):
+                if isinstance(arg, ast.Call) and isinstance(arg.func, ast.Attribute) and arg.func.attr == "dumps":
+                    lines.append(node.lineno)
+    return sorted(set(lines))
+
+
+def test_the_checker_finds_a_json_line_written_without_json_text():
+    source = "f.write(json.dumps(r) + '\\n')\np.write_text(json.dumps(r))\njson.dump(r, f)\nf.write(json_text(r))\n"
+    assert json_written_unchecked(source) == [1, 2, 3]
+
+
+def test_every_json_writer_goes_through_json_text():
+    found = {
+        str(path.relative_to(PACKAGE_DIR)): lines
+        for path in sorted(PACKAGE_DIR.rglob("*.py"))
+        for lines in [json_written_unchecked(path.read_text(encoding="utf-8"))]
+        if lines
+    }
+    assert not found, f"write JSON through vision_rl.files.json_text (null for NaN) instead: {found}"

@@ -2,18 +2,19 @@
 
 from __future__ import annotations
 
-import json
 import signal
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from vision_rl.files import json_text
+
 
 def emit(result: Any, as_json: bool, lines: Callable[[Any], list[str]] | None = None) -> None:
     """Print a command's result on stdout: one JSON document, the given text lines, or ``key: value`` rows."""
     if as_json:
-        print(json.dumps(result, indent=2))
+        print(json_text(result, indent=2))
     elif lines is not None:
         print("\n".join(lines(result)))
     else:
