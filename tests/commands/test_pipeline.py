@@ -87,7 +87,7 @@ def test_without_ray_the_vision_policy_samples_in_the_learners_process(monkeypat
     assert sampler_processes(SIZES["quick"]) == 0
 
 
-def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path):
+def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path, capsys):
     reason = renderer_available()
     if reason:
         pytest.skip(reason)
@@ -96,6 +96,10 @@ def test_whole_pipeline_tiny_capture_to_leaderboard(small_track, tmp_path):
     runs = tmp_path / "runs"
     opts = PipelineOptions(tiny=True, track=small_track, runs=str(runs), state_policy_laps=1)
     summary = run_pipeline_stages(opts)
+    lines = stage_lines(capsys.readouterr().err)
+    for stage in ("state policy", "capture", "capture of the clean laps", "the state policy's laps", "train-repr"):
+        assert lines.count(f"{stage}: started") == lines.count(f"{stage}: done") == 1, (stage, lines)
+    assert lines.index("capture: started") < lines.index("capture: done") < lines.index("train-repr: started")
     with open_capture(summary["capture"]["train"]) as f:
         assert f.complete and f.image_hw_px == (64, 96)
     # Driven by the state policy just trained; one of 200 steps may not lap, and its capture ends at the protocol's
@@ -135,7 +139,7 @@ def test_a_second_process_returns_its_result_raises_its_error_and_never_waits_fo
 
 
 @pytest.mark.parametrize("state_policy_laps", [0, 1])
-def test_the_state_policy_trains_from_the_start_beside_the_captures(monkeypatch, tmp_path, state_policy_laps):
+def test_the_state_policy_trains_from_the_start_beside_the_captures(monkeypatch, tmp_path, state_policy_laps, capsys):
     """It needs neither frames nor encoder, so it takes the cores the captures leave idle; Phase 1 waits for it
     where it captures the state policy's laps (else it trains beside Phase 1 too), and Phase 2 waits for that same
     run rather than starting another."""
@@ -150,11 +154,11 @@ def test_the_state_policy_trains_from_the_start_beside_the_captures(monkeypatch,
         yield lambda: events.append("state waited for") or {"num_timesteps": 200}
         events.append("state stopped")
 
-    def capture(opts, sizes, name, laps, disrupt):
+    def capture(opts, sizes, name, laps, disrupt, progress=None):
         events.append(f"capture {name}" + " disrupted" * disrupt)
         return pipeline._capture_path(opts, name)
 
-    def phase2(encoder, sizes, *, state, **kwargs):
+    def phase2(encoder, sizes, *, state, report, **kwargs):
         events.append("phase 2")
         return {"state": state()}
 
@@ -168,7 +172,9 @@ def test_the_state_policy_trains_from_the_start_beside_the_captures(monkeypatch,
         "_capture_state_policy",
         lambda opts, sizes: capture(opts, sizes, "state_policy", opts.state_policy_laps, False),
     )
-    monkeypatch.setattr(phase1, "train_repr", lambda cfg: events.append(f"train-repr on {cfg.data}") or {})
+    monkeypatch.setattr(
+        phase1, "train_repr", lambda cfg, progress=None: events.append(f"train-repr on {cfg.data}") or {}
+    )
     monkeypatch.setattr(pipeline, "pipeline_phase2", phase2)
     summary = run_pipeline_stages(PipelineOptions(tiny=True, runs=str(tmp_path), state_policy_laps=state_policy_laps))
     captures = tmp_path / "capture"
@@ -195,3 +201,54 @@ def test_the_state_policy_trains_from_the_start_beside_the_captures(monkeypatch,
             "state stopped",
         ]
     assert summary["phase2"]["state"] == {"num_timesteps": 200}
+
+
+def stage_lines(text: str) -> list[str]:
+    """The pipeline's stage lines, ``name: started``/``name: done``, without the clock and the details."""
+    return [
+        line.split("] ", 1)[1].split(" (")[0].split(" in ")[0]
+        for line in text.splitlines()
+        if line.startswith("[pipeline ")
+    ]
+
+
+def test_each_stage_says_when_it_starts_and_ends(monkeypatch, tmp_path, capsys):
+    """A start and an end line per stage on stderr, in the order they run (the state policy and the clean laps in
+    second processes end when their results arrive); stdout keeps the summary alone."""
+    import vision_rl.commands.pipeline as pipeline
+    import vision_rl.phase1_repr.train as phase1
+
+    @contextlib.contextmanager
+    def state_process(*stage):
+        yield lambda: {"num_timesteps": 200}
+
+    def policy_stage(kind, encoder, *stage, progress=None):
+        progress(100, 200, None)
+        return {"kind": kind}
+
+    monkeypatch.setattr(pipeline, "state_in_second_process", state_process)
+    monkeypatch.setattr(
+        pipeline, "_in_second_process", lambda fn, *args, **kw: contextlib.nullcontext(lambda: fn(*args))
+    )
+    monkeypatch.setattr(pipeline, "_capture", lambda opts, sizes, name, *a, **kw: pipeline._capture_path(opts, name))
+    monkeypatch.setattr(phase1, "train_repr", lambda cfg, progress=None: progress(1, 3, {}) or {})
+    monkeypatch.setattr(pipeline, "_policy_stage", policy_stage)
+    monkeypatch.setattr("vision_rl.evaluation.leaderboard.leaderboard", lambda *a: {"rows": []})
+    summary = run_pipeline_stages(PipelineOptions(tiny=True, runs=str(tmp_path)))
+    assert summary["phase2"]["vision"] == {"kind": "vision"}
+    out, err = capsys.readouterr()
+    assert stage_lines(err) == [
+        "state policy: started",
+        "capture of the clean laps: started",
+        "capture: started",
+        "capture: done",
+        "capture of the clean laps: done",
+        "train-repr: started",
+        "train-repr: done",
+        "vision policy: started",
+        "vision policy: done",
+        "state policy: done",
+        "leaderboard: started",
+        "leaderboard: done",
+    ]
+    assert "[pipeline 0 s] capture: started (1 disrupted laps)" in err and out == ""

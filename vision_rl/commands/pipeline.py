@@ -14,13 +14,14 @@ import json
 import math
 import multiprocessing
 import os
+import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vision_rl.commands.output import emit, interrupt_on_sigterm, restore_sigterm
+from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 
 
 @dataclass(frozen=True)
@@ -275,6 +276,59 @@ class PipelineOptions:
         return "tiny" if self.tiny else "quick" if self.quick else "full"
 
 
+def _clock(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
+
+
+class StageReport:
+    """What the pipeline says on stderr while it runs (stdout keeps the summary, or the one JSON document): a line
+    as each stage starts and as it ends, with the time since the pipeline started and the stage's own, and a bar
+    with ETA during the long ones (hidden where stderr is not a terminal)."""
+
+    def __init__(self, enabled: bool = True) -> None:
+        self.enabled = enabled
+        self.t0 = time.perf_counter()
+
+    def line(self, text: str) -> None:
+        if self.enabled:
+            print(f"[pipeline {_clock(time.perf_counter() - self.t0)}] {text}", file=sys.stderr, flush=True)
+
+    def started(self, name: str, detail: str = "") -> float:
+        self.line(f"{name}: started" + (f" ({detail})" if detail else ""))
+        return time.perf_counter()
+
+    def ended(self, name: str, since: float, detail: str = "") -> None:
+        self.line(f"{name}: done in {_clock(time.perf_counter() - since)}" + (f"; {detail}" if detail else ""))
+
+    @contextlib.contextmanager
+    def stage(self, name: str, detail: str = "") -> Iterator[None]:
+        since = self.started(name, detail)
+        try:
+            yield
+        except BaseException:
+            self.line(f"{name}: stopped after {_clock(time.perf_counter() - since)}")
+            raise
+        self.ended(name, since)
+
+    def background(self, name: str, result: Callable[[], Any], detail: str = "") -> Callable[[], Any]:
+        """``result`` (a second process's, see :func:`_in_second_process`) reported as a stage: started now, ended
+        when its result first arrives."""
+        since = self.started(name, ", ".join(filter(None, [detail, "in a second process"])))
+
+        @functools.cache
+        def waited() -> Any:
+            value = result()
+            self.ended(name, since)
+            return value
+
+        return waited
+
+    @contextlib.contextmanager
+    def bar(self, total: int | None, unit: str, desc: str) -> Iterator[Any]:
+        with progress_bar(total, unit, desc, enabled=self.enabled) as bar:
+            yield bar
+
+
 def _capture_path(opts: PipelineOptions, name: str) -> Path:
     return Path(opts.runs) / "capture" / f"{name}.h5"
 
@@ -296,7 +350,14 @@ def _image_hw_px(opts: PipelineOptions, sizes: PipelineSizes) -> tuple[int, int]
     return opts.image_hw_px if all(opts.image_hw_px) else sizes.image_hw_px
 
 
-def _capture(opts: PipelineOptions, sizes: PipelineSizes, name: str, laps: int, disrupt: bool) -> Path:
+def _capture(
+    opts: PipelineOptions,
+    sizes: PipelineSizes,
+    name: str,
+    laps: int,
+    disrupt: bool,
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
     from vision_rl.capture.sim_capture import CaptureConfig, capture_sim
 
     out = _capture_path(opts, name)
@@ -317,7 +378,8 @@ def _capture(opts: PipelineOptions, sizes: PipelineSizes, name: str, laps: int, 
             seed=opts.seed + (0 if disrupt else 1),
             resume=resume,
             force=not resume,
-        )
+        ),
+        progress,
     )
     if captured["interrupted"]:  # what it captured is kept, and the next pipeline resumes it
         raise KeyboardInterrupt
@@ -419,10 +481,18 @@ def sampler_processes(sizes: PipelineSizes) -> int:
 
 
 def _policy_stage(
-    kind: str, encoder: str, sizes: PipelineSizes, track: str, car: str, runs: str, seed: int, device: str
+    kind: str,
+    encoder: str,
+    sizes: PipelineSizes,
+    track: str,
+    car: str,
+    runs: str,
+    seed: int,
+    device: str,
+    progress: Callable[[int, int, Any], None] | None = None,
 ) -> dict[str, Any]:
     """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time its last weights by
-    the protocol."""
+    the protocol; ``progress`` is train-policy's (steps done, steps in all, the last evaluation)."""
     from vision_rl.config import from_flat
     from vision_rl.phase2_rl.train import TrainPolicyConfig, train_policy
     from vision_rl.training.artifact import MODEL_NAME
@@ -461,7 +531,8 @@ def _policy_stage(
             steer_change_penalty_c_s=sizes.vision_steer_change_penalty_c_s if vision else 0.0,
             steer_change_penalty_scale="usable",  # moot where c_s is 0
             critic_state=vision and sizes.vision_critic_state,
-        )
+        ),
+        progress,
     )
     if trained["interrupted"]:
         raise KeyboardInterrupt
@@ -496,6 +567,15 @@ def state_in_second_process(*stage: Any) -> contextlib.AbstractContextManager[Ca
     return _in_second_process(_policy_stage, "state", "", *stage, niceness=19)
 
 
+def _reported_policy_stage(
+    report: StageReport, kind: str, encoder: str, steps: int, stage: tuple[Any, ...]
+) -> dict[str, Any]:
+    """:func:`_policy_stage` in this process, with its start and end lines and a bar over its training steps."""
+    with report.stage(f"{kind} policy", f"{steps} steps, then the lap-time protocol"):
+        with report.bar(steps, "step", f"{kind} policy") as bar:
+            return _policy_stage(kind, encoder, *stage, progress=lambda done, total, last: show(bar, done, total))
+
+
 def pipeline_phase2(
     encoder: str,
     sizes: PipelineSizes,
@@ -507,6 +587,7 @@ def pipeline_phase2(
     seed: int = 0,
     device: str = "auto",
     state: Callable[[], dict[str, Any]] | None = None,
+    report: StageReport | None = None,
 ) -> dict[str, Any]:
     """Train and evaluate the state policy and, with an ``encoder``, the vision policy; the leaderboard; returns a
     summary dict. Runs go to ``runs/policy/pipeline-<kind>`` (replaced if present).
@@ -514,22 +595,25 @@ def pipeline_phase2(
     With an encoder the state policy trains in a second process beside the vision one, whose frames render and
     embed in ``sizes.vision_workers`` sampler processes while its learner updates: together they keep the cores busy
     (the state run needs about one core, the vision learner and its sampler about one each). ``state`` waits for
-    the state policy's result where the caller already trains it in such a process (:func:`state_in_second_process`)."""
+    the state policy's result where the caller already trains it in such a process (:func:`state_in_second_process`).
+    ``report`` says on stderr as each stage starts and ends."""
     from vision_rl.evaluation.leaderboard import leaderboard
 
+    report = report or StageReport()
     summary: dict[str, Any] = {"mode": mode, "track": track, "car": car}
     stage = (sizes, track, car, runs, seed, device)
     if encoder:
         with contextlib.ExitStack() as stack:
             if state is None:
-                state = stack.enter_context(state_in_second_process(*stage))
-            vision = _policy_stage("vision", encoder, *stage)
+                state = report.background("state policy", stack.enter_context(state_in_second_process(*stage)))
+            vision = _reported_policy_stage(report, "vision", encoder, sizes.vision_steps, stage)
             summary["state"], summary["vision"] = state(), vision
     else:
-        summary["state"] = _policy_stage("state", "", *stage)
+        summary["state"] = _reported_policy_stage(report, "state", "", sizes.state_steps, stage)
         summary["vision"] = {"skipped": "no encoder checkpoint given"}
     t0 = time.perf_counter()
-    table = leaderboard(track, car, runs)
+    with report.stage("leaderboard"):
+        table = leaderboard(track, car, runs)
     summary["leaderboard"] = table
     summary["leaderboard_time_s"] = round(time.perf_counter() - t0, 1)
     return summary
@@ -552,18 +636,29 @@ def _check_kept_encoder(opts: PipelineOptions) -> None:
         )
 
 
-def run_pipeline_stages(opts: PipelineOptions) -> dict[str, Any]:
-    """Run every stage; returns a summary with each stage's figures and durations."""
+def run_pipeline_stages(opts: PipelineOptions, report: StageReport | None = None) -> dict[str, Any]:
+    """Run every stage; returns a summary with each stage's figures and durations. ``report`` (by default one on
+    stderr) says as each stage starts and ends."""
     sizes = SIZES[opts.mode]
+    report = report or StageReport()
     _check_kept_encoder(opts)  # before the state policy's minutes
     # The state policy needs neither the frames nor the encoder: it trains from the start, at the lowest priority,
     # on what the captures and Phase 1 leave of the cores, and then beside the vision policy.
     with state_in_second_process(sizes, opts.track, opts.car, opts.runs, opts.seed, "auto") as state:
-        return _stages_beside_the_state_policy(opts, sizes, state)
+        return _stages_beside_the_state_policy(opts, sizes, report.background("state policy", state), report)
+
+
+def _reported_capture(report: StageReport, opts: PipelineOptions, sizes: PipelineSizes) -> Path:
+    """The disrupted laps' capture, with its start and end lines and a bar over its laps."""
+    with report.stage("capture", f"{sizes.train_laps} disrupted laps"):
+        with report.bar(sizes.train_laps, "lap", "capture") as bar:
+            return _capture(
+                opts, sizes, "train", sizes.train_laps, True, lambda laps, frames: show(bar, laps, frames=frames)
+            )
 
 
 def _stages_beside_the_state_policy(
-    opts: PipelineOptions, sizes: PipelineSizes, state: Callable[[], dict[str, Any]]
+    opts: PipelineOptions, sizes: PipelineSizes, state: Callable[[], dict[str, Any]], report: StageReport
 ) -> dict[str, Any]:
     from vision_rl.phase1_repr.train import TrainReprConfig, train_repr
 
@@ -573,10 +668,12 @@ def _stages_beside_the_state_policy(
     # ones; what a stopped one captured is resumed by the next pipeline.
     if _captured(_capture_path(opts, "eval")) == "complete":
         eval_h5 = _capture_path(opts, "eval")
-        train_h5 = _capture(opts, sizes, "train", sizes.train_laps, disrupt=True)
+        report.line(f"capture of the clean laps: kept {eval_h5}")
+        train_h5 = _reported_capture(report, opts, sizes)
     else:
         with _in_second_process(_capture, opts, sizes, "eval", sizes.eval_laps, False) as clean:
-            train_h5 = _capture(opts, sizes, "train", sizes.train_laps, disrupt=True)
+            clean = report.background("capture of the clean laps", clean, f"{sizes.eval_laps} laps")
+            train_h5 = _reported_capture(report, opts, sizes)
             eval_h5 = clean()
     summary["capture"] = {"train": str(train_h5), "eval": str(eval_h5), "seconds": time.perf_counter() - t0}
 
@@ -586,30 +683,44 @@ def _stages_beside_the_state_policy(
     if opts.state_policy_laps and not ckpt.is_file():
         t0 = time.perf_counter()
         state = functools.cache(state)  # Phase 2 takes this same result
+        report.line("the state policy's laps: waiting for the state policy")
         state()
         t1 = time.perf_counter()
-        data.append(str(_capture_state_policy(opts, sizes)))
+        with report.stage("the state policy's laps", f"{opts.state_policy_laps} laps"):
+            data.append(str(_capture_state_policy(opts, sizes)))
         summary["state_policy_capture"] = {"path": data[-1], "waited_s": t1 - t0, "seconds": time.perf_counter() - t1}
 
     t0 = time.perf_counter()
-    if not ckpt.is_file():
-        result = train_repr(
-            TrainReprConfig(
-                data=",".join(data),
-                val=str(eval_h5),
-                epochs=sizes.repr_epochs,
-                max_steps=sizes.repr_max_steps,
-                out=str(repr_out),
-                force=True,
-                seed=opts.seed,
-                num_workers=0 if opts.tiny else 2,
+    if ckpt.is_file():
+        report.line(f"train-repr: kept {ckpt}")
+    else:
+        with report.stage("train-repr", f"{sizes.repr_epochs} epochs"), report.bar(None, "step", "train-repr") as bar:
+            result = train_repr(
+                TrainReprConfig(
+                    data=",".join(data),
+                    val=str(eval_h5),
+                    epochs=sizes.repr_epochs,
+                    max_steps=sizes.repr_max_steps,
+                    out=str(repr_out),
+                    force=True,
+                    seed=opts.seed,
+                    num_workers=0 if opts.tiny else 2,
+                ),
+                progress=lambda done, total, figures: show(bar, done, total),
             )
-        )
         summary["train_repr"] = {k: result.get(k) for k in ("best_epoch", "val_r2", "n_train_frames", "n_val_frames")}
     summary["train_repr_seconds"] = time.perf_counter() - t0
 
     summary["phase2"] = pipeline_phase2(
-        str(ckpt), sizes, mode=opts.mode, track=opts.track, car=opts.car, runs=opts.runs, seed=opts.seed, state=state
+        str(ckpt),
+        sizes,
+        mode=opts.mode,
+        track=opts.track,
+        car=opts.car,
+        runs=opts.runs,
+        seed=opts.seed,
+        state=state,
+        report=report,
     )
     summary["seconds"] = time.perf_counter() - t_start
     return summary
@@ -664,7 +775,7 @@ def format_pipeline(summary: dict[str, Any]) -> list[str]:
 def run_pipeline(opts: PipelineOptions) -> int:
     previous = interrupt_on_sigterm()
     try:
-        summary = run_pipeline_stages(opts)
+        summary = run_pipeline_stages(opts, StageReport())
     except KeyboardInterrupt:
         emit(
             {"interrupted": True, "resume": "run the same command again"},
