@@ -7,6 +7,8 @@ command line again and print nothing; the process you started prints the result.
 
 from __future__ import annotations
 
+import dataclasses
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,10 +50,27 @@ def format_train_repr(result: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _captures_here(opts: TrainReprOptions) -> TrainReprOptions:
+    """The design card's bare ``train-repr``: with no --data, the capture files (``*.h5``) of the current folder;
+    with no --out either, the run goes into the current folder, so ``ckpt.pt`` lies beside the captures where
+    ``train-policy --encoder ckpt.pt`` finds it. Says so on stderr (stdout keeps the result)."""
+    if opts.data or opts.resume:
+        return opts
+    found = sorted(p.name for p in Path.cwd().glob("*.h5") if p.is_file())
+    if not found:
+        return opts  # train_repr says that training needs data
+    out = "." if opts.out == TrainReprConfig.out else opts.out
+    if launch_rank() == 0:
+        print(f"train-repr: no --data, training on the capture files here: {', '.join(found)}", file=sys.stderr)
+        print(f"train-repr: writing the run into {Path(out).resolve()} (ckpt.pt, metrics.json, ...)", file=sys.stderr)
+    return dataclasses.replace(opts, data=",".join(found), out=out)
+
+
 def run_train_repr(opts: TrainReprOptions) -> int:
     from vision_rl.phase1_repr.train import train_repr
 
     first = launch_rank() == 0  # the other DDP processes train quietly
+    opts = _captures_here(opts)
     with progress_bar(None, "step", "train-repr", enabled=opts.progress and first) as bar:
 
         def progress(done: int, total: int, figures: dict[str, float]) -> None:
