@@ -39,7 +39,7 @@ def write_tiny_encoder(path: Path, seed: int) -> Path:
 def tiny_train_config(track: str, out: Path, **kw):
     """train-policy for 200 steps of 2 cars on ``track``, evaluated and saved every 100; ``kw`` overrides any field."""
     from vision_rl.config import from_flat
-    from vision_rl.phase2_rl.train import TrainPolicyConfig
+    from vision_rl.phase2_rl.config import TrainPolicyConfig
 
     base = dict(
         track=track,

@@ -15,7 +15,8 @@ from vision_rl.envs.observations import STATE_OBS_NAMES
 from vision_rl.phase2_rl.train import _TrainingLoop, train_policy
 from vision_rl.training.artifact import PolicySpec, load_policy
 from vision_rl.training.evaluate import evaluate_policy
-from vision_rl.training.sac import PRESETS, SACOverrides, read_metrics, resolve_preset
+from vision_rl.training.presets import PRESETS, SACOverrides, resolve_preset
+from vision_rl.training.sac import read_metrics
 
 
 def test_train_writes_a_policy_that_evaluate_loads(state_run, small_track):

@@ -7,7 +7,8 @@ import json
 import pytest
 
 from tests.helpers.policies import tiny_train_config
-from vision_rl.phase2_rl.tune import SEARCH_SPACE, TuneConfig, TuneError, check_tune, recipe_flags, run_tune, score
+from vision_rl.phase2_rl.config import SEARCH_SPACE
+from vision_rl.phase2_rl.tune import TuneConfig, TuneError, check_tune, recipe_flags, run_tune, score
 
 
 def test_the_score_charges_a_dnf_and_wall_contact():

@@ -19,7 +19,8 @@ from vision_rl.config import replace_flat
 from vision_rl.phase2_rl.train import _TrainingLoop, train_policy
 from vision_rl.training.artifact import PolicySpec, load_policy
 from vision_rl.training.distributed import Pacer, Pacing, worker_seed
-from vision_rl.training.sac import PRESETS, read_metrics
+from vision_rl.training.presets import PRESETS
+from vision_rl.training.sac import read_metrics
 from vision_rl.training.sampling_bench import BENCH_SAC, bench_sampling
 
 

@@ -8,7 +8,7 @@ STEER_ACTIONS = ("angle", "rate", "speed_scaled", "rate_scaled")
 WALL_PENALTY_SPEEDS = ("end", "impact")
 """vision_rl.envs.core.WALL_PENALTY_SPEEDS"""
 SAC_PRESETS = ("paper", "cpu")
-"""vision_rl.training.sac.PRESETS"""
+"""vision_rl.training.presets.PRESETS"""
 ENCODER_RUNTIMES = ("torch", "onnxruntime", "auto")
 """vision_rl.phase1_repr.onnx_runtime.RUNTIMES"""
 BACKBONES = ("s2d", "mobilenet_v3_small")

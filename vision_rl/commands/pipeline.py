@@ -494,7 +494,8 @@ def _policy_stage(
     """Train one Phase 2 policy (``state``, or ``vision`` on ``encoder``) from scratch and time its last weights by
     the protocol; ``progress`` is train-policy's (steps done, steps in all, the last evaluation)."""
     from vision_rl.config import from_flat
-    from vision_rl.phase2_rl.train import TrainPolicyConfig, train_policy
+    from vision_rl.phase2_rl.config import TrainPolicyConfig
+    from vision_rl.phase2_rl.train import train_policy
     from vision_rl.training.artifact import MODEL_NAME
     from vision_rl.training.evaluate import evaluate_policy
 

@@ -7,7 +7,7 @@ from typing import Any, ClassVar
 
 from vision_rl.commands.choices import POLICY_CHOICES
 from vision_rl.commands.output import emit, format_sampling, interrupt_on_sigterm, progress_bar, restore_sigterm, show
-from vision_rl.phase2_rl.train import TrainPolicyConfig
+from vision_rl.phase2_rl.config import TrainPolicyConfig
 
 
 @dataclass(frozen=True)

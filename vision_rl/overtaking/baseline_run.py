@@ -31,7 +31,7 @@ from vision_rl.training.artifact import (
     policy_fingerprint,
     racing_config_to_dict,
 )
-from vision_rl.training.sac import PRESETS, SACOverrides, SACPreset
+from vision_rl.training.presets import PRESETS, SACOverrides, SACPreset
 from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule
 
 #: The Table III algorithms (each trained by its own module; :mod:`.baselines` sends each to its learner).

@@ -53,15 +53,8 @@ from vision_rl.training.artifact import (
 )
 from vision_rl.training.interrupts import learn_between_interrupts
 from vision_rl.training.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
-from vision_rl.training.sac import (
-    PRESETS,
-    SACOverrides,
-    SaveClock,
-    next_multiple,
-    resolve_preset,
-    sampler_setup,
-    torch_device,
-)
+from vision_rl.training.presets import PRESETS, SACOverrides, resolve_preset
+from vision_rl.training.sac import SaveClock, next_multiple, sampler_setup, torch_device
 from vision_rl.training.sac import read_metrics as read_train_metrics
 from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule, SamplerOptions
 

@@ -25,7 +25,8 @@ from vision_rl.config import flat_values
 from vision_rl.evaluation.leaderboard import AI_SEEDS, EXPERIMENT_FORMAT, aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.files import atomic_write, file_sha256, json_text
-from vision_rl.phase2_rl.train import TrainPolicyConfig, check_bounds, train_policy
+from vision_rl.phase2_rl.config import TrainPolicyConfig, check_bounds
+from vision_rl.phase2_rl.train import train_policy
 from vision_rl.training.artifact import SIDECAR_NAME, PolicySpec, chosen_weights
 from vision_rl.training.evaluate import EVALUATION_NAME, evaluate_policy
 from vision_rl.training.sac import METRICS_NAME, Progress, read_metrics

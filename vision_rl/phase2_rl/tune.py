@@ -1,6 +1,6 @@
 """`tune`: an Optuna search over train-policy's recipe. Each trial trains one policy from a base recipe with some
-options drawn from :data:`SEARCH_SPACE` (one training seed per trial: a winner is confirmed by ``experiment``), and
-its score is the lap-time protocol's; the study resumes from ``OUT/study.db``.
+options drawn from :data:`~vision_rl.phase2_rl.config.SEARCH_SPACE` (one training seed per trial: a winner is
+confirmed by ``experiment``), and its score is the lap-time protocol's; the study resumes from ``OUT/study.db``.
 
 The score, the pruning and resuming: docs/notes/phase2_rl.md.
 """
@@ -18,7 +18,8 @@ from typing import Any
 
 from vision_rl.config import flat_values, replace_flat
 from vision_rl.files import write_json
-from vision_rl.phase2_rl.train import STEER_ACTIONS, TrainPolicyConfig, train_policy
+from vision_rl.phase2_rl.config import SEARCH_SPACE, TrainPolicyConfig
+from vision_rl.phase2_rl.train import train_policy
 from vision_rl.training.evaluate import evaluate_policy
 from vision_rl.training.sac import Progress
 
@@ -29,32 +30,6 @@ DNF_LAP_FACTOR = 2.0
 #: Optuna's heartbeat, s: a trial whose process has not beaten for ``HEARTBEAT_GRACE_S`` is failed and redrawn.
 HEARTBEAT_S = 60
 HEARTBEAT_GRACE_S = 300
-
-
-@dataclass(frozen=True)
-class Param:
-    """One searched option of :class:`~vision_rl.phase2_rl.train.TrainPolicyConfig`."""
-
-    kind: str
-    """``log``: log-uniform between the two values; ``choice``: one of the values."""
-    values: tuple[Any, ...]
-    why: str
-    """What it trades (the levers of issue 16's learning per CPU-second)."""
-
-
-SEARCH_SPACE: dict[str, Param] = {
-    "learning_rate": Param("log", (1e-4, 3e-3), "Adam step size of actor, critics and entropy coefficient"),
-    "batch_size": Param("choice", (128, 256, 512), "transitions per update: 63 updates/s at 256, 42 at 512 here"),
-    "gradient_steps": Param("choice", (1, 2, 4), "updates per vector step: learning per sample against samples/s"),
-    "gamma": Param("choice", (0.98, 0.99, 0.995), "discount per 0.1 s: horizon 5, 10 or 20 s"),
-    "hidden_units": Param("choice", ("128,128", "256,256", "256,256,256"), "network width and depth"),
-    "n_step": Param("choice", (1, 3, 5), "n-step returns: reward reaches the critics n steps sooner"),
-    "episode_s": Param("choice", (50.0, 100.0, 200.0), "episode length: how often a car restarts at random"),
-    "wall_penalty_c_w": Param("log", (0.002, 0.02), "the wall penalty's weight (the papers: 0.005)"),
-    "off_track_penalty_c_o": Param("choice", (0.0, 0.002, 0.005), "a penalty for running wide of the edge line"),
-    "steer_change_penalty_c_s": Param("choice", (0.0, 0.1, 0.5), "action smoothing by a steering-change penalty"),
-    "steer_action": Param("choice", STEER_ACTIONS, "what the steering action means"),
-}
 
 
 @dataclass(frozen=True)
@@ -262,8 +237,6 @@ def summarise_study(study: Any) -> dict[str, Any]:
 
 __all__ = [
     "DNF_LAP_FACTOR",
-    "SEARCH_SPACE",
-    "Param",
     "TuneConfig",
     "TuneError",
     "check_tune",
