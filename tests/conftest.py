@@ -107,7 +107,8 @@ def state_run(tmp_path_factory, small_track) -> tuple[Path, dict]:
 def small_demos(tmp_path_factory, small_track):
     """Two laps of demonstrations on the small track: 2 cars, 20 s episodes (so several episodes per car)."""
     from tests.helpers.overtaking import DEMOS_CAR
-    from vision_rl.overtaking.demos import RecordDemosConfig, record_demos
+    from vision_rl.overtaking.config import RecordDemosConfig
+    from vision_rl.overtaking.demos import record_demos
 
     out = tmp_path_factory.mktemp("demos") / "ai.npz"
     result = record_demos(

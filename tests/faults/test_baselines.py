@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 
 from tests.helpers.overtaking import tiny_baseline_config
-from vision_rl.overtaking.baseline_run import BaselineError, TrainBaselineConfig, check_config
+from vision_rl.overtaking.baseline_run import BaselineError, check_config
 from vision_rl.overtaking.baselines import load_baseline, train_baseline
+from vision_rl.overtaking.config import Table3Config, TrainBaselineConfig
 from vision_rl.overtaking.demos import DemoError, load_demos, load_demos_for, write_demos
-from vision_rl.overtaking.table3 import Table3Config, table3
+from vision_rl.overtaking.table3 import table3
 from vision_rl.training.artifact import PolicyError, PolicySpec, sac_policy
 from vision_rl.training.persist import write_agent_state
 

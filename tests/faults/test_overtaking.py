@@ -15,9 +15,9 @@ import pytest
 
 from tests.helpers.overtaking import tiny_overtaking_config
 from tests.helpers.processes import kill_and_read
+from vision_rl.overtaking.config import TrainOvertakingConfig
 from vision_rl.overtaking.curriculum import (
     OvertakingRunError,
-    TrainOvertakingConfig,
     check_config,
     load_overtaking_policy,
     read_overtaking_spec,

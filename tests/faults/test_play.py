@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from vision_rl.evaluation.human import NoDisplayError
-from vision_rl.overtaking.play import PlayConfig, play
+from vision_rl.overtaking.config import PlayConfig
+from vision_rl.overtaking.play import play
 
 pygame = pytest.importorskip("pygame", reason="pygame is not installed: pip install 'vision_rl[play]'")
 

@@ -6,8 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from vision_rl.config import from_flat
-from vision_rl.overtaking.baseline_run import TrainBaselineConfig
-from vision_rl.overtaking.curriculum import TrainOvertakingConfig
+from vision_rl.overtaking.config import TrainBaselineConfig, TrainOvertakingConfig
 
 #: The car of the small demonstrations (the root conftest's ``small_demos``).
 DEMOS_CAR = "tt_cup"

@@ -245,8 +245,9 @@ def test_the_commands_record_train_quick_and_refuse_in_one_line(small_track, tmp
 
 
 def test_every_algorithm_has_a_learner_and_a_bad_one_is_refused_by_name():
-    from vision_rl.overtaking.baseline_run import ALGO_NAMES, TrainBaselineConfig, check_config
+    from vision_rl.overtaking.baseline_run import check_config
     from vision_rl.overtaking.baselines import ALGOS
+    from vision_rl.overtaking.config import ALGO_NAMES, TrainBaselineConfig
 
     assert tuple(ALGOS) == ALGO_NAMES
     with pytest.raises(ValueError, match="PlaNet's row is trained as its successor, --algo dreamer"):

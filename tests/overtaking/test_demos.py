@@ -10,7 +10,8 @@ import pytest
 import vision_rl  # noqa: F401  (registers the environments)
 from tests.helpers.overtaking import DEMOS_CAR as CAR
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
-from vision_rl.overtaking.demos import HeldAIDriver, RecordDemosConfig, demo_fingerprint, load_demos, record_demos
+from vision_rl.overtaking.config import RecordDemosConfig
+from vision_rl.overtaking.demos import HeldAIDriver, demo_fingerprint, load_demos, record_demos
 from vision_rl.sim.track_library import load_track
 
 

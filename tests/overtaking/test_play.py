@@ -13,7 +13,8 @@ from vision_rl.evaluation.human import (
     gamepad_command,
     speed_lock_rad,
 )
-from vision_rl.overtaking.play import PlayConfig, play
+from vision_rl.overtaking.config import PlayConfig
+from vision_rl.overtaking.play import play
 
 pygame = pytest.importorskip("pygame", reason="pygame is not installed: pip install 'vision_rl[play]'")
 
@@ -74,7 +75,8 @@ def test_recorded_actions_replayed_in_the_environment_give_the_recorded_observat
     gl_available, monkeypatch, tmp_path
 ):
     from vision_rl.envs.core import RacingCore
-    from vision_rl.overtaking.demos import load_demos, race_config
+    from vision_rl.overtaking.config import race_config
+    from vision_rl.overtaking.demos import load_demos
 
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
     pygame.init()

@@ -11,7 +11,8 @@ from tests.helpers.overtaking import tiny_baseline_config
 from vision_rl.commands.main import main
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.overtaking.baselines import train_baseline
-from vision_rl.overtaking.table3 import PAPER_TABLE3, Table3Config, table3
+from vision_rl.overtaking.config import Table3Config
+from vision_rl.overtaking.table3 import PAPER_TABLE3, table3
 
 
 @pytest.fixture(scope="module")

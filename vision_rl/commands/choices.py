@@ -20,7 +20,7 @@ COMPRESSIONS = ("zstd", "gzip", "lzf", "none")
 DDPG_VARIANTS = ("asymmetric", "symmetric", "state-actor")
 """vision_rl.ddpg.agent.VARIANTS"""
 OVERTAKING_AGENTS = ("1", "2", "3", "standard")
-"""vision_rl.overtaking.curriculum.AGENTS"""
+"""vision_rl.overtaking.config.AGENTS"""
 BASELINE_ALGOS = ("bc", "gail", "td3", "sac", "dreamer")
 """vision_rl.overtaking.baselines.ALGOS"""
 SETTINGS = ("A", "B")

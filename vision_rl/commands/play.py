@@ -7,7 +7,7 @@ from typing import Any, ClassVar
 
 from vision_rl.commands.choices import SETTINGS
 from vision_rl.commands.output import emit
-from vision_rl.overtaking.play import PlayConfig
+from vision_rl.overtaking.config import PlayConfig
 
 
 @dataclass(frozen=True)

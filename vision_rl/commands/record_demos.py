@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from vision_rl.commands.output import emit, progress_bar, show
-from vision_rl.overtaking.demos import RecordDemosConfig
+from vision_rl.overtaking.config import RecordDemosConfig
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from vision_rl.commands.output import emit
-from vision_rl.overtaking.table3 import Table3Config
+from vision_rl.overtaking.config import Table3Config
 
 
 @dataclass(frozen=True)

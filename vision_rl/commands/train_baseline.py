@@ -8,7 +8,7 @@ from typing import Any, ClassVar
 
 from vision_rl.commands.choices import BASELINE_ALGOS, SAC_PRESETS
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
-from vision_rl.overtaking.baseline_run import TrainBaselineConfig
+from vision_rl.overtaking.config import TrainBaselineConfig
 
 #: ``--tiny``: tiny sizes (2 cars, a few hundred steps, short evaluations) where an option was left at its default.
 TINY = dict(

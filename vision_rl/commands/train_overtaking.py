@@ -7,7 +7,7 @@ from typing import Any, ClassVar
 
 from vision_rl.commands.choices import OVERTAKING_AGENTS, SAC_PRESETS
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
-from vision_rl.overtaking.curriculum import TrainOvertakingConfig
+from vision_rl.overtaking.config import TrainOvertakingConfig
 
 #: ``--tiny``: the whole chain at tiny sizes (2 cars, a few hundred steps per stage, short evaluations).
 TINY = dict(

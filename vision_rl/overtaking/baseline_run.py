@@ -12,16 +12,15 @@ import dataclasses
 import json
 import os
 import shutil
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from vision_rl.config import flat_values, nested
+from vision_rl.config import flat_values
 from vision_rl.envs.core import RacingConfig
 from vision_rl.files import json_text, write_json
-from vision_rl.overtaking.curriculum import BUDGETS
-from vision_rl.overtaking.demos import OBS_DIM, OBSERVATION, Demos, race_config
+from vision_rl.overtaking.config import BUDGETS, OBSERVATION, TrainBaselineConfig, check_baseline_ranges
+from vision_rl.overtaking.demos import OBS_DIM, Demos
 from vision_rl.overtaking.dreamer import DreamerRecipe
 from vision_rl.sim.track_library import load_track
 from vision_rl.training.artifact import (
@@ -31,11 +30,9 @@ from vision_rl.training.artifact import (
     policy_fingerprint,
     racing_config_to_dict,
 )
-from vision_rl.training.presets import PRESETS, SACOverrides, SACPreset
-from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule
+from vision_rl.training.presets import PRESETS, SACPreset
 
-#: The Table III algorithms (each trained by its own module; :mod:`.baselines` sends each to its learner).
-ALGO_NAMES = ("bc", "gail", "td3", "sac", "dreamer")
+#: The Table III algorithms that learn online (all of them: :data:`~vision_rl.overtaking.config.ALGO_NAMES`).
 ONLINE = ("gail", "td3", "sac", "dreamer")
 #: The paper's network for every method (section IV-B): 2 hidden layers of 256 ReLU units.
 HIDDEN_UNITS = (256, 256)
@@ -50,97 +47,6 @@ class BaselineError(ValueError):
     """A baseline run or policy that cannot be used as asked; the message says why."""
 
 
-@dataclass(frozen=True)
-class TrainBaselineConfig:
-    """A Table III baseline (bc, gail, td3, sac or dreamer) on the single-car race, MLP 2 x 256, the 96-D
-    observation."""
-
-    @staticmethod
-    def check_options(options: Mapping[str, Any]) -> None:
-        _check_ranges(options)
-
-    algo: str = "bc"
-    """bc, gail, td3, sac or dreamer (the PlaNet row)."""
-    steps: int = 0
-    """bc: cap on gradient updates (0: 200k; it stops at convergence); online: environment steps over all cars
-    (0: our SAC stage 1's budget, 1M)."""
-    seed: int = 0
-    """Seed of the networks, exploration, start points and the bc split."""
-    demos: str = "runs/demos/ai.npz"
-    """Demonstrations (record-demos) for bc and gail."""
-    racing: RacingConfig = nested(
-        race_config("expressway", "tt_cup", n_groups=20),
-        only=("track", "car", "n_groups", "episode_s"),
-        rename={"n_groups": "cars"},
-        help={
-            "track": "Track: built-in name, random:SEED or CSV path (the demonstrations' own).",
-            "car": "Car preset (the paper's Audi TT Cup: tt_cup).",
-            "n_groups": "Online algorithms: cars sampled at once in one world (the paper's 20).",
-            "episode_s": "Training episode length, s (1,000 steps at 10 Hz).",
-        },
-    )
-    """The single-car race of Table III (its scenario, observation and reward are the paper's)."""
-    sac: SACOverrides = nested(
-        SACOverrides(),
-        only=("preset", "learning_rate", "batch_size", "buffer_size", "learning_starts"),
-        help={
-            "preset": "Online recipe: cpu (our SAC stage 1's) or paper (Table II).",
-            "learning_rate": "Override the preset's (online) or bc's 1e-3 learning rate (0: keep).",
-            "batch_size": "Override the preset's (online) or bc's 256 batch size (0: keep).",
-            "buffer_size": "Override the preset's replay buffer size (0: keep).",
-            "learning_starts": "Override the preset's random start steps (-1: keep).",
-        },
-    )
-    """The online recipe: a SAC preset and its overrides (bc reads the learning rate and batch size)."""
-    evaluation: EvaluationSchedule = nested(
-        EvaluationSchedule(),
-        prefix="eval_",
-        help={
-            "every_steps": "Online: evaluate on the lap-time protocol every N steps (0: off).",
-            "seeds": "Start seeds of each periodic evaluation.",
-            "laps": "Laps of each periodic evaluation (the last is scored).",
-        },
-    )
-    """The periodic evaluations of the online algorithms."""
-    checkpoints: CheckpointSchedule = nested(
-        CheckpointSchedule(),
-        prefix="checkpoint_",
-        help={
-            "every_steps": "Online: save weights and replay buffer every N steps (0: off).",
-            "every_min": "Online: save weights, optimisers and counters every N minutes (0: off).",
-        },
-    )
-    """The periodic saves of the online algorithms."""
-    out: str = ""
-    """Run folder (default runs/baselines/<algo>-<track>-<car>-s<seed>)."""
-    force: bool = False
-    """Delete the run folder and start over."""
-    eval_time_limit_s: float = 0.0
-    """Time limit of each periodic evaluation, s (0: the protocol's)."""
-    bc_patience: int = 10
-    """bc: stop after this many epochs without a better held-out error."""
-    bc_min_improvement: float = 0.01
-    """bc: an epoch is better when its held-out error is below (1 - this) x the best so far."""
-    bc_max_epochs: int = 500
-    """bc: cap on epochs."""
-    gail_disc_every_steps: int = 1_000
-    """gail: discriminator updates every N transitions."""
-    gail_disc_updates: int = 10
-    """gail: discriminator gradient steps each time."""
-    gail_disc_batch: int = 256
-    """gail: expert and learner pairs per discriminator step (each)."""
-    gail_disc_lr: float = 3e-4
-    """gail: discriminator learning rate."""
-    td3_noise: float = 0.1
-    """td3: std of the Gaussian exploration noise, as a share of each action's half range."""
-    dreamer_train_every_steps: int = 100
-    """dreamer: transitions (over all cars) per update of the world model, actor and value."""
-    dreamer_sequence_steps: int = 32
-    """dreamer: control steps per training sequence."""
-    device: str = "auto"
-    """Torch device: auto, cpu or cuda."""
-
-
 def default_out(cfg: TrainBaselineConfig) -> Path:
     track = cfg.racing.track.replace("random:", "random-")
     if track.endswith(".csv") or os.sep in track:
@@ -148,45 +54,9 @@ def default_out(cfg: TrainBaselineConfig) -> Path:
     return Path("runs") / "baselines" / f"{cfg.algo}-{track}-{cfg.racing.car}-s{cfg.seed}"
 
 
-def _check_ranges(o: Mapping[str, Any]) -> None:
-    """The flat options' values in their own words (:func:`~vision_rl.config.flat_values`)."""
-    if o["algo"] not in ALGO_NAMES:
-        hint = "; PlaNet's row is trained as its successor, --algo dreamer" if o["algo"].lower() == "planet" else ""
-        raise ValueError(f"--algo must be one of {', '.join(ALGO_NAMES)}, got {o['algo']!r}{hint}")
-    if o["preset"] not in PRESETS:
-        raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {o['preset']!r}")
-    checks = {
-        "steps": o["steps"] >= 0,
-        "cars": 1 <= o["cars"] <= 1000,
-        "episode_s": o["episode_s"] >= 0.1,
-        "learning_rate": o["learning_rate"] >= 0,
-        "batch_size": o["batch_size"] >= 0,
-        "buffer_size": o["buffer_size"] >= 0,
-        "eval_every_steps": o["eval_every_steps"] >= 0,
-        "eval_seeds": o["eval_seeds"] >= 1,
-        "eval_laps": o["eval_laps"] >= 1,
-        "eval_time_limit_s": o["eval_time_limit_s"] >= 0,
-        "checkpoint_every_steps": o["checkpoint_every_steps"] >= 0,
-        "checkpoint_every_min": o["checkpoint_every_min"] >= 0,
-        "bc_patience": o["bc_patience"] >= 1,
-        "bc_min_improvement": 0 <= o["bc_min_improvement"] < 1,
-        "bc_max_epochs": o["bc_max_epochs"] >= 1,
-        "gail_disc_every_steps": o["gail_disc_every_steps"] >= 1,
-        "gail_disc_updates": o["gail_disc_updates"] >= 0,
-        "gail_disc_batch": o["gail_disc_batch"] >= 1,
-        "gail_disc_lr": o["gail_disc_lr"] > 0,
-        "td3_noise": o["td3_noise"] >= 0,
-        "dreamer_train_every_steps": o["dreamer_train_every_steps"] >= 1,
-        "dreamer_sequence_steps": o["dreamer_sequence_steps"] >= 2,
-    }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        raise ValueError(f"--{bad[0].replace('_', '-')} {o[bad[0]]} is out of range")
-
-
 def check_config(cfg: TrainBaselineConfig) -> None:
     """One clear line for a bad option, before anything is built or written."""
-    _check_ranges(flat_values(cfg))
+    check_baseline_ranges(flat_values(cfg))
     if cfg.algo in ONLINE:
         preset = resolve_recipe(cfg)
         if total_steps(cfg) <= preset.learning_starts:

@@ -19,7 +19,8 @@ from vision_rl.overtaking.baseline_run import (
     check_config,
 )
 from vision_rl.overtaking.bc import train_bc
-from vision_rl.overtaking.demos import OBS_DIM, OBSERVATION
+from vision_rl.overtaking.config import OBSERVATION
+from vision_rl.overtaking.demos import OBS_DIM
 from vision_rl.overtaking.dreamer import LoadedDreamer
 from vision_rl.overtaking.dreamer_train import load_dreamer, train_dreamer
 from vision_rl.overtaking.gail import GAILCompanion

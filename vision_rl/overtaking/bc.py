@@ -29,7 +29,8 @@ from vision_rl.overtaking.baseline_run import (
     policy_spec,
     total_steps,
 )
-from vision_rl.overtaking.demos import OBS_DIM, Demos, load_demos_for, race_config
+from vision_rl.overtaking.config import race_config
+from vision_rl.overtaking.demos import OBS_DIM, Demos, load_demos_for
 from vision_rl.training.artifact import MODEL_NAME, SIDECAR_NAME, sac_policy
 from vision_rl.training.persist import write_agent_state
 from vision_rl.training.sac import torch_device

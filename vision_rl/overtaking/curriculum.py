@@ -19,7 +19,7 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,12 +32,19 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecMonitor
 
-from vision_rl.config import flat_values, nested
+from vision_rl.config import flat_values
 from vision_rl.envs.core import RacingConfig, RacingCore
 from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.files import json_text, write_json
+from vision_rl.overtaking.config import (
+    BUDGETS,
+    OBSERVATION,
+    CurriculumBudget,
+    TrainOvertakingConfig,
+    check_overtaking_ranges,
+)
 from vision_rl.training.artifact import (
     BUFFER_NAME,
     MODEL_NAME,
@@ -53,14 +60,11 @@ from vision_rl.training.artifact import (
 )
 from vision_rl.training.interrupts import learn_between_interrupts
 from vision_rl.training.persist import ArtifactError, load_buffer, read_agent, restore_agent, save_agent, save_buffer
-from vision_rl.training.presets import PRESETS, SACOverrides, resolve_preset
+from vision_rl.training.presets import resolve_preset
 from vision_rl.training.sac import SaveClock, next_multiple, sampler_setup, torch_device
 from vision_rl.training.sac import read_metrics as read_train_metrics
-from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule, SamplerOptions
 
-OBSERVATION = "overtaking"
 OBS_DIM = len(OBS_NAMES[OBSERVATION])
-AGENTS = ("1", "2", "3", "standard")
 RUN_NAME = "run.json"
 STAGE_NAME = "stage.json"
 METRICS_NAME = "metrics.jsonl"
@@ -70,28 +74,6 @@ PENALTY_STAGE2 = 0.005
 PENALTY_AGENT3 = 0.01
 #: Seed of the overtaking-return evaluation episodes: the same episodes for every run and every evaluation.
 EVAL_EPISODE_SEED = 20_000
-MAX_CARS = 1000
-
-
-@dataclass(frozen=True)
-class CurriculumBudget:
-    """Environment steps (transitions over all cars) of each stage."""
-
-    stage1_max_steps: int
-    """Stage 1 ends here at the latest (earlier when the lap-time criterion is met)."""
-    stage2_steps: int
-    """Steps of stage 2."""
-    stage3_steps: int
-    """Steps of stage 3 (Agents 2 and 3)."""
-
-
-#: The paper gives Table II (the SAC recipe of ``train.PRESETS``) but no step counts per stage: the budgets are
-#: ours. ``cpu``: train-policy's cpu recipe learned to lap the expressway within 200k-300k steps at about 1,100
-#: transitions/s on the shared 2 cores, so 1M steps per stage keeps each agent within the 2-hour target.
-BUDGETS: dict[str, CurriculumBudget] = {
-    "paper": CurriculumBudget(2_000_000, 2_000_000, 2_000_000),
-    "cpu": CurriculumBudget(1_000_000, 1_000_000, 1_000_000),
-}
 
 
 #: Shared settings that stage 1 (racing alone) does not depend on: a run may start from another's stage 1 across them.
@@ -100,97 +82,6 @@ STAGE1_FREE_SETTINGS = ("overtake_gain_c_r", "detection_range_c_d_m")
 
 class OvertakingRunError(ValueError):
     """A run folder that cannot be continued as asked (other settings, missing stages); the message says why."""
-
-
-@dataclass(frozen=True)
-class TrainOvertakingConfig:
-    """Curriculum SAC (stages 1-3, Agents 1-3) or standard SAC on the overtaking task."""
-
-    @staticmethod
-    def check_options(options: Mapping[str, Any]) -> None:
-        _check_ranges(options)
-
-    agent: str = "1"
-    """1 (stages 1-2), 2 (1-3, c 0.005 in stage 3), 3 (1-3, c 0.01 in stage 3) or standard (Eq. 2 from scratch)."""
-    racing: RacingConfig = nested(
-        RacingConfig(car="tt_cup", n_groups=20, observation=OBSERVATION),
-        only=("track", "car", "n_groups", "episode_s", "overtake_gain_c_r", "detection_range_c_d_m"),
-        rename={"n_groups": "cars"},
-        help={
-            "track": "Track: built-in name, random:SEED or CSV path.",
-            "car": "Car preset (the paper's Audi TT Cup: tt_cup).",
-            "n_groups": "Ego cars in the one world, each with its own opponents (the paper's 20).",
-            "episode_s": "Training episode length, s (the paper's 1,000 steps at 10 Hz).",
-            "overtake_gain_c_r": "c_r of Eq. 2 (the paper gives none).",
-            "detection_range_c_d_m": "c_d of Eq. 2, m (the paper gives none).",
-        },
-    )
-    """The racing every stage builds on (each stage sets its scenario and penalties)."""
-    evaluation: EvaluationSchedule = nested(
-        EvaluationSchedule(),
-        prefix="eval_",
-        help={
-            "every_steps": "Evaluate every N cumulative steps (0: off; stage 1 then runs to its cap).",
-            "seeds": "Start seeds of the protocol lap of each evaluation.",
-            "laps": "Laps of that protocol run (the last is scored).",
-        },
-    )
-    """The periodic evaluations."""
-    checkpoints: CheckpointSchedule = nested(
-        CheckpointSchedule(),
-        prefix="checkpoint_",
-        help={
-            "every_steps": "Save weights and buffer every N steps (0: off).",
-            "every_min": "Save weights, optimisers and counters every N minutes (0: off).",
-        },
-    )
-    """The periodic saves."""
-    sac: SACOverrides = nested(
-        SACOverrides(),
-        only=("preset", "learning_rate", "batch_size", "buffer_size", "learning_starts", "gradient_steps"),
-        help={
-            "preset": "`paper` (Table II) or `cpu` (learns on 2 cores); also sets the stage budgets.",
-            "buffer_size": "Override the preset's buffer size of stages 1-2 and standard SAC (0: preset).",
-        },
-    )
-    """The SAC preset (it also sets the stage budgets) and its overrides."""
-    samplers: SamplerOptions = nested(
-        SamplerOptions(),
-        help={
-            "workers": "Sampler actors (Ray), each a world of --cars ego cars in its own process, while this process "
-            "learns; leave it out to sample in this process."
-        },
-    )
-    """Sampling in Ray actors."""
-    out: str = ""
-    """Run folder shared by Agents 1-3 and standard SAC of one seed (default runs/overtaking/<track>-<car>-s<seed>)."""
-    seed: int = 0
-    """Seed of the networks, exploration and start points."""
-    force: bool = False
-    """Delete the run folder and start over."""
-    stage1_max_steps: int = 0
-    """Stage 1's step cap (0: the preset's)."""
-    stage1_margin: float = 0.05
-    """Stage 1 ends once the protocol lap time is within this share of the built-in AI's."""
-    stage2_steps: int = 0
-    """Steps of stage 2 (0: the preset's)."""
-    stage3_steps: int = 0
-    """Steps of stage 3 (0: the preset's)."""
-    stage3_buffer_size: int = 0
-    """FIFO buffer of stage 3, transitions (0: half of --stage3-steps, so older data is gone mid-stage)."""
-    stage1_from: str = ""
-    """A run folder whose finished stage 1 this one starts from (hard-linked in when this one has none): the c_r
-    ablation, since racing alone does not depend on c_r or c_d; every other shared setting must agree."""
-    standard_steps: int = 0
-    """Steps of standard SAC (0: stage-1 cap + stage 2 + stage 3, the curriculum's budget)."""
-    eval_time_limit_s: float = 0.0
-    """Time limit of that protocol run, s (0: the protocol's)."""
-    eval_episodes: int = 4
-    """Stage-2 episodes of the overtaking return of each evaluation (0: none)."""
-    eval_episode_s: float = 0.0
-    """Length of those episodes, s (0: --episode-s)."""
-    device: str = "auto"
-    """Torch device: auto, cpu or cuda."""
 
 
 # ------------------------------------------------------------------------------------------------- the sidecar
@@ -319,44 +210,9 @@ def shared_settings(cfg: TrainOvertakingConfig) -> dict[str, Any]:
     }
 
 
-def _check_ranges(o: Mapping[str, Any]) -> None:
-    """The flat options' values in their own words (:func:`~vision_rl.config.flat_values`)."""
-    if o["agent"] not in AGENTS:
-        raise ValueError(f"--agent must be one of {', '.join(AGENTS)}, got {o['agent']!r}")
-    if o["preset"] not in PRESETS or o["preset"] not in BUDGETS:
-        raise ValueError(f"--preset must be one of {sorted(BUDGETS)}, got {o['preset']!r}")
-    checks = {
-        "cars": 1 <= o["cars"] <= MAX_CARS,
-        "stage1_max_steps": o["stage1_max_steps"] >= 0,
-        "stage1_margin": o["stage1_margin"] >= 0,
-        "stage2_steps": o["stage2_steps"] >= 0,
-        "stage3_steps": o["stage3_steps"] >= 0,
-        "stage3_buffer_size": o["stage3_buffer_size"] >= 0,
-        "standard_steps": o["standard_steps"] >= 0,
-        "episode_s": o["episode_s"] > 0,
-        "overtake_gain_c_r": o["overtake_gain_c_r"] >= 0,
-        "detection_range_c_d_m": o["detection_range_c_d_m"] > 0,
-        "eval_every_steps": o["eval_every_steps"] >= 0,
-        "eval_seeds": o["eval_seeds"] >= 1,
-        "eval_laps": o["eval_laps"] >= 1,
-        "eval_time_limit_s": o["eval_time_limit_s"] >= 0,
-        "eval_episodes": o["eval_episodes"] >= 0,
-        "eval_episode_s": o["eval_episode_s"] >= 0,
-        "checkpoint_every_steps": o["checkpoint_every_steps"] >= 0,
-        "checkpoint_every_min": o["checkpoint_every_min"] >= 0,
-        "learning_rate": o["learning_rate"] >= 0,
-        "batch_size": o["batch_size"] >= 0,
-        "buffer_size": o["buffer_size"] >= 0,
-        "gradient_steps": o["gradient_steps"] >= 0,
-    }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        raise ValueError(f"--{bad[0].replace('_', '-')} {o[bad[0]]} is out of range")
-
-
 def check_config(cfg: TrainOvertakingConfig) -> None:
     """One clear line for a bad option, before anything is built or written."""
-    _check_ranges(flat_values(cfg))
+    check_overtaking_ranges(flat_values(cfg))
     if cfg.samplers.workers is not None or cfg.samplers.address:
         from vision_rl.training.distributed import check_workers
 
@@ -955,11 +811,8 @@ def learning_curve(out: str | os.PathLike[str], agent: str) -> dict[str, Any]:
 
 
 __all__ = [
-    "AGENTS",
-    "BUDGETS",
     "OvertakingPolicySpec",
     "OvertakingRunError",
-    "TrainOvertakingConfig",
     "copy_newest",
     "learning_curve",
     "load_overtaking_policy",

@@ -26,10 +26,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from vision_rl.envs.core import RacingConfig, RacingCore
+from vision_rl.envs.core import RacingCore
 from vision_rl.envs.observations import OBS_NAMES, OBS_VERSION, ObsNormalizer
 from vision_rl.envs.racing_env import action_space
 from vision_rl.files import atomic_write, json_text
+from vision_rl.overtaking.config import OBSERVATION, SCENARIO, RecordDemosConfig, race_config
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver
 from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.fleet import AI_CONTROL_DT_S
@@ -40,10 +41,7 @@ from vision_rl.training.persist import ArtifactError, check_fingerprint
 DEMO_FORMAT = "vision_rl.demos"
 #: 2: ``expert_actions`` (the demonstrator's label) beside ``actions`` (what was applied).
 DEMO_FORMAT_VERSION = 2
-OBSERVATION = "overtaking"
 OBS_DIM = len(OBS_NAMES[OBSERVATION])
-#: The single-car race of Table III: the curriculum's stage 1 (alone, Eq. 1).
-SCENARIO = "stage1"
 ARRAYS = ("observations", "actions", "expert_actions", "rewards", "episode_starts")
 DRIVERS = ("ai",)
 
@@ -109,19 +107,6 @@ def environment_normalizer(track: str, car: str) -> ObsNormalizer:
         return core.observer.normalizer
     finally:
         core.observer.close()
-
-
-def race_config(track: str, car: str, n_groups: int = 1, episode_s: float = 100.0) -> RacingConfig:
-    """The single-car race of Table III: ``stage1`` (alone), the 96-D observation, Eq. 1 with ``c_w`` 0.005."""
-    return RacingConfig(
-        track=track,
-        car=car,
-        observation=OBSERVATION,
-        scenario=SCENARIO,
-        n_groups=n_groups,
-        episode_s=episode_s,
-        wall_penalty_c_w=0.005,
-    )
 
 
 def demo_fingerprint(track: str, car: str, normalizer: ObsNormalizer | None = None) -> dict[str, Any]:
@@ -289,33 +274,6 @@ def _check(recorded: Mapping[str, Any], expected: Mapping[str, Any], path: Path)
 
 
 # ------------------------------------------------------------------------------------------------- recording
-
-
-@dataclass(frozen=True)
-class RecordDemosConfig:
-    """Record the built-in AI's demonstrations of the single-car race (96-D observation, Eq. 1)."""
-
-    driver: str = "ai"
-    """Who demonstrates: ai (the built-in AI, expressed in the environment's 10 Hz action space)."""
-    laps: float = 5.0
-    """Record until the cars together have driven this many laps of track progress."""
-    out: str = "runs/demos/ai.npz"
-    """The demonstrations file (.npz, no pickle)."""
-    track: str = "expressway"
-    """Track: built-in name, random:SEED or CSV path."""
-    car: str = "tt_cup"
-    """Car preset (the paper's Audi TT Cup: tt_cup)."""
-    cars: int = 4
-    """Cars recorded at once (one world, each alone in its own group)."""
-    seed: int = 0
-    """Seed of the episodes' start points: group 0's first episode is reset(seed=seed)'s."""
-    episode_s: float = 100.0
-    """Episode length, s (the training environments' 100 s: each episode starts at a new random point)."""
-    skill: float = DEFAULT_SKILL
-    """The demonstrator's share of the reference speed (the built-in AI's default)."""
-    noise: float = 0.0
-    """Std of Gaussian noise added to the applied action, as a share of each action's half range (steering pi/6,
-    omega 1); the label stays the demonstrator's (noise injection: it shows how the AI recovers)."""
 
 
 #: ``progress(laps_driven, laps_wanted)``.

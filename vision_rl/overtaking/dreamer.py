@@ -28,7 +28,7 @@ from torch.distributions import Independent, Normal, TanhTransform, TransformedD
 
 from vision_rl.envs.core import RacingConfig
 from vision_rl.envs.racing_env import action_space
-from vision_rl.overtaking.demos import OBSERVATION
+from vision_rl.overtaking.config import OBSERVATION
 from vision_rl.training.artifact import PolicyDriver, PolicySpec
 
 

@@ -45,7 +45,8 @@ from vision_rl.overtaking.baseline_run import (
     resolve_recipe,
     total_steps,
 )
-from vision_rl.overtaking.demos import OBS_DIM, OBSERVATION, Demos
+from vision_rl.overtaking.config import OBSERVATION
+from vision_rl.overtaking.demos import OBS_DIM, Demos
 from vision_rl.training.artifact import (
     BUFFER_NAME,
     MODEL_NAME,

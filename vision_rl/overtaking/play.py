@@ -3,8 +3,7 @@ drive a demonstrations file the imitation baselines read (:mod:`vision_rl.overta
 
 from __future__ import annotations
 
-import re
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -13,46 +12,10 @@ from vision_rl.evaluation.human import HumanDriver, HumanQuit, check_display
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.protocol import time_laps
 from vision_rl.files import write_json
-from vision_rl.overtaking.demos import OBSERVATION, demo_fingerprint, environment_normalizer, write_demos
+from vision_rl.overtaking.config import ALIAS_PATTERN, OBSERVATION, PlayConfig
+from vision_rl.overtaking.demos import demo_fingerprint, environment_normalizer, write_demos
 from vision_rl.overtaking.settings import check_setting, run_setting, summarise_runs
 from vision_rl.sim.track_library import load_track
-
-ALIAS_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,31}")
-
-
-@dataclass(frozen=True)
-class PlayConfig:
-    """Drive the protocol's laps yourself, with keyboard or gamepad, in a pygame window."""
-
-    name: str = ""
-    """Your alias for the leaderboard row "human (alias)" (letters, digits, _ . -; up to 32) (required)."""
-    track: str = "expressway"
-    """Track: built-in name, random:SEED or CSV path."""
-    car: str = "hatchback"
-    """Car preset."""
-    laps: int = 2
-    """Laps to drive; the protocol scores the last."""
-    seed: int = 0
-    """Protocol start seed (the rolling start's small offset and speed jitter)."""
-    camera: str = "chase"
-    """chase (behind and above the car) or hood (the driver's view the vision agents learn from)."""
-    input: str = "keyboard"
-    """keyboard (arrows or WASD) or gamepad (left stick, triggers)."""
-    window_hw_px: tuple[int, int] = (480, 800)
-    """Window height and width, px."""
-    time_limit_s: float = 0.0
-    """End the run after this many simulated seconds (0: the protocol's, 3 x the limit lap time per lap)."""
-    realtime: bool = True
-    """Run at the wall clock's pace (off only for scripted runs)."""
-    runs: str = "runs"
-    """Folder of the runs; the row goes to RUNS/human/ALIAS-TRACK-CAR/evaluation.json."""
-    demos: str = ""
-    """Demonstrations file (default: demos.npz beside the row)."""
-    setting: str = ""
-    """Empty: the time trial. A or B: the overtaking paper's setting (five AI cars 50 / 200 m ahead), --setting-runs
-    runs whose best is the human reference of evaluate-overtaking --human (the paper's car: --car tt_cup)."""
-    setting_runs: int = 2
-    """Runs of --setting (the paper's human drove 2); run k meets the opponents of every agent's run --seed + k."""
 
 
 def check_play_config(cfg: PlayConfig) -> None:

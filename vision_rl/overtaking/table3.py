@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +24,7 @@ from vision_rl.evaluation.leaderboard import aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.overtaking.baseline_run import BaselineError, baseline_algo, check_table_track
 from vision_rl.overtaking.baselines import load_baseline
+from vision_rl.overtaking.config import Table3Config
 from vision_rl.overtaking.demos import HeldAIDriver
 from vision_rl.sim.track_library import load_track
 from vision_rl.training.artifact import SIDECAR_NAME, PolicyError
@@ -49,29 +49,6 @@ ROW_NAMES = {
 }
 #: The row each train-baseline algorithm fills.
 ROW_OF_ALGO = {"bc": "bc", "gail": "gail", "sac": "sac", "td3": "td3", "dreamer": "planet"}
-
-
-@dataclass(frozen=True)
-class Table3Config:
-    """Table III of the overtaking paper: the built-in AI and the trained baselines through the lap-time protocol."""
-
-    runs: str = ""
-    """Comma-separated run folders of train-baseline (or train-overtaking stage1 folders as SAC); empty: every run
-    under --runs-root."""
-    runs_root: str = "runs/baselines"
-    """Where to look for runs when --runs is empty."""
-    track: str = "expressway"
-    """Track of the table (runs of another track are refused when given, skipped when found)."""
-    car: str = "tt_cup"
-    """Car of the table."""
-    seeds: int = 3
-    """Protocol start seeds per row (the best scored lap is the row's)."""
-    laps: int = 2
-    """Protocol laps (the last is scored)."""
-    time_limit_s: float = 0.0
-    """Protocol time limit, s (0: the protocol's, 3 x the limit lap per lap)."""
-    demonstrator: bool = True
-    """Add the imitation baselines' demonstrator (the AI held at 10 Hz) as an extra row."""
 
 
 def _split(text: str) -> list[str]:
