@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from tests.helpers.checkpoints import write_checkpoint
-from vision_rl.phase1_repr.bench import BenchLatencyConfig, BenchTrainStepConfig, bench_latency, bench_train_step
+from vision_rl.phase1_repr.bench import bench_latency, bench_train_step
+from vision_rl.phase1_repr.config import BenchLatencyConfig, BenchTrainStepConfig
 
 
 def test_checkpoint_sets_the_frame_size(tmp_path: Path) -> None:

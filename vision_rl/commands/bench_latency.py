@@ -8,7 +8,7 @@ from typing import Any, ClassVar
 
 from vision_rl.commands.choices import BACKBONES, ENCODER_RUNTIMES
 from vision_rl.commands.output import emit
-from vision_rl.phase1_repr.bench import BenchLatencyConfig
+from vision_rl.phase1_repr.config import BenchLatencyConfig
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from vision_rl.commands.output import emit
-from vision_rl.phase1_repr.bench import BenchTrainStepConfig
+from vision_rl.phase1_repr.config import BenchTrainStepConfig
 
 
 @dataclass(frozen=True)

@@ -2,18 +2,43 @@
 its training and latency bench, and :func:`load_encoder` for Phase 2.
 
 Training is :func:`.train.train_repr` (``TrainReprConfig``), the latency bench :func:`.bench.bench_latency`
-(``BenchLatencyConfig``); import those modules directly (train pulls in Lightning).
+(``BenchLatencyConfig``, in :mod:`.config`); import those modules directly (train pulls in Lightning). The names
+below load their module (and torch) when first used, so that :mod:`.config` imports without torch.
 """
 
-from vision_rl.files import file_sha256
-from vision_rl.phase1_repr.checkpoint import (
-    EncoderCheckpointError,
-    FrozenEncoder,
-    load_encoder,
-    read_checkpoint,
-    save_checkpoint,
-)
-from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from vision_rl.files import file_sha256
+    from vision_rl.phase1_repr.checkpoint import (
+        EncoderCheckpointError,
+        FrozenEncoder,
+        load_encoder,
+        read_checkpoint,
+        save_checkpoint,
+    )
+    from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
+
+_HOMES = {
+    "EncoderCheckpointError": "vision_rl.phase1_repr.checkpoint",
+    "EncoderConfig": "vision_rl.phase1_repr.encoder",
+    "FrozenEncoder": "vision_rl.phase1_repr.checkpoint",
+    "ReprNet": "vision_rl.phase1_repr.encoder",
+    "file_sha256": "vision_rl.files",
+    "load_encoder": "vision_rl.phase1_repr.checkpoint",
+    "read_checkpoint": "vision_rl.phase1_repr.checkpoint",
+    "save_checkpoint": "vision_rl.phase1_repr.checkpoint",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(_HOMES[name]), name)
+
 
 __all__ = [
     "EncoderCheckpointError",
