@@ -14,14 +14,13 @@ import json
 import math
 import multiprocessing
 import os
-import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
+from vision_rl.commands.output import emit, interrupt_on_sigterm, note, progress_bar, restore_sigterm, show
 
 
 @dataclass(frozen=True)
@@ -291,7 +290,7 @@ class StageReport:
 
     def line(self, text: str) -> None:
         if self.enabled:
-            print(f"[pipeline {_clock(time.perf_counter() - self.t0)}] {text}", file=sys.stderr, flush=True)
+            note(f"[pipeline {_clock(time.perf_counter() - self.t0)}] {text}")
 
     def started(self, name: str, detail: str = "") -> float:
         self.line(f"{name}: started" + (f" ({detail})" if detail else ""))
