@@ -8,12 +8,11 @@ command line again and print nothing; the process you started prints the result.
 from __future__ import annotations
 
 import dataclasses
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vision_rl.commands.output import emit, progress_bar, show
+from vision_rl.commands.output import emit, note, progress_bar, show
 from vision_rl.phase1_repr.train import TrainReprConfig, launch_rank
 
 
@@ -61,8 +60,8 @@ def _captures_here(opts: TrainReprOptions) -> TrainReprOptions:
         return opts  # train_repr says that training needs data
     out = "." if opts.out == TrainReprConfig.out else opts.out
     if launch_rank() == 0:
-        print(f"train-repr: no --data, training on the capture files here: {', '.join(found)}", file=sys.stderr)
-        print(f"train-repr: writing the run into {Path(out).resolve()} (ckpt.pt, metrics.json, ...)", file=sys.stderr)
+        note(f"train-repr: no --data, training on the capture files here: {', '.join(found)}")
+        note(f"train-repr: writing the run into {Path(out).resolve()} (ckpt.pt, metrics.json, ...)")
     return dataclasses.replace(opts, data=",".join(found), out=out)
 
 
