@@ -1,11 +1,17 @@
 """Faults of train-repr and its checkpoint: bad targets stop it before training, bad sizes are one line, a crafted
 Lightning checkpoint never runs, other data are not resumed on, ckpt.pt refuses damage and other data, a full disk
-leaves no partial file."""
+leaves no partial file and keeps the previous last.ckpt, a run killed (SIGTERM, SIGKILL) after an epoch resumes to
+the weights of an uninterrupted run."""
 
 from __future__ import annotations
 
 import errno
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import h5py
@@ -14,12 +20,14 @@ import pytest
 import torch
 
 from tests.helpers.captures import TARGET_NAMES, write_synthetic_capture
+from tests.helpers.processes import kill_and_read
 from vision_rl.commands.main import main
 from vision_rl.datasets import TargetValueError
 from vision_rl.phase1_repr import EncoderCheckpointError, load_encoder
 from vision_rl.phase1_repr.train import TrainReprConfig, train_repr
 
 SMALL = {"epochs": 1, "batch_size": 8, "num_workers": 0, "width_mult": 0.25, "val_fraction": 0.25}
+REPO = Path(__file__).resolve().parents[2]
 
 
 def small_capture(path: Path, seed: int = 0) -> Path:
@@ -199,3 +207,143 @@ def test_a_full_disk_while_saving_the_checkpoint_leaves_nothing(tmp_path: Path, 
     assert info.value.errno == errno.ENOSPC and str(out / "ckpt.pt") in str(info.value)
     assert not list(out.glob("*.tmp")) and not (out / "ckpt.pt").exists()
     fault.refused("a full disk while train-repr writes ckpt.pt", str(info.value))
+
+
+# The command line of the runs killed below: 8 epochs of 3 steps on 12 frames, the shift and the photometric
+# augmentation on, so that a resume that drew other random numbers than the run would have drawn ends elsewhere,
+# and a loader worker kept from epoch to epoch (as by default), whose start a resume repeats.
+KILLED_ARGV = [
+    *("train-repr", "--data", "d.h5", "--epochs", "8", "--batch-size", "4", "--num-workers", "1"),
+    *("--width-mult", "0.25", "--val-fraction", "0.25", "--shift-px", "2", "--seed", "3", "--no-progress", "--json"),
+]
+
+
+def _start(tmp_path: Path, out: str, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "vision_rl.commands.main", *KILLED_ARGV, "--out", out, *extra],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"},
+        start_new_session=True,
+    )
+
+
+def _saved_epochs(last_ckpt: Path) -> int:
+    """Finished epochs in a last.ckpt (0 while there is none); the file is only ever replaced whole."""
+    if not last_ckpt.is_file():
+        return 0
+    return int(torch.load(last_ckpt, map_location="cpu", weights_only=True)["epoch"]) + 1
+
+
+def _kill_after(proc: subprocess.Popen, last_ckpt: Path, epochs: int, sig: signal.Signals) -> tuple[int, str, str]:
+    """Send ``sig`` once ``last_ckpt`` holds ``epochs`` finished epochs; the exit code, stdout and stderr."""
+    deadline = time.monotonic() + 120
+    try:
+        while _saved_epochs(last_ckpt) < epochs and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert proc.poll() is None, f"the run ended before the kill: {proc.communicate()[1][-2000:]}"
+        assert _saved_epochs(last_ckpt) >= epochs, f"no last.ckpt of {epochs} epochs within 120 s"
+        proc.send_signal(sig)
+        stdout, stderr = proc.communicate(timeout=60)
+        return proc.returncode, stdout, stderr
+    finally:
+        if proc.poll() is None:
+            kill_and_read(proc)
+
+
+def _finish(proc: subprocess.Popen) -> dict:
+    try:
+        stdout, stderr = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            kill_and_read(proc)
+    assert proc.returncode == 0, stderr[-3000:]
+    return json.loads(stdout)
+
+
+def _weights(run: Path) -> dict[str, dict[str, torch.Tensor]]:
+    """The last epoch's weights (last.ckpt) and the kept ones (ckpt.pt) of a finished run."""
+    last = torch.load(run / "lightning" / "last.ckpt", map_location="cpu", weights_only=True)
+    kept = torch.load(run / "ckpt.pt", map_location="cpu", weights_only=True)
+    return {"last.ckpt": last["state_dict"], "ckpt.pt": kept["state_dict"]}
+
+
+def test_a_run_killed_after_an_epoch_resumes_to_the_weights_of_an_uninterrupted_run(tmp_path: Path, fault) -> None:
+    small_capture(tmp_path / "d.h5")
+    reference = _start(tmp_path, "reference")
+    killed = _start(tmp_path, "killed")  # both at once: the two cores share the imports' time
+    last_ckpt = tmp_path / "killed" / "lightning" / "last.ckpt"
+    code, stdout, stderr = _kill_after(killed, last_ckpt, 2, signal.SIGTERM)
+    assert code == 143, stderr[-3000:]
+    said = json.loads(stdout)
+    assert said["interrupted"] and said["last_ckpt"] == "killed/lightning/last.ckpt" and "--resume" in said["note"]
+    assert _saved_epochs(last_ckpt) >= 2 and not (tmp_path / "killed" / "ckpt.pt").exists()
+    assert not list((tmp_path / "killed").rglob("*.tmp"))
+    term_kept = _saved_epochs(last_ckpt)
+    resumed = _start(tmp_path, "killed", "--resume")
+    code, _, _ = _kill_after(resumed, last_ckpt, term_kept + 2, signal.SIGKILL)
+    assert code == -signal.SIGKILL
+    kill_kept = _saved_epochs(last_ckpt)
+    result = _finish(_start(tmp_path, "killed", "--resume"))
+    assert result["optimiser_steps"] == 24  # 8 epochs of 3 steps, none repeated or left out
+    expected = _finish(reference)
+    ours, theirs = _weights(tmp_path / "killed"), _weights(tmp_path / "reference")
+    for name in ("last.ckpt", "ckpt.pt"):
+        assert ours[name].keys() == theirs[name].keys()
+        differ = [k for k in ours[name] if not torch.equal(ours[name][k], theirs[name][k])]
+        assert not differ, f"{name}: {len(differ)} tensors differ from the uninterrupted run's, first {differ[:3]}"
+    assert result["val_loss"] == expected["val_loss"] and result["best_epoch"] == expected["best_epoch"]
+    metrics = json.loads((tmp_path / "killed" / "metrics.json").read_text())
+    assert [e["epoch"] for e in metrics["epochs"]] == list(range(8))
+    how = "exit 143, resumed from the last epoch's end to the uninterrupted run's weights, bit for bit"
+    fault.recovered(f"train-repr stopped by SIGTERM with {term_kept} of 8 epochs saved", how)
+    how = "resumed from the last epoch's end to the uninterrupted run's weights, bit for bit"
+    fault.recovered(f"train-repr killed by SIGKILL with {kill_kept} of 8 epochs saved", how)
+
+
+def test_a_full_disk_while_saving_last_ckpt_keeps_the_previous_one(tmp_path: Path, monkeypatch, capsys, fault) -> None:
+    data = small_capture(tmp_path / "d.h5")
+    out = tmp_path / "run"
+    last = out / "lightning" / "last.ckpt"
+    real_write_bytes = Path.write_bytes
+
+    def full_disk_at_the_second_save(self: Path, data) -> int:
+        if self.name.startswith(".last.ckpt.") and last.exists():  # staging the second epoch's checkpoint
+            real_write_bytes(self, bytes(data)[:100])  # as a write cut off by ENOSPC leaves it
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write_bytes(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", full_disk_at_the_second_save)
+    argv = ["train-repr", "--data", str(data), "--out", str(out), "--epochs", "3", "--batch-size", "8"]
+    argv += ["--num-workers", "0", "--width-mult", "0.25", "--val-fraction", "0.25", "--no-progress"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(last) in err and "No space left on device" in err, err
+    assert _saved_epochs(last) == 1  # the first epoch's, whole
+    assert not list(out.rglob("*.tmp")) and not (out / "ckpt.pt").exists()
+    fault.refused("a full disk while train-repr saves last.ckpt after its second epoch", err.split("error: ", 1)[1])
+
+
+def test_ctrl_c_inside_an_epoch_exits_130_keeping_the_last_epochs_end(tmp_path: Path, monkeypatch, capsys) -> None:
+    from vision_rl.phase1_repr import train
+
+    data = small_capture(tmp_path / "d.h5")
+    out = tmp_path / "run"
+    real = train._Throughput.on_train_batch_end
+
+    def ctrl_c_in_the_second_epoch(self, trainer, *args) -> None:
+        real(self, trainer, *args)
+        if trainer.current_epoch == 1:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(train._Throughput, "on_train_batch_end", ctrl_c_in_the_second_epoch)
+    argv = ["train-repr", "--data", str(data), "--out", str(out), "--epochs", "3", "--batch-size", "4"]
+    argv += ["--num-workers", "0", "--width-mult", "0.25", "--val-fraction", "0.25", "--no-progress", "--json"]
+    assert main(argv) == 130
+    said = json.loads(capsys.readouterr().out)
+    assert said["interrupted"] and said["finished_epochs"] == 1 and "--resume" in said["note"]
+    assert _saved_epochs(out / "lightning" / "last.ckpt") == 1 and not (out / "ckpt.pt").exists()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # Lightning's SIG_IGN is undone
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL

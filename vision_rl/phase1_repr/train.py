@@ -1,19 +1,25 @@
 """`train-repr`: learn phi_rep by regressing the 27 targets from frames (vision paper, section 3, equation 1).
 
 The loss is the MSE on standardised targets; the weights with the lowest validation loss are kept and written as
-``ckpt.pt``, and nothing here loads a file that can run code. What is logged, what a resume checks and how several
-devices train: docs/notes/phase1_repr.md.
+``ckpt.pt``, and nothing here loads a file that can run code. ``lightning/last.ckpt`` is replaced atomically at every
+epoch's end with the state of every random generator the run draws from, so that a run killed at any point resumes
+from its last epoch's end to the weights it would have ended in (:class:`ResumableCheckpoint`). What is logged, what a
+resume checks and how several devices train: docs/notes/phase1_repr.md.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import io
 import json
 import logging
 import math
 import os
+import random
 import shutil
+import signal
+import threading
 import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -24,10 +30,12 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
+from lightning.pytorch.callbacks import Checkpoint
+from lightning.pytorch.plugins import TorchCheckpointIO
 
 from vision_rl.datasets.augment import FrameAugmentation, target_mirror
 from vision_rl.datasets.capture_dataset import TargetStandardiser
-from vision_rl.files import write_json
+from vision_rl.files import atomic_write, write_json
 from vision_rl.phase1_repr.checkpoint import save_checkpoint
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
 
@@ -101,11 +109,16 @@ class ReprModule(L.LightningModule):
         self._val_pred: list[torch.Tensor] = []
         self._val_true: list[torch.Tensor] = []
         self.last_val_metrics: dict[str, Any] | None = None
+        # Reset at every epoch's start; a resume from inside an epoch starts none (its mean is the resumed part's).
+        self._train_loss_sum, self._train_loss_count = 0.0, 0
+        # Augmentation and mirroring draw from a generator of their own (on the CPU), seeded by train_repr and kept in
+        # last.ckpt: a resume draws what the uninterrupted run would have drawn, whatever the loaders drew meanwhile.
+        self.draws = torch.Generator()
 
     def predict_standardised(self, images: torch.Tensor, augment: bool = False) -> torch.Tensor:
         x = self.net.frames_to_unit(images)
         if augment and self.augment is not None and self.augment.enabled:
-            x = self.augment(x)
+            x = self.augment(x, self.draws)
         return self.net.phi_reg(self.net.embed_unit(x))
 
     def on_train_epoch_start(self) -> None:
@@ -113,7 +126,7 @@ class ReprModule(L.LightningModule):
 
     def train_loss_mean(self) -> float | None:
         """Mean training loss of the current epoch so far (validation runs before Lightning's epoch aggregate)."""
-        count = getattr(self, "_train_loss_count", 0)
+        count = self._train_loss_count
         return self._train_loss_sum / count if count else None
 
     def loss(self, pred: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
@@ -122,7 +135,7 @@ class ReprModule(L.LightningModule):
 
     def mirror_half(self, images: torch.Tensor, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Mirror a random half of uint8 frames (N, H, W, 3) left-right, with their standardised targets."""
-        flip = torch.rand(len(images), device=images.device) < 0.5
+        flip = (torch.rand(len(images), generator=self.draws) < 0.5).to(images.device)
         physical = targets * self.target_std + self.target_mean
         mirrored = (physical[:, self.mirror_perm] * self.mirror_sign - self.target_mean) / self.target_std
         return (
@@ -329,6 +342,10 @@ class TrainReprConfig:
     """Output folder."""
     resume: bool = False
     """Continue the run in ``out`` from its last checkpoint."""
+    checkpoint_every_min: float = 0.0
+    """Also save ``lightning/last.ckpt`` inside an epoch every this many minutes (0: off; it is saved at every
+    epoch's end regardless). A resume from inside an epoch redraws the order of the epoch's remaining frames, so it
+    does not end in the weights of an uninterrupted run as a resume from an epoch's end does: for epochs of hours."""
     force: bool = False
     """Start over in an ``out`` that holds a run."""
 
@@ -341,6 +358,7 @@ class TrainReprConfig:
             _positive(self.space2depth_block_px, "--space2depth-block-px"),
             _positive(self.shift_px, "--shift-px", 0),
             _positive(self.weight_decay, "--weight-decay", 0),
+            _positive(self.checkpoint_every_min, "--checkpoint-every-min", 0),
             (
                 self.max_steps == -1 or self.max_steps >= 1,
                 f"--max-steps must be >= 1 or -1 (no limit), got {self.max_steps}",
@@ -414,6 +432,176 @@ class _Throughput(L.Callback):
         return self.frames / self.seconds if self.seconds > 0 else 0.0
 
 
+class _AtomicCheckpointIO(TorchCheckpointIO):
+    """Lightning's checkpoint writer, through the package's one atomic write: staged beside the file and renamed.
+
+    Lightning's own stages the file in the system's temporary folder and moves it across filesystems, which a full
+    disk cuts short; here a failed write raises :class:`~vision_rl.files.ArtifactWriteError` naming the file, and
+    the previous checkpoint stays whole."""
+
+    def save_checkpoint(self, checkpoint: dict[str, Any], path: Any, storage_options: Any | None = None) -> None:
+        buffer = io.BytesIO()
+        torch.save(checkpoint, buffer)  # serialised first: a full disk then fails a plain write, with ENOSPC
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, lambda tmp: tmp.write_bytes(buffer.getbuffer()))
+
+
+def random_states() -> dict[str, Any]:
+    """This process's random generators: torch's (the CPU's, and each CUDA device's once CUDA is in use), NumPy's
+    and Python's, as tensors and plain values (a checkpoint of them loads with ``weights_only=True``)."""
+    _, keys, pos, has_gauss, cached_gaussian = np.random.get_state()  # noqa: NPY002 (the one seed_everything seeds)
+    version, internal, gauss_next = random.getstate()
+    cuda = torch.cuda.get_rng_state_all() if torch.cuda.is_available() and torch.cuda.is_initialized() else []
+    return {
+        "torch": torch.get_rng_state(),
+        "cuda": cuda,
+        "numpy": {
+            "keys": torch.from_numpy(keys.astype(np.int64)),
+            "pos": int(pos),
+            "has_gauss": int(has_gauss),
+            "cached_gaussian": float(cached_gaussian),
+        },
+        "python": {"version": int(version), "internal": list(internal), "gauss_next": gauss_next},
+    }
+
+
+def set_random_states(states: dict[str, Any]) -> None:
+    """Restore what :func:`random_states` returned (CUDA's only on as many devices as it was taken on)."""
+    torch.set_rng_state(states["torch"])
+    cuda = states.get("cuda") or []
+    if cuda and torch.cuda.is_available() and len(cuda) == torch.cuda.device_count():
+        torch.cuda.set_rng_state_all(cuda)
+    numpy = states["numpy"]
+    keys = numpy["keys"].numpy().astype(np.uint32)
+    np.random.set_state(("MT19937", keys, numpy["pos"], numpy["has_gauss"], numpy["cached_gaussian"]))  # noqa: NPY002
+    python = states["python"]
+    random.setstate((python["version"], tuple(python["internal"]), python["gauss_next"]))
+
+
+class TrainingOrder:
+    """The order of the training frames, drawn apart from torch's global generator, which the loaders also draw their
+    workers' seeds from (a loader that keeps its workers from epoch to epoch draws once, when it starts, and a resumed
+    run starts its loaders again): on one device a RandomSampler drawing from ``generator``; on several, the
+    distributed sampler of Lightning's (from the seed and the epoch), made here so that a resume sets its ``epoch``
+    before the loader's workers take the resumed epoch's order."""
+
+    def __init__(self, seed: int) -> None:
+        self.seed = seed
+        self.generator = torch.Generator().manual_seed(seed)
+        self.epoch = 0  # the epoch a distributed sampler starts at: a resume's first
+
+    def install(self, dm) -> None:
+        """Make ``dm``'s training loader draw its order here."""
+        make_train = dm.train_dataloader
+        dm.train_dataloader = lambda: self._loader(make_train())
+
+    def _loader(self, loader: torch.utils.data.DataLoader) -> torch.utils.data.DataLoader:
+        if not (torch.distributed.is_available() and torch.distributed.is_initialized()):
+            if isinstance(loader.sampler, torch.utils.data.RandomSampler):
+                loader.sampler.generator = self.generator
+            return loader
+        sampler = torch.utils.data.DistributedSampler(loader.dataset, shuffle=True, seed=self.seed)
+        sampler.set_epoch(self.epoch)
+        return torch.utils.data.DataLoader(
+            loader.dataset,
+            batch_size=loader.batch_size,
+            sampler=sampler,
+            drop_last=loader.drop_last,
+            num_workers=loader.num_workers,
+            collate_fn=loader.collate_fn,
+            persistent_workers=loader.persistent_workers,
+            pin_memory=loader.pin_memory,
+        )
+
+
+class ResumableCheckpoint(Checkpoint):
+    """Saves ``last.ckpt``, what ``--resume`` reads, at every epoch's end and every ``every_min`` minutes inside
+    epochs (0: never inside), through :class:`_AtomicCheckpointIO`.
+
+    Its state in the file is every random generator the run draws from (the frames' order, :class:`TrainingOrder`,
+    the augmentation's, ``ReprModule.draws``, and :func:`random_states`), restored on a resume, so that a run
+    resumed from an epoch's end draws what the uninterrupted run would have drawn and ends in the same weights, bit
+    for bit. Every process of a DDP run calls the save (Lightning's rank 0 writes); rank 0's clock decides when a
+    timed save is due."""
+
+    def __init__(self, path: Path, every_min: float, order: TrainingOrder, draws: torch.Generator) -> None:
+        self.path = Path(path)
+        self.every_s = 60.0 * every_min
+        self.order = order
+        self.generators = {"order": order.generator, "augmentation": draws}
+        self.finished_epochs = 0  # epochs the file on disk holds
+        self.saved_step = 0  # and its optimiser steps
+        self._finished_in_save = self._step_in_save = 0
+        self._last_save_s = time.monotonic()
+
+    def _save(self, trainer: L.Trainer, finished_epochs: int) -> None:
+        self._finished_in_save, self._step_in_save = finished_epochs, int(trainer.global_step)
+        trainer.save_checkpoint(self.path)
+        self.finished_epochs, self.saved_step = finished_epochs, int(trainer.global_step)
+        self._last_save_s = time.monotonic()
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._last_save_s = time.monotonic()
+
+    def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs, batch, batch_idx) -> None:
+        if self.every_s > 0 and trainer.strategy.broadcast(time.monotonic() - self._last_save_s >= self.every_s):
+            self._save(trainer, self.finished_epochs)
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        # After validation (Lightning validates before this hook): the file holds the epoch's metrics and best weights.
+        self._save(trainer, int(trainer.current_epoch) + 1)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "random": random_states(),
+            "generators": {name: g.get_state() for name, g in self.generators.items()},
+            "finished_epochs": self._finished_in_save,
+            "step": self._step_in_save,
+        }
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.finished_epochs = self._finished_in_save = int(state_dict.get("finished_epochs", 0))
+        self.saved_step = self._step_in_save = int(state_dict.get("step", 0))
+        self.order.epoch = self.finished_epochs  # the epoch the file ends in, or the one it was saved inside
+        if "random" in state_dict:  # a last.ckpt of an older version has none: it resumes, drawing otherwise
+            set_random_states(state_dict["random"])
+            for name, g in self.generators.items():
+                g.set_state(state_dict["generators"][name])
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """SIGTERM or Ctrl-C stopped :func:`train_repr`: ``last_ckpt`` (None when no epoch had ended) holds
+    ``finished_epochs`` epochs and ``optimiser_steps`` steps; ``resume`` goes on from there. A KeyboardInterrupt, so
+    that a caller that does not look for it stops as on Ctrl-C."""
+
+    def __init__(self, last_ckpt: Path | None, finished_epochs: int, optimiser_steps: int) -> None:
+        super().__init__(f"interrupted; {last_ckpt or 'no last.ckpt'}")
+        self.last_ckpt = last_ckpt
+        self.finished_epochs = finished_epochs if last_ckpt else 0
+        self.optimiser_steps = optimiser_steps if last_ckpt else 0
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+class _StopAtOnce(L.Callback):
+    """Once training starts, puts ``handler`` back as SIGTERM's handler over Lightning's (Lightning puts back the one
+    before the fit when it ends).
+
+    Lightning's handler only notes the signal, stopping the run after the batch, and on several devices broadcasts
+    from inside the handler, which deadlocks a process caught in another collective. ``handler`` raises
+    KeyboardInterrupt, as Ctrl-C: Lightning then stops at once, and on several devices rank 0 kills the others."""
+
+    def __init__(self, handler: Callable[[int, Any], Any]) -> None:
+        self.handler = handler
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, self.handler)
+
+
 def _lightning_dir(out: Path) -> Path:
     return out / "lightning"
 
@@ -432,6 +620,10 @@ def _quiet_lightning() -> Iterator[None]:
             # and Lightning's all_gather goes through a torch function torch deprecates.
             warnings.filterwarnings("ignore", message=r"Grad strides do not match bucket view strides")
             warnings.filterwarnings("ignore", message=r".*all_gather is deprecated")
+            # A resume from a timed save inside an epoch (--checkpoint-every-min says what it costs), and one from a
+            # last.ckpt of an older version, whose checkpoint callback this one replaces.
+            warnings.filterwarnings("ignore", message=r"You're resuming from a checkpoint that ended before")
+            warnings.filterwarnings("ignore", message=r"Be aware that when using `ckpt_path`")
             yield
     finally:
         logger.setLevel(level)
@@ -509,9 +701,14 @@ def _repr_module(cfg: TrainReprConfig, dm) -> tuple[EncoderConfig, ReprModule]:
 
 
 def _fit(cfg: TrainReprConfig, out: Path, module: ReprModule, dm, callbacks: list[L.Callback]) -> L.Trainer:
-    """Lightning's fit of ``module`` on ``dm`` (from ``last.ckpt`` on a resume); returns the trainer."""
+    """Lightning's fit of ``module`` on ``dm`` (from ``last.ckpt`` on a resume); returns the trainer, whose
+    ``interrupted`` says that a signal stopped the fit."""
     from lightning.pytorch.loggers import TensorBoardLogger
 
+    # Lightning ignores Ctrl-C from the first one on: the caller's handler comes back when the fit ends.
+    main_thread = threading.current_thread() is threading.main_thread()
+    sigint, sigterm = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    callbacks = [*callbacks, _StopAtOnce(sigterm if callable(sigterm) else _raise_interrupt)]
     with _quiet_lightning():
         trainer = L.Trainer(
             accelerator=cfg.device if cfg.device != "auto" else "auto",
@@ -522,6 +719,7 @@ def _fit(cfg: TrainReprConfig, out: Path, module: ReprModule, dm, callbacks: lis
             max_steps=cfg.max_steps,
             logger=TensorBoardLogger(save_dir=str(out), name="tensorboard", version=""),
             callbacks=callbacks,
+            plugins=[_AtomicCheckpointIO()],
             enable_progress_bar=False,
             enable_model_summary=False,
             num_sanity_val_steps=0,
@@ -529,7 +727,16 @@ def _fit(cfg: TrainReprConfig, out: Path, module: ReprModule, dm, callbacks: lis
             deterministic=False,
         )
         last_ckpt = _lightning_dir(out) / "last.ckpt"
-        trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if cfg.resume else None, weights_only=True)
+        try:
+            trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if cfg.resume else None, weights_only=True)
+        except (KeyboardInterrupt, SystemExit):
+            # Lightning ends a fit that Ctrl-C (or a handler's KeyboardInterrupt) stopped with sys.exit(1), and one
+            # that its own SIGTERM handler stopped with SystemExit; either way it marks the trainer interrupted.
+            if not trainer.interrupted:
+                raise
+        finally:
+            if main_thread and signal.getsignal(signal.SIGINT) is not sigint and sigint is not None:
+                signal.signal(signal.SIGINT, sigint)
     return trainer
 
 
@@ -571,9 +778,11 @@ def _write_kept(
 
 def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> dict[str, Any]:
     """Run training as configured; returns the paths written and the kept epoch's figures. Prints nothing;
-    ``progress`` (see :data:`TrainProgress`) hears of every step."""
-    from lightning.pytorch.callbacks import ModelCheckpoint
+    ``progress`` (see :data:`TrainProgress`) hears of every step.
 
+    ``lightning/last.ckpt`` is saved at every epoch's end (see :class:`ResumableCheckpoint`). A run stopped by
+    SIGTERM or Ctrl-C writes no ``ckpt.pt`` (the weights of a cut-short run are not a result): it raises
+    :class:`TrainingInterrupted`, which says what ``last.ckpt`` holds, and ``resume`` goes on from there."""
     if not cfg.data:
         raise ValueError("training needs data: one or more capture files (--data)")
     out = Path(cfg.out)
@@ -582,21 +791,27 @@ def train_repr(cfg: TrainReprConfig, progress: TrainProgress | None = None) -> d
     _check_run_folder(cfg, out, _lightning_dir(out) / "last.ckpt", rank)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
     dm, dataset = _data(cfg, out, rank)
+    order = TrainingOrder(cfg.seed)
+    order.install(dm)
     on_cpu = cfg.device == "cpu" or (cfg.device == "auto" and not torch.cuda.is_available())
     if on_cpu and cfg.devices > 1:
         # Processes share the machine's cores: torch's threads per process are the cores' share, not all of them.
         torch.set_num_threads(max(1, len(os.sched_getaffinity(0)) // cfg.devices))
     enc_cfg, module = _repr_module(cfg, dm)
+    module.draws.manual_seed(cfg.seed)
     history = MetricsHistory(out / "metrics.json", dm.catalogue.target_units, dm.catalogue.target_names)
     best_weights = BestWeights()
     throughput = _Throughput()
     # Only last.ckpt, for --resume: the best weights travel in BestWeights' state inside it.
-    last_keeper = ModelCheckpoint(dirpath=_lightning_dir(out), save_last=True, save_top_k=0)
-    callbacks = [best_weights, history, last_keeper, throughput, *([_ReportProgress(progress)] if progress else [])]
+    keeper = ResumableCheckpoint(_lightning_dir(out) / "last.ckpt", cfg.checkpoint_every_min, order, module.draws)
+    callbacks = [best_weights, history, keeper, throughput, *([_ReportProgress(progress)] if progress else [])]
     trainer = _fit(cfg, out, module, dm, callbacks)
-    if not trainer.is_global_zero:  # rank 0 writes ckpt.pt, the figure and metrics.json
+    if trainer.interrupted or not trainer.is_global_zero:  # rank 0 writes ckpt.pt, the figure and metrics.json
         dm.train_set.close()
         dm.val_set.close()
+        if trainer.interrupted:
+            saved = keeper.path.is_file()
+            raise TrainingInterrupted(keeper.path if saved else None, keeper.finished_epochs, keeper.saved_step)
         return {"rank": int(trainer.global_rank)}
     device = trainer.strategy.root_device
     ckpt_path, figure, best = _write_kept(out, enc_cfg, module, best_weights, history, dm, dataset, device)
