@@ -22,12 +22,12 @@ def emit(result: Any, as_json: bool, lines: Callable[[Any], list[str]] | None = 
             print(f"{key}: {value}")
 
 
-@contextmanager
 def note(text: str) -> None:
     """A status line on stderr (what a command is doing, where it writes), apart from its result on stdout."""
     print(text, file=sys.stderr, flush=True)
 
 
+@contextmanager
 def progress_bar(total: int | None, unit: str, desc: str, enabled: bool = True) -> Iterator[Any]:
     """A tqdm bar on stderr (hidden when stderr is not a terminal, or when not ``enabled``)."""
     from tqdm import tqdm
