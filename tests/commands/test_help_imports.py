@@ -12,7 +12,7 @@ from vision_rl.commands.main import COMMANDS
 HEAVY = ("torch", "lightning", "stable_baselines3", "moderngl")
 #: Issue 62's commands still to move: their options' classes (TrainReprConfig, TrainDDPGConfig, DDPGHyper) sit in
 #: modules that import torch. Remove a module here once it is light; the test then holds it so.
-PENDING = ("vision_rl.commands.train_repr", "vision_rl.commands.train_ddpg", "vision_rl.commands.ddpg_reference")
+PENDING = ("vision_rl.commands.train_ddpg", "vision_rl.commands.ddpg_reference")
 
 # In a fresh interpreter: import one command module, list the heavy libraries loaded, then parse --help of each of
 # its commands and list them again.

@@ -94,8 +94,7 @@ def test_the_command_configs_fit_the_plumbing():
 def test_every_config_of_these_commands_is_frozen_with_a_docstring_per_field():
     from vision_rl.capture.sim_capture import CaptureConfig
     from vision_rl.commands.main import COMMANDS
-    from vision_rl.phase1_repr.config import BenchLatencyConfig
-    from vision_rl.phase1_repr.train import TrainReprConfig
+    from vision_rl.phase1_repr.config import BenchLatencyConfig, TrainReprConfig
 
     mine = [c for c in COMMANDS.values() if c.module.startswith("vision_rl.commands.")]
     classes = [CaptureConfig, BenchLatencyConfig, TrainReprConfig]

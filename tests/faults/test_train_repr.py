@@ -24,7 +24,8 @@ from tests.helpers.processes import kill_and_read
 from vision_rl.commands.main import main
 from vision_rl.datasets import TargetValueError
 from vision_rl.phase1_repr import EncoderCheckpointError, load_encoder
-from vision_rl.phase1_repr.train import TrainReprConfig, train_repr
+from vision_rl.phase1_repr.config import TrainReprConfig
+from vision_rl.phase1_repr.train import train_repr
 
 SMALL = {"epochs": 1, "batch_size": 8, "num_workers": 0, "width_mult": 0.25, "val_fraction": 0.25}
 REPO = Path(__file__).resolve().parents[2]

@@ -15,8 +15,8 @@ import torch
 from tests.helpers.captures import TARGET_NAMES, write_synthetic_capture
 from vision_rl.phase1_repr import load_encoder
 from vision_rl.phase1_repr.checkpoint import save_checkpoint
+from vision_rl.phase1_repr.config import TrainReprConfig
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
-from vision_rl.phase1_repr.train import TrainReprConfig
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -15,8 +15,9 @@ from tests.helpers.captures import TARGET_NAMES, frames_and_targets, write_synth
 from vision_rl.datasets import TargetStandardiser
 from vision_rl.datasets.augment import target_mirror
 from vision_rl.phase1_repr import load_encoder
+from vision_rl.phase1_repr.config import TrainReprConfig
 from vision_rl.phase1_repr.encoder import EncoderConfig
-from vision_rl.phase1_repr.train import ReprModule, TrainReprConfig, group_targets, regression_metrics, train_repr
+from vision_rl.phase1_repr.train import ReprModule, group_targets, regression_metrics, train_repr
 
 
 def test_loss_falls_on_sixteen_frames(tmp_path: Path) -> None:

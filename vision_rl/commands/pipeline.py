@@ -660,7 +660,8 @@ def _reported_capture(report: StageReport, opts: PipelineOptions, sizes: Pipelin
 def _stages_beside_the_state_policy(
     opts: PipelineOptions, sizes: PipelineSizes, state: Callable[[], dict[str, Any]], report: StageReport
 ) -> dict[str, Any]:
-    from vision_rl.phase1_repr.train import TrainReprConfig, train_repr
+    from vision_rl.phase1_repr.config import TrainReprConfig
+    from vision_rl.phase1_repr.train import train_repr
 
     summary: dict[str, Any] = {"mode": opts.mode, "track": opts.track, "car": opts.car}
     t_start = t0 = time.perf_counter()

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from vision_rl.commands.output import emit, note, progress_bar, show
-from vision_rl.phase1_repr.train import TrainReprConfig, launch_rank
+from vision_rl.phase1_repr.config import TrainReprConfig, launch_rank
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,6 @@ import threading
 import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +36,7 @@ from vision_rl.datasets.augment import FrameAugmentation, target_mirror
 from vision_rl.datasets.capture_dataset import TargetStandardiser
 from vision_rl.files import atomic_write, write_json
 from vision_rl.phase1_repr.checkpoint import save_checkpoint
+from vision_rl.phase1_repr.config import TrainReprConfig, launch_rank
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
 
 #: Target groups reported with R^2, matched by name prefix; any other target lands in "other".
@@ -271,111 +271,6 @@ class BestWeights(L.Callback):
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         self.epoch, self.val_loss = state_dict.get("epoch"), state_dict.get("val_loss")
         self.weights = dict(state_dict.get("weights", {}))
-
-
-#: Lightning strategies train-repr offers: one device, or distributed data parallel over ``devices`` processes.
-STRATEGIES = ("auto", "ddp")
-
-
-def launch_rank() -> int:
-    """This process's rank among those Lightning's DDP launcher started: 0 in the process the user started (and in
-    a one-device run), > 0 in the copies of the command it started with ``LOCAL_RANK`` / ``NODE_RANK`` set."""
-    try:
-        return int(os.environ.get("LOCAL_RANK", "0") or 0) + int(os.environ.get("NODE_RANK", "0") or 0)
-    except ValueError:
-        return 0
-
-
-def _positive(value: float, option: str, minimum: float = 1) -> tuple[bool, str]:
-    return (math.isfinite(value) and value >= minimum), f"{option} must be >= {minimum:g}, got {value}"
-
-
-@dataclass(frozen=True)
-class TrainReprConfig:
-    """Train the Phase-1 encoder on capture files; writes ckpt.pt, metrics.json, TensorBoard logs and a figure."""
-
-    data: str = ""
-    """Training capture file(s): a path, a comma-separated list or a glob."""
-    val: str = ""
-    """Validation capture (undisturbed laps); empty: laps held out of ``data``."""
-    val_fraction: float = 0.1
-    """Share of frames held out by lap when ``val`` is empty."""
-    epochs: int = 50
-    """Training epochs (the paper: best of 50)."""
-    max_steps: int = -1
-    """Stop after this many optimiser steps (-1: no limit)."""
-    batch_size: int = 64
-    """Frames per batch."""
-    lr: float = 2e-3
-    """AdamW peak learning rate (cosine decay to 0)."""
-    weight_decay: float = 1e-4
-    """AdamW weight decay on weights (not biases)."""
-    backbone: str = "s2d"
-    """s2d (the paper's design) or mobilenet_v3_small."""
-    width_mult: float = 1.0
-    """Multiply every channel count of the s2d encoder."""
-    space2depth_block_px: int = 4
-    """Space2depth block side, px."""
-    augment: bool = True
-    """Random brightness, contrast and saturation."""
-    shift_px: int = 0
-    """Random shift of up to this many pixels (0: off)."""
-    balance_groups: bool = False
-    """Weight the loss so that each target group counts alike (the 13 edge rays otherwise outweigh the heading
-    angle 13 to 1): raises the heading's R^2, lowers the edges' and curvature's."""
-    mirror: bool = False
-    """Mirror half the training frames left-right with their targets (the view of the mirrored track): for
-    encoders meant for other tracks; on the capture's own track it lowered R^2."""
-    num_workers: int = 2
-    """DataLoader worker processes."""
-    seed: int = 0
-    """Seed of weights, split and batches."""
-    device: str = "auto"
-    """auto, cpu or cuda."""
-    precision: str = "32-true"
-    """Lightning precision, e.g. 32-true, bf16-mixed."""
-    devices: int = 1
-    """Devices to train on at once: processes on CPUs, GPUs on CUDA (> 1 needs ``strategy`` ddp)."""
-    strategy: str = "auto"
-    """Lightning strategy: auto (one device) or ddp (one process per device, batches shared out)."""
-    out: str = "runs/repr/default"
-    """Output folder."""
-    resume: bool = False
-    """Continue the run in ``out`` from its last checkpoint."""
-    checkpoint_every_min: float = 0.0
-    """Also save ``lightning/last.ckpt`` inside an epoch every this many minutes (0: off; it is saved at every
-    epoch's end regardless). A resume from inside an epoch redraws the order of the epoch's remaining frames, so it
-    does not end in the weights of an uninterrupted run as a resume from an epoch's end does: for epochs of hours."""
-    force: bool = False
-    """Start over in an ``out`` that holds a run."""
-
-    def __post_init__(self) -> None:
-        # Bounds of every size, checked when the configuration is made (the command line reports them as one line).
-        checks = (
-            _positive(self.epochs, "--epochs"),
-            _positive(self.batch_size, "--batch-size"),
-            _positive(self.num_workers, "--num-workers", 0),
-            _positive(self.space2depth_block_px, "--space2depth-block-px"),
-            _positive(self.shift_px, "--shift-px", 0),
-            _positive(self.weight_decay, "--weight-decay", 0),
-            _positive(self.checkpoint_every_min, "--checkpoint-every-min", 0),
-            (
-                self.max_steps == -1 or self.max_steps >= 1,
-                f"--max-steps must be >= 1 or -1 (no limit), got {self.max_steps}",
-            ),
-            (math.isfinite(self.lr) and self.lr > 0, f"--lr must be > 0, got {self.lr}"),
-            (
-                math.isfinite(self.width_mult) and self.width_mult > 0,
-                f"--width-mult must be > 0, got {self.width_mult}",
-            ),
-            (0 < self.val_fraction < 1, f"--val-fraction must be within (0, 1), got {self.val_fraction}"),
-            _positive(self.devices, "--devices"),
-            (self.strategy in STRATEGIES, f"--strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}"),
-            (self.devices == 1 or self.strategy == "ddp", f"--devices {self.devices} needs --strategy ddp"),
-        )
-        for ok, message in checks:
-            if not ok:
-                raise ValueError(message)
 
 
 #: ``progress(steps_done, steps_total, figures)``: called by :func:`train_repr` after every optimiser step and every
