@@ -14,7 +14,7 @@ ENCODER_RUNTIMES = ("torch", "onnxruntime", "auto")
 BACKBONES = ("s2d", "mobilenet_v3_small")
 """vision_rl.phase1_repr.encoder.BACKBONES"""
 STRATEGIES = ("auto", "ddp")
-"""vision_rl.phase1_repr.train.STRATEGIES"""
+"""vision_rl.phase1_repr.config.STRATEGIES"""
 COMPRESSIONS = ("zstd", "gzip", "lzf", "none")
 """vision_rl.capture.h5format.COMPRESSIONS"""
 DDPG_VARIANTS = ("asymmetric", "symmetric", "state-actor")
