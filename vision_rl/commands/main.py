@@ -144,6 +144,12 @@ COMMANDS: dict[str, Command] = {
         "CompareDDPGOptions",
         "run_compare_ddpg",
     ),
+    "ddpg-reference": Command(
+        "our DDPG beside SB3's DDPG and TD3 on a Gymnasium task",
+        f"{_C}.ddpg_reference",
+        "DDPGReferenceOptions",
+        "run_ddpg_reference",
+    ),
     "report": Command(
         "the README's and the docs' result tables from the records (--check: fail if stale)",
         f"{_C}.report",

@@ -102,6 +102,8 @@ class DDPGHyper:
     """Rewards are multiplied by this in the critic's targets (1: the paper's)."""
     channels_last: bool = True
     """Run the convolutions in channels-last memory format (faster on CPUs; the frames already are)."""
+    batch_norm: bool = True
+    """Batch-norm after every hidden layer's ReLU (the paper's); False: plain ReLU layers, as Stable-Baselines3's."""
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
@@ -129,27 +131,31 @@ class DDPGHyper:
 # ------------------------------------------------------------------------------------------------ networks
 
 
-def _dense_pathway(n_in: int) -> nn.Sequential:
-    """Dense 150, 300, 300, each ReLU then batch-norm."""
+def _dense_pathway(n_in: int, batch_norm: bool = True) -> nn.Sequential:
+    """Dense 150, 300, 300, each ReLU then batch-norm (without ``batch_norm``: ReLU only)."""
     layers: list[nn.Module] = []
     for n_out in (150, 300, 300):
-        layers += [nn.Linear(n_in, n_out), nn.ReLU(), nn.BatchNorm1d(n_out)]
+        layers += [nn.Linear(n_in, n_out), nn.ReLU()]
+        if batch_norm:
+            layers.append(nn.BatchNorm1d(n_out))
         n_in = n_out
     return nn.Sequential(*layers)
 
 
 class ConvTrunk(nn.Module):
     """The paper's four 2x2 stride-1 convolutions (64, 64, 32, 32), each ReLU, batch-norm, 2x2 max-pool; input
-    uint8 frames (n, H, W, 3) of exactly ``image_hw_px``."""
+    uint8 frames (n, H, W, 3) of exactly ``image_hw_px`` (without ``batch_norm``: no batch-norm)."""
 
-    def __init__(self, image_hw_px: tuple[int, int]) -> None:
+    def __init__(self, image_hw_px: tuple[int, int], batch_norm: bool = True) -> None:
         super().__init__()
         self.image_hw_px = (int(image_hw_px[0]), int(image_hw_px[1]))
         layers: list[nn.Module] = []
         c_in, (h, w) = 3, self.image_hw_px
         for c_out in (64, 64, 32, 32):
             # Pooling before the ReLU gives the same values as after it (both are monotone) on a quarter of them.
-            layers += [nn.Conv2d(c_in, c_out, 2, 1), nn.MaxPool2d(2), nn.ReLU(inplace=True), nn.BatchNorm2d(c_out)]
+            layers += [nn.Conv2d(c_in, c_out, 2, 1), nn.MaxPool2d(2), nn.ReLU(inplace=True)]
+            if batch_norm:
+                layers.append(nn.BatchNorm2d(c_out))
             c_in, h, w = c_out, (h - 1) // 2, (w - 1) // 2
         if h < 1 or w < 1:
             raise FrameSizeError(
@@ -196,24 +202,30 @@ class _KeyHead(nn.Module):
 
 
 class _Scaled(nn.Module):
-    """Motion and goal (n, 18) scaled by fixed offsets and scales (kept in the weights)."""
+    """Motion and goal (n, 18), or a task's flat state, scaled by fixed offsets and scales (kept in the weights)."""
 
     def __init__(self, offset: np.ndarray, scale: np.ndarray) -> None:
         super().__init__()
         self.register_buffer("offset", torch.as_tensor(offset, dtype=torch.float32))
         self.register_buffer("scale", torch.as_tensor(scale, dtype=torch.float32))
 
-    def forward(self, motion: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        return (torch.cat([motion, goal], 1) - self.offset) / self.scale
+    def forward(self, *parts: torch.Tensor) -> torch.Tensor:
+        return (torch.cat(parts, 1) - self.offset) / self.scale
 
 
 class PixelActor(nn.Module):
     """Frames (n, H, W, 3) uint8 -> keys (n, 4)."""
 
-    def __init__(self, image_hw_px: tuple[int, int], init_scale: float = 1e-2, pedal_activation: str = "relu") -> None:
+    def __init__(
+        self,
+        image_hw_px: tuple[int, int],
+        init_scale: float = 1e-2,
+        pedal_activation: str = "relu",
+        batch_norm: bool = True,
+    ) -> None:
         super().__init__()
-        self.trunk = ConvTrunk(image_hw_px)
-        self.dense = _dense_pathway(self.trunk.out_dim)
+        self.trunk = ConvTrunk(image_hw_px, batch_norm)
+        self.dense = _dense_pathway(self.trunk.out_dim, batch_norm)
         self.head = _KeyHead(300, init_scale, pedal_activation)
 
     def forward(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
@@ -224,11 +236,16 @@ class StateActor(nn.Module):
     """Motion and goal -> keys (n, 4): the state-only actor of the ablation."""
 
     def __init__(
-        self, offset: np.ndarray, scale: np.ndarray, init_scale: float = 1e-2, pedal_activation: str = "relu"
+        self,
+        offset: np.ndarray,
+        scale: np.ndarray,
+        init_scale: float = 1e-2,
+        pedal_activation: str = "relu",
+        batch_norm: bool = True,
     ) -> None:
         super().__init__()
         self.scaled = _Scaled(offset, scale)
-        self.dense = _dense_pathway(18)
+        self.dense = _dense_pathway(18, batch_norm)
         self.head = _KeyHead(300, init_scale, pedal_activation)
 
     def forward(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
@@ -238,12 +255,12 @@ class StateActor(nn.Module):
 class Critic(nn.Module):
     """Q(motion, goal, action): three pathways merged into Dense 600 and Q."""
 
-    def __init__(self, offset: np.ndarray, scale: np.ndarray) -> None:
+    def __init__(self, offset: np.ndarray, scale: np.ndarray, batch_norm: bool = True) -> None:
         super().__init__()
         self.scaled = _Scaled(offset, scale)
-        self.motion = _dense_pathway(15)
-        self.goal = _dense_pathway(3)
-        self.action = _dense_pathway(4)
+        self.motion = _dense_pathway(15, batch_norm)
+        self.goal = _dense_pathway(3, batch_norm)
+        self.action = _dense_pathway(4, batch_norm)
         self.merge = nn.Sequential(nn.Linear(900, 600), nn.ReLU(), nn.Linear(600, 1))
 
     def forward(self, obs: Mapping[str, torch.Tensor], action: torch.Tensor) -> torch.Tensor:
@@ -255,15 +272,72 @@ class Critic(nn.Module):
 class PixelCritic(nn.Module):
     """Q(frame, action) of the symmetric ablation: a CNN pathway like the actor's in place of motion and goal."""
 
-    def __init__(self, image_hw_px: tuple[int, int]) -> None:
+    def __init__(self, image_hw_px: tuple[int, int], batch_norm: bool = True) -> None:
         super().__init__()
-        self.trunk = ConvTrunk(image_hw_px)
-        self.image = _dense_pathway(self.trunk.out_dim)
-        self.action = _dense_pathway(4)
+        self.trunk = ConvTrunk(image_hw_px, batch_norm)
+        self.image = _dense_pathway(self.trunk.out_dim, batch_norm)
+        self.action = _dense_pathway(4, batch_norm)
         self.merge = nn.Sequential(nn.Linear(600, 600), nn.ReLU(), nn.Linear(600, 1))
 
     def forward(self, obs: Mapping[str, torch.Tensor], action: torch.Tensor) -> torch.Tensor:
         h = torch.cat([self.image(self.trunk(obs["image"])), self.action(action)], 1)
+        return self.merge(h).squeeze(1)
+
+
+@dataclass(frozen=True)
+class VectorTask:
+    """A task other than racing: a flat observation vector (key ``state``), scaled by fixed offsets and scales like
+    motion and goal, and ``action_dim`` actions in [-1, 1] (the caller maps them onto its task's bounds). With it the
+    ``state-actor`` agent's layers, update, noise and replay learn a standard Gymnasium task
+    (:mod:`vision_rl.ddpg.reference`)."""
+
+    obs_offset: tuple[float, ...]
+    """Subtracted from each observation component."""
+    obs_scale: tuple[float, ...]
+    """Each observation component is divided by this after the offset."""
+    action_dim: int
+    """Actions per step, each in [-1, 1]."""
+
+    def __post_init__(self) -> None:
+        if len(self.obs_offset) != len(self.obs_scale) or not self.obs_scale or self.action_dim < 1:
+            raise DDPGError(
+                f"a vector task needs as many offsets as scales (got {len(self.obs_offset)} and "
+                f"{len(self.obs_scale)}) and action_dim >= 1 (got {self.action_dim})"
+            )
+
+    @property
+    def obs_dim(self) -> int:
+        return len(self.obs_scale)
+
+
+class VectorActor(nn.Module):
+    """A flat state (n, d) -> actions (n, k) in [-1, 1]: the state actor's layers (scaled input, Dense 150, 300,
+    300, an output layer initialised by variance scaling) with tanh on every output."""
+
+    def __init__(self, task: VectorTask, init_scale: float = 1e-2, batch_norm: bool = True) -> None:
+        super().__init__()
+        self.scaled = _Scaled(np.asarray(task.obs_offset), np.asarray(task.obs_scale))
+        self.dense = _dense_pathway(task.obs_dim, batch_norm)
+        self.out = nn.Linear(300, task.action_dim)
+        _variance_scaling_(self.out, init_scale)
+
+    def forward(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        return torch.tanh(self.out(self.dense(self.scaled(obs["state"]))))
+
+
+class VectorCritic(nn.Module):
+    """Q(state, action) of a vector task: the critic's layers with one state pathway in place of motion and goal
+    (as :class:`PixelCritic`'s image pathway), merged with the action pathway into Dense 600 and Q."""
+
+    def __init__(self, task: VectorTask, batch_norm: bool = True) -> None:
+        super().__init__()
+        self.scaled = _Scaled(np.asarray(task.obs_offset), np.asarray(task.obs_scale))
+        self.state = _dense_pathway(task.obs_dim, batch_norm)
+        self.action = _dense_pathway(task.action_dim, batch_norm)
+        self.merge = nn.Sequential(nn.Linear(600, 600), nn.ReLU(), nn.Linear(600, 1))
+
+    def forward(self, obs: Mapping[str, torch.Tensor], action: torch.Tensor) -> torch.Tensor:
+        h = torch.cat([self.state(self.scaled(obs["state"])), self.action(action)], 1)
         return self.merge(h).squeeze(1)
 
 
@@ -298,11 +372,21 @@ class OUNoise:
 
 class FrameReplay:
     """Per-car streams of observation rows; a row with an action is a transition whose next observation is the
-    car's following row. ``capacity`` rows in all (``capacity // n_cars`` per car, at least 4)."""
+    car's following row. ``capacity`` rows in all (``capacity // n_cars`` per car, at least 4). ``state_dims``: the
+    observation's vector keys and widths (racing's motion 15 and goal 3 by default; a vector task's state), beside
+    the frames of ``image_hw_px``; ``action_dim`` actions per row."""
 
+    #: What a racing row holds, in the order of the files (:attr:`arrays`: this buffer's).
     ARRAYS = ("image", "motion", "goal", "action", "reward", "terminated", "valid")
 
-    def __init__(self, capacity: int, n_cars: int, image_hw_px: tuple[int, int] | None) -> None:
+    def __init__(
+        self,
+        capacity: int,
+        n_cars: int,
+        image_hw_px: tuple[int, int] | None,
+        state_dims: Mapping[str, int] | None = None,
+        action_dim: int = 4,
+    ) -> None:
         self.n_cars = int(n_cars)
         self.rows = int(capacity) // self.n_cars
         if self.rows < 4:
@@ -314,9 +398,12 @@ class FrameReplay:
         shape = (self.n_cars, self.rows)
         # np.zeros maps untouched pages lazily: an unfilled 3.2 GB buffer costs only what has been written.
         self.image = None if image_hw_px is None else np.zeros((*shape, *self.image_hw_px, 3), dtype=np.uint8)
-        self.motion = np.zeros((*shape, 15), dtype=np.float32)
-        self.goal = np.zeros((*shape, 3), dtype=np.float32)
-        self.action = np.zeros((*shape, 4), dtype=np.float32)
+        self.state_keys = tuple(state_dims or {"motion": 15, "goal": 3})
+        for key, width in (state_dims or {"motion": 15, "goal": 3}).items():
+            setattr(self, key, np.zeros((*shape, width), dtype=np.float32))
+        self.arrays = ("image", *self.state_keys, "action", "reward", "terminated", "valid")
+        """What a row holds, in the order of the files."""
+        self.action = np.zeros((*shape, action_dim), dtype=np.float32)
         self.reward = np.zeros(shape, dtype=np.float32)
         self.terminated = np.zeros(shape, dtype=bool)
         self.valid = np.zeros(shape, dtype=bool)
@@ -334,8 +421,8 @@ class FrameReplay:
     def _write_obs(self, cars: np.ndarray, rows: np.ndarray, obs: Mapping[str, np.ndarray]) -> None:
         if self.image is not None:
             self.image[cars, rows] = obs["image"]
-        self.motion[cars, rows] = obs["motion"]
-        self.goal[cars, rows] = obs["goal"]
+        for key in self.state_keys:
+            getattr(self, key)[cars, rows] = obs[key]
         self.valid[cars, rows] = False
         self.dirty[rows // self.chunk_rows] = True
 
@@ -382,7 +469,7 @@ class FrameReplay:
         nxt = (rows + 1) % self.rows
 
         def obs(r: np.ndarray) -> dict[str, np.ndarray]:
-            out = {"motion": self.motion[cars, r], "goal": self.goal[cars, r]}
+            out = {key: getattr(self, key)[cars, r] for key in self.state_keys}
             if self.image is not None:
                 out["image"] = self.image[cars, r]
             return out
@@ -410,9 +497,7 @@ def save_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint
         if not buffer.dirty[j] and str(j) in chunks:
             continue
         a, b = j * buffer.chunk_rows, min((j + 1) * buffer.chunk_rows, buffer.rows)
-        arrays = {
-            name: getattr(buffer, name)[:, a:b] for name in FrameReplay.ARRAYS if getattr(buffer, name) is not None
-        }
+        arrays = {name: getattr(buffer, name)[:, a:b] for name in buffer.arrays if getattr(buffer, name) is not None}
         name = f"chunk_{j:05d}_g{generation}.npz"
 
         def write(tmp: Path, arrays=arrays) -> None:
@@ -474,7 +559,7 @@ def load_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint
         a = int(j) * buffer.chunk_rows
         try:
             with np.load(path, allow_pickle=False) as data:
-                for name in FrameReplay.ARRAYS:
+                for name in buffer.arrays:
                     target = getattr(buffer, name)
                     if target is not None:
                         target[:, a : a + data[name].shape[1]] = data[name]
@@ -492,29 +577,49 @@ def _to_torch(obs: Mapping[str, np.ndarray], device: torch.device) -> dict[str, 
     return {k: torch.as_tensor(np.ascontiguousarray(v), device=device) for k, v in obs.items()}
 
 
+def _networks(hyper: DDPGHyper, env: PixelRacingConfig | VectorTask) -> tuple[nn.Module, nn.Module]:
+    """The actor and the critic of ``hyper``'s variant for ``env``, built in this order (torch's seed decides both)."""
+    init, pedal, bn = hyper.output_init_scale, hyper.pedal_activation, hyper.batch_norm
+    if isinstance(env, VectorTask):
+        if hyper.variant != "state-actor":
+            raise DDPGError(f"a vector task has no frames: only the state-actor variant learns it, not {hyper.variant}")
+        return VectorActor(env, init, bn), VectorCritic(env, bn)
+    if (hyper.pixel_actor or hyper.pixel_critic) and not env.frames:
+        raise DDPGError(f"the {hyper.variant} agent reads frames: the environment must render them (frames=True)")
+    offset, scale = critic_input_scale(load_track(env.track), get_preset(env.car), env.goal_frame)
+    hw = env.image_hw_px
+    actor = PixelActor(hw, init, pedal, bn) if hyper.pixel_actor else StateActor(offset, scale, init, pedal, bn)
+    critic = PixelCritic(hw, bn) if hyper.pixel_critic else Critic(offset, scale, bn)
+    return actor, critic
+
+
 class DDPGAgent:
     """Actor, critic, their targets and optimisers, and the exploration noise, for ``env``'s track, car and frames.
 
     Args:
         hyper: the hyper-parameters and variant.
-        env: the environment the agent acts in (its frame size, goal frame, track and car).
+        env: the environment the agent acts in (its frame size, goal frame, track and car), or a
+            :class:`VectorTask` (the state-actor variant only: its flat state drives actor and critic).
         n_cars: exploration processes (one per car).
         seed: torch's and the noise's seed.
     """
 
     def __init__(
-        self, hyper: DDPGHyper, env: PixelRacingConfig, n_cars: int = 1, seed: int = 0, device: str = "cpu"
+        self,
+        hyper: DDPGHyper,
+        env: PixelRacingConfig | VectorTask,
+        n_cars: int = 1,
+        seed: int = 0,
+        device: str = "cpu",
     ) -> None:
         self.hyper, self.env = hyper, env
-        if (hyper.pixel_actor or hyper.pixel_critic) and not env.frames:
-            raise DDPGError(f"the {hyper.variant} agent reads frames: the environment must render them (frames=True)")
         self.device = torch.device(device)
         torch.manual_seed(seed)
-        offset, scale = critic_input_scale(load_track(env.track), get_preset(env.car), env.goal_frame)
-        hw = env.image_hw_px
-        init, pedal = hyper.output_init_scale, hyper.pedal_activation
-        self.actor = PixelActor(hw, init, pedal) if hyper.pixel_actor else StateActor(offset, scale, init, pedal)
-        self.critic = PixelCritic(hw) if hyper.pixel_critic else Critic(offset, scale)
+        self.actor, self.critic = _networks(hyper, env)
+        if isinstance(env, VectorTask):
+            self.action_low, self.action_high = -np.ones(env.action_dim), np.ones(env.action_dim)
+        else:
+            self.action_low, self.action_high = action_space().low, action_space().high
         self.actor_target = self._copy(self.actor)
         self.critic_target = self._copy(self.critic)
         for net in (self.actor, self.critic, self.actor_target, self.critic_target):
@@ -528,7 +633,9 @@ class DDPGAgent:
         self.critic_target.eval()
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=hyper.actor_lr)
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=hyper.critic_lr)
-        self.noise = OUNoise(n_cars, 4, hyper.ou_theta, hyper.ou_sigma, hyper.ou_mu, hyper.ou_dt, seed=seed)
+        self.noise = OUNoise(
+            n_cars, len(self.action_low), hyper.ou_theta, hyper.ou_sigma, hyper.ou_mu, hyper.ou_dt, seed=seed
+        )
         self.n_updates = 0
         self._pairs = [
             (list(target.state_dict().values()), list(online.state_dict().values()))
@@ -546,6 +653,8 @@ class DDPGAgent:
 
     def actor_inputs(self, obs: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The keys of an observation that the actor reads."""
+        if isinstance(self.env, VectorTask):
+            return {"state": obs["state"]}
         return {"image": obs["image"]} if self.hyper.pixel_actor else {"motion": obs["motion"], "goal": obs["goal"]}
 
     @torch.no_grad()
@@ -556,7 +665,7 @@ class DDPGAgent:
         keys = self.actor(_to_torch(self.actor_inputs(obs), self.device)).cpu().numpy().astype(np.float64)
         if explore:
             keys = keys + self.noise()
-        return np.clip(keys, action_space().low, action_space().high)
+        return np.clip(keys, self.action_low, self.action_high)
 
     def update(self, batch: Mapping[str, Any]) -> dict[str, float]:
         """One critic and one actor step on a sampled batch, then the soft target update."""
@@ -575,6 +684,11 @@ class DDPGAgent:
         self.critic_opt.step()
 
         self.actor.train()
+        # The actor climbs the critic's Q of each state and action (eval-mode batch-norm): in train mode the critic's
+        # batch-norm normalised the actor's actions over the batch, so a change common to all of them cancelled and
+        # ours-bn never learned Pendulum-v1 (docs/results/ddpg-reference); its running statistics also took in the
+        # actor's actions besides the buffer's.
+        self.critic.eval()
         for p in self.critic.parameters():
             p.requires_grad_(False)
         try:

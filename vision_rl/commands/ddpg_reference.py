@@ -1,0 +1,114 @@
+"""`ddpg-reference`: the project's DDPG agent (state actor, with and without batch-norm) beside Stable-Baselines3's
+DDPG and TD3 on a standard Gymnasium task, same hyper-parameters, several seeds (:mod:`vision_rl.ddpg.reference`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+from vision_rl.commands.output import emit, progress_bar, show
+from vision_rl.config import nested
+from vision_rl.ddpg.agent import DDPGHyper
+from vision_rl.ddpg.reference import REFERENCE_HYPER
+
+
+@dataclass(frozen=True)
+class DDPGReferenceOptions:
+    """Train the project's DDPG agent (ours: no batch-norm, as SB3; ours-bn: the paper's batch-norm) and
+    Stable-Baselines3's DDPG and TD3 on a Gymnasium task with the same hyper-parameters, noise and widths; one JSON
+    record per run in --out/<task>/ (a record of the same settings there is reused, not trained again), a figure of
+    the learning curves (mean and one standard deviation over seeds) and a table of final returns."""
+
+    task: str = "Pendulum-v1"
+    """Gymnasium task id (Box observation and action): Pendulum-v1, MountainCarContinuous-v0."""
+    algos: str = "ours,ours-bn,sb3-ddpg,sb3-td3"
+    """Algorithms, comma-separated: ours, ours-bn, sb3-ddpg, sb3-td3."""
+    seeds: str = "0,1,2"
+    """Seeds, comma-separated."""
+    steps: int = 20_000
+    """Environment steps per run."""
+    learning_starts: int = 1_000
+    """Steps of uniform random actions (plus noise) before the first update."""
+    eval_every_steps: int = 1_000
+    """Deterministic evaluation every this many steps (0: only at the end)."""
+    eval_episodes: int = 5
+    """Episodes per periodic evaluation."""
+    final_eval_episodes: int = 10
+    """Episodes of the final evaluation (the final return)."""
+    hyper: DDPGHyper = nested(
+        REFERENCE_HYPER,
+        only=("actor_lr", "critic_lr", "tau", "gamma", "batch_size", "buffer_size", "ou_theta", "ou_sigma"),
+        help={
+            "actor_lr": "Adam step size of the actor (SB3: the same as --critic-lr).",
+            "ou_theta": "OU noise mean reversion per step (1: Gaussian noise).",
+            "ou_sigma": "OU noise scale, on actions in [-1, 1].",
+            "buffer_size": "Replay capacity, transitions.",
+        },
+    )
+    """Hyper-parameters of every algorithm (the shared recipe by default)."""
+    out: str = "runs/ddpg-reference"
+    """Folder of the records (<out>/<task>/<algo>-s<seed>.json), the figure and the summary."""
+    force: bool = False
+    """Train again runs whose records are already in --out."""
+    torch_threads: int = 1
+    """torch threads (0: torch's default)."""
+    progress: bool = True
+    """Show a progress bar on stderr."""
+    json: bool = False
+    """Print the summary as JSON."""
+
+
+def _split(text: str, kind: type) -> list[Any]:
+    return [kind(part.strip()) for part in text.split(",") if part.strip()]
+
+
+def format_reference(result: dict[str, Any]) -> list[str]:
+    lines = [
+        f"{result['task']}: final return (deterministic, mean of the last evaluation's episodes), mean ± std over seeds"
+    ]
+    for row in result["rows"]:
+        final, last, time_s = row["final_return"], row["last10_train_return"], row["train_time_s"]
+        lines.append(
+            f"  {row['algo']:<9} {final['mean']:9.1f} ± {final['std']:6.1f}   last 10 training episodes "
+            f"{last['mean']:8.1f} ± {last['std']:6.1f}   {len(row['seeds'])} seeds x {'/'.join(map(str, row['steps']))}"
+            f" steps, {time_s['mean']:.0f} s per run"
+        )
+    return [*lines, f"records: {result['records']}   figure: {result['figure']}"]
+
+
+def run_ddpg_reference(opts: DDPGReferenceOptions) -> int:
+    import torch
+
+    from vision_rl.ddpg.reference import ReferenceRun, load_or_run, plot_reference, summarise
+    from vision_rl.files import write_json
+
+    if opts.torch_threads > 0:
+        torch.set_num_threads(opts.torch_threads)
+    base = ReferenceRun(
+        task=opts.task,
+        steps=opts.steps,
+        learning_starts=opts.learning_starts,
+        eval_every_steps=opts.eval_every_steps,
+        eval_episodes=opts.eval_episodes,
+        final_eval_episodes=opts.final_eval_episodes,
+        hyper=opts.hyper,
+    )
+    runs = [replace(base, algo=a, seed=s) for a in _split(opts.algos, str) for s in _split(opts.seeds, int)]
+    if not runs:
+        raise ValueError("--algos and --seeds must name at least one algorithm and one seed")
+    records = []
+    with progress_bar(len(runs), "run", "ddpg-reference", enabled=opts.progress) as bar:
+        for i, run in enumerate(runs):
+            show(bar, i, algo=run.algo, seed=run.seed)
+            records.append(load_or_run(run, opts.out, opts.force)[0])
+        show(bar, len(runs))
+    folder = f"{opts.out}/{opts.task}"
+    result = {
+        "task": opts.task,
+        "rows": summarise(records),
+        "records": folder,
+        "figure": str(plot_reference(records, f"{folder}/curves.png", max(opts.eval_every_steps, 1_000))),
+    }
+    write_json(f"{folder}/summary.json", result)
+    emit(result, opts.json, format_reference)
+    return 0
