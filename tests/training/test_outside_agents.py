@@ -202,3 +202,30 @@ def test_a_newer_id_with_normalized_actions_drives_as_the_physical_one(small_tra
     v1 = vision_rl.evaluate(agent(np.ones(2)), env_id=ENV_ID, **protocol)
     v2 = vision_rl.evaluate(agent(np.array([1 / ACTION_STEER_LIMIT_RAD, 1.0])), env_id=newer, **protocol)
     assert v2["seeds"][0]["distance_m"] == pytest.approx(v1["seeds"][0]["distance_m"], rel=1e-6)
+
+
+def test_a_vision_agent_reads_the_encoders_embedding_and_the_record_names_the_encoder(
+    small_track, tiny_encoders, tmp_path
+):
+    from vision_rl.files import file_sha256
+
+    encoder, other = tiny_encoders
+    seen = []
+
+    def straight_on(obs):  # straight ahead at full throttle, whatever it sees
+        seen.append(obs)
+        return np.tile(np.array([0.0, 1.0], np.float32), (len(obs), 1))
+
+    protocol = dict(
+        env_id="vision_rl/TimeTrial-v2", track=small_track, observation="vision", runs=tmp_path, seeds=1,
+        time_limit_s=4.0,
+    )
+    record = vision_rl.evaluate(straight_on, name="vision-door", encoder=str(encoder), **protocol)
+    assert seen[0].shape == (1, 64 + 11) and seen[0].dtype == np.float32  # [embedding, 11 car-state features]
+    assert record["driver"]["observation"] == "vision"
+    assert record["driver"]["encoder_sha256"] == file_sha256(encoder) != file_sha256(other)
+    assert record["seeds"][0]["distance_m"] > 20.0
+    with pytest.raises(ValueError, match="not found"):
+        vision_rl.evaluate(straight_on, name="x", encoder=str(tmp_path / "none.pt"), write=False, **protocol)
+    with pytest.raises(ValueError, match=r"image_hw_px=\(280, 470\) but the encoder reads 64 x 96 frames"):
+        vision_rl.evaluate(straight_on, name="x", encoder=str(encoder), image_hw_px=(280, 470), **protocol)

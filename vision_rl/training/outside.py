@@ -133,6 +133,9 @@ def evaluate_agent(
     out = agent_record_path(runs, name)
     env = describe_env(env_id, env_kwargs)
     frames_encoder, encoder_sha256 = _frames_encoder(encoder, env, device, encoder_runtime)
+    if frames_encoder is not None and tuple(env.config.image_hw_px) != tuple(frames_encoder.input_hw_px):
+        env_kwargs = _frames_for(frames_encoder, env_id, env_kwargs)
+        env = describe_env(env_id, env_kwargs)
     check_spaces = getattr(predict, "check_spaces", None)
     if callable(check_spaces):
         check_spaces(env.observation_space, env.action_space)
@@ -151,6 +154,17 @@ def evaluate_agent(
     driver = PolicyDriver.for_config(checked, env.config.observation, normalizer, frames_encoder, env.config, identity)
     result = timed_record(driver, env.config, name, run, frames_encoder)
     return write_record(result, out) if write else result
+
+
+def _frames_for(encoder: Any, env_id: str, env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """``env_kwargs`` rendering the frames the encoder reads (as train-policy does), unless the user chose others."""
+    height, width = encoder.input_hw_px
+    if "image_hw_px" in env_kwargs:
+        chosen = tuple(env_kwargs["image_hw_px"])
+        raise ValueError(
+            f"{env_id}: image_hw_px={chosen} but the encoder reads {height} x {width} frames; leave image_hw_px out"
+        )
+    return {**env_kwargs, "image_hw_px": (height, width)}
 
 
 def agent_record_path(runs: str | os.PathLike[str], name: str) -> Path:
@@ -234,8 +248,10 @@ def _frames_encoder(encoder: Any, env: EnvFacts, device: str, runtime: str) -> t
         if not Path(encoder).is_file():
             raise ValueError(f"encoder checkpoint {encoder} not found")
         encoder = load_encoder(encoder, device=device, runtime=runtime)
-    if not hasattr(encoder, "rep_dim"):
-        raise ValueError("encoder must be a ckpt.pt path or a loaded encoder (frames -> (n, rep_dim), with rep_dim)")
+    if not (hasattr(encoder, "rep_dim") and hasattr(encoder, "input_hw_px")):
+        raise ValueError(
+            "encoder must be a ckpt.pt path or a loaded encoder (frames -> (n, rep_dim), with rep_dim and input_hw_px)"
+        )
     return encoder, getattr(encoder, "sha256", None)
 
 
