@@ -10,9 +10,6 @@ import sys
 from vision_rl.commands.main import COMMANDS
 
 HEAVY = ("torch", "lightning", "stable_baselines3", "moderngl")
-#: Issue 62's commands still to move: their options' classes (TrainReprConfig, TrainDDPGConfig, DDPGHyper) sit in
-#: modules that import torch. Remove a module here once it is light; the test then holds it so.
-PENDING = ("vision_rl.commands.train_ddpg", "vision_rl.commands.ddpg_reference")
 
 # In a fresh interpreter: import one command module, list the heavy libraries loaded, then parse --help of each of
 # its commands and list them again.
@@ -36,8 +33,6 @@ print(json.dumps(found))
 def test_no_command_module_or_help_imports_a_heavy_library():
     by_module: dict[str, list[str]] = {}
     for name, command in COMMANDS.items():
-        if command.module in PENDING:
-            continue
         by_module.setdefault(command.module, []).append(name)
     script = _SCRIPT.format(heavy=HEAVY)
     pending = list(by_module.items())
@@ -52,6 +47,6 @@ def test_no_command_module_or_help_imports_a_heavy_library():
             out, _ = run.communicate(timeout=120)
             assert run.returncode == 0, run.args[3]
             found.update(json.loads(out.strip().splitlines()[-1]))
-    assert {f"{name} --help" for name, c in COMMANDS.items() if c.module not in PENDING} <= set(found)
+    assert {f"{name} --help" for name in COMMANDS} <= set(found)
     heavy = {what: libraries for what, libraries in found.items() if libraries}
     assert not heavy, f"imported before parsing: {heavy}"

@@ -123,7 +123,7 @@ def run_bench_ddpg(opts: BenchDDPGOptions) -> int:
     import torch
 
     from vision_rl.ddpg.agent import BENCH_LAYOUTS, bench_updates
-    from vision_rl.ddpg.train import TrainDDPGConfig
+    from vision_rl.ddpg.config import TrainDDPGConfig
     from vision_rl.phase1_repr.bench import require_device
 
     if opts.updates < 1 or opts.torch_threads < 1:

@@ -18,7 +18,7 @@ STRATEGIES = ("auto", "ddp")
 COMPRESSIONS = ("zstd", "gzip", "lzf", "none")
 """vision_rl.capture.h5format.COMPRESSIONS"""
 DDPG_VARIANTS = ("asymmetric", "symmetric", "state-actor")
-"""vision_rl.ddpg.agent.VARIANTS"""
+"""vision_rl.ddpg.config.VARIANTS"""
 OVERTAKING_AGENTS = ("1", "2", "3", "standard")
 """vision_rl.overtaking.config.AGENTS"""
 BASELINE_ALGOS = ("bc", "gail", "td3", "sac", "dreamer")

@@ -8,8 +8,7 @@ from typing import Any
 
 from vision_rl.commands.output import emit, progress_bar, show
 from vision_rl.config import nested
-from vision_rl.ddpg.agent import DDPGHyper
-from vision_rl.ddpg.reference import REFERENCE_HYPER
+from vision_rl.ddpg.config import REFERENCE_HYPER, DDPGHyper
 
 
 @dataclass(frozen=True)
@@ -64,14 +63,15 @@ def _split(text: str, kind: type) -> list[Any]:
 
 def format_reference(result: dict[str, Any]) -> list[str]:
     lines = [
-        f"{result['task']}: final return (deterministic, mean of the last evaluation's episodes), mean ± std over seeds"
+        f"{result['task']}: returns, mean ± std over seeds: the final evaluation (deterministic), the last 5 "
+        "evaluations, the last 10 training episodes"
     ]
     for row in result["rows"]:
-        final, last, time_s = row["final_return"], row["last10_train_return"], row["train_time_s"]
+        bands = [row[k] for k in ("final_return", "last5_eval_return", "last10_train_return")]
+        text = "   ".join(f"{b['mean']:8.1f} ± {b['std']:6.1f}" for b in bands)
         lines.append(
-            f"  {row['algo']:<9} {final['mean']:9.1f} ± {final['std']:6.1f}   last 10 training episodes "
-            f"{last['mean']:8.1f} ± {last['std']:6.1f}   {len(row['seeds'])} seeds x {'/'.join(map(str, row['steps']))}"
-            f" steps, {time_s['mean']:.0f} s per run"
+            f"  {row['algo']:<9} {text}   {len(row['seeds'])} seeds x {'/'.join(map(str, row['steps']))} steps, "
+            f"{row['train_time_s']['mean']:.0f} s per run"
         )
     return [*lines, f"records: {result['records']}   figure: {result['figure']}"]
 

@@ -8,7 +8,7 @@ from typing import Any, ClassVar
 
 from vision_rl.commands.choices import DDPG_VARIANTS
 from vision_rl.commands.output import emit, format_sampling, interrupt_on_sigterm, progress_bar, restore_sigterm, show
-from vision_rl.ddpg.train import TrainDDPGConfig
+from vision_rl.ddpg.config import TrainDDPGConfig
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from vision_rl.ddpg.config import DDPGError, DDPGHyper, FrameSizeError
 from vision_rl.envs.observer import in_batches_of
 from vision_rl.envs.pixel_racing import (
     PixelObserver,
@@ -44,8 +45,6 @@ from vision_rl.sim.vehicle import get_preset
 from vision_rl.sim.world import World, WorldState
 from vision_rl.training.persist import ArtifactError, check_fingerprint, file_sha256
 
-VARIANTS = ("asymmetric", "symmetric", "state-actor")
-PEDAL_ACTIVATIONS = ("relu", "sigmoid")
 AGENT_FORMAT = "vision_rl.ddpg_agent"
 REPLAY_FORMAT = "vision_rl.ddpg_replay"
 FORMAT_VERSION = 1
@@ -56,76 +55,6 @@ REPLAY_DIR = "replay"
 CHUNK_FRAMES = 2048
 _ACTION_LOW = torch.as_tensor(action_space().low)
 _ACTION_HIGH = torch.as_tensor(action_space().high)
-
-
-class DDPGError(ValueError):
-    """An agent, checkpoint or input that does not fit (another variant, frame size, track); the message says why."""
-
-
-class FrameSizeError(DDPGError):
-    """Frames of a size the network was not built for."""
-
-
-@dataclass(frozen=True)
-class DDPGHyper:
-    """DDPG hyper-parameters (the paper's Table 2 by default)."""
-
-    variant: str = "asymmetric"
-    """asymmetric (pixel actor, motion + goal critic), symmetric (the critic on pixels too), state-actor."""
-    actor_lr: float = 1e-3
-    """Adam step size of the actor."""
-    critic_lr: float = 1e-4
-    """Adam step size of the critic."""
-    tau: float = 0.01
-    """Soft update of the target networks."""
-    gamma: float = 0.98
-    """Discount per control step."""
-    batch_size: int = 32
-    """Transitions per update."""
-    buffer_size: int = 100_000
-    """Replay capacity, rows (frames) over all cars: 100,000 89x120 frames take 3.2 GB."""
-    ou_theta: float = 0.8
-    """Ornstein-Uhlenbeck mean reversion per unit time."""
-    ou_sigma: float = 0.3
-    """Ornstein-Uhlenbeck noise scale."""
-    ou_mu: float = 0.0
-    """Ornstein-Uhlenbeck mean."""
-    ou_dt: float = 1.0
-    """Ornstein-Uhlenbeck time step per control step (1: x <- x + theta (mu - x) + sigma N, the Keras DDPG code's)."""
-    output_init_scale: float = 1e-2
-    """Variance-scaling scale of the actor's output layer."""
-    pedal_activation: str = "relu"
-    """Output activation of the accelerate and brake keys: relu (the paper's; a pedal whose pre-activation turns
-    negative passes no gradient, so the actor can never press it again) or sigmoid (never without a gradient; a fresh
-    actor holds both pedals half the step, as it holds both steering keys)."""
-    reward_scale: float = 1.0
-    """Rewards are multiplied by this in the critic's targets (1: the paper's)."""
-    channels_last: bool = True
-    """Run the convolutions in channels-last memory format (faster on CPUs; the frames already are)."""
-    batch_norm: bool = True
-    """Batch-norm after every hidden layer's ReLU (the paper's); False: plain ReLU layers, as Stable-Baselines3's."""
-
-    def __post_init__(self) -> None:
-        if self.variant not in VARIANTS:
-            raise DDPGError(f"variant must be one of {VARIANTS}, got {self.variant!r}")
-        if self.pedal_activation not in PEDAL_ACTIVATIONS:
-            raise DDPGError(f"pedal_activation must be one of {PEDAL_ACTIVATIONS}, got {self.pedal_activation!r}")
-        for name in ("actor_lr", "critic_lr", "ou_sigma", "ou_theta", "ou_dt", "output_init_scale", "reward_scale"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise DDPGError(f"{name} = {value} must be a finite number >= 0")
-        if not 0 < self.tau <= 1 or not 0 <= self.gamma < 1:
-            raise DDPGError(f"need 0 < tau <= 1 and 0 <= gamma < 1, got tau {self.tau}, gamma {self.gamma}")
-        if self.batch_size < 1 or self.buffer_size < 1:
-            raise DDPGError(f"batch_size and buffer_size must be >= 1, got {self.batch_size}, {self.buffer_size}")
-
-    @property
-    def pixel_actor(self) -> bool:
-        return self.variant != "state-actor"
-
-    @property
-    def pixel_critic(self) -> bool:
-        return self.variant == "symmetric"
 
 
 # ------------------------------------------------------------------------------------------------ networks

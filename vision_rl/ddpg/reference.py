@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from vision_rl.ddpg.agent import DDPGAgent, DDPGError, DDPGHyper, FrameReplay, VectorTask
+from vision_rl.ddpg.agent import DDPGAgent, FrameReplay, VectorTask
+from vision_rl.ddpg.config import REFERENCE_HYPER, DDPGError, DDPGHyper
 
 ALGOS = ("ours", "ours-bn", "sb3-ddpg", "sb3-td3")
 RECORD_FORMAT = "vision_rl.ddpg_reference"
@@ -39,24 +40,6 @@ SB3_ACTOR_ARCH = (150, 300, 300)
 #: SB3's critic, one MLP on (state, action): the widths along one path of ours (a pathway's 150, 300, 300, then the
 #: merge's 600).
 SB3_CRITIC_ARCH = (150, 300, 300, 600)
-
-#: The shared recipe: Stable-Baselines3's DDPG on Pendulum-v1 as rl-baselines3-zoo tunes it (learning rate 1e-3,
-#: gamma 0.98, buffer 200,000, Gaussian noise of 0.1, here as OU noise with theta 1 and dt 1, which is Gaussian: the
-#: process forgets its last value each step) with SB3's default tau (0.005), at batch 64 (the DDPG paper's, where
-#: SB3's default 256 costs four times the arithmetic per update on one core).
-REFERENCE_HYPER = DDPGHyper(
-    variant="state-actor",
-    actor_lr=1e-3,
-    critic_lr=1e-3,
-    tau=0.005,
-    gamma=0.98,
-    batch_size=64,
-    buffer_size=200_000,
-    ou_theta=1.0,
-    ou_sigma=0.1,
-    ou_dt=1.0,
-    batch_norm=False,
-)
 
 
 @dataclass(frozen=True)
@@ -358,8 +341,9 @@ def binned_returns(record: Mapping[str, Any], bin_steps: int) -> dict[int, float
 
 
 def summarise(records: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """One row per (task, algorithm): seeds, steps, final return's mean and std over seeds (sample std), and the mean
-    of the last 10 training episodes' returns likewise."""
+    """One row per (task, algorithm): seeds, steps, final return's mean and std over seeds (sample std), and likewise
+    the mean of the last 5 evaluations (one policy's 10 episodes are a noisy reading of a run whose policy still
+    oscillates) and of the last 10 training episodes' returns (with exploration noise)."""
     groups: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
     for r in records:
         groups.setdefault((r["task"], r["algo"]), []).append(r)
@@ -372,6 +356,7 @@ def summarise(records: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
                 "seeds": sorted(r["seed"] for r in rs),
                 "steps": sorted({r["steps"] for r in rs}),
                 "final_return": _band([r["final_return"] for r in rs]),
+                "last5_eval_return": _band([np.mean([e["mean_return"] for e in r["evaluations"][-5:]]) for r in rs]),
                 "last10_train_return": _band([np.mean([e["return"] for e in r["episodes"][-10:]]) for r in rs]),
                 "train_time_s": _band([r["train_time_s"] for r in rs]),
             }

@@ -20,15 +20,14 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from vision_rl.config import flat_values, nested
+from vision_rl.config import flat_values
 from vision_rl.ddpg.agent import (
     AGENT_NAME,
     REPLAY_DIR,
@@ -44,6 +43,7 @@ from vision_rl.ddpg.agent import (
     save_agent_file,
     save_replay,
 )
+from vision_rl.ddpg.config import TrainDDPGConfig, check_bounds
 from vision_rl.ddpg.sampling import episode_record
 from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
 from vision_rl.evaluation.leaderboard import evaluation_record
@@ -52,178 +52,11 @@ from vision_rl.files import atomic_write, json_text, write_json
 from vision_rl.training.interrupts import HeldSignal
 from vision_rl.training.persist import ArtifactError, check_fingerprint
 from vision_rl.training.sac import torch_device
-from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule, SamplerOptions
 
 METRICS_NAME = "metrics.jsonl"
 EPISODES_NAME = "episodes.jsonl"
 SIDECAR_FORMAT = "vision_rl.ddpg_run"
-MAX_CARS = 64
-
 Progress = Callable[[int, int, dict[str, Any] | None], None]
-
-
-#: The environment's fields that are train-ddpg options, with the command's help for them (PixelRacingConfig's own
-#: docstrings say more); the rest (control step, frames, crash and stuck rules) keep their defaults or follow --variant.
-ENV_OPTIONS_HELP = {
-    "track": "Track (the paper's Barcelona-Catalunya).",
-    "car": "Car preset (the paper's Porsche 911 GT3 R).",
-    "n_cars": "Cars driving at once, each alone (one frame each per step, rendered in one call).",
-    "episode_s": "Episode time limit, s.",
-    "image_hw_px": "The actor's frame, height and width px (the paper's 89x120).",
-    "render_scale": "Render at this multiple of the frame size and box-average down (antialiasing).",
-    "goal_frame": "The critic's goal: world (the racing-line point, the paper) or body (its offset from the car).",
-    "racing_line": "car (the car's minimum-curvature line) or reference (the racetrack-database's race line).",
-    "line_distance_alpha": "alpha of the reward V - alpha |racing-line distance| - beta crashState, (m/s) per m.",
-    "crash_penalty_beta": "beta of the reward (0: the paper's simple reward).",
-    "max_line_distance_m": "An episode ends farther than this from the racing line, m.",
-    "start": "Episodes start at a random point (random) or on the start/finish line (line).",
-    "start_skill": (
-        "Episodes start at this share of the limit speed there (the built-in AI's; 0: from standstill, as a race in "
-        "the game restarts)."
-    ),
-}
-
-#: train-ddpg's help for the agent's hyper-parameters, where it words them otherwise than :class:`DDPGHyper`.
-HYPER_OPTIONS_HELP = {
-    "buffer_size": "Replay capacity, frames over all cars (100,000 89x120 frames: 3.2 GB).",
-    "tau": "Soft target update.",
-    "gamma": "Discount per 0.1 s step.",
-    "ou_theta": "OU noise mean reversion.",
-    "ou_sigma": "OU noise scale.",
-    "reward_scale": "Rewards are multiplied by this in the critic's targets.",
-    "pedal_activation": (
-        "Output activation of the accelerate and brake keys: relu (the paper's) or sigmoid (a pedal never loses its "
-        "gradient; not in the paper)."
-    ),
-    "channels_last": "Channels-last convolutions (faster on CPUs).",
-}
-
-
-@dataclass(frozen=True)
-class TrainDDPGConfig:
-    """What `train-ddpg` trains, for how long, and where it writes."""
-
-    @staticmethod
-    def check_options(options: Mapping[str, Any]) -> None:
-        check_bounds(options)
-
-    variant: str = "asymmetric"
-    """asymmetric (pixel actor; critic on motion + racing line), symmetric (critic on pixels too), state-actor."""
-    steps: int = 100_000
-    """Transitions to train on (all cars together), including those of a resumed run."""
-    train_minutes: float = 0.0
-    """Also stop once the run's training time (all its sessions, evaluations excluded) reaches this many minutes
-    (0: no limit): the equal wall-clock budget of a comparison of variants, trained in chunks with --resume."""
-    seed: int = 0
-    """Seed of the networks, the noise and the episodes' start points."""
-    out: str = ""
-    """Run folder (default runs/ddpg/<variant>-<track>-<car>-s<seed>)."""
-    resume: bool = False
-    """Continue the run in --out (its variant, track, car and settings win)."""
-    force: bool = False
-    """Start over in a folder that holds a run."""
-    env: PixelRacingConfig = nested(
-        PixelRacingConfig(),
-        only=tuple(ENV_OPTIONS_HELP),
-        rename={"n_cars": "cars", "start_skill": "start_speed_share"},
-        help=ENV_OPTIONS_HELP,
-    )
-    """The environment (its ``frames`` follow --variant: :meth:`agent_configs`)."""
-    hyper: DDPGHyper = nested(
-        DDPGHyper(),
-        only=(
-            "actor_lr",
-            "critic_lr",
-            "tau",
-            "gamma",
-            "batch_size",
-            "buffer_size",
-            "ou_theta",
-            "ou_sigma",
-            "pedal_activation",
-            "reward_scale",
-            "channels_last",
-        ),
-        help=HYPER_OPTIONS_HELP,
-    )
-    """The agent's hyper-parameters (its ``variant`` is --variant's: :meth:`agent_configs`)."""
-    learning_starts: int = 1_000
-    """Transitions collected before the first update."""
-    updates_per_step: int = 1
-    """Updates after each step of all cars."""
-    evaluation: EvaluationSchedule = nested(
-        EvaluationSchedule(every_steps=10_000),
-        prefix="eval_",
-        help={
-            "every_steps": (
-                "Time the deterministic actor with the lap-time protocol every this many transitions (0: only at "
-                "the end)."
-            ),
-            "seeds": "Protocol seeds per evaluation.",
-            "laps": "Protocol laps per evaluation (the last is scored).",
-        },
-    )
-    """The periodic evaluations."""
-    eval_time_limit_s: float = 0.0
-    """Time limit of an evaluation run, s (0: the protocol's 3 limit laps per lap)."""
-    checkpoints: CheckpointSchedule = nested(
-        CheckpointSchedule(every_steps=10_000),
-        prefix="checkpoint_",
-        help={
-            "every_steps": "Save the agent and the buffer every this many transitions (0: only at the end).",
-            "every_min": "Save the agent (no buffer) every this many minutes of wall-clock time (0: never).",
-        },
-    )
-    """The periodic saves."""
-    torch_threads: int = 1
-    """torch threads (0: torch's default); the renderer and the simulator use the other core."""
-    device: str = "auto"
-    """torch device: auto (cuda when torch sees a GPU, else cpu), cpu or cuda."""
-    samplers: SamplerOptions = nested(
-        SamplerOptions(),
-        help={
-            "max_staleness": "With --workers: weight versions a sampler's actor may lag the learner's (0: synchronous)."
-        },
-    )
-    """Sampling in Ray actors."""
-
-    def agent_configs(self) -> tuple[DDPGHyper, PixelRacingConfig]:
-        """The agent's hyper-parameters and environment: the held ones with what --variant decides (the
-        hyper-parameters' variant; frames unless the actor is state-only)."""
-        hyper = dataclasses.replace(self.hyper, variant=self.variant)
-        return hyper, dataclasses.replace(self.env, frames=hyper.pixel_actor)
-
-
-def check_bounds(o: Mapping[str, Any]) -> None:
-    """One clear line for an option out of range, before anything is built or written: ``o`` holds the flat
-    options (:func:`~vision_rl.config.flat_values` of a config)."""
-    checks = {
-        "cars": 1 <= o["cars"] <= MAX_CARS,
-        "steps": o["steps"] >= 1,
-        "learning_starts": o["learning_starts"] >= 0,
-        "updates_per_step": o["updates_per_step"] >= 0,
-        "eval_every_steps": o["eval_every_steps"] >= 0,
-        "eval_seeds": o["eval_seeds"] >= 0,
-        "eval_laps": o["eval_laps"] >= 1,
-        "checkpoint_every_steps": o["checkpoint_every_steps"] >= 0,
-        "checkpoint_every_min": o["checkpoint_every_min"] >= 0,
-        "train_minutes": o["train_minutes"] >= 0,
-        "start_speed_share": 0 <= o["start_speed_share"] <= 1,
-        "torch_threads": o["torch_threads"] >= 0,
-        "eval_time_limit_s": o["eval_time_limit_s"] >= 0,
-    }
-    for name, ok in checks.items():
-        if not ok:
-            raise ValueError(f"--{name.replace('_', '-')} {o[name]} is out of range")
-    columns = o["cars"] * (o["workers"] or 1)
-    if o["buffer_size"] < 4 * columns:
-        raise ValueError(f"--buffer-size {o['buffer_size']} leaves fewer than 4 rows per car for {columns} cars")
-    if o["workers"] is not None or o["address"]:
-        from vision_rl.training.distributed import check_workers
-
-        if o["workers"] is None:
-            raise ValueError(f"--address {o['address']} needs --workers: the samplers are what runs on the cluster")
-        check_workers(o["workers"], o["max_staleness"], o["version_every_updates"])
 
 
 def _read_sidecar(path: Path) -> dict[str, Any]:
