@@ -8,7 +8,7 @@ from typing import Any, ClassVar
 
 from vision_rl.commands.choices import DDPG_VARIANTS
 from vision_rl.commands.output import emit, format_sampling, interrupt_on_sigterm, progress_bar, restore_sigterm, show
-from vision_rl.ddpg.config import TrainDDPGConfig
+from vision_rl.ddpg.config import TRUNK_PRESETS, TrainDDPGConfig
 
 
 @dataclass(frozen=True)
@@ -16,7 +16,7 @@ class TrainDDPGOptions(TrainDDPGConfig):
     """Train DDPG with an asymmetric actor-critic on PixelRacing-v0 (Catalunya, GT3 by default); evaluates through the
     lap-time protocol, saves without pickle, resumes, and saves on Ctrl-C or SIGTERM."""
 
-    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"variant": DDPG_VARIANTS}
+    option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"variant": DDPG_VARIANTS, "preset": TRUNK_PRESETS}
 
     progress: bool = True
     """Show a progress bar on stderr."""

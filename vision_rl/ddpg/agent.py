@@ -71,26 +71,41 @@ def _dense_pathway(n_in: int, batch_norm: bool = True) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-class ConvTrunk(nn.Module):
-    """The paper's four 2x2 stride-1 convolutions (64, 64, 32, 32), each ReLU, batch-norm, 2x2 max-pool; input
-    uint8 frames (n, H, W, 3) of exactly ``image_hw_px`` (without ``batch_norm``: no batch-norm)."""
+#: Each preset's convolutions, in order: (filters, stride, 2x2 max-pool after it); every kernel is 2x2. ``paper``: the
+#: paper's four stride-1 convolutions, each pooled. ``cpu``: the first two strided 2 (a 2x2 stride-2 kernel still reads
+#: every pixel once), the last two unpooled, which cuts the trunk's multiply-adds about tenfold (docs/notes/ddpg.md).
+TRUNK_LAYERS = {
+    "paper": ((64, 1, True), (64, 1, True), (32, 1, True), (32, 1, True)),
+    "cpu": ((64, 2, True), (64, 2, True), (32, 1, False), (32, 1, False)),
+}
 
-    def __init__(self, image_hw_px: tuple[int, int], batch_norm: bool = True) -> None:
+
+class ConvTrunk(nn.Module):
+    """Four 2x2 convolutions (64, 64, 32, 32), each ReLU, batch-norm and, where the preset says, 2x2 max-pool
+    (:data:`TRUNK_LAYERS`); input uint8 frames (n, H, W, 3) of exactly ``image_hw_px`` (without ``batch_norm``: no
+    batch-norm)."""
+
+    def __init__(self, image_hw_px: tuple[int, int], batch_norm: bool = True, preset: str = "paper") -> None:
         super().__init__()
         self.image_hw_px = (int(image_hw_px[0]), int(image_hw_px[1]))
         layers: list[nn.Module] = []
         c_in, (h, w) = 3, self.image_hw_px
-        for c_out in (64, 64, 32, 32):
-            # Pooling before the ReLU gives the same values as after it (both are monotone) on a quarter of them.
-            layers += [nn.Conv2d(c_in, c_out, 2, 1), nn.MaxPool2d(2), nn.ReLU(inplace=True)]
+        for c_out, stride, pool in TRUNK_LAYERS[preset]:
+            layers.append(nn.Conv2d(c_in, c_out, 2, stride))
+            h, w = (h - 2) // stride + 1, (w - 2) // stride + 1
+            if pool:
+                # Pooling before the ReLU gives the same values as after it (both are monotone) on a quarter of them.
+                layers.append(nn.MaxPool2d(2))
+                h, w = h // 2, w // 2
+            layers.append(nn.ReLU(inplace=True))
             if batch_norm:
                 layers.append(nn.BatchNorm2d(c_out))
-            c_in, h, w = c_out, (h - 1) // 2, (w - 1) // 2
-        if h < 1 or w < 1:
-            raise FrameSizeError(
-                f"frames of {self.image_hw_px[0]}x{self.image_hw_px[1]} px are too small for four "
-                "2x2 convolutions with 2x2 pooling: use at least 31x31"
-            )
+            c_in = c_out
+            if h < 1 or w < 1:
+                raise FrameSizeError(
+                    f"frames of {self.image_hw_px[0]}x{self.image_hw_px[1]} px are too small for the {preset} "
+                    "trunk's convolutions and pooling: use at least 31x31"
+                )
         self.net = nn.Sequential(*layers)
         self.out_dim = c_in * h * w
         self.channels_last = True
@@ -151,9 +166,10 @@ class PixelActor(nn.Module):
         init_scale: float = 1e-2,
         pedal_activation: str = "relu",
         batch_norm: bool = True,
+        trunk: str = "paper",
     ) -> None:
         super().__init__()
-        self.trunk = ConvTrunk(image_hw_px, batch_norm)
+        self.trunk = ConvTrunk(image_hw_px, batch_norm, trunk)
         self.dense = _dense_pathway(self.trunk.out_dim, batch_norm)
         self.head = _KeyHead(300, init_scale, pedal_activation)
 
@@ -201,9 +217,9 @@ class Critic(nn.Module):
 class PixelCritic(nn.Module):
     """Q(frame, action) of the symmetric ablation: a CNN pathway like the actor's in place of motion and goal."""
 
-    def __init__(self, image_hw_px: tuple[int, int], batch_norm: bool = True) -> None:
+    def __init__(self, image_hw_px: tuple[int, int], batch_norm: bool = True, trunk: str = "paper") -> None:
         super().__init__()
-        self.trunk = ConvTrunk(image_hw_px, batch_norm)
+        self.trunk = ConvTrunk(image_hw_px, batch_norm, trunk)
         self.image = _dense_pathway(self.trunk.out_dim, batch_norm)
         self.action = _dense_pathway(4, batch_norm)
         self.merge = nn.Sequential(nn.Linear(600, 600), nn.ReLU(), nn.Linear(600, 1))
@@ -506,6 +522,36 @@ def _to_torch(obs: Mapping[str, np.ndarray], device: torch.device) -> dict[str, 
     return {k: torch.as_tensor(np.ascontiguousarray(v), device=device) for k, v in obs.items()}
 
 
+def _batch_arrays(batch: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """A sampled batch flat: ``obs.<key>`` and ``next.<key>`` (frames stay uint8), action, reward and ``alive``
+    (1 - terminated) as float32."""
+    flat = {f"obs.{k}": v for k, v in batch["obs"].items()} | {f"next.{k}": v for k, v in batch["next_obs"].items()}
+    flat |= {"action": batch["action"], "reward": batch["reward"]}
+    out = {k: v if k.endswith(".image") else np.asarray(v, dtype=np.float32) for k, v in flat.items()}
+    out["alive"] = 1.0 - np.asarray(batch["terminated"], dtype=np.float32)
+    return out
+
+
+def _upload(arrays: Mapping[str, np.ndarray], device: torch.device) -> dict[str, torch.Tensor]:
+    """``arrays`` as tensors on ``device``. On a CPU they are views of the arrays; elsewhere the arrays of each dtype
+    travel in one pinned buffer and one asynchronous copy (a batch's ten arrays were ten copies, each a launch and
+    a wait for the host: docs/notes/ddpg.md, "the CUDA path")."""
+    if device.type == "cpu":
+        return {k: torch.as_tensor(np.ascontiguousarray(v)) for k, v in arrays.items()}
+    out: dict[str, torch.Tensor] = {}
+    for dtype in {np.asarray(v).dtype for v in arrays.values()}:
+        keys = [k for k, v in arrays.items() if np.asarray(v).dtype == dtype]
+        flat = np.concatenate([np.asarray(arrays[k]).reshape(-1) for k in keys])
+        sent = torch.from_numpy(flat).pin_memory().to(device, non_blocking=True)
+        start = 0
+        for k in keys:
+            shape = np.shape(arrays[k])
+            size = math.prod(shape)
+            out[k] = sent[start : start + size].view(shape)
+            start += size
+    return out
+
+
 def _networks(hyper: DDPGHyper, env: PixelRacingConfig | VectorTask) -> tuple[nn.Module, nn.Module]:
     """The actor and the critic of ``hyper``'s variant for ``env``, built in this order (torch's seed decides both)."""
     init, pedal, bn = hyper.output_init_scale, hyper.pedal_activation, hyper.batch_norm
@@ -517,8 +563,11 @@ def _networks(hyper: DDPGHyper, env: PixelRacingConfig | VectorTask) -> tuple[nn
         raise DDPGError(f"the {hyper.variant} agent reads frames: the environment must render them (frames=True)")
     offset, scale = critic_input_scale(load_track(env.track), get_preset(env.car), env.goal_frame)
     hw = env.image_hw_px
-    actor = PixelActor(hw, init, pedal, bn) if hyper.pixel_actor else StateActor(offset, scale, init, pedal, bn)
-    critic = PixelCritic(hw, bn) if hyper.pixel_critic else Critic(offset, scale, bn)
+    if hyper.pixel_actor:
+        actor: nn.Module = PixelActor(hw, init, pedal, bn, hyper.trunk)
+    else:
+        actor = StateActor(offset, scale, init, pedal, bn)
+    critic = PixelCritic(hw, bn, hyper.trunk) if hyper.pixel_critic else Critic(offset, scale, bn)
     return actor, critic
 
 
@@ -560,16 +609,26 @@ class DDPGAgent:
                     trunk.channels_last = hyper.channels_last
         self.actor_target.eval()
         self.critic_target.eval()
-        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=hyper.actor_lr)
-        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=hyper.critic_lr)
+        # On a GPU the fused Adam steps all of a network's parameters in one kernel (one per tensor otherwise).
+        fused = self.device.type == "cuda"
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=hyper.actor_lr, fused=fused)
+        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=hyper.critic_lr, fused=fused)
         self.noise = OUNoise(
             n_cars, len(self.action_low), hyper.ou_theta, hyper.ou_sigma, hyper.ou_mu, hyper.ou_dt, seed=seed
         )
         self.n_updates = 0
-        self._pairs = [
-            (list(target.state_dict().values()), list(online.state_dict().values()))
+        # The targets' tensors and their online twins, floats (lerped) apart from counters (copied), for one
+        # foreach call each per update in place of one call per tensor.
+        pairs = [
+            pair
             for target, online in ((self.actor_target, self.actor), (self.critic_target, self.critic))
+            for pair in zip(target.state_dict().values(), online.state_dict().values(), strict=True)
         ]
+        self._lerped = ([t for t, _ in pairs if t.is_floating_point()], [o for t, o in pairs if t.is_floating_point()])
+        self._copied = (
+            [t for t, _ in pairs if not t.is_floating_point()],
+            [o for t, o in pairs if not t.is_floating_point()],
+        )
 
     @staticmethod
     def _copy(net: nn.Module) -> nn.Module:
@@ -596,14 +655,15 @@ class DDPGAgent:
             keys = keys + self.noise()
         return np.clip(keys, self.action_low, self.action_high)
 
-    def update(self, batch: Mapping[str, Any]) -> dict[str, float]:
-        """One critic and one actor step on a sampled batch, then the soft target update."""
+    def update(self, batch: Mapping[str, Any]) -> dict[str, torch.Tensor]:
+        """One critic and one actor step on a sampled batch, then the soft target update. Returns the losses and the
+        mean target Q as 0-d tensors on the agent's device: reading them (``float``) waits for the device, so a
+        caller that does not log them costs no synchronisation."""
         h = self.hyper
-        dev = self.device
-        obs, nxt = _to_torch(batch["obs"], dev), _to_torch(batch["next_obs"], dev)
-        action = torch.as_tensor(batch["action"], device=dev)
-        reward = torch.as_tensor(batch["reward"], device=dev) * h.reward_scale
-        alive = 1.0 - torch.as_tensor(batch["terminated"], device=dev).float()
+        sent = _upload(_batch_arrays(batch), self.device)
+        obs = {k[4:]: v for k, v in sent.items() if k.startswith("obs.")}
+        nxt = {k[5:]: v for k, v in sent.items() if k.startswith("next.")}
+        action, alive, reward = sent["action"], sent["alive"], sent["reward"] * h.reward_scale
         with torch.no_grad():
             target_q = reward + h.gamma * alive * self.critic_target(nxt, self.actor_target(nxt))
         self.critic.train()
@@ -630,17 +690,14 @@ class DDPGAgent:
                 p.requires_grad_(True)
         self.soft_update(h.tau)
         self.n_updates += 1
-        return {"critic_loss": critic_loss.item(), "actor_loss": actor_loss.item(), "q_mean": target_q.mean().item()}
+        return {"critic_loss": critic_loss.detach(), "actor_loss": actor_loss.detach(), "q_mean": target_q.mean()}
 
     @torch.no_grad()
     def soft_update(self, tau: float) -> None:
         """Targets <- tau online + (1 - tau) targets; batch-norm running statistics too, counters copied."""
-        for targets, online in self._pairs:
-            for t, o in zip(targets, online, strict=True):
-                if t.dtype.is_floating_point:
-                    t.lerp_(o, tau)
-                else:
-                    t.copy_(o)
+        torch._foreach_lerp_(*self._lerped, tau)
+        if self._copied[0]:
+            torch._foreach_copy_(*self._copied)
 
     # ------------------------------------------------------------------ state
     def state(self) -> dict[str, Any]:

@@ -16,6 +16,8 @@ from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule,
 
 VARIANTS = ("asymmetric", "symmetric", "state-actor")
 PEDAL_ACTIVATIONS = ("relu", "sigmoid")
+#: The conv trunk's presets (:data:`vision_rl.ddpg.agent.TRUNK_LAYERS`).
+TRUNK_PRESETS = ("paper", "cpu")
 
 
 class DDPGError(ValueError):
@@ -64,10 +66,15 @@ class DDPGHyper:
     """Run the convolutions in channels-last memory format (faster on CPUs; the frames already are)."""
     batch_norm: bool = True
     """Batch-norm after every hidden layer's ReLU (the paper's); False: plain ReLU layers, as Stable-Baselines3's."""
+    trunk: str = "paper"
+    """The pixel networks' conv trunk: paper (four 2x2 stride-1 convolutions, each max-pooled) or cpu (the first two
+    strided 2, the last two unpooled: about a tenth of the multiply-adds; not in the paper)."""
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
             raise DDPGError(f"variant must be one of {VARIANTS}, got {self.variant!r}")
+        if self.trunk not in TRUNK_PRESETS:
+            raise DDPGError(f"trunk must be one of {TRUNK_PRESETS}, got {self.trunk!r}")
         if self.pedal_activation not in PEDAL_ACTIVATIONS:
             raise DDPGError(f"pedal_activation must be one of {PEDAL_ACTIVATIONS}, got {self.pedal_activation!r}")
         for name in ("actor_lr", "critic_lr", "ou_sigma", "ou_theta", "ou_dt", "output_init_scale", "reward_scale"):
@@ -144,6 +151,11 @@ HYPER_OPTIONS_HELP = {
         "gradient; not in the paper)."
     ),
     "channels_last": "Channels-last convolutions (faster on CPUs).",
+    "trunk": (
+        "The pixel actor's (and symmetric critic's) conv trunk: paper (four 2x2 stride-1 convolutions, each "
+        "max-pooled) or cpu (the first two strided 2, the last two unpooled: about a tenth of the multiply-adds per "
+        "update, for a 2-core CPU; not in the paper)."
+    ),
 }
 
 
@@ -191,7 +203,9 @@ class TrainDDPGConfig:
             "pedal_activation",
             "reward_scale",
             "channels_last",
+            "trunk",
         ),
+        rename={"trunk": "preset"},
         help=HYPER_OPTIONS_HELP,
     )
     """The agent's hyper-parameters (its ``variant`` is --variant's: :meth:`agent_configs`)."""
