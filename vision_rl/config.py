@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import functools
 import inspect
 import textwrap
 from collections.abc import Mapping
@@ -43,6 +44,11 @@ def nested(
 
 def field_docs(config_cls: type) -> dict[str, str]:
     """Field name -> attribute docstring (one line), over the class and its dataclass bases (the subclass wins)."""
+    return dict(_field_docs(config_cls))
+
+
+@functools.cache  # a class's source does not change while it is loaded; parsing it is most of a command's parse
+def _field_docs(config_cls: type) -> dict[str, str]:
     docs: dict[str, str] = {}
     for klass in reversed(config_cls.__mro__):
         if klass is object or not dataclasses.is_dataclass(klass):
@@ -86,6 +92,11 @@ def _nesting(f: dataclasses.Field) -> Nesting | None:
 
 def flat_fields(config_cls: type) -> list[FlatField]:
     """Every leaf field of ``config_cls`` and of the configs it holds, in declaration order."""
+    return list(_flat_fields(config_cls))
+
+
+@functools.cache
+def _flat_fields(config_cls: type) -> tuple[FlatField, ...]:
     out: list[FlatField] = []
     docs = field_docs(config_cls)
     defaults = _defaults(config_cls)
@@ -110,7 +121,7 @@ def flat_fields(config_cls: type) -> list[FlatField]:
     names = [flat.name for flat in out]
     if len(set(names)) != len(names):
         raise TypeError(f"{config_cls.__name__}: flat names repeat: {sorted(n for n in names if names.count(n) > 1)}")
-    return out
+    return tuple(out)
 
 
 def _defaults(config_cls: type) -> dict[str, Any]:

@@ -46,8 +46,10 @@ def test_pipeline_refuses_a_bad_frame_size_and_two_modes(capsys, tmp_path):
     assert "--image-hw-px must be two positive sizes (height, width) or 0 0, got 0 96" in capsys.readouterr().err
     assert main(["pipeline", "--quick", "--tiny", "--runs", runs]) == 2
     assert "--quick and --tiny: choose one" in capsys.readouterr().err
-    assert main(["pipeline", "--tiny", "--runs", runs, "--state-policy-laps", "-1"]) == 2
-    assert "--state-policy-laps must be >= 0 (0: none), got -1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:  # every number option refuses a negative value as argparse does
+        main(["pipeline", "--tiny", "--runs", runs, "--state-policy-laps", "-1"])
+    assert stop.value.code == 2
+    assert "argument --state-policy-laps: -1 is below the least value, 0" in capsys.readouterr().err
     assert not (tmp_path / "runs").exists()  # refused before any stage started
 
 

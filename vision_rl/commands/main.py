@@ -14,6 +14,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from vision_rl.commands.options import add_config_arguments, config_from_args
 
@@ -163,17 +164,24 @@ def _debug() -> bool:
     return os.environ.get("VISION_RL_DEBUG", "") not in ("", "0")
 
 
+def parse_command(name: str, argv: Sequence[str]) -> Any:
+    """The command's options from ``argv``, checked and not yet run: argparse exits (2) on a malformed option, a
+    ValueError names a value out of range or over the memory budget."""
+    command = COMMANDS[name]
+    options_cls = getattr(importlib.import_module(command.module), command.options)
+    parser = argparse.ArgumentParser(prog=f"vision-rl {name}", description=inspect.getdoc(options_cls))
+    add_config_arguments(parser, options_cls)
+    args = parser.parse_args(list(argv))
+    return config_from_args(options_cls, args)
+
+
 def run_command(name: str, argv: Sequence[str]) -> int:
     """Parse ``argv`` into the command's options and run it; bad input is a one-line error (exit 2)."""
     command = COMMANDS[name]
     prog = f"vision-rl {name}"
-    module = importlib.import_module(command.module)
-    options_cls = getattr(module, command.options)
-    parser = argparse.ArgumentParser(prog=prog, description=inspect.getdoc(options_cls))
-    add_config_arguments(parser, options_cls)
-    args = parser.parse_args(list(argv))
     try:
-        return int(getattr(module, command.run)(config_from_args(options_cls, args)))
+        options = parse_command(name, argv)
+        return int(getattr(importlib.import_module(command.module), command.run)(options))
     except (ValueError, OSError) as exc:  # bad input (a track file, a checkpoint, a dataset): say what, not a trace
         if _debug():
             raise

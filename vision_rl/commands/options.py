@@ -10,15 +10,22 @@ ALGOS}``); argparse shows and enforces them. A field whose help ends with "(requ
 (``""``, None) shows no default text: the help says what empty means.
 Field types: int, float, str, bool, ``tuple[int, int]`` (two values after the option, e.g. ``--image-hw-px 140
 236``) and ``tuple[int, ...]`` / ``tuple[str, ...]`` (one or more).
+
+Every number is checked here, once for all commands: it must be finite and at least 0, or at least the field's
+``metadata={"min": ...}`` / the config's ``option_minimums`` (``{"max_steps": -1}``; ``None``: any sign). A device
+other than auto or cpu must be present. Ranges of their own and memory are the configs' ``check_options``.
 """
 
 from __future__ import annotations
 
 import argparse
 import inspect
+import math
 import re
+from collections.abc import Callable
 from typing import Any
 
+from vision_rl.budget import array_bytes, require_memory
 from vision_rl.config import field_docs, flat_fields, from_flat  # noqa: F401  (field_docs: read by the tests here)
 
 _SCALARS = {"int": int, "float": float, "str": str}
@@ -49,6 +56,31 @@ def _add_bool(parser: argparse.ArgumentParser, flat: Any, help_text: str, config
     negative = dict(getattr(config_cls, "negative_switches", {})).get(flat.name) or flat.field.metadata.get("negative")
     if negative:
         parser.add_argument(negative, dest=flat.name, action="store_false", help=f"same as --no-{flag[2:]}")
+
+
+def _minimum(flat: Any, config_cls: type) -> float | None:
+    """The least value of a number option: the field's ``min``, else the config's ``option_minimums``, else 0."""
+    if "min" in flat.field.metadata:
+        return flat.field.metadata["min"]
+    return dict(getattr(config_cls, "option_minimums", {})).get(flat.name, 0)
+
+
+def _number(kind: type, minimum: float | None) -> Callable[[str], Any]:
+    """argparse's ``type=`` for an int or float option: a finite number, at least ``minimum`` (None: any)."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+        if minimum is not None and value < minimum:
+            raise argparse.ArgumentTypeError(f"{text} is below the least value, {minimum:g}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in its own messages
+    return parse
 
 
 def _choices(flat: Any, config_cls: type) -> tuple | None:
@@ -84,6 +116,8 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_cls: type) -> N
         if kind not in _SCALARS and kind not in _TUPLES:
             raise TypeError(f"{config_cls.__name__}.{flat.name}: options must be int, float, str, bool or a tuple")
         item, n = (_SCALARS[kind], None) if kind in _SCALARS else _TUPLES[kind]
+        if item is not str:
+            item = _number(item, _minimum(flat, config_cls))
         metavar = ("HEIGHT", "WIDTH") if flat.name.endswith("hw_px") else None
         parser.add_argument(
             flag,
@@ -101,6 +135,10 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_cls: type) -> N
 def config_from_args(config_cls: type, args: argparse.Namespace) -> Any:
     """The config built from parsed options (lists of ``nargs`` options become tuples)."""
     values = {flat.name: getattr(args, flat.name) for flat in flat_fields(config_cls)}
+    for name, value in values.items():
+        if name == "device" or name.endswith("_device"):
+            check_device_present("--" + name.replace("_", "-"), value)
+    check_memory(values)
     return from_flat(config_cls, {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
 
 
@@ -109,3 +147,76 @@ def parse_config(config_cls: type, argv: list[str], prog: str | None = None) -> 
     parser = argparse.ArgumentParser(prog=prog, description=inspect.getdoc(config_cls))
     add_config_arguments(parser, config_cls)
     return config_from_args(config_cls, parser.parse_args(argv))
+
+
+def check_device_present(option: str, name: str) -> None:
+    """Refuse a torch device that is not here (``cuda`` on a machine without a GPU) in one line; ``auto`` and
+    ``cpu`` always are, and need no torch."""
+    if name in ("auto", "cpu"):
+        return
+    from vision_rl.phase1_repr.bench import require_device  # torch, only for a device torch has to look for
+
+    try:
+        require_device(name)
+    except ValueError as exc:
+        raise ValueError(str(exc).replace("--device", option, 1)) from None
+
+
+#: The least a unit of each size option costs in memory, bytes, by flat name: a floor under what the run allocates
+#: per unit, so that an absurd size is refused before anything is made. A config's ``check_options`` prices what it
+#: knows better (a replay buffer of frames, an encoder's width).
+UNIT_BYTES = {
+    "cars": 1e6,  # a car's world state, sensors and observation buffers
+    "seeds": 1e6,  # seeds drive at once, one car each
+    "eval_seeds": 1e6,
+    "eval_starts": 1e6,
+    "eval_episodes": 1e6,
+    "final_eval_episodes": 1e3,
+    "runs": 1e3,  # settings' runs or timed calls: a record each
+    "setting_runs": 1e3,
+    "laps": 1e3,  # a lap's record per car
+    "eval_laps": 1e3,
+    "reward_laps": 1e3,
+    "state_policy_laps": 1e3,
+    "workers": 5e8,  # a Ray sampler process with its own simulator and policy
+    "num_workers": 2e8,  # a DataLoader worker process and the batches it prefetches
+    "seeds_at_once": 1e9,  # a whole train-policy run in its own process
+    "devices": 1e9,  # a DDP process per device
+    "threads": 8e6,  # a thread's stack
+    "torch_threads": 8e6,
+    "batch_size": 1e3,  # a sample's inputs, activations and gradients, at the least
+    "batch_sizes": 1e3,
+    "train_batch_size": 1e3,
+    "gail_disc_batch": 1e3,
+    "buffer_size": 100,  # a transition: two observations, an action, a reward, a done flag
+    "stage3_buffer_size": 100,
+    "frame_delay": 4e5,  # a 280 x 470 RGB frame held per car
+}
+#: Bytes per pixel of a frame size option, per car: capture's renderer tiles, read-back and queued copies.
+PIXEL_BYTES = 32
+#: SAC's networks (actor, two critics, two targets), each with gradients and two Adam moments, float32.
+PARAMETER_BYTES = 5 * 4 * 4
+
+
+def check_memory(values: dict[str, Any]) -> None:
+    """Price every size option in ``values`` (flat name -> value) against the memory budget; one line refuses the
+    first one over it (:func:`vision_rl.budget.require_memory`)."""
+    cars = max([1, *(v for v in (values.get("cars"), values.get("seeds")) if isinstance(v, int))])
+    for name, value in values.items():
+        option = "--" + name.replace("_", "-")
+        sizes = [v for v in (value if isinstance(value, tuple | list) else [value]) if isinstance(v, int | float)]
+        if name in UNIT_BYTES and sizes:
+            per_unit = UNIT_BYTES[name] * (cars if name == "frame_delay" else 1)
+            require_memory(f"{option} {max(sizes)}", max(sizes) * per_unit)
+        elif name.endswith("hw_px") and len(sizes) == 2:
+            require_memory(f"{option} {sizes[0]} {sizes[1]}", array_bytes(cars, *sizes, PIXEL_BYTES, itemsize=1))
+    if values.get("hidden_units"):
+        from vision_rl.training.presets import parse_hidden_units  # light: the presets' parsing, no torch
+
+        widths = parse_hidden_units(values["hidden_units"])
+        weights = sum(float(a) * b for a, b in zip(widths, widths[1:], strict=False)) + 128.0 * sum(widths)
+        batch = max(256, int(values.get("batch_size") or 0))
+        require_memory(
+            f"--hidden-units {values['hidden_units']}",
+            weights * PARAMETER_BYTES + array_bytes(batch, sum(widths), 5 * 3),
+        )

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,7 @@ class TrainReprConfig:
     """Share of frames held out by lap when ``val`` is empty."""
     epochs: int = 50
     """Training epochs (the paper: best of 50)."""
-    max_steps: int = -1
+    max_steps: int = field(default=-1, metadata={"min": -1})
     """Stop after this many optimiser steps (-1: no limit)."""
     batch_size: int = 64
     """Frames per batch."""

@@ -4,7 +4,7 @@ can hold them and its ``--help`` answers without loading a trainer."""
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -76,14 +76,14 @@ class SACOverrides:
     """Override the preset's learning rate (0: preset)."""
     learning_rate_final: float = 0.0
     """Let the learning rate fall linearly to this by the run's last step (0: constant; not in the papers)."""
-    target_entropy: float = 0.0
+    target_entropy: float = field(default=0.0, metadata={"min": None})
     """SAC's entropy target, nats (0: SB3's, -2 for the 2 action dimensions; lower: a less random policy in
     training)."""
     batch_size: int = 0
     """Override the preset's batch size (0: preset)."""
     buffer_size: int = 0
     """Override the preset's buffer size (0: preset)."""
-    learning_starts: int = -1
+    learning_starts: int = field(default=-1, metadata={"min": -1})
     """Override the preset's random start steps (-1: preset)."""
     gradient_steps: int = 0
     """Override the preset's updates per vector step (0: preset)."""
