@@ -3,9 +3,12 @@
 
 from __future__ import annotations
 
+import glob
 import math
 import os
 from dataclasses import dataclass, field
+
+from vision_rl.budget import require_memory
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,19 @@ def launch_rank() -> int:
         return int(os.environ.get("LOCAL_RANK", "0") or 0) + int(os.environ.get("NODE_RANK", "0") or 0)
     except ValueError:
         return 0
+
+
+#: The largest random shift train-repr allows, px: augmentation by a few pixels (datasets.augment.shift_frames).
+MAX_SHIFT_PX = 64
+#: The largest space2depth block, px: the stem sees 3 x block^2 channels.
+MAX_SPACE2DEPTH_BLOCK_PX = 32
+#: The frame size train-repr's memory is priced at before the capture files are read: the paper's 280 x 470.
+PRICED_FRAME_HW_PX = (280, 470)
+#: Parameters of the s2d encoder at --width-mult 1 (244,123; measured), which grow with its square.
+_S2D_PARAMETERS = 2.5e5
+#: Activations and their gradients per frame pixel and channel-width unit during a training step, bytes
+#: (the s2d network keeps about 2M floats per 280 x 470 frame, twice for the gradients).
+_STEP_BYTES_PER_PIXEL = 128
 
 
 def _positive(value: float, option: str, minimum: float = 1) -> tuple[bool, str]:
@@ -157,7 +173,42 @@ class TrainReprConfig:
             _positive(self.devices, "--devices"),
             (self.strategy in STRATEGIES, f"--strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}"),
             (self.devices == 1 or self.strategy == "ddp", f"--devices {self.devices} needs --strategy ddp"),
+            (
+                self.shift_px <= MAX_SHIFT_PX,
+                f"--shift-px {self.shift_px} is out of range: at most {MAX_SHIFT_PX} px (a shift of a few pixels; "
+                "beyond the frame it shows only replicated edges)",
+            ),
+            (
+                self.space2depth_block_px <= MAX_SPACE2DEPTH_BLOCK_PX,
+                f"--space2depth-block-px {self.space2depth_block_px} is out of range: at most "
+                f"{MAX_SPACE2DEPTH_BLOCK_PX} px",
+            ),
         )
         for ok, message in checks:
             if not ok:
                 raise ValueError(message)
+        _check_distinct_captures(self.data, self.val)
+        _check_training_memory(self)
+
+
+def _check_distinct_captures(data: str, val: str) -> None:
+    """Refuse a validation capture that is also a training one: its R^2 would measure frames the encoder saw."""
+    if not val:
+        return
+    parts = [part.strip() for part in data.split(",") if part.strip()]
+    training = {os.path.realpath(path) for part in parts for path in (glob.glob(part) or [part])}
+    for part in (p.strip() for p in val.split(",")):
+        if part and os.path.realpath(part) in training:
+            raise ValueError(
+                f"--val {part} is also in --data: validation needs other laps than training (leave --val empty to "
+                "hold laps of --data out)"
+            )
+
+
+def _check_training_memory(cfg: TrainReprConfig) -> None:
+    """Price the encoder (weights, gradients, AdamW's two moments) and a batch's step against the memory budget."""
+    h, w = PRICED_FRAME_HW_PX
+    parameters = _S2D_PARAMETERS * cfg.width_mult**2 * max(1.0, (cfg.space2depth_block_px / 4) ** 2)
+    require_memory(f"--width-mult {cfg.width_mult:g}", parameters * 4 * 4)
+    step_bytes = float(cfg.batch_size) * h * w * (3 + _STEP_BYTES_PER_PIXEL * cfg.width_mult)
+    require_memory(f"--batch-size {cfg.batch_size} (with --width-mult {cfg.width_mult:g})", step_bytes)
