@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import itertools
 import math
 import re
 from collections.abc import Callable
@@ -214,7 +215,7 @@ def check_memory(values: dict[str, Any]) -> None:
         from vision_rl.training.presets import parse_hidden_units  # light: the presets' parsing, no torch
 
         widths = parse_hidden_units(values["hidden_units"])
-        weights = sum(float(a) * b for a, b in zip(widths, widths[1:], strict=False)) + 128.0 * sum(widths)
+        weights = sum(float(a) * b for a, b in itertools.pairwise(widths)) + 128.0 * sum(widths)
         batch = max(256, int(values.get("batch_size") or 0))
         require_memory(
             f"--hidden-units {values['hidden_units']}",

@@ -16,6 +16,8 @@ import numpy as np
 from scipy import interpolate
 from scipy.spatial import cKDTree
 
+from vision_rl.budget import require_memory
+
 #: Default spacing of the resampled centre line: 1 m keeps polyline errors
 #: (kappa * ds^2 / 8) below 3 mm even in a 40 m hairpin.
 DEFAULT_SPACING_M = 1.0
@@ -118,6 +120,7 @@ class Track:
         w_right = np.broadcast_to(np.asarray(width_right_m, dtype=np.float64), (k,))
         closed = np.vstack([xy, xy[:1]])
         chord = np.hypot(*np.diff(closed, axis=0).T)
+        require_track_memory(name, float(chord.sum()), spacing_m, float(max(w_left.max(), w_right.max())))
         u = np.concatenate([[0.0], np.cumsum(chord)])
         tck, _ = interpolate.splprep([closed[:, 0], closed[:, 1]], u=u, s=k * smoothing_m**2, per=1, k=3, quiet=2)
         # Arc length of the spline by dense quadrature, then uniform resampling in arc length.
@@ -290,6 +293,24 @@ class Track:
 
     def __repr__(self) -> str:
         return f"Track({self.name!r}, length_m={self.length_m:.1f}, n_points={self.n_points})"
+
+
+#: Memory a resampled point costs while a track is built and used, bytes: its arrays, k-d tree, racing line and
+#: renderer mesh (loading alone peaked at 2.5 KB a point for a 126 km circle).
+TRACK_POINT_BYTES = 10_000
+#: Memory a pair of nearby points costs in :func:`trimmed_widths`, bytes (indices, gaps, offsets, masks).
+TRIM_PAIR_BYTES = 128
+
+
+def require_track_memory(where: str, length_m: float, spacing_m: float, max_width_m: float) -> None:
+    """Refuse a track whose extent, resolution or width would need more memory than the budget, before it is
+    resampled: ``where`` names the file or track in the one-line message."""
+    points = length_m / spacing_m
+    require_memory(
+        f"{where}: a track of {length_m / 1000:,.1f} km at {spacing_m:g} m spacing", points * TRACK_POINT_BYTES
+    )
+    neighbours = min(points, 4.0 * (2.0 * max_width_m / WALL_TRIM_SHARE) / spacing_m)  # within the trim's reach
+    require_memory(f"{where}: track widths up to {max_width_m:,.0f} m", points * neighbours * TRIM_PAIR_BYTES)
 
 
 def trimmed_widths(

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vision_rl.sim.track import DEFAULT_SPACING_M, Track, TrackError
+from vision_rl.sim.track import DEFAULT_SPACING_M, Track, TrackError, require_track_memory
 
 __all__ = [
     "BUILTIN_TRACKS",
@@ -326,6 +326,8 @@ def load_csv_track(
         raise TrackError(f"{path}: no such track file")
     rows, lines = _read_csv_points(path)
     _check_csv_points(path, rows, lines)
+    length_m = float(np.hypot(*(np.roll(rows[:, :2], -1, axis=0) - rows[:, :2]).T).sum())
+    require_track_memory(str(path), length_m, spacing_m, float(rows[:, 2:].max()))
     xy = _smooth_closed(rows[:, :2], smoothing_length_m)
     track = Track.from_centre_line(path.stem, xy, rows[:, 3], rows[:, 2], spacing_m=spacing_m).with_trimmed_walls()
     # Messages about the resampled track name the file line whose point lies nearest along the track.
