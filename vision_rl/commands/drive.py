@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from vision_rl.commands.evaluate import format_timing
@@ -19,7 +19,7 @@ class DriveOptions:
     """Car preset."""
     driver: str = "ai"
     """Who drives: 'ai' (the built-in AI); policies are driven by `evaluate`."""
-    skill: float = 0.0
+    skill: float = field(default=0.0, metadata={"max": 1.0})
     """Share of the limit speed profile the AI aims for, in (0, 1] (0: the AI's default, 0.92; 0.65 disrupted)."""
     laps: int = 2
     """Consecutive laps; the last one is scored (the papers: 2)."""

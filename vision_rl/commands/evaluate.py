@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -140,7 +140,7 @@ class EvaluateOptions:
     sections_m: float = 0.0
     """Cut the best scored lap into sections this long and compare it with the built-in AI's, and say how each drives
     where a steering-rate step exceeds the usable angle: full throttle, the wheel at its range's ends (0: off)."""
-    reference_skill: float = 1.0
+    reference_skill: float = field(default=1.0, metadata={"max": 1.0})
     """With --sections-m: the built-in AI's skill on the same starts (1.0: its fastest)."""
     encoder_error: bool = False
     """Vision: the encoder's error on the 27 targets along the best lap, beside the built-in AI's lap (default

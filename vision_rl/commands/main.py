@@ -87,7 +87,7 @@ COMMANDS: dict[str, Command] = {
         "run_experiment_command",
     ),
     "curves": Command(
-        "experiments' learning curves on one figure (Fig. 3 right)", f"{_C}.experiment", "CurvesOptions", "run_curves"
+        "experiments' learning curves on one figure (Fig. 3 right)", f"{_C}.curves", "CurvesOptions", "run_curves"
     ),
     "tune": Command(
         "Phase 2: an Optuna search over train-policy's recipe", f"{_C}.tune", "TuneOptions", "run_tune_command"

@@ -12,7 +12,8 @@ Field types: int, float, str, bool, ``tuple[int, int]`` (two values after the op
 236``) and ``tuple[int, ...]`` / ``tuple[str, ...]`` (one or more).
 
 Every number is checked here, once for all commands: it must be finite and at least 0, or at least the field's
-``metadata={"min": ...}`` / the config's ``option_minimums`` (``{"max_steps": -1}``; ``None``: any sign). A device
+``metadata={"min": ...}`` / the config's ``option_minimums`` (``{"max_steps": -1}``; ``None``: any sign), and at
+most the field's ``metadata={"max": ...}`` where it has one. A device
 other than auto or cpu must be present. Ranges of their own and memory are the configs' ``check_options``.
 """
 
@@ -66,8 +67,9 @@ def _minimum(flat: Any, config_cls: type) -> float | None:
     return dict(getattr(config_cls, "option_minimums", {})).get(flat.name, 0)
 
 
-def _number(kind: type, minimum: float | None) -> Callable[[str], Any]:
-    """argparse's ``type=`` for an int or float option: a finite number, at least ``minimum`` (None: any)."""
+def _number(kind: type, minimum: float | None, maximum: float | None = None) -> Callable[[str], Any]:
+    """argparse's ``type=`` for an int or float option: a finite number, at least ``minimum`` (None: any) and at
+    most ``maximum`` (None: any)."""
 
     def parse(text: str) -> Any:
         try:
@@ -78,6 +80,8 @@ def _number(kind: type, minimum: float | None) -> Callable[[str], Any]:
             raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
         if minimum is not None and value < minimum:
             raise argparse.ArgumentTypeError(f"{text} is below the least value, {minimum:g}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"{text} is above the greatest value, {maximum:g}")
         return value
 
     parse.__name__ = kind.__name__  # argparse names the type in its own messages
@@ -118,7 +122,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_cls: type) -> N
             raise TypeError(f"{config_cls.__name__}.{flat.name}: options must be int, float, str, bool or a tuple")
         item, n = (_SCALARS[kind], None) if kind in _SCALARS else _TUPLES[kind]
         if item is not str:
-            item = _number(item, _minimum(flat, config_cls))
+            item = _number(item, _minimum(flat, config_cls), flat.field.metadata.get("max"))
         metavar = ("HEIGHT", "WIDTH") if flat.name.endswith("hw_px") else None
         parser.add_argument(
             flag,
@@ -191,6 +195,8 @@ UNIT_BYTES = {
     "gail_disc_batch": 1e3,
     "buffer_size": 100,  # a transition: two observations, an action, a reward, a done flag
     "stage3_buffer_size": 100,
+    "select_starts": 1e6,  # held-out starts driven at once
+    "stats_steps": 1e4,  # a control step's raw observations of every car, kept for the statistics
     "frame_delay": 4e5,  # a 280 x 470 RGB frame held per car
 }
 #: Bytes per pixel of a frame size option, per car: capture's renderer tiles, read-back and queued copies.

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from vision_rl.config import nested
@@ -395,7 +395,7 @@ class RecordDemosConfig:
     """Seed of the episodes' start points: group 0's first episode is reset(seed=seed)'s."""
     episode_s: float = 100.0
     """Episode length, s (the training environments' 100 s: each episode starts at a new random point)."""
-    skill: float = DEFAULT_SKILL
+    skill: float = field(default=DEFAULT_SKILL, metadata={"max": 1.0})
     """The demonstrator's share of the reference speed (the built-in AI's default)."""
     noise: float = 0.0
     """Std of Gaussian noise added to the applied action, as a share of each action's half range (steering pi/6,
