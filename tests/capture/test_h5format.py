@@ -313,7 +313,7 @@ def test_committed_rows_of_a_chunk_damaged_in_its_rewrite_are_restored_from_the_
         assert_frames(cap, 0, 21)
 
 
-def test_a_bad_or_foreign_journal_is_named(tmp_path: Path) -> None:
+def test_a_bad_or_foreign_journal_is_named_when_needed_and_ignored_otherwise(tmp_path: Path) -> None:
     path, other = tmp_path / "cap.h5", tmp_path / "other.h5"
     for p in (path, other):
         w = (
@@ -332,12 +332,25 @@ def test_a_bad_or_foreign_journal_is_named(tmp_path: Path) -> None:
         w.append(**batch(5))
         w.close()
     journal = h5format.journal_path(path)
+    before = path.read_bytes()
+    _damage_first_chunk(path, "targets")  # now the resume needs the journal
+    damaged = path.read_bytes()
     shutil.copy(h5format.journal_path(other), journal)
     with pytest.raises(CaptureFormatError, match="belongs to another capture"):
         writer(path, resume=True)
     journal.write_bytes(b"PK\x03\x04 half a zip")
-    with pytest.raises(CaptureFormatError, match=r"journal of cap\.h5 cannot be read"):
+    with pytest.raises(CaptureFormatError, match=r"journal of cap\.h5 is damaged"):
         writer(path, resume=True)
+    assert path.read_bytes() == damaged  # refused before anything was changed
+    # The file's own committed rows match their hash: a foreign journal is not needed, and is replaced.
+    path.write_bytes(before)
+    shutil.copy(h5format.journal_path(other), journal)
+    w = writer(path, resume=True)
+    w.append(**batch(3, 5))
+    w.close(complete=True)
+    with open_capture(path) as cap:
+        assert cap.n_frames == 8
+        assert_frames(cap, 0, 8)
     writer(path, force=True).close()  # starting over drops the old file's journal
     assert not journal.exists()
 

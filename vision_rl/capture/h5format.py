@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import hashlib
 import json
+import math
 import os
 import threading
 import time
@@ -28,9 +30,16 @@ import zstandard
 
 from vision_rl.files import atomic_write, package_version
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 #: The first format version whose files carry checksums; older files are refused.
 _CHECKSUMMED_SINCE = 2
+#: The first format version that records ``committed_sha256`` at every commit (format 2 only hashed a completed
+#: file, so an edit of an incomplete one went unseen); format 2 files still load, and a resume upgrades them.
+_COMMIT_HASHED_SINCE = 3
+
+#: Errors h5py raises on a damaged file, whatever the damage: a flipped bit in HDF5's metadata comes out as
+#: RuntimeError, KeyError or TypeError as often as OSError. Every read catches them and names the file.
+_H5_ERRORS = (OSError, RuntimeError, ValueError, KeyError, TypeError, IndexError, AttributeError, ArithmeticError)
 
 #: Caller attributes every capture file must carry, so that a frame can be traced to how it was made (track name
 #: and a hash of its geometry, car preset, renderer settings, seed; package version and the completion flag are
@@ -134,32 +143,99 @@ def _write_journal(path: Path, fingerprint_sha: str, start: int, rows: Mapping[s
     atomic_write(path, write)
 
 
-def _repair_from_journal(path: Path) -> None:
-    """Rewrite the committed rows of the last, partly filled table chunk of ``path`` from its journal (a kill inside
-    HDF5's rewrite of that chunk may have damaged them); no journal, or one that does not cover them: nothing."""
+def _journal_rows(path: Path, owner: str, n_committed: int, tails: Mapping[str, tuple]) -> dict[str, np.ndarray] | None:
+    """The journal's rows from the start of the last, partly filled chunk of committed rows up to ``n_committed``,
+    every array checked (names, dtypes, shapes, start) before any is used; None without a journal, or when the
+    journal does not cover those rows (it predates their chunk)."""
     journal = journal_path(path)
     if not journal.exists():
-        return
+        return None
+
+    def damaged(problem: str) -> CaptureFormatError:
+        return CaptureFormatError(
+            f"{journal}: the journal of {path.name} is damaged ({problem}); nothing was changed: restore the file, "
+            "or capture again with --force"
+        )
+
     try:
         with np.load(journal, allow_pickle=False) as z:
-            start, owner = int(z["start"]), str(z["fingerprint_sha256"])
+            missing = [k for k in ("start", "fingerprint_sha256", *_TABLE_DATASETS) if k not in z.files]
+            if missing:
+                raise damaged(f"no {missing}")
+            start, journal_owner = z["start"], z["fingerprint_sha256"]
             rows = {name: z[name] for name in _TABLE_DATASETS}
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
-        raise CaptureFormatError(
-            f"{journal}: the journal of {path.name} cannot be read ({exc}): capture again with --force"
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise damaged(f"unreadable: {exc}") from exc
+    if (
+        start.shape != ()
+        or start.dtype.kind not in "iu"
+        or journal_owner.shape != ()
+        or journal_owner.dtype.kind != "U"
+    ):
+        raise damaged("its start or owner is not a single value")
+    if str(journal_owner) != owner:
+        raise CaptureFormatError(f"{journal}: the journal belongs to another capture than {path.name}: remove it")
+    start = int(start)
+    lengths = {len(rows[name]) if rows[name].ndim else -1 for name in _TABLE_DATASETS}
+    for name, table in rows.items():
+        dtype = np.dtype(np.uint32) if name == "image_crc32" else _FRAME_DATASETS[name][0]
+        if table.dtype != dtype or table.shape[1:] != tails[name] or table.ndim != 1 + len(tails[name]):
+            raise damaged(f"{name!r} is {table.dtype} {table.shape}, expected {dtype} (N, {tails[name]})")
+    if start < 0 or start % _ROW_CHUNK or len(lengths) != 1:
+        raise damaged(f"start {start} or the row counts {sorted(lengths)} do not fit chunks of {_ROW_CHUNK} rows")
+    first = _chunk_start(n_committed)
+    if first == n_committed or not start <= first or start + lengths.pop() < n_committed:
+        return None  # no committed row shares a chunk with later writes, or the journal predates that chunk
+    return {name: table[first - start : n_committed - start] for name, table in rows.items()}
+
+
+def lock_exclusive(path: Path, holder: str = "") -> int:
+    """A descriptor holding an exclusive lock on ``path`` (a file, created empty when missing and never truncated,
+    or an existing folder), taken before a writer changes anything: a second writer is refused, nothing changed.
+    ``holder`` names what else may hold it in the refusal."""
+    if path.is_dir():
+        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    else:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        # flock, as HDF5's own locking: a reader (h5py's shared lock) and a writer exclude each other too.
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(fd)
+        if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+            raise
+        raise CaptureLockedError(
+            f"{path}: in use by another process ({holder or 'a running capture or a reader'}): nothing was "
+            "changed; wait for it to end or stop it"
         ) from exc
-    with h5py.File(path, "r+") as f:
-        if str(f.attrs.get("fingerprint_sha256", "")) != owner:
-            raise CaptureFormatError(f"{journal}: the journal belongs to another capture than {path.name}: remove it")
-        n_committed = int(f.attrs["n_frames"])
-        first = _chunk_start(n_committed)
-        if first == n_committed or not start <= first or start + len(rows["targets"]) < n_committed:
-            return  # no committed row shares a chunk with later writes, or the journal predates that chunk
-        for name, table in rows.items():
-            # Shrinking deletes the chunk, so the write makes a new one instead of reading the damaged one back.
-            f[name].resize(first, axis=0)
-            f[name].resize(n_committed, axis=0)
-            f[name][first:n_committed] = table[first - start : n_committed - start]
+    return fd
+
+
+def _table_hashers() -> dict[str, Any]:
+    return {name: hashlib.sha256() for name in _TABLE_DATASETS}
+
+
+def _commit_digest(hashers: Mapping[str, Any]) -> str:
+    """``committed_sha256``: SHA-256 over each table's name and the SHA-256 of its committed rows, so that a
+    writer updates it per flush from running hashes instead of reading the file again."""
+    digest = hashlib.sha256()
+    for name in _TABLE_DATASETS:
+        digest.update(name.encode())
+        digest.update(hashers[name].copy().digest())
+    return digest.hexdigest()
+
+
+def _digests_of(tables: Mapping[str, np.ndarray]) -> tuple[str, str]:
+    """(content_sha256, committed_sha256) of the committed rows of every table."""
+    content = hashlib.sha256()
+    hashers = _table_hashers()
+    for name in _TABLE_DATASETS:
+        data = np.ascontiguousarray(tables[name]).tobytes()
+        content.update(name.encode())
+        content.update(data)
+        hashers[name].update(data)
+    return content.hexdigest(), _commit_digest(hashers)
 
 
 def _zstd_compress(frame: np.ndarray) -> bytes:
@@ -195,6 +271,17 @@ def _default_threads() -> int:
 
 class CaptureFormatError(ValueError):
     """A capture file that cannot be used as one: the message names the file and the problem."""
+
+    def __init__(self, message: str = "", *args: object) -> None:
+        # A DataLoader re-raises a worker's error with the worker's traceback as its message: keep the one line.
+        lines = [line for line in str(message).splitlines() if line.strip()]
+        if "Traceback" in str(message) and lines:
+            message = lines[-1].split("Error: ", 1)[-1]
+        super().__init__(message, *args)
+
+
+class CaptureLockedError(CaptureFormatError):
+    """The output file is locked by another writer (or a reader): refused before anything was changed."""
 
 
 class CaptureDiskFullError(OSError):
@@ -269,8 +356,17 @@ def first_difference(old: Any, new: Any, name: str) -> tuple[str, Any, Any] | No
 
 
 def _is_disk_full(exc: BaseException) -> bool:
-    # h5py turns HDF5's write failure into an OSError whose errno is often unset; the text keeps the system's.
-    return getattr(exc, "errno", None) == errno.ENOSPC or "No space left" in str(exc) or "errno = 28" in str(exc)
+    """No room to write: the disk is full, or the file reached the size limit (EFBIG, ``ulimit -f``)."""
+    # h5py turns HDF5's write failure into an OSError or RuntimeError whose errno is often unset; the text keeps it.
+    text = str(exc)
+    return getattr(exc, "errno", None) in (errno.ENOSPC, errno.EFBIG) or any(
+        mark in text for mark in ("No space left", "errno = 28", "File too large", "errno = 27")
+    )
+
+
+#: Room reserved beyond a batch's bytes for HDF5's metadata and the rows waiting for a chunk (4,096 rows of about
+#: 200 bytes), bytes.
+_RESERVE_MARGIN_BYTES = 2 << 20
 
 
 class CaptureWriter:
@@ -313,18 +409,17 @@ class CaptureWriter:
         self.target_names = tuple(target_names)
         self.dedicated_names = tuple(dedicated_names)
         self.flush_interval_s = float(flush_interval_s)
-        if len(target_units) != len(self.target_names) or len(dedicated_units) != len(self.dedicated_names):
-            raise ValueError(f"{self.path}: every target and dedicated feature needs one unit")
-        missing = [k for k in REQUIRED_ATTRS if k not in attrs]
-        if missing:
-            raise ValueError(f"{self.path}: attrs lack {missing} (required: {list(REQUIRED_ATTRS)})")
-        if compression not in COMPRESSIONS:
-            raise ValueError(f"compression must be one of {COMPRESSIONS}, got {compression!r}")
-        if resume and force:
-            raise ValueError("resume and force exclude each other: resume appends, force starts over")
-        if min(self.image_hw_px) <= 0:
-            raise ValueError(f"image_hw_px must be positive, got {image_hw_px}")
-
+        checks = (
+            (len(target_units) == len(self.target_names), f"{self.path}: every target needs one unit"),
+            (len(dedicated_units) == len(self.dedicated_names), f"{self.path}: every dedicated feature needs one unit"),
+            (all(k in attrs for k in REQUIRED_ATTRS), f"{self.path}: attrs lack some of {list(REQUIRED_ATTRS)}"),
+            (compression in COMPRESSIONS, f"compression must be one of {COMPRESSIONS}, got {compression!r}"),
+            (not (resume and force), "resume and force exclude each other: resume appends, force starts over"),
+            (min(self.image_hw_px) > 0, f"image_hw_px must be positive, got {image_hw_px}"),
+        )
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(message)
         file_attrs = dict(attrs)
         file_attrs.update(
             format_version=FORMAT_VERSION,
@@ -341,15 +436,19 @@ class CaptureWriter:
         file_attrs["fingerprint_sha256"] = fingerprint_sha256(file_attrs["fingerprint"])
         self._closed = True
         self._broken = False
-        if self.path.exists() and resume:
-            self._file = self._reopen(file_attrs)
+        existed = self.path.exists()
+        if existed and not (resume or force):
+            raise FileExistsError(f"{self.path} exists: pass --force to overwrite it or --resume to continue it")
+        self._lock_fd = lock_exclusive(self.path)
+        try:
+            committed = self._open_file(file_attrs, compression, resume and existed)
+        except BaseException:
+            self._unlock()
+            if not existed:
+                self.path.unlink(missing_ok=True)
+            raise
+        if "compression" in self._file.attrs:
             compression = str(self._file.attrs["compression"])
-        else:
-            if self.path.exists() and not force:
-                raise FileExistsError(f"{self.path} exists: pass --force to overwrite it or --resume to continue it")
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            journal_path(self.path).unlink(missing_ok=True)  # a journal of the file this one replaces
-            self._file = self._create(file_attrs, compression)
         self.compression = compression
         self._pool: ThreadPoolExecutor | None = None
         if compression in _ENCODERS:
@@ -365,16 +464,36 @@ class CaptureWriter:
         self._rows: dict[str, list[np.ndarray]] = {name: [] for name in _TABLE_DATASETS}
         self._n_buffered_rows = 0
         self._n_rows_on_disk = int(self._ds["targets"].shape[0])
+        # Running hashes of the rows on disk: every commit records their committed_sha256.
+        self._hashers = _table_hashers()
+        for name, rows in committed.items():
+            self._hashers[name].update(np.ascontiguousarray(rows).tobytes())
+        self._resumed = committed
+        self._reserved_bytes = os.fstat(self._lock_fd).st_size
         # Rows on disk from the start of the last, partly filled chunk: the head of the next journal.
         first = _chunk_start(self._n_rows_on_disk)
-        self._chunk_rows = {name: self._ds[name][first : self._n_rows_on_disk] for name in _TABLE_DATASETS}
+        self._chunk_rows = {name: committed[name][first:] for name in _TABLE_DATASETS}
         self._fingerprint_sha = str(file_attrs["fingerprint_sha256"])
         self._closed = False
         self._last_flush_s = time.monotonic()
 
+    def _open_file(self, file_attrs: dict[str, Any], compression: str, reopen: bool) -> dict[str, np.ndarray]:
+        """Open the locked file (reopened, or created afresh); returns its committed rows of every table."""
+        if reopen and self.path.stat().st_size > 0:  # empty: a writer killed before HDF5 wrote a byte
+            self._file, committed = self._reopen(file_attrs)
+            return committed
+        journal_path(self.path).unlink(missing_ok=True)  # a journal of the file this one replaces
+        self._file = self._create(file_attrs, compression)
+        return {name: self._file[name][:0] for name in _TABLE_DATASETS}
+
+    def _unlock(self) -> None:
+        if self._lock_fd >= 0:
+            os.close(self._lock_fd)  # closing the descriptor releases the lock
+            self._lock_fd = -1
+
     # -------------------------------------------------------------------------------------------- file set-up
     def _create(self, file_attrs: dict[str, Any], compression: str) -> h5py.File:
-        f = h5py.File(self.path, "w")
+        f = h5py.File(self.path, "w", locking=False)  # this writer holds its own lock (lock_exclusive)
         try:
             json_keys = []
             for key, value in file_attrs.items():
@@ -385,6 +504,7 @@ class CaptureWriter:
             f.attrs["json_attrs"] = np.array(json_keys, dtype=h5py.string_dtype())
             f.attrs["complete"] = False
             f.attrs["n_frames"] = 0
+            f.attrs["committed_sha256"] = _commit_digest(_table_hashers())
             f.attrs["image_crc32_of"] = "chunk" if compression in _ENCODERS else "frame"
             comp: dict[str, Any] = {}
             if compression == "lzf":
@@ -421,9 +541,10 @@ class CaptureWriter:
             raise
         return f
 
-    def _reopen(self, file_attrs: dict[str, Any]) -> h5py.File:
-        _repair_from_journal(self.path)
-        with open_capture(self.path) as existing:
+    def _reopen(self, file_attrs: dict[str, Any]) -> tuple[h5py.File, dict[str, np.ndarray]]:
+        """Reopen an incomplete file for appending, after checking everything it reads (the file, the fingerprint,
+        the journal and the committed rows against their hash) before it changes anything."""
+        with _open_checked(self.path, locking=False) as existing:
             if existing.complete:
                 raise CaptureFormatError(
                     f"{self.path}: the file is complete; nothing to resume (use --force to capture it again)"
@@ -438,17 +559,36 @@ class CaptureWriter:
                         f"{self.path}: cannot resume: {field} is {theirs!r} in the file but {now!r} now; resume with "
                         "the file's settings or start over with --force"
                     )
-            n_committed = existing.n_frames
-        f = h5py.File(self.path, "r+")
-        # Drop frames a kill left beyond the last flush: their bytes may be partial.
-        for name in ALL_DATASETS:
-            if f[name].shape[0] != n_committed:
-                f[name].resize(n_committed, axis=0)
-        f.attrs["package_version"] = file_attrs["package_version"]
-        f.flush()
-        return f
+            committed, rewrite = existing.resumable_rows()
+        f = h5py.File(self.path, "r+", locking=False)
+        try:
+            n_committed = int(f.attrs["n_frames"])
+            if rewrite:
+                first = _chunk_start(n_committed)
+                for name in _TABLE_DATASETS:
+                    # Shrinking deletes the chunk, so the write makes a new one instead of reading the damaged one.
+                    f[name].resize(first, axis=0)
+                    f[name].resize(n_committed, axis=0)
+                    f[name][first:n_committed] = committed[name][first:]
+            # Drop frames a kill left beyond the last flush: their bytes may be partial.
+            for name in ALL_DATASETS:
+                if f[name].shape[0] != n_committed:
+                    f[name].resize(n_committed, axis=0)
+            f.attrs["package_version"] = file_attrs["package_version"]
+            f.attrs["committed_sha256"] = _digests_of(committed)[1]
+            f.attrs["format_version"] = FORMAT_VERSION  # the file now records a hash at every commit
+            f.flush()
+        except BaseException:
+            f.close()
+            raise
+        return f, committed
 
     # ---------------------------------------------------------------------------------------------- writing
+    def resumed_rows(self, name: str) -> np.ndarray:
+        """The committed rows of table ``name`` (``"lap"``, ``"time"``...) that the file held when this writer
+        opened it, checked against their hash (none for a new file)."""
+        return self._resumed[name].copy()
+
     @property
     def n_frames(self) -> int:
         """Frames appended so far (committed or not)."""
@@ -495,6 +635,17 @@ class CaptureWriter:
             return
         start = self.n_frames
         try:
+            # Room for this batch, the one still being compressed and the rows, before any byte is written.
+            self._reserve(2 * images.nbytes + sum(a.nbytes for a in arrays.values()))
+        except OSError as exc:
+            if not _is_disk_full(exc):
+                raise
+            # Nothing of this batch is written: commit the earlier ones (their room was reserved) and stop.
+            with contextlib.suppress(OSError, RuntimeError):
+                self.flush()
+            self._broken = True
+            raise self._disk_full(exc) from exc
+        try:
             self._write_images(start, images)
             for name, arr in arrays.items():
                 self._rows[name].append(arr)
@@ -503,17 +654,29 @@ class CaptureWriter:
                 self._write_rows()
             if time.monotonic() - self._last_flush_s >= self.flush_interval_s:
                 self.flush()
-        except OSError as exc:
+        except (OSError, RuntimeError) as exc:
             self._broken = True
             if _is_disk_full(exc):
-                committed = self._committed()
-                self._abandon()
-                raise CaptureDiskFullError(
-                    errno.ENOSPC,
-                    f"{self.path}: disk full after {committed} frames; the file keeps those frames, marked "
-                    "incomplete: free space and resume",
-                ) from exc
+                raise self._disk_full(exc) from exc
             raise
+
+    def _reserve(self, n_bytes: int) -> None:
+        """Have the disk hold room for the next ``n_bytes`` (and a margin for HDF5's metadata) beyond the file's
+        allocated end before they are written: a full disk then stops the capture between batches. Inside HDF5's
+        own writes it would leave a file whose recorded end lies beyond its bytes, which HDF5 refuses to open."""
+        target = int(self._file.id.get_filesize()) + int(n_bytes) + _RESERVE_MARGIN_BYTES
+        if target > self._reserved_bytes:
+            os.posix_fallocate(self._lock_fd, 0, target)
+            self._reserved_bytes = target
+
+    def _disk_full(self, exc: BaseException) -> CaptureDiskFullError:
+        committed = self._committed()
+        self._abandon()
+        return CaptureDiskFullError(
+            errno.ENOSPC,
+            f"{self.path}: disk full after {committed} frames ({_first_line(exc)}); the file keeps those frames, "
+            "marked incomplete: free space and resume",
+        )
 
     def _write_images(self, start: int, images: np.ndarray) -> None:
         ds = self._ds["images"]
@@ -556,6 +719,7 @@ class CaptureWriter:
             ds = self._ds[name]
             ds.resize(end, axis=0)
             ds[self._n_rows_on_disk :] = rows
+            self._hashers[name].update(np.ascontiguousarray(rows).tobytes())
             self._rows[name].clear()
         # Onto the disk now, while this journal covers the chunk: HDF5's chunk cache could write it after the next
         # journal has replaced this one.
@@ -570,7 +734,9 @@ class CaptureWriter:
             self._write_pending()
         self._write_rows()
         self._file.flush()
-        self._file.attrs["n_frames"] = self.n_frames
+        # The count and the hash of what it counts, in place (same size): one object header's two messages.
+        self._file.attrs.modify("n_frames", self.n_frames)
+        self._file.attrs.modify("committed_sha256", _commit_digest(self._hashers))
         self._file.flush()
         self._last_flush_s = time.monotonic()
 
@@ -587,6 +753,19 @@ class CaptureWriter:
             self._file.close()
         self._closed = True
         self._stop_pool()
+        self._unlock()
+
+    def _release_reserve(self, end: int) -> None:
+        """Give back the room reserved beyond ``end``, the closed file's allocated end (HDF5 keeps a longer file
+        as it is); undone if HDF5 then refuses the file (it placed something beyond ``end`` after all)."""
+        size = os.fstat(self._lock_fd).st_size
+        if end <= 0 or size <= end:
+            return
+        os.ftruncate(self._lock_fd, end)
+        try:
+            h5py.File(self.path, "r", locking=False).close()
+        except _H5_ERRORS:
+            os.ftruncate(self._lock_fd, size)
 
     def _stop_pool(self) -> None:
         if self._pool is not None:
@@ -597,12 +776,16 @@ class CaptureWriter:
         """Flush and close; ``complete=True`` marks the run finished (the default leaves it resumable)."""
         if self._closed:
             return
+        marked_complete = False
         try:
+            self._reserve(0)
             self.flush()
             if complete:
                 self._file.attrs["content_sha256"] = _content_sha256(self._file, self.n_frames)
                 self._file.attrs["complete"] = True
-        except OSError as exc:
+                self._file.flush()
+                marked_complete = True
+        except (OSError, RuntimeError) as exc:
             self._broken = True
             if _is_disk_full(exc):
                 self._abandon()
@@ -610,11 +793,16 @@ class CaptureWriter:
             raise
         finally:
             if not self._closed:
+                end = -1
+                with contextlib.suppress(*_H5_ERRORS):
+                    end = int(self._file.id.get_filesize())  # open, it is the allocated end, not the file's size
                 self._file.close()
                 self._closed = True
+                self._release_reserve(end)
             self._stop_pool()
-        if complete:
-            journal_path(self.path).unlink(missing_ok=True)
+            if marked_complete:  # still under the lock: no other writer's journal can be there
+                journal_path(self.path).unlink(missing_ok=True)
+            self._unlock()
 
     def __enter__(self) -> CaptureWriter:
         return self
@@ -635,16 +823,16 @@ def _content_sha256(f: h5py.File, n_frames: int, path: Path | None = None) -> st
 
 def _read_table(ds: h5py.Dataset, n_frames: int, path: Path) -> np.ndarray:
     """The first ``n_frames`` rows; a failed fletcher32 checksum is named with the frames of the damaged chunk."""
+    name = ds.name.lstrip("/")
     try:
         return ds[:n_frames]
-    except OSError as exc:
-        name = ds.name.lstrip("/")
-        rows = ds.chunks[0] if ds.chunks else max(n_frames, 1)
+    except _H5_ERRORS as exc:
+        rows = _ROW_CHUNK
         for start in range(0, n_frames, rows):  # one read per chunk: find the damaged one
             stop = min(start + rows, n_frames)
             try:
                 ds[start:stop]
-            except OSError:
+            except _H5_ERRORS:
                 remedy = (
                     "resume the capture (--resume), which rewrites them from its journal"
                     if journal_path(path).exists()
@@ -652,9 +840,52 @@ def _read_table(ds: h5py.Dataset, n_frames: int, path: Path) -> np.ndarray:
                 )
                 raise CaptureFormatError(
                     f"{path}: dataset {name!r}, frames {start}..{stop - 1}: the data fail their checksum or cannot "
-                    f"be read (damaged file): {remedy} ({exc})"
+                    f"be read (damaged file): {remedy} ({_first_line(exc)})"
                 ) from exc
-        raise CaptureFormatError(f"{path}: cannot read dataset {name!r}: {exc}") from exc
+        raise CaptureFormatError(f"{path}: cannot read dataset {name!r}: {_first_line(exc)}") from exc
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+#: Largest stored chunk read, bytes, beyond its raw size: zstd's and deflate's worst case adds a few bytes per
+#: 100 kB and fletcher32 4. A damaged chunk index may declare gigabytes; the size is checked before any read.
+_CHUNK_SLACK_BYTES = 65536
+
+
+def _check_chunks(ds: h5py.Dataset, n_frames: int, path: Path, file_bytes: int) -> None:
+    """Refuse a dataset whose chunk index lacks a chunk of a committed frame, or places one outside the file or
+    declares it larger than the raw chunk, before any chunk is read (so no damaged size is ever allocated)."""
+    name = ds.name.lstrip("/")
+    rows = int(ds.chunks[0])
+    limit = math.prod(ds.chunks) * ds.dtype.itemsize + _CHUNK_SLACK_BYTES
+    found = np.zeros(-(-n_frames // rows), dtype=bool)
+    bad: list[str] = []
+
+    def visit(info: Any) -> None:
+        index = int(info.chunk_offset[0]) // rows
+        if index >= len(found):
+            return  # a killed writer's tail, never read
+        found[index] = True
+        offset, size = info.byte_offset, int(info.size)
+        if not bad and (offset is None or size > limit or int(offset) + size > file_bytes):
+            bad.append(
+                f"the chunk of frames from {index * rows} declares {size} bytes at byte {offset} of {file_bytes}"
+            )
+
+    try:
+        ds.id.chunk_iter(visit)
+    except _H5_ERRORS as exc:
+        raise CaptureFormatError(
+            f"{path}: dataset {name!r}: its chunk index cannot be read (damaged file): {_first_line(exc)}"
+        ) from exc
+    if not bad and not found.all():
+        missing = int(np.flatnonzero(~found)[0]) * rows
+        bad.append(f"no stored chunk holds frame {missing} of the {n_frames} committed")
+    if bad:
+        raise CaptureFormatError(f"{path}: dataset {name!r}: {bad[0]} (damaged file): restore or capture it again")
 
 
 def _normalise(value: Any) -> Any:
@@ -695,6 +926,9 @@ class CaptureFile:
             )
         self._pool: ThreadPoolExecutor | None = None
         self._pool_threads = 0
+        # Every table's committed rows, read and checked against the recorded hashes on the first read of anything.
+        self._tables: dict[str, np.ndarray] | None = None
+        self._content_digest = ""
 
     @property
     def complete(self) -> bool:
@@ -721,7 +955,7 @@ class CaptureFile:
         return list(self.attrs["dedicated_units"])
 
     def _column(self, name: str) -> np.ndarray:
-        return _read_table(self._f[name], self.n_frames, self.path)
+        return self._verified_tables()[name].copy()
 
     @property
     def fingerprint(self) -> dict[str, Any]:
@@ -729,20 +963,63 @@ class CaptureFile:
         return dict(self.attrs.get("fingerprint", {}))
 
     def content_sha256(self) -> str:
-        """Hex SHA-256 of the committed rows of every table (the images through their CRC-32s); a completed file
-        must match the digest recorded when it was completed."""
-        digest = _content_sha256(self._f, self.n_frames, self.path)
-        recorded = self.attrs.get("content_sha256")
-        if self.complete and recorded is not None and recorded != digest:
-            raise CaptureFormatError(
-                f"{self.path}: content_sha256 is {digest[:16]}... but {str(recorded)[:16]}... was recorded when the "
-                "capture completed (the file was changed since): restore or capture it again"
-            )
-        return digest
+        """Hex SHA-256 of the committed rows of every table (the images through their CRC-32s), after checking them
+        against the hashes the writer recorded (at every commit, and when the capture completed)."""
+        self._verified_tables()
+        return self._content_digest
+
+    def _verified_tables(self) -> dict[str, np.ndarray]:
+        """Every table's committed rows, read once, after checking every dataset's chunk index; then checked
+        against the recorded hashes (so an edit, or a chunk lost from the index, is refused, never read)."""
+        if self._tables is None:
+            self._check_indexes()
+            tables = {name: _read_table(self._f[name], self.n_frames, self.path) for name in _TABLE_DATASETS}
+            self._content_digest = self._check_digests(tables)
+            self._tables = tables
+        return self._tables
+
+    def _check_indexes(self, names: Sequence[str] = ALL_DATASETS) -> None:
+        file_bytes = self.path.stat().st_size
+        for name in names:
+            _check_chunks(self._f[name], self.n_frames, self.path, file_bytes)
+
+    def _check_digests(self, tables: Mapping[str, np.ndarray]) -> str:
+        """The content digest of ``tables``, after refusing rows that differ from the recorded hashes."""
+        content, committed = _digests_of(tables)
+        checks = (
+            ("content_sha256", content, "was recorded when the capture completed"),
+            ("committed_sha256", committed, "was recorded at the last commit"),
+        )
+        for key, digest, when in checks:
+            recorded = self.attrs.get(key)
+            if recorded is not None and str(recorded) != digest:
+                raise CaptureFormatError(
+                    f"{self.path}: the {self.n_frames} committed frames hash to {key} {digest[:16]}... but "
+                    f"{str(recorded)[:16]}... {when} (the file was changed since): restore or capture it again"
+                )
+        return content
+
+    def resumable_rows(self) -> tuple[dict[str, np.ndarray], bool]:
+        """The committed rows a resumed writer continues from, and whether the last, partly filled chunk must be
+        rewritten from the journal (a kill inside HDF5's rewrite of that chunk damages it); refused, with nothing
+        changed, when neither the file nor its journal gives rows matching the recorded hashes."""
+        self._check_indexes(("images",))
+        try:
+            return self._verified_tables(), False
+        except CaptureFormatError as exc:
+            damage = exc
+        tails = {name: tuple(self._f[name].shape[1:]) for name in _TABLE_DATASETS}
+        journal = _journal_rows(self.path, str(self.attrs["fingerprint_sha256"]), self.n_frames, tails)
+        if journal is None:
+            raise damage
+        first = _chunk_start(self.n_frames)
+        rows = {n: np.concatenate([_read_table(self._f[n], first, self.path), journal[n]]) for n in _TABLE_DATASETS}
+        self._check_digests(rows)
+        return rows, True
 
     def _crcs(self) -> np.ndarray:
         if self._crc is None:
-            self._crc = self._column("image_crc32")
+            self._crc = self._verified_tables()["image_crc32"]
         return self._crc
 
     @property
@@ -785,8 +1062,12 @@ class CaptureFile:
             return None
         try:
             mask, blob = self.images.id.read_direct_chunk((int(index), 0, 0, 0))
-        except OSError as exc:
-            raise CaptureFormatError(f"{self.path}: dataset 'images', frame {index} cannot be read: {exc}") from exc
+        except _H5_ERRORS as exc:
+            raise CaptureFormatError(
+                f"{self.path}: dataset 'images', frame {index} cannot be read (damaged file): {_first_line(exc)}"
+            ) from exc
+        if mask != 0 and self._crc_of == "chunk":  # this writer never skips the filter: a damaged index
+            raise CaptureFormatError(f"{self.path}: dataset 'images', frame {index}: filter mask {mask} (damaged file)")
         # A set bit in the mask means HDF5 skipped an optional filter for this chunk: let h5py decode it.
         return blob, mask == 0
 
@@ -807,8 +1088,10 @@ class CaptureFile:
             else:
                 assert self._decode is not None
                 out.reshape(-1)[:] = np.frombuffer(self._decode(chunk[0]), dtype=np.uint8)
-        except (OSError, *_DECODE_ERRORS) as exc:
-            raise CaptureFormatError(f"{self.path}: dataset 'images', frame {index} cannot be decoded: {exc}") from exc
+        except (*_H5_ERRORS, *_DECODE_ERRORS) as exc:
+            raise CaptureFormatError(
+                f"{self.path}: dataset 'images', frame {index} cannot be decoded (damaged file): {_first_line(exc)}"
+            ) from exc
         if self._crc_of == "frame" and zlib.crc32(out) != stored:
             raise self._checksum_error(index, stored, zlib.crc32(out))
 
@@ -877,24 +1160,31 @@ def _direct_decoder(ds: h5py.Dataset, image_hw_px: tuple[int, int]):
 def open_capture(path: str | os.PathLike[str]) -> CaptureFile:
     """Open a capture file read-only and check it against the format; :class:`CaptureFormatError` names any
     problem (not HDF5, truncated, missing dataset or attribute, wrong dtype or shape, mismatched lengths)."""
-    path = Path(path)
+    return _open_checked(Path(path), locking=True)
+
+
+def _open_checked(path: Path, locking: bool) -> CaptureFile:
+    """:func:`open_capture`; ``locking=False`` for the writer, which holds its own lock on the file."""
     if not path.is_file():
         raise CaptureFormatError(f"{path}: no such file")
     try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
+        f = h5py.File(path, "r", locking=locking)
+    except _H5_ERRORS as exc:
         raise CaptureFormatError(
-            f"{path}: not a readable HDF5 file (truncated or corrupt, or still open in a running capture?): {exc}"
+            f"{path}: not a readable HDF5 file (truncated or corrupt, or still open in a running capture?): "
+            f"{_first_line(exc)}"
         ) from exc
     try:
         attrs, n_frames = _validate(path, f)
+        return CaptureFile(path, f, n_frames, attrs)
     except CaptureFormatError:
         f.close()
         raise
-    except (OSError, KeyError, ValueError, TypeError) as exc:
+    except (*_H5_ERRORS, LookupError) as exc:
         f.close()
-        raise CaptureFormatError(f"{path}: unreadable capture file structure (truncated or corrupt?): {exc}") from exc
-    return CaptureFile(path, f, n_frames, attrs)
+        raise CaptureFormatError(
+            f"{path}: unreadable capture file structure (truncated or corrupt?): {_first_line(exc)}"
+        ) from exc
 
 
 def _check_version(path: Path, attrs: Mapping[str, Any]) -> None:
@@ -908,7 +1198,81 @@ def _check_version(path: Path, attrs: Mapping[str, Any]) -> None:
         )
 
 
+#: Largest chunk of any dataset, bytes: a frame of 4K video is 25 MB; a damaged layout may declare far more.
+_MAX_CHUNK_BYTES = 64 << 20
+
+
+def _check_against_fingerprint(path: Path, attrs: Mapping[str, Any]) -> None:
+    """Refuse attributes that differ from the hashed fingerprint's copy of them (a flipped bit in an attribute the
+    reader uses, such as the frame size, would otherwise go unseen); the package version may differ (a resume)."""
+    fingerprint = attrs["fingerprint"]
+    for key in _RESUME_MUST_MATCH:
+        if key in fingerprint and _normalise(attrs.get(key)) != fingerprint[key]:
+            raise CaptureFormatError(
+                f"{path}: attribute {key} is {attrs.get(key)!r} but the fingerprint records {fingerprint[key]!r} "
+                "(damaged or edited file): restore or capture it again"
+            )
+    if int(attrs["format_version"]) >= _COMMIT_HASHED_SINCE and "committed_sha256" not in attrs:
+        raise CaptureFormatError(f"{path}: format {attrs['format_version']} but no committed_sha256 (damaged file)")
+
+
+def _stored_compression(ds: h5py.Dataset) -> str:
+    """The codec of the images' filter pipeline, in :data:`COMPRESSIONS`' words ("?" for any other pipeline)."""
+    dcpl = ds.id.get_create_plist()
+    filters = [dcpl.get_filter(i)[0] for i in range(dcpl.get_nfilters())]
+    names = {h5py.h5z.FILTER_DEFLATE: "gzip", _ZSTD_FILTER_ID: "zstd", h5py.h5z.FILTER_LZF: "lzf"}
+    if not filters:
+        return "none"
+    return names.get(filters[0], "?") if len(filters) == 1 else "?"
+
+
+def _check_layout_attrs(path: Path, f: h5py.File, attrs: Mapping[str, Any]) -> None:
+    """Refuse file attributes that disagree with the datasets' own: the names and units each table also carries,
+    and the compression and checksum kind the images are stored with."""
+    for key in ("target", "dedicated"):
+        table = f["targets" if key == "target" else key].attrs
+        for field in ("names", "units"):
+            if field in table and _as_str_list(table[field]) != list(attrs[f"{key}_{field}"]):
+                raise CaptureFormatError(
+                    f"{path}: attribute {key}_{field} differs from the dataset's own {field} (damaged or edited file)"
+                )
+    stored = _stored_compression(f["images"])
+    compression = str(attrs.get("compression", stored))
+    crc_of = "chunk" if compression in _ENCODERS else "frame"
+    if compression != stored or attrs["image_crc32_of"] != crc_of:
+        raise CaptureFormatError(
+            f"{path}: attributes compression={compression!r}, image_crc32_of={attrs['image_crc32_of']!r} but the "
+            f"images are stored with {stored!r} (damaged or edited file)"
+        )
+
+
 def _validate(path: Path, f: h5py.File) -> tuple[dict[str, Any], int]:
+    def fail(problem: str) -> CaptureFormatError:
+        return CaptureFormatError(f"{path}: {problem}")
+
+    attrs = _validate_attrs(path, f)
+    lengths = _validate_datasets(path, f, attrs)
+    _check_layout_attrs(path, f, attrs)
+    n_frames = int(attrs["n_frames"])
+    if n_frames < 0:
+        raise fail(f"attribute n_frames={n_frames} is negative (damaged file)")
+    attrs["complete"] = bool(attrs["complete"])
+    if attrs["complete"] and "content_sha256" not in attrs:
+        raise fail("marked complete but records no content_sha256 (damaged or edited file): restore or capture again")
+    if attrs["complete"] and len(set(lengths.values())) != 1:
+        raise fail(f"datasets have different lengths {lengths}")
+    if attrs["complete"] and n_frames != lengths["images"]:
+        raise fail(f"attribute n_frames={n_frames} but the datasets hold {lengths['images']} frames")
+    short = {k: v for k, v in lengths.items() if v < n_frames}
+    if short:
+        raise fail(f"datasets shorter than the {n_frames} committed frames: {short} (truncated?)")
+    return attrs, n_frames
+
+
+def _validate_attrs(path: Path, f: h5py.File) -> dict[str, Any]:
+    """The file's attributes, decoded, after checking that those the reader needs are there and agree with the
+    hashed fingerprint."""
+
     def fail(problem: str) -> CaptureFormatError:
         return CaptureFormatError(f"{path}: {problem}")
 
@@ -933,14 +1297,26 @@ def _validate(path: Path, f: h5py.File) -> tuple[dict[str, Any], int]:
     missing = [k for k in ("fingerprint", "fingerprint_sha256", "image_crc32_of") if k not in attrs]
     if missing:
         raise fail(f"missing attributes {missing}")
+    if not isinstance(attrs["fingerprint"], dict):
+        raise fail("the fingerprint is not a record (damaged attributes)")
     if fingerprint_sha256(attrs["fingerprint"]) != attrs["fingerprint_sha256"]:
         raise fail("the fingerprint does not match its recorded fingerprint_sha256 (the attributes were edited)")
+    _check_against_fingerprint(path, attrs)
     for key in ("target_names", "dedicated_names"):
         attrs[key] = _as_str_list(attrs[key])
         units_key = key.replace("names", "units")
         attrs[units_key] = _as_str_list(attrs[units_key])
         if len(attrs[units_key]) != len(attrs[key]):
             raise fail(f"{len(attrs[key])} {key} but {len(attrs[units_key])} {units_key}")
+    return attrs
+
+
+def _validate_datasets(path: Path, f: h5py.File, attrs: Mapping[str, Any]) -> dict[str, int]:
+    """Every dataset's length, after checking its kind, dtype, shape, checksum filter and chunk size."""
+
+    def fail(problem: str) -> CaptureFormatError:
+        return CaptureFormatError(f"{path}: {problem}")
+
     h, w = int(attrs["image_height"]), int(attrs["image_width"])
     expected_tail = {
         "images": (h, w, 3),
@@ -968,14 +1344,9 @@ def _validate(path: Path, f: h5py.File) -> tuple[dict[str, Any], int]:
             raise fail(f"dataset {name!r} has shape {ds.shape}, expected (N, {tail})")
         if name != "images" and not ds.fletcher32:
             raise fail(f"dataset {name!r} has no fletcher32 checksum (rewritten by another tool?): capture it again")
+        chunks = ds.chunks or ()
+        oversized = math.prod(chunks) * ds.dtype.itemsize > _MAX_CHUNK_BYTES
+        if not chunks or oversized or (name == "images" and chunks != (1, h, w, 3)):
+            raise fail(f"dataset {name!r} has chunks {chunks} (damaged file?)")
         lengths[name] = ds.shape[0]
-    n_frames = int(attrs["n_frames"])
-    attrs["complete"] = bool(attrs["complete"])
-    if attrs["complete"] and len(set(lengths.values())) != 1:
-        raise fail(f"datasets have different lengths {lengths}")
-    if attrs["complete"] and n_frames != lengths["images"]:
-        raise fail(f"attribute n_frames={n_frames} but the datasets hold {lengths['images']} frames")
-    short = {k: v for k, v in lengths.items() if v < n_frames}
-    if short:
-        raise fail(f"datasets shorter than the {n_frames} committed frames: {short} (truncated?)")
-    return attrs, n_frames
+    return lengths

@@ -19,9 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import h5py
 import numpy as np
 
-from vision_rl.capture.h5format import CaptureFormatError, first_difference, open_capture
+from vision_rl.capture.h5format import CaptureFormatError, first_difference, lock_exclusive, open_capture
 from vision_rl.capture.sim_capture import CaptureConfig
 from vision_rl.files import atomic_write, json_text
 
@@ -394,14 +395,24 @@ def capture_sharded(
         raise FileExistsError(f"{manifest} exists: pass --force to overwrite it or --resume to continue it")
     # Ray and its CPUs are checked before anything on disk is touched: a refused run changes nothing.
     ray, started = connect_ray(cfg.address, "capture --workers")
+    lock = -1
     try:
         check_workers(ray, cfg.workers)
+        folder.mkdir(parents=True, exist_ok=True)
+        # The shard folder's lock, held to the end: a second run of this manifest is refused before it clears
+        # or rewrites anything (each shard's writer also locks its file).
+        lock = lock_exclusive(folder, "another sharded capture of this manifest")
         todo, restarted = _prepare(cfg, shards, settings)
     except BaseException:
+        if lock >= 0:
+            os.close(lock)
         if started:
             ray.shutdown()
         raise
-    return _run(cfg, ray, started, shards, settings, todo, restarted, progress, on_shards)
+    try:
+        return _run(cfg, ray, started, shards, settings, todo, restarted, progress, on_shards)
+    finally:
+        os.close(lock)
 
 
 def _prepare(
@@ -411,10 +422,13 @@ def _prepare(
     was removed; writes the manifest as things stand."""
     manifest = Path(cfg.out)
     folder = shards_dir(manifest)
-    if not cfg.resume and cfg.force:
+    if not cfg.resume and cfg.force:  # the folder stays: the caller holds its lock
         manifest.unlink(missing_ok=True)
-        shutil.rmtree(folder, ignore_errors=True)
-    folder.mkdir(parents=True, exist_ok=True)
+        for child in folder.iterdir():
+            if child.is_dir() and not child.is_symlink():
+                shutil.rmtree(child)
+            else:
+                child.unlink()
     # Which shards are done: a resumed run keeps every complete shard and restarts only the others.
     todo: list[int] = []
     restarted: list[int] = []
@@ -427,14 +441,28 @@ def _prepare(
             complete = _check_shard(path, shard, settings)
         except ManifestError:
             raise
-        except CaptureFormatError:  # killed while the file was being created: nothing in it can be used
-            path.unlink()
+        except CaptureFormatError as exc:
+            if not _holds_no_frames(path):  # never delete frames: the damage is named instead
+                raise ManifestError(f"{exc}; or remove {path.name} to capture shard {i} again") from exc
+            path.unlink()  # killed while the file was being created: nothing in it can be used
             restarted.append(i)
             complete = False
         if not complete:
             todo.append(i)
     write_manifest(cfg, shards, settings)
     return todo, restarted
+
+
+def _holds_no_frames(path: Path) -> bool:
+    """Whether an invalid shard file has nothing to lose: empty, or an HDF5 file that committed no frame (a shard
+    killed while its file was being created); anything else may hold frames and is never deleted."""
+    if path.stat().st_size == 0:
+        return True
+    try:
+        with h5py.File(path, "r") as f:
+            return "n_frames" in f.attrs and int(f.attrs["n_frames"]) == 0
+    except (OSError, RuntimeError, ValueError, KeyError, TypeError):
+        return False
 
 
 def _run(

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vision_rl.capture.h5format import CaptureWriter, open_capture
+from vision_rl.capture.h5format import CaptureWriter
 from vision_rl.sim import sensors
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, DisruptionParams
 from vision_rl.sim.driving import line_and_profile
@@ -191,15 +191,15 @@ def open_writer(
     )
 
 
-def _done_so_far(path: Path) -> tuple[int, np.ndarray, float]:
-    """Frames, laps started per car (next lap index) and last time of an existing (partial) capture."""
-    with open_capture(path) as f:
-        if f.n_frames == 0:
-            return 0, np.zeros(0, dtype=np.int64), 0.0
-        car_id, lap = f.car_id, f.lap
-        next_lap = np.zeros(int(car_id.max()) + 1, dtype=np.int64)
-        np.maximum.at(next_lap, car_id, lap.astype(np.int64) + 1)
-        return f.n_frames, next_lap, float(f.time_s.max())
+def _done_so_far(writer: CaptureWriter) -> tuple[int, np.ndarray, float]:
+    """Frames, laps started per car (next lap index) and last time of the file a writer reopened (its rows as
+    checked when it opened, so the writer keeps its lock on the file throughout)."""
+    car_id, lap, time_s = (writer.resumed_rows(name) for name in ("car_id", "lap", "time"))
+    if len(car_id) == 0:
+        return 0, np.zeros(0, dtype=np.int64), 0.0
+    next_lap = np.zeros(int(car_id.max()) + 1, dtype=np.int64)
+    np.maximum.at(next_lap, car_id, lap.astype(np.int64) + 1)
+    return len(car_id), next_lap, float(time_s.max())
 
 
 #: A disrupted car turned further than this from the track's direction is re-placed as a stuck car is, rad: the
@@ -250,10 +250,9 @@ def _open_or_resume(
     writer = open_writer(path, track, cfg, renderer_settings, "sim", identity)
     if not (cfg.resume and writer.n_frames):
         return writer, 0, np.zeros(0, dtype=np.int64), 0.0
-    writer.close()
-    frames_before, lap_offset, t_before = _done_so_far(path)
-    t_before += frame_dt_s  # the first new frame comes one frame after the last kept one
-    return open_writer(path, track, cfg, renderer_settings, "sim", identity), frames_before, lap_offset, t_before
+    frames_before, lap_offset, t_before = _done_so_far(writer)
+    # The first new frame comes one frame after the last kept one.
+    return writer, frames_before, lap_offset, t_before + frame_dt_s
 
 
 def _start_driving(
