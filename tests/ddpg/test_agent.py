@@ -11,21 +11,22 @@ import torch
 
 from tests.helpers.tracks import STADIUM, stadium_csv
 from vision_rl.ddpg.agent import (
-    BENCH_LAYOUTS,
+    ConvTrunk,
     DDPGAgent,
     DDPGError,
     DDPGHyper,
     FrameReplay,
+    FrameSizeError,
     OUNoise,
     PixelActor,
     StateActor,
-    bench_updates,
     ddpg_fingerprint,
     load_agent,
     load_replay,
     save_agent_file,
     save_replay,
 )
+from vision_rl.ddpg.bench import BENCH_LAYOUTS, bench_updates, profile_update, update_flops
 from vision_rl.envs.pixel_racing import PixelRacingConfig
 
 HW = (32, 48)  # the smallest convenient frame for four conv + pool stages
@@ -262,6 +263,31 @@ def test_bench_times_each_layout_and_refuses_an_unknown_one(track):
         assert figures["ms_per_update"] == pytest.approx(1000 / figures["updates_per_s"])
     with pytest.raises(DDPGError, match="layout must be one of"):
         bench_updates(DDPGHyper(batch_size=4), env, updates=1, layout="channels-last")
+
+
+def test_the_cpu_preset_cuts_an_update_s_flops_five_to_tenfold_and_names_its_smallest_frame(track):
+    """Issue 64's CPU preset: the pixel actor's update at the paper's 89x120 costs a fifth to a tenth of the paper
+    trunk's operations; a frame too small for its strides is one clear error that says the size it takes."""
+    env = _env(track, image_hw_px=(89, 120))
+    flops = {t: update_flops(DDPGHyper(batch_size=2, trunk=t), env) for t in ("paper", "cpu")}
+    assert 5 <= flops["paper"] / flops["cpu"] <= 10
+    assert ConvTrunk((89, 120), preset="cpu").out_dim == 32 * 3 * 5
+    with pytest.raises(FrameSizeError, match=r"too small for the cpu trunk.*at least 48x48"):
+        ConvTrunk(HW, preset="cpu")
+    with pytest.raises(DDPGError, match="trunk must be one of"):
+        DDPGHyper(trunk="gpu")
+
+
+def test_an_update_reads_no_scalar_back_outside_adam(track):
+    """The host-side count of an update (torch.profiler): its losses come back as tensors, so the only .item()
+    calls are Adam's reads of its host-side step counters, one per parameter tensor, none a wait for a GPU."""
+    env = _env(track)
+    figures = profile_update(DDPGHyper(batch_size=4), env, updates=1)
+    agent = DDPGAgent(DDPGHyper(batch_size=4), env)
+    n_params = len(list(agent.actor.parameters())) + len(list(agent.critic.parameters()))
+    assert figures["item_reads"] == n_params
+    assert figures["leaf_ops"] > figures["optimizer_ops"] > 0 and figures["kernel_launches"] == 0
+    assert all(isinstance(v, torch.Tensor) for v in agent.update(_batch(4, np.random.default_rng(0))).values())
 
 
 def test_train_minutes_stop_a_run_and_a_resume_with_more_continues_it(track, tmp_path):

@@ -18,10 +18,9 @@ import json
 import math
 import os
 import pickle
-import time
 import zipfile
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -80,6 +79,19 @@ TRUNK_LAYERS = {
 }
 
 
+def _side_out_px(side_px: int, preset: str) -> int:
+    """A frame side's length after the preset's convolutions and pooling (< 1: the frame is too small)."""
+    for _, stride, pool in TRUNK_LAYERS[preset]:
+        side_px = (side_px - 2) // stride + 1
+        side_px = side_px // 2 if pool else side_px
+    return side_px
+
+
+def min_frame_px(preset: str) -> int:
+    """The shortest frame side that the preset's trunk takes (31 for the paper's, 48 for the cpu one)."""
+    return next(side for side in range(2, 1024) if _side_out_px(side, preset) >= 1)
+
+
 class ConvTrunk(nn.Module):
     """Four 2x2 convolutions (64, 64, 32, 32), each ReLU, batch-norm and, where the preset says, 2x2 max-pool
     (:data:`TRUNK_LAYERS`); input uint8 frames (n, H, W, 3) of exactly ``image_hw_px`` (without ``batch_norm``: no
@@ -88,24 +100,24 @@ class ConvTrunk(nn.Module):
     def __init__(self, image_hw_px: tuple[int, int], batch_norm: bool = True, preset: str = "paper") -> None:
         super().__init__()
         self.image_hw_px = (int(image_hw_px[0]), int(image_hw_px[1]))
+        h, w = (_side_out_px(side, preset) for side in self.image_hw_px)
+        if h < 1 or w < 1:
+            side = min_frame_px(preset)
+            raise FrameSizeError(
+                f"frames of {self.image_hw_px[0]}x{self.image_hw_px[1]} px are too small for the {preset} trunk's "
+                f"convolutions and pooling: use at least {side}x{side}"
+            )
         layers: list[nn.Module] = []
-        c_in, (h, w) = 3, self.image_hw_px
+        c_in = 3
         for c_out, stride, pool in TRUNK_LAYERS[preset]:
             layers.append(nn.Conv2d(c_in, c_out, 2, stride))
-            h, w = (h - 2) // stride + 1, (w - 2) // stride + 1
             if pool:
                 # Pooling before the ReLU gives the same values as after it (both are monotone) on a quarter of them.
                 layers.append(nn.MaxPool2d(2))
-                h, w = h // 2, w // 2
             layers.append(nn.ReLU(inplace=True))
             if batch_norm:
                 layers.append(nn.BatchNorm2d(c_out))
             c_in = c_out
-            if h < 1 or w < 1:
-                raise FrameSizeError(
-                    f"frames of {self.image_hw_px[0]}x{self.image_hw_px[1]} px are too small for the {preset} "
-                    "trunk's convolutions and pooling: use at least 31x31"
-                )
         self.net = nn.Sequential(*layers)
         self.out_dim = c_in * h * w
         self.channels_last = True
@@ -856,64 +868,3 @@ class DDPGDriver:
         if self.observer is not None:
             self.observer.close()
             self.observer = None
-
-
-# ------------------------------------------------------------------------------------------------ bench
-
-
-#: Memory layouts and compilation of the convolutions that :func:`bench_updates` times.
-BENCH_LAYOUTS = ("eager", "channels_last", "compiled")
-
-
-def bench_updates(
-    hyper: DDPGHyper,
-    env: PixelRacingConfig,
-    updates: int = 10,
-    warmup: int = 2,
-    seed: int = 0,
-    layout: str = "",
-    device: str = "cpu",
-) -> dict[str, float]:
-    """Updates per second at ``hyper.batch_size`` on random frames and states (what the network costs, no sim).
-
-    ``layout`` overrides ``hyper.channels_last``: ``eager`` (NCHW), ``channels_last``, or ``compiled`` (channels-last
-    with every conv trunk through ``torch.compile``; its compilation happens in the untimed warm-up updates). On a
-    GPU the batch is copied from the host in every update, as in training, and the clock waits for the GPU."""
-    if layout and layout not in BENCH_LAYOUTS:
-        raise DDPGError(f"layout must be one of {BENCH_LAYOUTS}, got {layout!r}")
-    if layout:
-        hyper = replace(hyper, channels_last=layout != "eager")
-    agent = DDPGAgent(hyper, env, seed=seed, device=device)
-    if layout == "compiled":
-        for net in (agent.actor, agent.critic, agent.actor_target, agent.critic_target):
-            if isinstance(getattr(net, "trunk", None), ConvTrunk):
-                net.trunk.net = torch.compile(net.trunk.net)
-    rng = np.random.default_rng(seed)
-    n = hyper.batch_size
-
-    def obs() -> dict[str, np.ndarray]:
-        out = {
-            "motion": rng.normal(size=(n, 15)).astype(np.float32),
-            "goal": rng.normal(size=(n, 3)).astype(np.float32),
-        }
-        if env.frames:
-            out["image"] = rng.integers(0, 256, (n, *env.image_hw_px, 3), dtype=np.uint8)
-        return out
-
-    batch = {
-        "obs": obs(),
-        "next_obs": obs(),
-        "action": rng.uniform(0, 1, (n, 4)).astype(np.float32),
-        "reward": rng.normal(size=n).astype(np.float32),
-        "terminated": np.zeros(n, bool),
-    }
-    sync = torch.cuda.synchronize if agent.device.type == "cuda" else (lambda: None)
-    for _ in range(warmup):
-        agent.update(batch)
-    sync()
-    t0 = time.perf_counter()
-    for _ in range(updates):
-        agent.update(batch)
-    sync()
-    dt = time.perf_counter() - t0
-    return {"updates_per_s": updates / dt, "ms_per_update": 1000 * dt / updates}

@@ -18,6 +18,8 @@ VARIANTS = ("asymmetric", "symmetric", "state-actor")
 PEDAL_ACTIVATIONS = ("relu", "sigmoid")
 #: The conv trunk's presets (:data:`vision_rl.ddpg.agent.TRUNK_LAYERS`).
 TRUNK_PRESETS = ("paper", "cpu")
+#: Memory layouts and compilation of the convolutions that :func:`vision_rl.ddpg.bench.bench_updates` times.
+BENCH_LAYOUTS = ("eager", "channels_last", "compiled")
 
 
 class DDPGError(ValueError):
