@@ -1,5 +1,6 @@
 """Files on disk, once for the whole package: the one atomic write, JSON records (strict JSON, through
-:func:`json_text`), SHA-256 of files, the version.
+:func:`json_text`; read through :func:`parse_json`; sealed with :func:`content_sha256`), SHA-256 of files, the
+version.
 
 The lowest layer: any layer that writes or checks a file imports it; it imports nothing of vision_rl.
 """
@@ -82,6 +83,47 @@ def json_text(data: Any, indent: int | None = None, **dumps: Any) -> str:
     :func:`json.dumps` writes by default and other readers refuse. Every record and log line of the package is
     written through it; ``dumps`` goes to :func:`json.dumps` (``sort_keys``, ``default``)."""
     return json.dumps(finite_or_none(data), indent=indent, allow_nan=False, **dumps)
+
+
+#: The key under which a record carries the SHA-256 of the rest of its content (:func:`content_sha256`).
+CONTENT_KEY = "content_sha256"
+
+
+def content_sha256(data: Mapping[str, Any], leave_out: tuple[str, ...] = ()) -> str:
+    """SHA-256 of a record's content as canonical strict JSON (keys sorted, no spaces), without its own
+    :data:`CONTENT_KEY` and the keys in ``leave_out``: what reading the record back gives the same hash for."""
+    body = {key: value for key, value in data.items() if key != CONTENT_KEY and key not in leave_out}
+    canonical = json_text(body, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(canonical.encode()).hexdigest()
+
+
+def sealed_record(data: Mapping[str, Any]) -> dict[str, Any]:
+    """``data`` with its :func:`content_sha256` under :data:`CONTENT_KEY`: what a record is written as."""
+    return {**data, CONTENT_KEY: content_sha256(data)}
+
+
+def content_damage(data: Mapping[str, Any], leave_out: tuple[str, ...] = ()) -> str | None:
+    """None when ``data`` carries the :func:`content_sha256` of its content, else what is wrong, as the end of a
+    sentence that names the file."""
+    recorded = data.get(CONTENT_KEY)
+    if not isinstance(recorded, str):
+        return f"has no {CONTENT_KEY}"
+    actual = content_sha256(data, leave_out)
+    if recorded != actual:
+        return (
+            f"has content SHA-256 {actual[:12]}..., not its recorded {recorded[:12]}...: the file changed after it "
+            "was written"
+        )
+    return None
+
+
+def parse_json(text: str) -> Any:
+    """``json.loads(text)``, with nesting too deep for the parser (RecursionError) reported as the ValueError of
+    any other text that is not JSON, so that a reader catches one exception."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise ValueError("nested too deeply to read") from None
 
 
 def write_json(path: str | os.PathLike[str], data: Mapping[str, Any] | list[Any], indent: int | None = 2) -> str:

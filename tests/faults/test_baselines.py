@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from tests.helpers.overtaking import tiny_baseline_config
+from vision_rl.files import sealed_record
 from vision_rl.overtaking.baseline_run import BaselineError, check_config
 from vision_rl.overtaking.baselines import load_baseline, train_baseline
 from vision_rl.overtaking.config import Table3Config, TrainBaselineConfig
@@ -122,12 +123,13 @@ def test_a_policy_of_another_network_shape_is_refused(runs, tmp_path, fault):
     }
     sha = write_agent_state(state, other / "policy.pt", spec.fingerprint)  # a whole file, checksum and fingerprint
     data = json.loads((other / "policy.json").read_text())
-    (other / "policy.json").write_text(json.dumps({**data, "weights_sha256": sha}))
+    (other / "policy.json").write_text(json.dumps(sealed_record({**data, "weights_sha256": sha})))
     with pytest.raises(PolicyError) as excinfo:
         load_baseline(other)
     assert "do not fit a [256, 256] network" in str(excinfo.value)
     fault.refused("a bc policy file of a 64 x 64 network under a 256 x 256 sidecar", str(excinfo.value))
-    (other / "policy.json").write_text(json.dumps({**data, "weights_sha256": sha, "sac": {"hidden_units": [64, 64]}}))
+    edited = {**data, "weights_sha256": sha, "sac": {"hidden_units": [64, 64]}}
+    (other / "policy.json").write_text(json.dumps(sealed_record(edited)))
     with pytest.raises(BaselineError) as excinfo:
         load_baseline(other)
     assert "not the paper's [256, 256]" in str(excinfo.value)

@@ -7,6 +7,7 @@ import errno
 import json
 import os
 import pickle
+import re
 import shutil
 import signal
 import subprocess
@@ -18,11 +19,12 @@ import numpy as np
 import pytest
 import torch
 
+from tests.helpers.bitflips import check_flips, sample_flips
 from tests.helpers.policies import tiny_train_config
 from tests.helpers.processes import kill_and_read
-from vision_rl.files import ArtifactWriteError
+from vision_rl.files import CONTENT_KEY, ArtifactWriteError, sealed_record
 from vision_rl.phase2_rl.train import train_policy
-from vision_rl.training.artifact import PolicyError, PolicySpec, convert_sb3_run, load_policy
+from vision_rl.training.artifact import PolicyError, PolicySpec, convert_run, convert_sb3_run, load_policy
 from vision_rl.training.persist import file_sha256
 
 
@@ -43,7 +45,9 @@ def run_copy(state_run, tmp_path) -> Path:
     return out
 
 
-def _rewrite_spec(run: Path, **changes) -> None:
+def _rewrite_spec(run: Path, reseal: bool = True, **changes) -> None:
+    """Edit policy.json's fields (dotted keys); with ``reseal`` its content hash is made anew, as someone who knows
+    the format would, so that what stands behind the hash is tested."""
     data = json.loads((run / "policy.json").read_text())
     for key, value in changes.items():
         target = data
@@ -51,7 +55,7 @@ def _rewrite_spec(run: Path, **changes) -> None:
         for p in parents:
             target = target[p]
         target[leaf] = value
-    (run / "policy.json").write_text(json.dumps(data))
+    (run / "policy.json").write_text(json.dumps(sealed_record(data) if reseal else data))
 
 
 def test_a_crafted_pickle_is_refused_and_never_runs(run_copy, tmp_path, fault):
@@ -93,6 +97,116 @@ def test_a_sidecar_edited_to_another_track_is_refused(run_copy, fault):
     with pytest.raises(PolicyError, match="car") as excinfo:
         load_policy(run_copy)
     fault.refused("policy.json's car edited", str(excinfo.value))
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("obs_normalizer.offset", "shifted"),
+        ("racing_config.steer_action", "rate"),
+        ("racing_config.control_dt_s", 0.2),
+        ("racing_config.pedal_full_at", 0.5),
+        ("num_timesteps", 10**9),
+    ],
+)
+def test_an_edit_of_a_sidecar_field_that_changes_driving_or_a_figure_is_refused(run_copy, field, value, fault):
+    if value == "shifted":
+        value = [v + 0.5 for v in json.loads((run_copy / "policy.json").read_text())["obs_normalizer"]["offset"]]
+    _rewrite_spec(run_copy, reseal=False, **{field: value})
+    with pytest.raises(PolicyError, match=r"policy\.json: the policy sidecar has content SHA-256") as excinfo:
+        load_policy(run_copy)
+    fault.refused(f"policy.json's {field} edited", str(excinfo.value))
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"racing_config": None}, "racing_config is None, not of type dict"),
+        ({"racing_config.control_dt_s": "0.1"}, "racing_config.control_dt_s is '0.1', not a value like 0.1"),
+        ({"racing_config.steer_action": "torque"}, "steer_action must be one of"),
+        ({"obs_normalizer.scale": None}, "obs_normalizer needs offset and scale"),
+        ({"sac.hidden_units": [256, "x"]}, "sac.hidden_units"),
+        ({"model": "../../elsewhere.pt"}, "not a file name beside the sidecar"),
+        ({"num_timesteps": "many"}, "num_timesteps is 'many', not of type int"),
+        ({"format_version": "4"}, "format_version is '4'"),
+    ],
+)
+def test_a_sealed_sidecar_of_bad_types_is_refused_in_one_line(run_copy, change, message, fault):
+    _rewrite_spec(run_copy, **change)  # sealed anew: only the check of the fields stands between it and a traceback
+    with pytest.raises(PolicyError, match=re.escape(message)) as excinfo:
+        load_policy(run_copy)
+    assert "policy.json" in str(excinfo.value)
+    fault.refused(f"policy.json (sealed) with {change}", str(excinfo.value))
+
+
+@pytest.mark.parametrize(
+    "text, what",
+    [
+        ("[" * 100_000 + "]" * 100_000, "nested 100,000 lists deep"),
+        ('{"a":' * 50_000 + "1" + "}" * 50_000, "nested 50,000 objects deep"),
+        ("[1, 2]", "a JSON list"),
+        ("\udcff\x00\xfe", "not UTF-8"),
+    ],
+)
+def test_a_sidecar_that_is_not_a_json_object_is_refused_in_one_line(run_copy, text, what, fault):
+    (run_copy / "policy.json").write_bytes(text.encode("utf-8", "surrogateescape"))
+    with pytest.raises(PolicyError, match=r"policy\.json") as excinfo:
+        load_policy(run_copy)
+    fault.refused(f"policy.json {what}", str(excinfo.value))
+
+
+def test_a_format_3_run_is_refused_until_convert_policy_seals_it(run_copy, fault):
+    data = json.loads((run_copy / "policy.json").read_text())
+    data.pop(CONTENT_KEY)
+    (run_copy / "policy.json").write_text(json.dumps({**data, "format_version": 3}))
+    with pytest.raises(PolicyError, match=r"format 3 has no content hash.*vision-rl convert-policy --run") as excinfo:
+        load_policy(run_copy)
+    fault.refused("a format-3 policy (no content hash)", str(excinfo.value))
+    with pytest.raises(PolicyError, match="vision-rl convert-policy --run") as excinfo:
+        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+    fault.refused("--resume of a format-3 run", str(excinfo.value))
+    written = {p.name for p in convert_run(run_copy)}
+    assert "policy.json" in written and not convert_run(run_copy)  # sealed once; the second pass writes nothing
+    assert load_policy(run_copy).spec == PolicySpec.from_fields({**data, "format_version": 4})
+    fault.recovered("a format-3 policy", "vision-rl convert-policy checks its weights' checksum and seals it; it loads")
+    (run_copy / "policy.json").write_text(json.dumps({**data, "format_version": 3, "weights_sha256": "0" * 64}))
+    with pytest.raises(PolicyError, match="changed after it was written; not sealed") as excinfo:
+        convert_run(run_copy)
+    fault.refused("convert-policy of a format-3 sidecar whose weights changed", str(excinfo.value))
+
+
+def test_single_bit_flips_of_a_sidecar_or_its_weights_load_the_same_policy_or_are_refused(run_copy, tmp_path, fault):
+    """Seeded single-bit flips of policy.json (all of it is metadata) and of policy.pt (its zip headers and its
+    tensors): each loads the same policy or is refused in one line naming the file."""
+    spec_path = run_copy / "policy.json"
+    original = PolicySpec.read(spec_path)
+    kept = tmp_path / "policy.json.orig"
+    shutil.copyfile(spec_path, kept)
+    flips = sample_flips([range(kept.stat().st_size)], 400, seed=3)
+    counts = check_flips(kept, flips, spec_path, PolicySpec.read, original, PolicyError)
+    assert counts["refused"] >= 390
+    shutil.copyfile(kept, spec_path)
+    weights = tmp_path / "policy.pt.orig"
+    shutil.copyfile(run_copy / "policy.pt", weights)
+    flips = sample_flips([range(weights.stat().st_size)], 60, seed=4)
+    obs = np.random.default_rng(0).normal(size=(4, 38)).astype(np.float32)
+    expected = load_policy(run_copy).act(obs)
+    weight_counts = check_flips(
+        weights,
+        flips,
+        run_copy / "policy.pt",
+        lambda _: load_policy(run_copy).act(obs),
+        expected,
+        PolicyError,
+        np.array_equal,
+    )
+    assert weight_counts["refused"] == len(flips)
+    fault.refused(
+        f"400 single-bit flips of policy.json: {counts['refused']} refused, {counts['unchanged']} read the same "
+        f"sidecar; 60 of policy.pt: all refused",
+        "policy.json: the policy sidecar has content SHA-256 ..., not its recorded ...: the file changed after it was "
+        "written",
+    )
 
 
 def test_a_damaged_or_foreign_buffer_stops_resume_with_a_message(run_copy, fault):

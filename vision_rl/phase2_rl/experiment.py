@@ -24,7 +24,7 @@ import numpy as np
 from vision_rl.config import flat_values
 from vision_rl.evaluation.leaderboard import AI_SEEDS, EXPERIMENT_FORMAT, aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
-from vision_rl.files import atomic_write, file_sha256, json_text
+from vision_rl.files import atomic_write, file_sha256, json_text, sealed_record
 from vision_rl.phase2_rl.config import TrainPolicyConfig, check_bounds
 from vision_rl.phase2_rl.train import train_policy
 from vision_rl.training.artifact import SIDECAR_NAME, PolicySpec, chosen_weights
@@ -165,7 +165,7 @@ def run_experiment(
         "seeds": list(seeds),
         "seeds_at_once": seeds_at_once,
     }
-    atomic_write(path, lambda tmp: tmp.write_text(json_text(record, indent=2)))
+    atomic_write(path, lambda tmp: tmp.write_text(json_text(sealed_record(record), indent=2)))
     steps_done = {seed: cfg.steps if _seed_is_done(_seed_run(root, seed), cfg.steps) else 0 for seed in seeds}
     todo = [seed for seed in seeds if steps_done[seed] < cfg.steps]
 
@@ -191,7 +191,7 @@ def run_experiment(
         record["learning_curves"] = write_learning_curves(
             root, seeds, evaluations[0]["limit_lap_time_s"], ai, cfg.racing.control_dt_s
         )
-    atomic_write(path, lambda tmp: tmp.write_text(json_text(record, indent=2)))
+    atomic_write(path, lambda tmp: tmp.write_text(json_text(sealed_record(record), indent=2)))
     return {**record, "experiment_json": str(path)}
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -23,18 +24,28 @@ from vision_rl.envs.observations import ObservationKind, ObsNormalizer
 from vision_rl.envs.observer import Observer, in_batches_of
 from vision_rl.envs.racing_env import action_space
 from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
-from vision_rl.files import atomic_write, json_text
+from vision_rl.files import atomic_write, content_damage, json_text, parse_json, sealed_record
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.world import World, WorldState
-from vision_rl.training.persist import ArtifactError, check_fingerprint, read_agent, read_sb3_zip, write_agent_state
+from vision_rl.training.persist import (
+    ArtifactError,
+    check_fingerprint,
+    read_agent,
+    read_sb3_zip,
+    seal_buffer_file,
+    write_agent_state,
+)
 
 if TYPE_CHECKING:
     from vision_rl.phase1_repr.checkpoint import FrozenEncoder
 
 POLICY_FORMAT = "vision_rl.policy"
-#: 3: weights in an agent file without pickle (``policy.pt``) with a fingerprint. Format 2 (an SB3 zip) is
-#: converted by ``vision-rl convert-policy``; format 1 (observations this code no longer makes) is refused.
-POLICY_FORMAT_VERSION = 3
+#: 4: the sidecar carries the SHA-256 of its own content (``content_sha256``), so that an edited normaliser,
+#: control step or steering action is refused. Formats 3 (no content hash) and 2 (an SB3 zip) are converted by
+#: ``vision-rl convert-policy``; format 1 (observations this code no longer makes) is refused.
+POLICY_FORMAT_VERSION = 4
+#: The format before the sidecar's content hash: converted in place by ``vision-rl convert-policy``.
+UNSEALED_FORMAT_VERSION = 3
 SIDECAR_NAME = "policy.json"
 MODEL_NAME = "policy.pt"
 BUFFER_NAME = "replay_buffer.npz"
@@ -54,13 +65,39 @@ def racing_config_to_dict(config: RacingConfig) -> dict[str, Any]:
 
 
 def racing_config_from_dict(data: Mapping[str, Any]) -> RacingConfig:
-    """The inverse of :func:`racing_config_to_dict`; unknown keys (a newer writer) are refused."""
+    """The inverse of :func:`racing_config_to_dict`; unknown keys (a newer writer), values of another type than
+    the field's default and values the config refuses are refused in one line."""
+    if not isinstance(data, Mapping):
+        raise PolicyError(f"racing_config is {type(data).__name__}, not an object of the environment's settings")
     fields = {f.name: f for f in dataclasses.fields(RacingConfig)}
     unknown = set(data) - set(fields)
     if unknown:
         raise PolicyError(f"racing_config has unknown fields {sorted(unknown)}")
+    defaults = racing_config_to_dict(RacingConfig())
+    for key, value in data.items():
+        if not _same_json_type(value, defaults[key]):
+            raise PolicyError(f"racing_config.{key} is {value!r}, not a value like {defaults[key]!r}")
     kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
-    return RacingConfig(**kwargs)
+    try:
+        return RacingConfig(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise PolicyError(f"racing_config: {exc}") from None
+
+
+def _same_json_type(value: Any, like: Any) -> bool:
+    """Whether a JSON ``value`` has the type of ``like`` (an int where a float is due; a list of the same length
+    and element types; any object where an object is)."""
+    if isinstance(like, bool) or isinstance(value, bool):
+        return isinstance(value, bool) and isinstance(like, bool)
+    if isinstance(like, float):
+        return isinstance(value, (int, float)) and math.isfinite(value)
+    if isinstance(like, list):
+        return (
+            isinstance(value, list)
+            and len(value) == len(like)
+            and all(_same_json_type(v, w) for v, w in zip(value, like, strict=True))
+        )
+    return isinstance(value, type(like))
 
 
 def obs_dim(kind: str, rep_dim: int = 64, critic_state: bool = False) -> int:
@@ -147,45 +184,138 @@ class PolicySpec:
         }
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], source: str = "policy.json") -> PolicySpec:
-        if data.get("format") != POLICY_FORMAT:
-            raise PolicyError(f"{source}: not a vision_rl policy sidecar (no format {POLICY_FORMAT!r})")
-        version = int(data.get("format_version", 0))
-        if version > POLICY_FORMAT_VERSION:
-            raise PolicyError(f"{source}: policy format {version} is newer than this code's")
+    def from_dict(cls, data: Any, source: str = "policy.json") -> PolicySpec:
+        """A sidecar as read: refused in one line unless it is of this format, its content hash matches its content
+        and every field has its type."""
+        version = sidecar_version(data, source)
         if version == 2:
             raise PolicyError(
                 f"{source}: policy format 2 keeps its weights in a Stable-Baselines3 zip, whose pickled parts can "
                 f"run code when loaded, so it is not loaded; convert its tensors (nothing pickled is read) with "
-                f"`vision-rl convert-policy --run {Path(source).parent}`"
+                f"`vision-rl convert-policy --run {_run_of(source)}`"
+            )
+        if version == UNSEALED_FORMAT_VERSION:
+            raise PolicyError(
+                f"{source}: policy format 3 has no content hash, so an edit of its settings would go unseen; check "
+                f"its weights and seal it with `vision-rl convert-policy --run {_run_of(source)}`"
             )
         if version < POLICY_FORMAT_VERSION:
             raise PolicyError(
                 f"{source}: policy format {version} was trained on observations this version no longer makes "
                 f"(format {POLICY_FORMAT_VERSION}); train it again with train-policy"
             )
+        damage = content_damage(data)
+        if damage is not None:
+            raise PolicyError(f"{source}: the policy sidecar {damage}")
+        return cls.from_fields(data, source)
+
+    @classmethod
+    def from_fields(cls, data: Mapping[str, Any], source: str = "policy.json") -> PolicySpec:
+        """The spec of ``data``'s fields, each checked for its type (no format or content check: a converter's)."""
+        check_spec_fields(data, source)
         names = {f.name for f in dataclasses.fields(cls)}
         try:
             return cls(**{k: v for k, v in data.items() if k in names})
-        except TypeError as exc:
-            raise PolicyError(f"{source}: bad policy sidecar: {exc}") from exc
+        except (TypeError, ValueError) as exc:
+            raise PolicyError(f"{source}: bad policy sidecar: {exc}") from None
 
     def write(self, path: str | os.PathLike[str]) -> Path:
+        """Write the sidecar with the SHA-256 of its content (:func:`vision_rl.files.content_sha256`)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write(path, lambda tmp: tmp.write_text(json_text(self.to_dict(), indent=2)))
+        data = sealed_record(self.to_dict())
+        atomic_write(path, lambda tmp: tmp.write_text(json_text(data, indent=2)))
         return path
 
     @classmethod
     def read(cls, path: str | os.PathLike[str]) -> PolicySpec:
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except OSError as exc:
-            raise PolicyError(f"{path}: cannot read the policy sidecar: {exc}") from exc
-        except ValueError as exc:
-            raise PolicyError(f"{path}: the policy sidecar is not valid JSON: {exc}") from exc
-        return cls.from_dict(data, str(path))
+        return cls.from_dict(read_sidecar(path), str(path))
+
+
+def read_sidecar(path: str | os.PathLike[str]) -> Any:
+    """The parsed JSON of a sidecar, or a one-line PolicyError naming it."""
+    try:
+        return parse_json(Path(path).read_text())
+    except OSError as exc:
+        raise PolicyError(f"{path}: cannot read the policy sidecar: {exc.strerror or exc}") from None
+    except ValueError as exc:
+        raise PolicyError(f"{path}: the policy sidecar is not valid JSON: {exc}") from None
+
+
+def sidecar_version(data: Any, source: str) -> int:
+    """The format version of a parsed sidecar, refusing what is not one of this package or is newer."""
+    if not isinstance(data, dict) or data.get("format") != POLICY_FORMAT:
+        raise PolicyError(f"{source}: not a vision_rl policy sidecar (no format {POLICY_FORMAT!r})")
+    version = data.get("format_version", 0)
+    if not isinstance(version, int) or isinstance(version, bool):
+        raise PolicyError(f"{source}: format_version is {version!r}, not a whole number")
+    if version > POLICY_FORMAT_VERSION:
+        raise PolicyError(f"{source}: policy format {version} is newer than this code's")
+    return version
+
+
+def _run_of(sidecar: str) -> Path:
+    """The run folder a sidecar belongs to (a snapshot's or the chosen weights' sidecar lies one folder down)."""
+    folder = Path(sidecar).parent
+    return folder.parent if folder.name in ("checkpoints", BEST_DIR) else folder
+
+
+#: The type of each sidecar field (None: may be null).
+_FIELD_TYPES: dict[str, tuple[type, ...]] = {
+    "observation": (str,),
+    "racing_config": (dict,),
+    "obs_normalizer": (dict,),
+    "fingerprint": (dict,),
+    "weights_sha256": (str,),
+    "encoder": (dict, type(None)),
+    "model": (str,),
+    "preset": (str,),
+    "sac": (dict,),
+    "seed": (int,),
+    "num_timesteps": (int,),
+    "train_time_s": (int, float),
+    "train_config": (dict,),
+    "selection": (dict, type(None)),
+}
+
+
+def check_spec_fields(data: Mapping[str, Any], source: str) -> None:
+    """Refuse, in one line naming the field, a sidecar field of the wrong type or a value that cannot be used: a
+    config the environment refuses, a normaliser that is not two equal lists of finite numbers (scale not 0), a
+    weights file outside the sidecar's folder, hidden layers that are not positive whole numbers."""
+    for key, types in _FIELD_TYPES.items():
+        if key in data and (not isinstance(data[key], types) or isinstance(data[key], bool)):
+            raise PolicyError(f"{source}: {key} is {_short(data[key])}, not of type {types[0].__name__}")
+    try:
+        racing_config_from_dict(data.get("racing_config", {}))
+    except PolicyError as exc:
+        raise PolicyError(f"{source}: {exc}") from None
+    normalizer = data.get("obs_normalizer", {})
+    columns = [normalizer.get(k) for k in ("offset", "scale")]
+    if not all(isinstance(c, list) and all(_finite(v) for v in c) for c in columns) or len(columns[0]) != len(
+        columns[1]
+    ):
+        raise PolicyError(f"{source}: obs_normalizer needs offset and scale as two lists of finite numbers alike long")
+    if 0 in columns[1]:
+        raise PolicyError(f"{source}: obs_normalizer.scale holds a 0 (a division by zero)")
+    model = data.get("model", MODEL_NAME)
+    if Path(model).name != model or model in ("", ".", ".."):
+        raise PolicyError(f"{source}: model {model!r} is not a file name beside the sidecar")
+    hidden = (data.get("sac") or {}).get("hidden_units", [])
+    if not isinstance(hidden, list) or not all(_finite(n) and n == int(n) and n > 0 for n in hidden):
+        raise PolicyError(f"{source}: sac.hidden_units is {_short(hidden)}, not a list of positive whole numbers")
+    encoder = data.get("encoder")
+    if encoder is not None and not all(isinstance(encoder.get(k), str) for k in ("path", "sha256")):
+        raise PolicyError(f"{source}: encoder needs its checkpoint's path and sha256 as text")
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def chosen_weights(run: str | os.PathLike[str]) -> Path | None:
@@ -465,20 +595,55 @@ def load_policy(
     return LoadedPolicy(policy, spec, weights_path, spec_path, module, encoder_path)
 
 
+def convert_run(run: str | os.PathLike[str]) -> list[Path]:
+    """Bring a run folder to this version in place; returns the files written. Format 2 (an SB3 zip):
+    :func:`convert_sb3_run`. Format 3: each sidecar (the run's, ``best/``'s and the snapshots') whose weights still
+    have the recorded SHA-256 and fingerprint is sealed with its content hash, and a replay buffer of format 1 with
+    its arrays' hashes. What a format-3 sidecar says cannot be checked: sealing it vouches for it as it is now."""
+    run = Path(run)
+    spec_path = run / SIDECAR_NAME
+    if not spec_path.is_file():
+        raise PolicyError(f"{run}: not a run folder (no {SIDECAR_NAME})")
+    if sidecar_version(read_sidecar(spec_path), str(spec_path)) == 2:
+        return convert_sb3_run(run)
+    sidecars = [spec_path, run / BEST_DIR / SIDECAR_NAME, *sorted((run / "checkpoints").glob("policy_*.json"))]
+    written = []
+    for sidecar in (p for p in sidecars if p.is_file()):
+        data = read_sidecar(sidecar)
+        if sidecar_version(data, str(sidecar)) == UNSEALED_FORMAT_VERSION:
+            spec = PolicySpec.from_fields({**data, "format_version": POLICY_FORMAT_VERSION}, str(sidecar))
+            expected = {**spec.fingerprint, "track_geometry_hash": load_track(spec.config.track).geometry_hash}
+            try:
+                check_fingerprint(spec.fingerprint, expected, str(sidecar))
+                read_agent(sidecar.parent / spec.model, expected, spec.weights_sha256)
+            except ArtifactError as exc:
+                raise PolicyError(f"{exc}; not sealed") from None
+            written.append(spec.write(sidecar))
+        else:
+            PolicySpec.read(sidecar)  # this version's: it must be whole
+    for buffer in (run / BUFFER_NAME, run / BEST_DIR / BUFFER_NAME):
+        try:
+            if buffer.is_file() and seal_buffer_file(buffer):
+                written.append(buffer)
+        except ArtifactError as exc:
+            raise PolicyError(str(exc)) from None
+    return written
+
+
 def convert_sb3_run(run: str | os.PathLike[str]) -> list[Path]:
-    """Convert a format-2 run folder (``policy.zip`` and ``checkpoints/policy_<steps>.zip``) to format 3 in place;
-    returns the files written. Only the zips' tensors and plain JSON counters are read
+    """Convert a format-2 run folder (``policy.zip`` and ``checkpoints/policy_<steps>.zip``) to this format in
+    place; returns the files written. Only the zips' tensors and plain JSON counters are read
     (:func:`~vision_rl.training.persist.read_sb3_zip`), so nothing in them can run. The pickled replay buffer is
     not read: a resumed run collects a new one."""
     run = Path(run)
     spec_path = run / SIDECAR_NAME
-    try:
-        data = json.loads(spec_path.read_text())
-    except (OSError, ValueError) as exc:
-        raise PolicyError(f"{spec_path}: cannot read the sidecar: {exc}") from None
-    if data.get("format") != POLICY_FORMAT or int(data.get("format_version", 0)) != 2:
+    data = read_sidecar(spec_path)
+    if sidecar_version(data, str(spec_path)) != 2:
         raise PolicyError(f"{spec_path}: not a format-2 policy sidecar (nothing to convert)")
-    config = racing_config_from_dict(data["racing_config"])
+    try:
+        config = racing_config_from_dict(data["racing_config"])
+    except (PolicyError, KeyError) as exc:
+        raise PolicyError(f"{spec_path}: {exc}") from None
     encoder_sha = data["encoder"]["sha256"] if data.get("encoder") else None
     states = {}  # every zip is read before anything is written: a damaged one leaves the run as it was
     for zip_path in [run / data.get("model", SB3_ZIP_NAME), *sorted((run / "checkpoints").glob("policy_*.zip"))]:
@@ -503,6 +668,6 @@ def convert_sb3_run(run: str | os.PathLike[str]) -> list[Path]:
             "num_timesteps": state["counters"]["num_timesteps"],
         }
         sidecar = spec_path if zip_path.parent == run else snapshot_sidecar(weights)
-        PolicySpec.from_dict(entry, str(sidecar)).write(sidecar)
+        PolicySpec.from_fields(entry, str(sidecar)).write(sidecar)
         written += [weights, sidecar]
     return written

@@ -13,7 +13,7 @@ from typing import Any
 from vision_rl.envs.core import RacingConfig
 from vision_rl.evaluation.controls import lap_controls
 from vision_rl.evaluation.encoder_error import encoder_error_on_lap
-from vision_rl.evaluation.leaderboard import evaluation_record
+from vision_rl.evaluation.leaderboard import evaluation_record, seal_evaluation
 from vision_rl.evaluation.outputs import (
     check_video_dependencies,
     format_lap_time,
@@ -122,8 +122,9 @@ def timed_record(
 
 
 def write_record(result: dict[str, Any], out: Path) -> dict[str, Any]:
-    """Store ``result`` as ``out`` (where the leaderboard finds it); the record then names its file."""
-    write_json(out, result)
+    """Store ``result`` as ``out`` (where the leaderboard finds it), sealed again over the figures added since it
+    was timed (sections, the encoder's error); the record then names its file."""
+    write_json(out, seal_evaluation(result))
     result["evaluation_json"] = str(out)
     return result
 

@@ -5,7 +5,9 @@
   run code. Its ``fingerprint`` (track geometry hash, car, observation, ...) is stored inside, so a sidecar edited
   to claim another track no longer matches the weights.
 - A *buffer file* (``.npz``) holds the filled part of a replay buffer (not its preallocated capacity), read with
-  ``numpy.load(allow_pickle=False)``; every array is CRC-32-checked by the zip container on read.
+  ``numpy.load(allow_pickle=False)``; every array is CRC-32-checked by the zip container on read, its ``meta``
+  records each array's SHA-256 (dtype, shape and bytes) and the SHA-256 of the meta itself, so a buffer re-saved
+  with other rewards is refused; non-finite rewards, actions or observations are refused naming the array.
 
 Writes go to a temporary file in the same folder that is then renamed, so a kill leaves the previous file whole; a
 failed write (a full disk) raises :class:`ArtifactWriteError` naming the file and removes the temporary file.
@@ -13,12 +15,16 @@ failed write (a full disk) raises :class:`ArtifactWriteError` naming the file an
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import os
 import pickle
 import shutil
+import struct
+import tokenize
 import zipfile
+import zlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -28,11 +34,33 @@ import torch
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-from vision_rl.files import atomic_write, file_sha256, json_text
+from vision_rl.files import atomic_write, content_damage, file_sha256, json_text, parse_json, sealed_record
 
 AGENT_FORMAT = "vision_rl.agent"
 BUFFER_FORMAT = "vision_rl.replay_buffer"
 FORMAT_VERSION = 1
+#: 2: the meta records each array's SHA-256 and its own (``content_sha256``). Format 1 is sealed in place by
+#: ``vision-rl convert-policy`` (:func:`seal_buffer_file`).
+BUFFER_FORMAT_VERSION = 2
+#: Arrays of a buffer that must hold finite numbers (``ai_labels`` is NaN where a transition has no label).
+FINITE_BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards")
+#: What a damaged zip container or ``.npy`` header raises while numpy reads it.
+_NPZ_ERRORS = (
+    OSError,
+    ValueError,
+    KeyError,
+    EOFError,
+    zipfile.BadZipFile,
+    NotImplementedError,
+    struct.error,
+    zlib.error,
+    OverflowError,
+    MemoryError,
+    RuntimeError,
+    SyntaxError,  # a .npy header is a Python literal: numpy tokenizes and evaluates it
+    tokenize.TokenError,
+    TypeError,
+)
 #: The arrays of an SB3 ReplayBuffer that a buffer file keeps, each (capacity, n_envs, ...).
 BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
 #: Arrays a buffer carries only in some runs: the built-in AI's labels of each transition (``--guide-label-weight``,
@@ -202,14 +230,19 @@ def save_buffer(buffer: ReplayBuffer, path: str | os.PathLike[str], fingerprint:
     n = buffer.buffer_size if buffer.full else buffer.pos
     meta = {
         "format": BUFFER_FORMAT,
-        "format_version": FORMAT_VERSION,
+        "format_version": BUFFER_FORMAT_VERSION,
         "fingerprint": dict(fingerprint),
         "pos": int(buffer.pos),
         "full": bool(buffer.full),
         "capacity": int(buffer.buffer_size),
         "n_envs": int(buffer.n_envs),
     }
-    arrays = {name: getattr(buffer, name)[:n] for name in _buffer_arrays(buffer)}
+    return _write_buffer_file(path, meta, {name: getattr(buffer, name)[:n] for name in _buffer_arrays(buffer)})
+
+
+def _write_buffer_file(path: str | os.PathLike[str], meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> str:
+    """``arrays`` and ``meta`` sealed with the arrays' and the meta's SHA-256, written atomically."""
+    meta = sealed_record({**meta, "arrays_sha256": {k: array_sha256(v) for k, v in arrays.items()}})
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
@@ -218,26 +251,87 @@ def save_buffer(buffer: ReplayBuffer, path: str | os.PathLike[str], fingerprint:
     return atomic_write(path, write)
 
 
+def array_sha256(values: np.ndarray) -> str:
+    """SHA-256 of an array's dtype, shape and bytes (C order)."""
+    digest = hashlib.sha256(f"{values.dtype.str}{values.shape}".encode())
+    digest.update(np.ascontiguousarray(values).view(np.uint8).reshape(-1).data)
+    return digest.hexdigest()
+
+
 def _buffer_arrays(buffer: ReplayBuffer) -> tuple[str, ...]:
     return BUFFER_ARRAYS + tuple(name for name in OPTIONAL_BUFFER_ARRAYS if getattr(buffer, name, None) is not None)
 
 
-def load_buffer(buffer: ReplayBuffer, path: str | os.PathLike[str], fingerprint: Mapping[str, Any]) -> int:
-    """Fill a fresh ``buffer`` from a buffer file; returns the transitions (per env) restored. Refuses a damaged
-    file, another fingerprint, or arrays that do not fit ``buffer``."""
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def read_buffer_file(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """(meta, arrays) of a buffer file of format 2, refused in one line naming the file unless its meta and each
+    array carry the SHA-256 they were written with and the arrays that must be finite are."""
     path = Path(path)
+    meta, arrays = _read_npz(path)
+    if meta.get("format_version") == FORMAT_VERSION:
+        raise ArtifactError(
+            f"{path}: replay-buffer format 1 has no content hash, so a re-saved buffer would go unseen; seal it "
+            f"with `vision-rl convert-policy --run {path.parent}`"
+        )
+    if meta.get("format_version") != BUFFER_FORMAT_VERSION:
+        raise ArtifactError(f"{path}: replay-buffer format {meta.get('format_version')!r}, this code reads 2")
+    damage = content_damage(meta)
+    if damage is not None:
+        raise ArtifactError(f"{path}: the replay buffer's meta {damage}")
+    recorded = meta.get("arrays_sha256")
+    if not isinstance(recorded, dict) or set(recorded) != set(arrays):
+        raise ArtifactError(f"{path}: holds the arrays {sorted(arrays)}, its meta lists {sorted(recorded or {})}")
+    for name, values in arrays.items():
+        if array_sha256(values) != recorded[name]:
+            raise ArtifactError(f"{path}: the array {name} is not the one written (its SHA-256 differs)")
+        if name in FINITE_BUFFER_ARRAYS and values.dtype.kind == "f" and not np.isfinite(values).all():
+            raise ArtifactError(f"{path}: the array {name} holds non-finite numbers (NaN or infinity)")
+    return meta, arrays
+
+
+def _read_npz(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The meta and arrays of a buffer file, without checks beyond its being one; one-line ArtifactError."""
     try:
         with np.load(path, allow_pickle=False) as data:
-            meta = json.loads(str(data["meta"]))
-            if meta.get("format") != BUFFER_FORMAT or int(meta.get("format_version", 0)) != FORMAT_VERSION:
-                raise ArtifactError(f"{path}: not a vision_rl replay-buffer file of format {FORMAT_VERSION}")
-            check_fingerprint(meta["fingerprint"], fingerprint, str(path))
-            arrays = {name: data[name] for name in _buffer_arrays(buffer) if name in BUFFER_ARRAYS or name in data}
+            meta = parse_json(str(data["meta"]))
+            if not isinstance(meta, dict) or meta.get("format") != BUFFER_FORMAT:
+                raise ArtifactError(f"{path}: not a vision_rl replay-buffer file (no format {BUFFER_FORMAT!r})")
+            arrays = {name: data[name] for name in data.files if name != "meta"}
     except ArtifactError:
         raise
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ArtifactError(f"{path}: damaged replay-buffer file: {first}") from None
+    except _NPZ_ERRORS as exc:
+        raise ArtifactError(f"{path}: damaged replay-buffer file: {_first_line(exc)}") from None
+    return meta, arrays
+
+
+def seal_buffer_file(path: str | os.PathLike[str]) -> bool:
+    """Seal a buffer file of format 1 in place as format 2 (its arrays as they are); False when it is sealed
+    already. Its content cannot be checked: format 1 recorded no hash beyond the zip's CRC-32, which is read."""
+    path = Path(path)
+    meta, arrays = _read_npz(path)
+    if meta.get("format_version") == BUFFER_FORMAT_VERSION:
+        read_buffer_file(path)
+        return False
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise ArtifactError(f"{path}: replay-buffer format {meta.get('format_version')!r}, not 1 or 2")
+    _write_buffer_file(path, {**meta, "format_version": BUFFER_FORMAT_VERSION}, arrays)
+    return True
+
+
+def load_buffer(buffer: ReplayBuffer, path: str | os.PathLike[str], fingerprint: Mapping[str, Any]) -> int:
+    """Fill a fresh ``buffer`` from a buffer file; returns the transitions (per env) restored. Refuses a damaged
+    or changed file (:func:`read_buffer_file`), another fingerprint, or arrays that do not fit ``buffer``."""
+    path = Path(path)
+    meta, stored = read_buffer_file(path)
+    check_fingerprint(meta.get("fingerprint") or {}, fingerprint, str(path))
+    missing = [name for name in BUFFER_ARRAYS if name not in stored]
+    if missing:
+        raise ArtifactError(f"{path}: a replay buffer without the arrays {missing}")
+    arrays = {name: stored[name] for name in _buffer_arrays(buffer) if name in stored}
     n = len(arrays["observations"])
     if n > buffer.buffer_size:
         raise ArtifactError(

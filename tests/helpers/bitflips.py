@@ -1,0 +1,78 @@
+"""Seeded single-bit flips of a file, and the rule every flip must meet: the loader gives the original content back,
+or refuses in one line that names the file; never a traceback, never other content."""
+
+from __future__ import annotations
+
+import zipfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def npz_regions(path: Path) -> tuple[list[range], list[range]]:
+    """(metadata, data) byte ranges of an uncompressed ``.npz``: the zip's headers and directory, each member's
+    ``.npy`` header and the ``meta`` member are metadata; the other members' array bytes are data."""
+    size = path.stat().st_size
+    raw = path.read_bytes()
+    data = []
+    with zipfile.ZipFile(path) as archive:
+        for info in archive.infolist():
+            local = info.header_offset
+            start = local + 30 + int.from_bytes(raw[local + 26 : local + 28], "little")
+            start += int.from_bytes(raw[local + 28 : local + 30], "little")
+            if info.filename != "meta.npy":
+                header = 10 + int.from_bytes(raw[start + 8 : start + 10], "little")  # .npy version 1 header
+                data.append(range(start + header, start + info.file_size))
+    data = [r for r in data if len(r)]
+    covered = np.zeros(size, bool)
+    for r in data:
+        covered[r.start : r.stop] = True
+    edges = np.flatnonzero(np.diff(np.concatenate([[1], covered.view(np.int8), [1]])))
+    metadata = [range(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True) if b > a]
+    return metadata, data
+
+
+def sample_flips(regions: list[range], n: int, seed: int) -> list[tuple[int, int]]:
+    """``n`` (byte offset, bit) pairs drawn uniformly over the bytes of ``regions``."""
+    offsets = np.concatenate([np.arange(r.start, r.stop) for r in regions])
+    rng = np.random.default_rng(seed)
+    return [(int(offsets[i]), int(rng.integers(8))) for i in rng.choice(len(offsets), n, replace=False)]
+
+
+def flipped_copies(original: Path, flips: list[tuple[int, int]], target: Path) -> Iterator[tuple[int, int]]:
+    """Write ``original`` with each flip in turn to ``target``, yielding the flip; the original stays whole."""
+    data = original.read_bytes()
+    for offset, bit in flips:
+        changed = bytearray(data)
+        changed[offset] ^= 1 << bit
+        target.write_bytes(bytes(changed))
+        yield offset, bit
+
+
+def check_flips(
+    original: Path,
+    flips: list[tuple[int, int]],
+    target: Path,
+    load: Callable[[Path], Any],
+    expected: Any,
+    refusal: type[BaseException],
+    same: Callable[[Any, Any], bool] = lambda a, b: a == b,
+) -> dict[str, int]:
+    """Every flip of ``original`` (written to ``target``) loads as ``expected`` or raises ``refusal`` with one
+    line naming ``target``; any other outcome fails with the flip named. Returns the count of each outcome."""
+    counts = {"unchanged": 0, "refused": 0}
+    for offset, bit in flipped_copies(original, flips, target):
+        where = f"bit {bit} of byte {offset} of {original.name}"
+        try:
+            loaded = load(target)
+        except refusal as exc:
+            message = str(exc)
+            assert "\n" not in message.strip() and "Traceback" not in message, f"{where}: {message}"
+            assert target.name in message, f"{where}: the refusal does not name the file: {message}"
+            counts["refused"] += 1
+            continue
+        assert same(loaded, expected), f"{where}: loaded content that differs from what was written"
+        counts["unchanged"] += 1
+    return counts
