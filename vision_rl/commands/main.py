@@ -97,7 +97,7 @@ COMMANDS: dict[str, Command] = {
         "lap-time table: AI, limit, policies (Table 1)", f"{_C}.evaluate", "LeaderboardOptions", "run_leaderboard"
     ),
     "convert-policy": Command(
-        "a policy of format 2 (SB3 zip) to format 3 (no pickle)",
+        "a run of an older policy format to this one (SB3 zip to no pickle; sealed with content hashes)",
         f"{_C}.convert_policy",
         "ConvertPolicyOptions",
         "run_convert_policy",
