@@ -197,6 +197,7 @@ UNIT_BYTES = {
     "stage3_buffer_size": 100,
     "select_starts": 1e6,  # held-out starts driven at once
     "stats_steps": 1e4,  # a control step's raw observations of every car, kept for the statistics
+    "dreamer_sequence_steps": 1e4,  # a step of each sampled sequence: observation, action, latent state
     "frame_delay": 4e5,  # a 280 x 470 RGB frame held per car
 }
 #: Bytes per pixel of a frame size option, per car: capture's renderer tiles, read-back and queued copies.
