@@ -59,4 +59,4 @@ def test_bench_train_repr_prints_a_row_per_batch_and_precision(capsys) -> None:
     with pytest.raises(SystemExit) as exit_info:  # argparse refuses it before the command runs
         main([*argv[:5], "--batch-sizes", "64", "x"])
     assert exit_info.value.code == 2
-    assert capsys.readouterr().err.strip().endswith("argument --batch-sizes: invalid int value: 'x'")
+    assert capsys.readouterr().err.strip().endswith("argument --batch-sizes: 'x' is not an integer")

@@ -14,7 +14,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NoReturn
 
 from vision_rl.commands.options import add_config_arguments, config_from_args
 
@@ -164,12 +164,19 @@ def _debug() -> bool:
     return os.environ.get("VISION_RL_DEBUG", "") not in ("", "0")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's refusals in one line, as the commands' own (``--help`` still shows the usage)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def parse_command(name: str, argv: Sequence[str]) -> Any:
     """The command's options from ``argv``, checked and not yet run: argparse exits (2) on a malformed option, a
     ValueError names a value out of range or over the memory budget."""
     command = COMMANDS[name]
     options_cls = getattr(importlib.import_module(command.module), command.options)
-    parser = argparse.ArgumentParser(prog=f"vision-rl {name}", description=inspect.getdoc(options_cls))
+    parser = _Parser(prog=f"vision-rl {name}", description=inspect.getdoc(options_cls))
     add_config_arguments(parser, options_cls)
     args = parser.parse_args(list(argv))
     return config_from_args(options_cls, args)
