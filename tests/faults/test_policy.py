@@ -226,6 +226,13 @@ def test_a_damaged_or_foreign_buffer_stops_resume_with_a_message(run_copy, fault
     with pytest.raises(PolicyError, match=r"replay_buffer\.npz") as excinfo:
         train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
     fault.refused("an .npz that is not a replay buffer on --resume", str(excinfo.value))
+    buffer.write_bytes(original)
+    with np.load(buffer, allow_pickle=False) as data:
+        arrays = {name: data[name] for name in data.files}
+    np.savez(buffer, **{**arrays, "rewards": arrays["rewards"] * -1000})  # its meta as it was
+    with pytest.raises(PolicyError, match=r"replay_buffer\.npz: the array rewards is not the one written") as excinfo:
+        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+    fault.refused("replay_buffer.npz re-saved with its rewards x -1000, on --resume", str(excinfo.value))
 
 
 def test_a_format_2_policy_is_refused_and_converts_without_unpickling(run_copy, tmp_path, fault):

@@ -56,6 +56,7 @@ from vision_rl.training.artifact import (
     load_policy,
     policy_fingerprint,
     racing_config_to_dict,
+    read_sidecar,
     resolve_policy_paths,
 )
 from vision_rl.training.interrupts import learn_between_interrupts
@@ -102,12 +103,7 @@ class OvertakingPolicySpec(PolicySpec):
 def read_overtaking_spec(path: str | os.PathLike[str]) -> OvertakingPolicySpec:
     """Read a sidecar, refusing one of another observation with one line that says so."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except OSError as exc:
-        raise PolicyError(f"{path}: cannot read the policy sidecar: {exc.strerror or exc}") from None
-    except ValueError as exc:
-        raise PolicyError(f"{path}: the policy sidecar is not valid JSON: {exc}") from None
+    data = read_sidecar(path)
     if isinstance(data, dict) and data.get("observation") not in (None, OBSERVATION):
         raise PolicyError(
             f"{path}: the policy observes {data.get('observation')!r}, not the 96-D {OBSERVATION!r} observation; "

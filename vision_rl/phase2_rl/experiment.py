@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from vision_rl.config import flat_values
-from vision_rl.evaluation.leaderboard import AI_SEEDS, EXPERIMENT_FORMAT, aggregate_seeds
+from vision_rl.evaluation.leaderboard import AI_SEEDS, EXPERIMENT_FORMAT, aggregate_seeds, read_evaluation
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
 from vision_rl.files import atomic_write, file_sha256, json_text, sealed_record
 from vision_rl.phase2_rl.config import TrainPolicyConfig, check_bounds
@@ -110,7 +110,7 @@ def _selected(root: Path, seeds: Sequence[int], last: Sequence[dict[str, Any]]) 
     evaluations, kept_at = [], []
     for seed, final in zip(seeds, last, strict=True):
         best = chosen_weights(_seed_run(root, seed))
-        evaluations.append(json.loads((best / EVALUATION_NAME).read_text()) if best else final)
+        evaluations.append(read_evaluation(best / EVALUATION_NAME) if best else final)
         kept_at.append(PolicySpec.read(best / SIDECAR_NAME).num_timesteps if best else None)
     rows = _seed_rows(seeds, evaluations)
     for row, steps in zip(rows, kept_at, strict=True):
@@ -181,7 +181,8 @@ def run_experiment(
                 raise KeyboardInterrupt
     else:
         _run_side_by_side(job, todo, seeds_at_once, seed_steps)
-    evaluations = [json.loads((_seed_run(root, seed) / EVALUATION_NAME).read_text()) for seed in seeds]
+    # Checked records only: a summary sealed over an edited seed's lap would pass it off as the experiment's.
+    evaluations = [read_evaluation(_seed_run(root, seed) / EVALUATION_NAME) for seed in seeds]
     record["summary"] = aggregate_seeds(evaluations)
     record["per_seed"] = _seed_rows(seeds, evaluations)
     if cfg.select_starts:
