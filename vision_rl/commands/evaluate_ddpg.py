@@ -17,7 +17,7 @@ class EvaluateDDPGOptions:
     option_choices: ClassVar[dict[str, tuple[str, ...]]] = {"variant": ("", *DDPG_VARIANTS)}
 
     agent: str = ""
-    """A train-ddpg run folder or its ddpg.pt."""
+    """A train-ddpg run folder or its ddpg.pt (required)."""
     variant: str = ""
     """Refuse an agent of another variant (asymmetric, symmetric, state-actor; empty: any)."""
     seeds: int = 3
@@ -48,8 +48,6 @@ def run_evaluate_ddpg(opts: EvaluateDDPGOptions) -> int:
     from vision_rl.commands.evaluate import format_timing
     from vision_rl.ddpg.train import evaluate_ddpg
 
-    if not opts.agent:
-        raise ValueError("--agent is required: a train-ddpg run folder or its ddpg.pt")
     if opts.seeds < 1 or opts.laps < 1 or opts.time_limit_s < 0:
         raise ValueError("--seeds and --laps must be >= 1 and --time-limit-s >= 0")
     if opts.reward_laps < 1 or opts.reward_bin_m <= 0:
@@ -86,7 +84,7 @@ class CompareDDPGOptions:
     and episodes, and each run's first completed lap (PNG, and its numbers as JSON beside it)."""
 
     runs: str = ""
-    """train-ddpg run folders, comma-separated (one track and car)."""
+    """train-ddpg run folders, comma-separated (one track and car) (required)."""
     names: str = ""
     """Their names in the figure, comma-separated (default: variant and seed)."""
     bin_minutes: float = 5.0

@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from vision_rl.budget import array_bytes, require_memory
 from vision_rl.config import nested
 from vision_rl.envs.pixel_racing import PixelRacingConfig
 from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule, SamplerOptions
@@ -282,6 +283,10 @@ def check_bounds(o: Mapping[str, Any]) -> None:
     columns = o["cars"] * (o["workers"] or 1)
     if o["buffer_size"] < 4 * columns:
         raise ValueError(f"--buffer-size {o['buffer_size']} leaves fewer than 4 rows per car for {columns} cars")
+    # The replay holds a uint8 frame per row (pixel variants); a batch is read as float32 frames.
+    frame_bytes = array_bytes(*o["image_hw_px"], 3, itemsize=1) if o["variant"] != "state-actor" else 0.0
+    require_memory(f"--buffer-size {o['buffer_size']}", o["buffer_size"] * (frame_bytes + 100))
+    require_memory(f"--batch-size {o['batch_size']}", o["batch_size"] * (4 * frame_bytes + 1000))
     if o["workers"] is not None or o["address"]:
         from vision_rl.training.distributed import check_workers
 
