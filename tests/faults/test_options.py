@@ -148,7 +148,7 @@ OVERSIZED = {
     ),
     "train-policy --batch-size 1e9": (["train-policy", "--batch-size", "1000000000"], "--batch-size"),
     "train-repr --width-mult 10000": (["train-repr", "--data", "a.h5", "--width-mult", "10000"], "--width-mult"),
-    "evaluate --seeds 1000000": (["evaluate", "--run", "x", "--seeds", "1000000"], "--seeds 1000000 needs about"),
+    "evaluate --seeds 1000000": (["evaluate", "--policy", "x", "--seeds", "1000000"], "--seeds 1000000 needs about"),
     "capture --image-hw-px 100000 100000": (
         ["capture", "--out", "x.h5", "--image-hw-px", "100000", "100000"],
         "--image-hw-px",
@@ -169,11 +169,14 @@ def test_an_oversized_request_is_refused_before_it_allocates(what, tmp_path, cap
 SILENT_BEFORE = {
     "train-repr --val equal to --data": (["train-repr", "--data", "a.h5", "--val", "./a.h5"], "is also in --data"),
     "train-repr --shift-px 100000": (["train-repr", "--data", "a.h5", "--shift-px", "100000"], "--shift-px 100000"),
-    "evaluate --time-limit-s -1": (["evaluate", "--run", "x", "--time-limit-s", "-1"], "below the least value"),
-    "evaluate --time-limit-s nan": (["evaluate", "--run", "x", "--time-limit-s", "nan"], "not a finite number"),
+    "evaluate --time-limit-s -1": (["evaluate", "--policy", "x", "--time-limit-s", "-1"], "below the least value"),
+    "evaluate --time-limit-s nan": (["evaluate", "--policy", "x", "--time-limit-s", "nan"], "not a finite number"),
     "train-policy --seed -1": (["train-policy", "--seed", "-1"], "argument --seed: -1 is below the least value"),
     "drive --skill 2": (["drive", "--skill", "2"], "above the greatest value"),
     "curves without --files": (["curves"], "required: --files"),
+    "convert-policy without --run": (["convert-policy"], "required: --run"),
+    "evaluate-ddpg without --agent": (["evaluate-ddpg"], "required: --agent"),
+    "compare-ddpg without --runs": (["compare-ddpg"], "required: --runs"),
 }
 
 
@@ -229,7 +232,7 @@ def test_refused_oversized_requests_stay_under_1_gb(tmp_path, fault):
         ["limit", "--track", huge],
         ["train-policy", "--buffer-size", "1000000000000"],
         ["train-repr", "--data", "a.h5", "--num-workers", "100000"],
-        ["evaluate", "--run", "x", "--seeds", "1000000"],
+        ["evaluate", "--policy", "x", "--seeds", "1000000"],
     ):
         run = subprocess.run([sys.executable, "-c", _PEAK, *argv], capture_output=True, text=True, timeout=120)
         code, peak_kb, err = run.stdout.split(" ", 2)

@@ -16,7 +16,7 @@ class ConvertPolicyOptions:
     their weights' checksums are checked."""
 
     run: str = ""
-    """The run folder (holding policy.json)."""
+    """The run folder (holding policy.json) (required)."""
     json: bool = False
     """Print the files written as JSON."""
 
@@ -24,8 +24,6 @@ class ConvertPolicyOptions:
 def run_convert_policy(opts: ConvertPolicyOptions) -> int:
     from vision_rl.training.artifact import convert_run
 
-    if not opts.run:
-        raise ValueError("convert-policy needs --run: a train-policy run folder of an older format")
     written = convert_run(opts.run)
     emit({"written": [str(p) for p in written]}, opts.json)
     return 0
