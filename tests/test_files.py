@@ -12,7 +12,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vision_rl.files import ArtifactWriteError, atomic_write, file_sha256, json_text, temporary_path, write_json
+from vision_rl.files import (
+    CONTENT_KEY,
+    ArtifactWriteError,
+    atomic_write,
+    content_damage,
+    content_sha256,
+    file_sha256,
+    json_text,
+    parse_json,
+    sealed_record,
+    temporary_path,
+    write_json,
+)
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1] / "vision_rl"
 
@@ -134,3 +146,23 @@ def test_every_json_writer_goes_through_json_text():
         if lines
     }
     assert not found, f"write JSON through vision_rl.files.json_text (null for NaN) instead: {found}"
+
+
+def test_a_sealed_record_keeps_its_hash_through_a_file_and_any_change_breaks_it(tmp_path):
+    record = sealed_record({"lap_s": 91.4, "laps": (1, 2), "missing": float("nan"), "plot": "a.png"})
+    path = tmp_path / "r.json"
+    write_json(path, record)
+    back = parse_json(path.read_text())
+    assert content_damage(back) is None  # tuples as lists, NaN as null: the hash is of what a reader parses
+    assert "the file changed" in content_damage({**back, "lap_s": 59.999})
+    assert content_damage({k: v for k, v in back.items() if k != CONTENT_KEY}) == f"has no {CONTENT_KEY}"
+    # A key left out (an output path added after sealing) changes nothing; one kept does.
+    left_out = {**back, CONTENT_KEY: content_sha256(back, ("plot",))}
+    assert content_damage({**left_out, "plot": "b.png"}, ("plot",)) is None
+    assert content_damage({**left_out, "lap_s": 1.0}, ("plot",)) is not None
+
+
+def test_json_nested_past_the_parsers_depth_is_a_value_error():
+    with pytest.raises(ValueError, match="nested too deeply"):
+        parse_json("[" * 100_000 + "]" * 100_000)
+    assert parse_json('{"a": [1, {"b": null}]}') == {"a": [1, {"b": None}]}
