@@ -142,3 +142,35 @@ def test_booleans_have_no_meaningless_twin_and_choices_and_required_are_enforced
     text = _help(SwitchesConfig)
     assert "{sac,td3}" in text and "{expressway,technical}" in text and "(default: )" not in text
     assert "Encoder; empty: the state" in text and "Algorithm (default: sac)" in text
+
+
+@dataclass(frozen=True)
+class BoundsConfig:
+    option_minimums: ClassVar[dict[str, float | None]] = {"offset_m": None}
+
+    laps: int = 2
+    """Laps."""
+    max_steps: int = field(default=-1, metadata={"min": -1})
+    """Steps (-1: no limit)."""
+    share: float = field(default=0.5, metadata={"max": 1.0})
+    """A share."""
+    offset_m: float = 0.0
+    """An offset of either sign, m."""
+
+
+def test_numbers_are_finite_and_within_their_declared_bounds(capsys):
+    opts = parse_config(BoundsConfig, ["--max-steps", "-1", "--offset-m", "-2.5", "--share", "1"])
+    assert (opts.max_steps, opts.offset_m, opts.share) == (-1, -2.5, 1.0)
+    refusals = {
+        ("--laps", "-1"): "argument --laps: -1 is below the least value, 0",
+        ("--laps", "2.5"): "argument --laps: '2.5' is not an integer",
+        ("--max-steps", "-2"): "argument --max-steps: -2 is below the least value, -1",
+        ("--share", "1.5"): "argument --share: 1.5 is above the greatest value, 1",
+        ("--share", "nan"): "argument --share: 'nan' is not a finite number",
+        ("--offset-m", "inf"): "argument --offset-m: 'inf' is not a finite number",
+        ("--offset-m", "east"): "argument --offset-m: 'east' is not a number",
+    }
+    for argv, message in refusals.items():
+        with pytest.raises(SystemExit):
+            parse_config(BoundsConfig, list(argv))
+        assert message in capsys.readouterr().err, argv
