@@ -8,7 +8,6 @@ frame sources, how laps are counted and resumed: docs/notes/capture.md.
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vision_rl.budget import BUDGET_ENV, memory_budget
 from vision_rl.capture.h5format import CaptureWriter
 from vision_rl.sim import sensors
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, DisruptionParams
@@ -94,8 +94,8 @@ class CaptureConfig:
         if self.cars > limit:
             need_gb = self.cars * BYTES_PER_CAR_PIXEL * h * w / 1e9
             raise ValueError(
-                f"--cars {self.cars} needs about {need_gb:.1f} GB for {h}x{w} px frames but "
-                f"{available_memory_bytes() / 1e9:.1f} GB of memory is available: at most {limit} cars at this size"
+                f"--cars {self.cars} needs about {need_gb:.1f} GB for {h}x{w} px frames, over the memory budget of "
+                f"{memory_budget()[0] / 1e9:.1f} GB ({BUDGET_ENV}): at most {limit} cars at this size"
             )
 
     @property
@@ -114,29 +114,11 @@ class CaptureConfig:
 #: compression (3 x 3); rounded up to leave room for the simulation and the compressed chunks.
 BYTES_PER_CAR_PIXEL = 32
 
-#: Share of the available memory a capture may plan to use for its cars' frames.
-_MEMORY_SHARE = 0.5
-
-
-def available_memory_bytes() -> int:
-    """Memory the system can give a new process (MemAvailable), or the physical memory where that is unknown."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return 8 << 30  # unknown: assume a small machine
-
 
 def max_cars_for_memory(image_hw_px: tuple[int, int]) -> int:
-    """The most cars whose frames of ``image_hw_px`` (height, width) fit in half the available memory (>= 1)."""
+    """The most cars whose frames of ``image_hw_px`` (height, width) fit in the memory budget (>= 1)."""
     per_car = BYTES_PER_CAR_PIXEL * max(1, int(image_hw_px[0])) * max(1, int(image_hw_px[1]))
-    return max(1, int(_MEMORY_SHARE * available_memory_bytes() // per_car))
+    return max(1, int(memory_budget()[0] // per_car))
 
 
 def physics_step_for(fps: float) -> tuple[float, float, int]:
