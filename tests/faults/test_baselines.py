@@ -19,8 +19,8 @@ from tests.helpers.overtaking import tiny_baseline_config
 from vision_rl.files import sealed_record
 from vision_rl.overtaking.baseline_run import BaselineError, check_config
 from vision_rl.overtaking.baselines import load_baseline, train_baseline
-from vision_rl.overtaking.config import Table3Config, TrainBaselineConfig
-from vision_rl.overtaking.demos import DemoError, load_demos, load_demos_for, write_demos
+from vision_rl.overtaking.config import RecordDemosConfig, Table3Config, TrainBaselineConfig
+from vision_rl.overtaking.demos import DemoError, load_demos, load_demos_for, record_demos, write_demos
 from vision_rl.overtaking.table3 import table3
 from vision_rl.training.artifact import PolicyError, PolicySpec, sac_policy
 from vision_rl.training.persist import write_agent_state
@@ -68,6 +68,18 @@ def test_a_damaged_demonstrations_file_is_refused(small_demos, tmp_path, fault):
     with pytest.raises(DemoError) as excinfo:
         load_demos(tmp_path / "flipped.npz")
     fault.refused("a demonstrations file with one byte flipped", str(excinfo.value))
+
+
+def test_record_demos_refuses_a_damaged_file_to_extend_before_it_drives(small_demos, small_track, tmp_path, fault):
+    demos, _ = small_demos
+    bad = tmp_path / "cut.npz"
+    bad.write_bytes(demos.read_bytes()[: demos.stat().st_size // 2])
+    out = tmp_path / "dagger.npz"
+    cfg = RecordDemosConfig(track=small_track, car="tt_cup", laps=0.1, cars=1, include=str(bad), out=str(out))
+    with pytest.raises(DemoError) as excinfo:
+        record_demos(cfg)
+    assert "damaged demonstrations file" in str(excinfo.value) and not out.exists()
+    fault.refused("record-demos --include a demonstrations file cut in half", str(excinfo.value))
 
 
 def test_an_edited_demonstrations_file_is_refused(small_demos, tmp_path, fault):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import tempfile
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -16,7 +17,8 @@ from stable_baselines3 import SAC, TD3
 
 from tests.helpers.overtaking import tiny_baseline_config
 from vision_rl.overtaking.baselines import load_baseline, train_baseline
-from vision_rl.overtaking.bc import fit_bc
+from vision_rl.overtaking.bc import fit_bc, smoothed_labels
+from vision_rl.overtaking.demos import Demos
 from vision_rl.overtaking.gail import GAILReplayBuffer, GAILUpdater
 from vision_rl.training.artifact import load_policy, sac_policy
 
@@ -50,6 +52,21 @@ def test_bc_recovers_a_known_linear_policy():
         predicted = torch.tanh(policy.actor.get_action_dist_params(torch.as_tensor(fresh))[0]).numpy()
     # Against the actions' own variance (about 0.06): the fit explains well over 90 % of it on unseen observations.
     assert np.mean((predicted - target) ** 2) < 0.05 * np.var(target)
+
+
+def test_the_steering_label_is_smoothed_within_each_episode_only():
+    # The held AI's alternation (+a, -a, ...) averages out over 2 steps; the throttle and an episode's first step
+    # stay as recorded, and no episode borrows its neighbour's labels.
+    steer = np.array([0.3, -0.1, 0.3, -0.1, 0.3, 0.2, 0.2, 0.2], dtype=np.float32)
+    labels = np.stack([steer, np.linspace(0, 1, 8, dtype=np.float32)], axis=1)
+    starts = np.zeros(8, dtype=bool)
+    starts[[0, 5]] = True
+    demos = Demos(np.zeros((8, 96), np.float32), labels, labels, np.zeros(8, np.float32), starts, {}, Path("x"), "")
+    smoothed = smoothed_labels(demos, 2)
+    np.testing.assert_allclose(smoothed[:, 0], [0.3, 0.1, 0.1, 0.1, 0.1, 0.2, 0.2, 0.2], atol=1e-6)
+    np.testing.assert_array_equal(smoothed[:, 1], labels[:, 1])
+    np.testing.assert_array_equal(smoothed_labels(demos, 1), labels)
+    np.testing.assert_allclose(smoothed_labels(demos, 3)[:5, 0], [0.3, 0.1, 0.5 / 3, 0.1 / 3, 0.5 / 3], atol=1e-6)
 
 
 def _expert(obs: np.ndarray) -> np.ndarray:

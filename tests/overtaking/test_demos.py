@@ -77,3 +77,32 @@ def test_the_file_holds_whole_episodes_and_its_figures(small_demos, small_track)
     assert demos.fingerprint == demo_fingerprint(small_track, CAR)
     assert demos.meta["demonstrator"]["driver"] == "built-in AI held at 10 Hz"
     assert demos.observations.dtype == np.float32 and demos.observations.shape[1] == 96
+
+
+def test_a_learner_drives_while_the_ai_labels_and_include_keeps_the_earlier_rounds(small_demos, small_track, tmp_path):
+    # DAgger: the applied actions are the learner's (here one that coasts straight on), the labels the AI's in the
+    # states the learner reached, after the included file's transitions, which are kept as they were.
+    earlier, _ = small_demos
+    coast = np.array([0.0, 0.1], dtype=np.float32)
+    out = tmp_path / "dagger.npz"
+    cfg = RecordDemosConfig(
+        track=small_track, car=CAR, laps=0.1, cars=1, episode_s=20.0, seed=4, out=str(out),
+        learner="a run", include=str(earlier),
+    )  # fmt: skip
+    result = record_demos(cfg, learner=lambda obs: np.tile(coast, (len(obs), 1)))
+    old, new = load_demos(earlier), load_demos(out)
+    n_old = old.n_transitions
+    assert new.n_transitions == n_old + result["n_recorded_now"] and result["n_recorded_now"] > 0
+    np.testing.assert_array_equal(new.observations[:n_old], old.observations)
+    np.testing.assert_array_equal(new.expert_actions[:n_old], old.expert_actions)
+    np.testing.assert_array_equal(new.actions[n_old:], np.tile(coast, (result["n_recorded_now"], 1)))
+    assert new.episode_starts[n_old]  # the new round starts an episode of its own
+    # The AI steers back towards the line the coasting car leaves: its labels are not the learner's actions.
+    assert np.abs(new.expert_actions[n_old:, 0]).max() > 1e-3
+    assert new.meta["driven_by"] == {"learner": "a run"} and new.meta["included"]["sha256"] == old.sha256
+
+
+def test_a_learner_named_but_not_given_is_refused(small_track, tmp_path):
+    cfg = RecordDemosConfig(track=small_track, car=CAR, laps=0.1, cars=1, learner="run", out=str(tmp_path / "x.npz"))
+    with pytest.raises(ValueError, match="--learner"):
+        record_demos(cfg)

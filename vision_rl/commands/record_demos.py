@@ -24,7 +24,8 @@ def format_record_demos(result: dict[str, Any]) -> list[str]:
     return [
         f"{result['out']}: {result['n_transitions']} transitions in {result['n_episodes']} episodes, "
         f"{result['laps_driven']:.2f} laps, mean reward {result['mean_reward']:.3f} per step",
-        f"demonstrator: {result['demonstrator']['driver']} (skill {result['demonstrator']['skill']})",
+        f"demonstrator: {result['demonstrator']['driver']} (skill {result['demonstrator']['skill']})"
+        + (f", labelling {result['driven_by']['learner']}'s driving" if "learner" in result["driven_by"] else ""),
         f"recorded in {result['record_time_s']:.1f} s ({result['transitions_per_s']:.0f} transitions/s)",
     ]
 
@@ -37,7 +38,15 @@ def run_record_demos(opts: RecordDemosOptions) -> int:
     fields = {f.name for f in dataclasses.fields(RecordDemosConfig)}
     cfg = RecordDemosConfig(**{k: v for k, v in dataclasses.asdict(opts).items() if k in fields})
     check_record_config(cfg)
+    learner = None
+    if cfg.learner:  # DAgger: a Table III policy drives, the AI labels
+        from vision_rl.overtaking.baseline_run import check_table_track
+        from vision_rl.overtaking.baselines import load_baseline
+
+        policy = load_baseline(cfg.learner)
+        check_table_track(policy, cfg.track, cfg.car)
+        learner = policy.act
     with progress_bar(None, "lap", "record-demos", enabled=opts.progress) as bar:
-        result = record_demos(cfg, lambda done, total: show(bar, int(done), int(total) or None))
+        result = record_demos(cfg, lambda done, total: show(bar, int(done), int(total) or None), learner)
     emit(result, opts.json, format_record_demos)
     return 0

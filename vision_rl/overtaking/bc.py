@@ -59,6 +59,23 @@ def split_episodes(demos: Demos, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return train, val
 
 
+def smoothed_labels(demos: Demos, steps: int) -> np.ndarray:
+    """The demonstrator's labels with the steering replaced by the mean of its last ``steps`` labels in the same
+    episode (fewer at an episode's start). The AI held at 10 Hz alternates its steering from one step to the next
+    (the wheel's lag and rate limit filter it out); an actor regressing the raw labels learns that alternation
+    from the previous-steering input and, in closed loop, swings to full lock."""
+    labels = demos.expert_actions.astype(np.float64).copy()
+    if steps <= 1:
+        return labels
+    for part in demos.episode_slices():
+        steer = labels[part, 0]
+        total = np.concatenate([[0.0], np.cumsum(steer)])
+        idx = np.arange(len(steer))
+        lo = np.maximum(idx + 1 - steps, 0)
+        labels[part, 0] = (total[idx + 1] - total[lo]) / (idx + 1 - lo)
+    return labels
+
+
 def fit_bc(
     policy,
     observations: np.ndarray,
@@ -151,7 +168,7 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
     torch.manual_seed(cfg.seed)  # the network's initial weights too: a seed gives one policy
     policy = sac_policy(OBS_DIM, list(HIDDEN_UNITS), device)
     train_idx, val_idx = split_episodes(demos, cfg.seed)
-    scaled = policy.scale_action(demos.expert_actions.astype(np.float64)).astype(np.float32)
+    scaled = policy.scale_action(smoothed_labels(demos, cfg.bc_smooth_steps)).astype(np.float32)
     max_epochs = cfg.bc_max_epochs
     t0 = time.perf_counter()
 
@@ -197,6 +214,7 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
         "learning_rate": cfg.sac.learning_rate or 1e-3,
         "batch_size": cfg.sac.batch_size or 256,
         "loss": "mse of tanh actions in [-1, 1]",
+        "steering_label": f"mean of the demonstrator's last {cfg.bc_smooth_steps} labels",
     }
     policy_spec(cfg, racing, normalizer, fingerprint, sha, recipe, 0, train_time_s, run.settings).write(
         run.out / SIDECAR_NAME
@@ -226,4 +244,4 @@ def _demo_normalizer(demos: Demos):
     return ObsNormalizer.from_dict(demos.meta["normalizer"])
 
 
-__all__ = ["actor_mean", "fit_bc", "split_episodes", "train_bc"]
+__all__ = ["actor_mean", "fit_bc", "smoothed_labels", "split_episodes", "train_bc"]

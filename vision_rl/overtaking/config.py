@@ -260,6 +260,9 @@ class TrainBaselineConfig:
     """bc: an epoch is better when its held-out error is below (1 - this) x the best so far."""
     bc_max_epochs: int = 500
     """bc: cap on epochs."""
+    bc_smooth_steps: int = 2
+    """bc: the steering label is the mean of the demonstrator's last N labels in its episode (1: as recorded); the
+    AI held at 10 Hz alternates its steering from step to step, which the wheel filters out."""
     gail_disc_every_steps: int = 1_000
     """gail: discriminator updates every N transitions."""
     gail_disc_updates: int = 10
@@ -301,6 +304,7 @@ def check_baseline_ranges(o: Mapping[str, Any]) -> None:
         "bc_patience": o["bc_patience"] >= 1,
         "bc_min_improvement": 0 <= o["bc_min_improvement"] < 1,
         "bc_max_epochs": o["bc_max_epochs"] >= 1,
+        "bc_smooth_steps": 1 <= o["bc_smooth_steps"] <= 100,
         "gail_disc_every_steps": o["gail_disc_every_steps"] >= 1,
         "gail_disc_updates": o["gail_disc_updates"] >= 0,
         "gail_disc_batch": o["gail_disc_batch"] >= 1,
@@ -400,3 +404,8 @@ class RecordDemosConfig:
     noise: float = 0.0
     """Std of Gaussian noise added to the applied action, as a share of each action's half range (steering pi/6,
     omega 1); the label stays the demonstrator's (noise injection: it shows how the AI recovers)."""
+    learner: str = ""
+    """A bc run (train-baseline) that drives while the AI labels every step (DAgger: the learner's own mistakes,
+    with the AI's correction); empty: the AI drives."""
+    include: str = ""
+    """A demonstrations file whose transitions come first in --out (DAgger's aggregate of earlier rounds)."""

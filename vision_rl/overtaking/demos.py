@@ -278,6 +278,8 @@ def _check(recorded: Mapping[str, Any], expected: Mapping[str, Any], path: Path)
 
 #: ``progress(laps_driven, laps_wanted)``.
 DemoProgress = Callable[[float, float], None]
+#: A learner that drives while the AI labels (DAgger): normalised observations (n, 96) -> actions (n, 2).
+Learner = Callable[[np.ndarray], np.ndarray]
 
 
 def check_record_config(cfg: RecordDemosConfig) -> None:
@@ -300,14 +302,23 @@ def check_record_config(cfg: RecordDemosConfig) -> None:
         raise ValueError("--out must name the demonstrations file")
 
 
-def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -> dict[str, Any]:
-    """Drive ``cfg.cars`` cars with :class:`HeldAIDriver` through the single-car race's episodes (random start
-    points, ``cfg.episode_s`` long, same-step reset) until they have driven ``cfg.laps`` laps together, and write
-    the transitions episode by episode; returns the file's figures."""
+def record_demos(
+    cfg: RecordDemosConfig, progress: DemoProgress | None = None, learner: Learner | None = None
+) -> dict[str, Any]:
+    """Drive ``cfg.cars`` cars with :class:`HeldAIDriver` (or ``learner``, the AI labelling: DAgger) through the
+    single-car race's episodes (random start points, ``cfg.episode_s`` long, same-step reset) until they have driven
+    ``cfg.laps`` laps together, and write the transitions episode by episode after those of ``cfg.include``;
+    returns the file's figures."""
     check_record_config(cfg)
+    if bool(cfg.learner) != (learner is not None):
+        raise ValueError("--learner names the run that drives; the caller loads it and passes it as learner")
+    included = load_demos_for(cfg.include, cfg.track, cfg.car) if cfg.include else None
     t0 = time.perf_counter()
-    recording = _drive_demos(cfg, progress)
+    recording = _drive_demos(cfg, progress, learner)
     arrays = _episode_major(recording.steps, recording.episode_ids, cfg.cars)
+    n_new = len(arrays["actions"])
+    if included is not None:
+        arrays = {name: np.concatenate([getattr(included, name), arrays[name]]) for name in ARRAYS}
     record_s = time.perf_counter() - t0
     from vision_rl.files import package_version
 
@@ -318,6 +329,12 @@ def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -
         "demonstrator": recording.demonstrator,
         "settings": dataclasses.asdict(cfg),
         "normalizer": recording.normalizer.to_dict(),
+        # DAgger's rounds: what drove, and the file this one extends (its own record keeps the rounds before).
+        "driven_by": {"learner": cfg.learner} if cfg.learner else {"driver": cfg.driver},
+        "included": None
+        if included is None
+        else {"path": str(included.path), "sha256": included.sha256, "n_transitions": included.n_transitions},
+        "n_recorded_now": n_new,
         "n_transitions": len(arrays["actions"]),
         "n_episodes": int(arrays["episode_starts"].sum()),
         "laps_driven": round(recording.laps_driven, 3),
@@ -329,6 +346,7 @@ def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -
     sha = write_demos(cfg.out, arrays, meta)
     shown = (
         "n_transitions",
+        "driven_by",
         "n_episodes",
         "laps_driven",
         "mean_reward",
@@ -339,7 +357,8 @@ def record_demos(cfg: RecordDemosConfig, progress: DemoProgress | None = None) -
     return {
         "out": str(cfg.out),
         "sha256": sha,
-        "transitions_per_s": round(len(arrays["actions"]) / record_s, 1),
+        "transitions_per_s": round(n_new / record_s, 1),
+        "n_recorded_now": n_new,
         **{k: meta[k] for k in shown},
     }
 
@@ -356,8 +375,9 @@ class _Recording(NamedTuple):
     demonstrator: dict[str, Any]
 
 
-def _drive_demos(cfg: RecordDemosConfig, progress: DemoProgress | None) -> _Recording:
-    """The demonstrator's steps until the cars together have driven ``cfg.laps`` laps."""
+def _drive_demos(cfg: RecordDemosConfig, progress: DemoProgress | None, learner: Learner | None) -> _Recording:
+    """The demonstrator's steps (or the learner's, labelled by the demonstrator) until the cars together have
+    driven ``cfg.laps`` laps."""
     core = RacingCore(race_config(cfg.track, cfg.car, cfg.cars, cfg.episode_s), seed=cfg.seed)
     try:
         expert = HeldAIDriver(cfg.skill)
@@ -375,10 +395,10 @@ def _drive_demos(cfg: RecordDemosConfig, progress: DemoProgress | None) -> _Reco
             obs = core.observation()
             # Actions are stored as float32: the environment is driven by exactly what is recorded.
             label = expert.act(core.world.state).astype(np.float32)
-            action = label
+            action = label if learner is None else np.asarray(learner(obs), dtype=np.float32).reshape(label.shape)
             if cfg.noise > 0:
                 jitter = rng.normal(0.0, cfg.noise, size=label.shape) * half_range
-                action = np.clip(label + jitter, -half_range, half_range).astype(np.float32)
+                action = np.clip(action + jitter, -half_range, half_range).astype(np.float32)
             _, reward, terminated, truncated, infos = core.step(action, autoreset=True)
             steps["observations"].append(obs)
             steps["actions"].append(action)
