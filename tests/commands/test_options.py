@@ -174,3 +174,21 @@ def test_numbers_are_finite_and_within_their_declared_bounds(capsys):
         with pytest.raises(SystemExit):
             parse_config(BoundsConfig, list(argv))
         assert message in capsys.readouterr().err, argv
+
+
+def test_size_options_are_priced_against_the_memory_budget(monkeypatch):
+    from vision_rl.budget import BUDGET_ENV, MemoryBudgetError
+    from vision_rl.commands.options import check_memory
+
+    monkeypatch.setenv(BUDGET_ENV, "1")
+    check_memory({"cars": 20, "buffer_size": 1_000_000, "image_hw_px": (280, 470), "hidden_units": "256,256"})
+    for values, refused in (
+        ({"cars": 2_000}, "--cars 2000"),
+        ({"workers": 3}, "--workers 3"),
+        ({"batch_sizes": (64, 2_000_000)}, "--batch-sizes 2000000"),
+        ({"cars": 300, "image_hw_px": (280, 470)}, "--image-hw-px 280 470"),  # 300 cars' frames: 1.3 GB
+        ({"hidden_units": "4096,4096,4096"}, "--hidden-units 4096,4096,4096"),
+    ):
+        with pytest.raises(MemoryBudgetError, match=f"^{refused} needs about"):
+            check_memory(values)
+    check_memory({"workers": 3, "address": "ray://head:10001"})  # samplers on a cluster use its machines' memory

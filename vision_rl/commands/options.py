@@ -213,6 +213,8 @@ def check_memory(values: dict[str, Any]) -> None:
     for name, value in values.items():
         option = "--" + name.replace("_", "-")
         sizes = [v for v in (value if isinstance(value, tuple | list) else [value]) if isinstance(v, int | float)]
+        if name == "workers" and values.get("address"):
+            continue  # the samplers run on the Ray cluster's machines, not in this one's memory
         if name in UNIT_BYTES and sizes:
             per_unit = UNIT_BYTES[name] * (cars if name == "frame_delay" else 1)
             require_memory(f"{option} {max(sizes)}", max(sizes) * per_unit)
