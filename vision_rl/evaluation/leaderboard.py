@@ -84,10 +84,13 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
+def _seconds(value: Any) -> bool:
+    """Whether ``value`` is a finite number of seconds, >= 0."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0
+
+
 def _lap_or_none(value: Any) -> bool:
-    return value is None or (
-        isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
-    )
+    return value is None or (_seconds(value) and value > 0)
 
 
 def evaluation_problem(record: dict[str, Any]) -> str | None:
@@ -113,7 +116,7 @@ def evaluation_problem(record: dict[str, Any]) -> str | None:
         return f"best_lap_time_s {best!r} and n_finished are not those of its {len(seeds)} starts"
     if best is not None and not (isinstance(best_lap, dict) and best_lap.get("lap_time_s") == best):
         return "best_lap is not the lap of best_lap_time_s"
-    if best is not None and not _lap_or_none(best_lap.get("wall_contact_s") or None):
+    if best is not None and not _seconds(best_lap.get("wall_contact_s")):
         return "best_lap.wall_contact_s is not a time in seconds"
     if not isinstance(record.get("clean"), bool):
         return f"clean is {record.get('clean')!r}, not true or false"

@@ -292,10 +292,9 @@ def check_spec_fields(data: Mapping[str, Any], source: str) -> None:
         raise PolicyError(f"{source}: {exc}") from None
     normalizer = data.get("obs_normalizer", {})
     columns = [normalizer.get(k) for k in ("offset", "scale")]
-    if not all(isinstance(c, list) and all(_finite(v) for v in c) for c in columns) or len(columns[0]) != len(
-        columns[1]
-    ):
-        raise PolicyError(f"{source}: obs_normalizer needs offset and scale as two lists of finite numbers alike long")
+    numbers = all(isinstance(c, list) and all(_finite(v) for v in c) for c in columns)
+    if not numbers or len(columns[0]) != len(columns[1]):
+        raise PolicyError(f"{source}: obs_normalizer needs offset and scale as lists of finite numbers, equally long")
     if 0 in columns[1]:
         raise PolicyError(f"{source}: obs_normalizer.scale holds a 0 (a division by zero)")
     model = data.get("model", MODEL_NAME)
