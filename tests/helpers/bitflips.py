@@ -11,10 +11,11 @@ from typing import Any
 import numpy as np
 
 
-def npz_regions(path: Path) -> tuple[list[range], list[range]]:
-    """(metadata, data) byte ranges of an uncompressed ``.npz``: the zip's headers and directory, each member's
-    ``.npy`` header and the ``meta`` member are metadata; the other members' array bytes are data."""
-    size = path.stat().st_size
+def zip_regions(
+    path: Path, is_data: Callable[[str], bool], header: Callable[[bytes], int]
+) -> tuple[list[range], list[range]]:
+    """(metadata, data) byte ranges of an uncompressed zip: the members ``is_data`` names hold data after their own
+    ``header(bytes)`` bytes; the zip's headers and directory and every other member are metadata."""
     raw = path.read_bytes()
     data = []
     with zipfile.ZipFile(path) as archive:
@@ -22,16 +23,28 @@ def npz_regions(path: Path) -> tuple[list[range], list[range]]:
             local = info.header_offset
             start = local + 30 + int.from_bytes(raw[local + 26 : local + 28], "little")
             start += int.from_bytes(raw[local + 28 : local + 30], "little")
-            if info.filename != "meta.npy":
-                header = 10 + int.from_bytes(raw[start + 8 : start + 10], "little")  # .npy version 1 header
-                data.append(range(start + header, start + info.file_size))
-    data = [r for r in data if len(r)]
-    covered = np.zeros(size, bool)
+            if is_data(info.filename):
+                data.append(range(start + header(raw[start : start + info.file_size]), start + info.file_size))
+    covered = np.zeros(len(raw), bool)
     for r in data:
         covered[r.start : r.stop] = True
     edges = np.flatnonzero(np.diff(np.concatenate([[1], covered.view(np.int8), [1]])))
     metadata = [range(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True) if b > a]
-    return metadata, data
+    return metadata, [r for r in data if len(r)]
+
+
+def npz_regions(path: Path) -> tuple[list[range], list[range]]:
+    """(metadata, data) of an uncompressed ``.npz``: each member's ``.npy`` header and the ``meta`` member are
+    metadata, the other members' array bytes data."""
+    return zip_regions(
+        path, lambda name: name != "meta.npy", lambda member: 10 + int.from_bytes(member[8:10], "little")
+    )
+
+
+def torch_regions(path: Path) -> tuple[list[range], list[range]]:
+    """(metadata, data) of a ``torch.save`` file: its tensors' storages are data, the pickled index, its version
+    records and the zip's headers metadata."""
+    return zip_regions(path, lambda name: "/data/" in name and name.rsplit("/", 1)[-1].isdigit(), lambda _: 0)
 
 
 def sample_flips(regions: list[range], n: int, seed: int) -> list[tuple[int, int]]:
