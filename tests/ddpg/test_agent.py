@@ -278,6 +278,20 @@ def test_the_cpu_preset_cuts_an_update_s_flops_five_to_tenfold_and_names_its_sma
         DDPGHyper(trunk="gpu")
 
 
+def test_a_packed_upload_gives_back_every_array_whole():
+    """The GPU path's upload (one buffer per dtype, one copy each), run on the CPU: every array comes back with its
+    shape, dtype and values, frames next to floats."""
+    from vision_rl.ddpg.agent import _batch_arrays, _upload
+
+    arrays = _batch_arrays(_batch(3, np.random.default_rng(2)))
+    packed = _upload(arrays, torch.device("cpu"), pack=True)
+    assert packed.keys() == arrays.keys()
+    for key, array in arrays.items():
+        np.testing.assert_array_equal(packed[key].numpy(), array)
+        assert packed[key].numpy().dtype == array.dtype
+    assert packed["obs.image"].dtype == torch.uint8 and packed["alive"].dtype == torch.float32
+
+
 def test_an_update_reads_no_scalar_back_outside_adam(track):
     """The host-side count of an update (torch.profiler): its losses come back as tensors, so the only .item()
     calls are Adam's reads of its host-side step counters, one per parameter tensor, none a wait for a GPU."""

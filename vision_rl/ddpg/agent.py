@@ -544,23 +544,24 @@ def _batch_arrays(batch: Mapping[str, Any]) -> dict[str, np.ndarray]:
     return out
 
 
-def _upload(arrays: Mapping[str, np.ndarray], device: torch.device) -> dict[str, torch.Tensor]:
-    """``arrays`` as tensors on ``device``. On a CPU they are views of the arrays; elsewhere the arrays of each dtype
-    travel in one pinned buffer and one asynchronous copy (a batch's ten arrays were ten copies, each a launch and
-    a wait for the host: docs/notes/ddpg.md, "the CUDA path")."""
-    if device.type == "cpu":
+def _upload(
+    arrays: Mapping[str, np.ndarray], device: torch.device, pack: bool | None = None
+) -> dict[str, torch.Tensor]:
+    """``arrays`` as tensors on ``device``. On a CPU (``pack`` False) they are views of the arrays; elsewhere the
+    arrays of each dtype travel in one buffer (pinned for a GPU) and one asynchronous copy: a batch's nine arrays
+    were nine copies, each a launch and a wait for the host (docs/notes/ddpg.md, "the host side of an update")."""
+    if not (device.type != "cpu" if pack is None else pack):
         return {k: torch.as_tensor(np.ascontiguousarray(v)) for k, v in arrays.items()}
     out: dict[str, torch.Tensor] = {}
     for dtype in {np.asarray(v).dtype for v in arrays.values()}:
         keys = [k for k, v in arrays.items() if np.asarray(v).dtype == dtype]
-        flat = np.concatenate([np.asarray(arrays[k]).reshape(-1) for k in keys])
-        sent = torch.from_numpy(flat).pin_memory().to(device, non_blocking=True)
+        host = torch.from_numpy(np.concatenate([np.asarray(arrays[k]).reshape(-1) for k in keys]))
+        sent = (host.pin_memory() if device.type == "cuda" else host).to(device, non_blocking=True)
         start = 0
         for k in keys:
             shape = np.shape(arrays[k])
-            size = math.prod(shape)
-            out[k] = sent[start : start + size].view(shape)
-            start += size
+            out[k] = sent[start : start + math.prod(shape)].view(shape)
+            start += math.prod(shape)
     return out
 
 
