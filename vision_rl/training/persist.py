@@ -44,13 +44,17 @@ FORMAT_VERSION = 1
 BUFFER_FORMAT_VERSION = 2
 #: Arrays of a buffer that must hold finite numbers (``ai_labels`` is NaN where a transition has no label).
 FINITE_BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards")
-#: What a damaged zip container or ``.npy`` header raises while numpy reads it.
-_NPZ_ERRORS = (
+#: What a damaged zip container, ``.npy`` header or weights-only pickle raises while numpy or torch reads it.
+_DAMAGED_FILE_ERRORS = (
     OSError,
     ValueError,
     KeyError,
+    IndexError,
+    TypeError,
+    AttributeError,
     EOFError,
     zipfile.BadZipFile,
+    pickle.UnpicklingError,
     NotImplementedError,
     struct.error,
     zlib.error,
@@ -59,7 +63,6 @@ _NPZ_ERRORS = (
     RuntimeError,
     SyntaxError,  # a .npy header is a Python literal: numpy tokenizes and evaluates it
     tokenize.TokenError,
-    TypeError,
 )
 #: The arrays of an SB3 ReplayBuffer that a buffer file keeps, each (capacity, n_envs, ...).
 BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
@@ -71,6 +74,12 @@ OPTIONAL_BUFFER_ARRAYS = ("ai_labels",)
 
 class ArtifactError(ValueError):
     """A file that is not what it should be (corrupt, foreign, or made for something else); the message says how."""
+
+
+def _first_line(exc: BaseException) -> str:
+    """An exception's message as one line (its type's name when it has none)."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def check_fingerprint(recorded: Mapping[str, Any], expected: Mapping[str, Any], source: str) -> None:
@@ -158,9 +167,10 @@ def read_sb3_zip(path: str | os.PathLike[str]) -> dict[str, Any]:
                 state["optimizers"]["ent_coef"] = tensors(archive, "ent_coef_optimizer.pth")
                 state["log_ent_coef"] = tensors(archive, "pytorch_variables.pth")["log_ent_coef"]
             data = json.loads(archive.read("data"))
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile, pickle.UnpicklingError, RuntimeError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ArtifactError(f"{path}: not a Stable-Baselines3 SAC zip whose tensors load safely: {first}") from None
+    except _DAMAGED_FILE_ERRORS as exc:
+        raise ArtifactError(
+            f"{path}: not a Stable-Baselines3 SAC zip whose tensors load safely: {_first_line(exc)}"
+        ) from None
     state["counters"] = {
         "num_timesteps": int(data.get("num_timesteps", 0)),
         "n_updates": int(data.get("_n_updates", 0)),
@@ -188,17 +198,18 @@ def read_agent(
             )
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    except _DAMAGED_FILE_ERRORS as exc:
         raise ArtifactError(
-            f"{path}: not a vision_rl agent file (it holds more than tensors and plain values, or is damaged): {first}"
+            f"{path}: not a vision_rl agent file (it holds more than tensors and plain values, or is damaged): "
+            f"{_first_line(exc)}"
         ) from None
     if not isinstance(state, dict) or state.get("format") != AGENT_FORMAT:
         raise ArtifactError(f"{path}: not a vision_rl agent file (no format {AGENT_FORMAT!r})")
-    if int(state.get("format_version", 0)) != FORMAT_VERSION:
-        raise ArtifactError(f"{path}: agent format {state.get('format_version')}, this code reads {FORMAT_VERSION}")
+    if state.get("format_version") != FORMAT_VERSION:
+        raise ArtifactError(f"{path}: agent format {state.get('format_version')!r}, this code reads {FORMAT_VERSION}")
     if fingerprint is not None:
-        check_fingerprint(state.get("fingerprint", {}), fingerprint, str(path))
+        recorded = state.get("fingerprint")
+        check_fingerprint(recorded if isinstance(recorded, dict) else {}, fingerprint, str(path))
     return state
 
 
@@ -262,11 +273,6 @@ def _buffer_arrays(buffer: ReplayBuffer) -> tuple[str, ...]:
     return BUFFER_ARRAYS + tuple(name for name in OPTIONAL_BUFFER_ARRAYS if getattr(buffer, name, None) is not None)
 
 
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
-
-
 def read_buffer_file(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """(meta, arrays) of a buffer file of format 2, refused in one line naming the file unless its meta and each
     array carry the SHA-256 they were written with and the arrays that must be finite are."""
@@ -303,7 +309,7 @@ def _read_npz(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
             arrays = {name: data[name] for name in data.files if name != "meta"}
     except ArtifactError:
         raise
-    except _NPZ_ERRORS as exc:
+    except _DAMAGED_FILE_ERRORS as exc:
         raise ArtifactError(f"{path}: damaged replay-buffer file: {_first_line(exc)}") from None
     return meta, arrays
 
