@@ -121,10 +121,10 @@ def test_single_bit_flips_of_an_evaluation_record_read_the_same_or_are_refused(t
     expected = json.loads(original.read_text())
     flips = sample_flips([range(original.stat().st_size)], 500, seed=5)
     counts = check_flips(original, flips, tmp_path / "evaluation.json", lb.read_evaluation, expected, lb.RecordError)
-    assert counts["refused"] >= 480  # 'e' -> 'E' in an exponent is one bit and the same number
+    assert counts.refused >= 480  # 'e' -> 'E' in an exponent is one bit and the same number
     fault.refused(
-        f"500 single-bit flips of evaluation.json: {counts['refused']} refused, {counts['unchanged']} read the same",
-        "evaluation.json: the evaluation record has content SHA-256 ..., not its recorded ...; re-measure it: ...",
+        f"500 single-bit flips of evaluation.json: {counts.refused} refused, {counts.unchanged} read the same",
+        counts.example,
     )
 
 
@@ -153,11 +153,10 @@ def test_single_bit_flips_of_an_experiment_record_read_the_same_or_are_refused(t
 
     flips = sample_flips([range(original.stat().st_size)], 300, seed=6)
     counts = check_flips(original, flips, target, load, json.loads(original.read_text()), lb.RecordError)
-    assert counts["refused"] >= 280
+    assert counts.refused >= 280
     shutil.copyfile(original, target)
     assert load(target)["summary"] == record["summary"]
     fault.refused(
-        f"300 single-bit flips of experiment.json: {counts['refused']} refused, {counts['unchanged']} read the same",
-        "experiment.json: the experiment record has content SHA-256 ..., not its recorded ...; run its `vision-rl "
-        "experiment --out ...` again",
+        f"300 single-bit flips of experiment.json: {counts.refused} refused, {counts.unchanged} read the same",
+        counts.example,
     )

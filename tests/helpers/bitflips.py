@@ -3,6 +3,7 @@ or refuses in one line that names the file; never a traceback, never other conte
 
 from __future__ import annotations
 
+import dataclasses
 import zipfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -64,6 +65,15 @@ def flipped_copies(original: Path, flips: list[tuple[int, int]], target: Path) -
         yield offset, bit
 
 
+@dataclasses.dataclass
+class FlipOutcomes:
+    """How the flips of one file ended: read back unchanged, or refused (with the first refusal's message)."""
+
+    unchanged: int = 0
+    refused: int = 0
+    example: str = ""
+
+
 def check_flips(
     original: Path,
     flips: list[tuple[int, int]],
@@ -72,10 +82,10 @@ def check_flips(
     expected: Any,
     refusal: type[BaseException],
     same: Callable[[Any, Any], bool] = lambda a, b: a == b,
-) -> dict[str, int]:
+) -> FlipOutcomes:
     """Every flip of ``original`` (written to ``target``) loads as ``expected`` or raises ``refusal`` with one
-    line naming ``target``; any other outcome fails with the flip named. Returns the count of each outcome."""
-    counts = {"unchanged": 0, "refused": 0}
+    line naming ``target``; any other outcome fails with the flip named."""
+    outcomes = FlipOutcomes()
     for offset, bit in flipped_copies(original, flips, target):
         where = f"bit {bit} of byte {offset} of {original.name}"
         try:
@@ -84,8 +94,9 @@ def check_flips(
             message = str(exc)
             assert "\n" not in message.strip() and "Traceback" not in message, f"{where}: {message}"
             assert target.name in message, f"{where}: the refusal does not name the file: {message}"
-            counts["refused"] += 1
+            outcomes.refused += 1
+            outcomes.example = outcomes.example or message
             continue
         assert same(loaded, expected), f"{where}: loaded content that differs from what was written"
-        counts["unchanged"] += 1
-    return counts
+        outcomes.unchanged += 1
+    return outcomes
