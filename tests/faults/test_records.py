@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import pytest
 
 from tests.helpers.bitflips import check_flips, sample_flips
 from vision_rl.evaluation import leaderboard as lb
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
+from vision_rl.evaluation.report import ReportError, build_tables
 from vision_rl.files import CONTENT_KEY, sealed_record
 
 
@@ -160,3 +162,25 @@ def test_single_bit_flips_of_an_experiment_record_read_the_same_or_are_refused(t
         f"300 single-bit flips of experiment.json: {counts.refused} refused, {counts.unchanged} read the same",
         counts.example,
     )
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("[" * 100_000 + "]" * 100_000, "ai_expressway_hatchback.json is not readable JSON: nested too deeply"),
+        ("{half a record", "ai_expressway_hatchback.json is not readable JSON"),
+        (None, "the reference table cannot read its records (the last read: "),
+    ],
+)
+def test_a_damaged_result_record_stops_the_report_in_one_line(tmp_path, text, message, fault):
+    results = Path(__file__).resolve().parents[2] / "docs" / "results"
+    copy = tmp_path / "results"
+    shutil.copytree(results / "reference-laps", copy / "reference-laps")
+    record = copy / "reference-laps" / "ai_expressway_hatchback.json"
+    if text is None:  # a record of the right shape but a lap time as text
+        text = json.dumps({**json.loads(record.read_text()), "best_lap_time_s": "2:19.299"})
+    record.write_text(text)
+    with pytest.raises(ReportError) as excinfo:
+        build_tables(copy, ["reference"])
+    assert message in str(excinfo.value) and "ai_expressway_hatchback.json" in str(excinfo.value)
+    fault.refused(f"vision-rl report over a result record: {text[:24]}...", str(excinfo.value))

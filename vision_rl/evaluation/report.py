@@ -13,13 +13,14 @@ command's printed summary are transcribed into a record that says so (``make-qui
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import statistics
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
+
+from vision_rl.files import parse_json
 
 #: How a table names the results folder in its links; :func:`fill_page` puts the page's path to it there.
 RESULTS = "RESULTS/"
@@ -59,13 +60,19 @@ class Records:
     def __init__(self, results_dir: str | os.PathLike[str]) -> None:
         self.results_dir = Path(results_dir)
         self._read: dict[str, Any] = {}
+        self.last: Path | None = None
+        """The record read last: where a table that fails on a record's content was reading."""
 
     def __call__(self, relative_path: str) -> Any:
         if relative_path not in self._read:
             path = self.results_dir / relative_path
             if not path.is_file():
                 raise ReportError(f"the record {path} is missing")
-            self._read[relative_path] = json.loads(path.read_text(encoding="utf-8"))
+            try:
+                self._read[relative_path] = parse_json(path.read_text(encoding="utf-8"))
+            except (OSError, ValueError) as exc:
+                raise ReportError(f"the record {path} is not readable JSON: {exc}") from None
+        self.last = self.results_dir / relative_path
         return self._read[relative_path]
 
 
@@ -455,7 +462,18 @@ TABLES: dict[str, Callable[[Records], str]] = {
 def build_tables(results_dir: str | os.PathLike[str], names: Iterable[str] | None = None) -> dict[str, str]:
     """The tables named (all of :data:`TABLES` by default) from the records under ``results_dir``."""
     records = Records(results_dir)
-    return {name: TABLES[name](records) for name in (TABLES if names is None else names)}
+    tables = {}
+    for name in TABLES if names is None else names:
+        try:
+            tables[name] = TABLES[name](records)
+        except ReportError:
+            raise
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError, ArithmeticError) as exc:
+            # A record of another shape than the table's (edited, damaged or of an older writer).
+            raise ReportError(
+                f"the {name} table cannot read its records (the last read: {records.last}): {type(exc).__name__} {exc}"
+            ) from None
+    return tables
 
 
 def marked_tables(text: str) -> list[str]:
