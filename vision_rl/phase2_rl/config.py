@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from vision_rl.budget import require_memory
 from vision_rl.config import nested
 from vision_rl.envs.core import STEER_ACTIONS, STEER_CHANGE_PENALTY_SCALES, WALL_PENALTY_SPEEDS, RacingConfig
 from vision_rl.envs.observations import ObservationKind
@@ -208,6 +209,15 @@ def check_bounds(o: Mapping[str, Any]) -> None:
     _check_ranges(o)
     _check_choices(o)
     _check_combinations(o)
+    _check_memory(o)
+
+
+def _check_memory(o: Mapping[str, Any]) -> None:
+    """Price the replay buffer at its rows' true width: the observation and the next one (float32), action,
+    reward and done; the vision vector is a 64-D embedding + 11 features, + the 38-D state with --critic-state."""
+    kind = ObservationKind.VISION if o["encoder"] else ObservationKind.STATE
+    width = kind.vector_dim(critic_state=bool(o["critic_state"]))
+    require_memory(f"--buffer-size {o['buffer_size']}", float(o["buffer_size"]) * (2 * width + 4) * 4)
 
 
 def _check_ranges(o: Mapping[str, Any]) -> None:
