@@ -32,7 +32,6 @@ import importlib.util
 import io
 import json
 import os
-import pickle
 import re
 import sys
 import warnings
@@ -52,6 +51,7 @@ from vision_rl.envs.racing_env import action_space as physical_action_space
 from vision_rl.files import file_sha256
 from vision_rl.training.artifact import SIDECAR_NAME, PolicyDriver
 from vision_rl.training.evaluate import EVALUATION_NAME, ProtocolRun, timed_record, write_record
+from vision_rl.training.persist import DAMAGED_FILE_ERRORS
 
 #: Where an outside agent's record goes under the leaderboard's folder: ``<runs>/<name as a folder>/evaluation.json``.
 AGENT_FOLDER_CHARS = re.compile(r"[^A-Za-z0-9._-]+")
@@ -466,7 +466,7 @@ def read_sb3_actor(path: str | os.PathLike[str]) -> SB3Actor:
             with archive.open("policy.pth") as member:
                 tensors = torch.load(io.BytesIO(member.read()), map_location="cpu", weights_only=True)
             data = json.loads(archive.read("data"))
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile, pickle.UnpicklingError, RuntimeError) as exc:
+    except DAMAGED_FILE_ERRORS as exc:
         raise ValueError(f"{path}: not a Stable-Baselines3 zip whose tensors load safely: {_first_line(exc)}") from None
     if not isinstance(tensors, dict) or not isinstance(data, dict):
         raise ValueError(f"{path}: not a Stable-Baselines3 zip (no policy tensors and data)")

@@ -45,7 +45,7 @@ BUFFER_FORMAT_VERSION = 2
 #: Arrays of a buffer that must hold finite numbers (``ai_labels`` is NaN where a transition has no label).
 FINITE_BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards")
 #: What a damaged zip container, ``.npy`` header or weights-only pickle raises while numpy or torch reads it.
-_DAMAGED_FILE_ERRORS = (
+DAMAGED_FILE_ERRORS = (
     OSError,
     ValueError,
     KeyError,
@@ -167,7 +167,7 @@ def read_sb3_zip(path: str | os.PathLike[str]) -> dict[str, Any]:
                 state["optimizers"]["ent_coef"] = tensors(archive, "ent_coef_optimizer.pth")
                 state["log_ent_coef"] = tensors(archive, "pytorch_variables.pth")["log_ent_coef"]
             data = json.loads(archive.read("data"))
-    except _DAMAGED_FILE_ERRORS as exc:
+    except DAMAGED_FILE_ERRORS as exc:
         raise ArtifactError(
             f"{path}: not a Stable-Baselines3 SAC zip whose tensors load safely: {_first_line(exc)}"
         ) from None
@@ -198,7 +198,7 @@ def read_agent(
             )
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
-    except _DAMAGED_FILE_ERRORS as exc:
+    except DAMAGED_FILE_ERRORS as exc:
         raise ArtifactError(
             f"{path}: not a vision_rl agent file (it holds more than tensors and plain values, or is damaged): "
             f"{_first_line(exc)}"
@@ -309,7 +309,7 @@ def _read_npz(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
             arrays = {name: data[name] for name in data.files if name != "meta"}
     except ArtifactError:
         raise
-    except _DAMAGED_FILE_ERRORS as exc:
+    except DAMAGED_FILE_ERRORS as exc:
         raise ArtifactError(f"{path}: damaged replay-buffer file: {_first_line(exc)}") from None
     return meta, arrays
 

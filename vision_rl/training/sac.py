@@ -3,7 +3,6 @@ run's overrides: :mod:`.presets`)."""
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections.abc import Callable
@@ -14,6 +13,7 @@ import torch
 
 from vision_rl.envs.core import RacingConfig
 from vision_rl.envs.observations import ObsNormalizer
+from vision_rl.files import parse_json
 from vision_rl.training.artifact import racing_config_to_dict
 
 METRICS_NAME = "metrics.jsonl"
@@ -102,8 +102,10 @@ def read_metrics(path: str | os.PathLike[str], events: bool = False) -> list[dic
     records: list[dict[str, Any]] = []
     for line in Path(path).read_text().splitlines():
         try:
-            record = json.loads(line)
+            record = parse_json(line)
         except ValueError:
+            continue
+        if not isinstance(record, dict):  # a line damaged into another JSON value
             continue
         if "event" not in record and "num_timesteps" in record:
             step = record["num_timesteps"]
