@@ -25,7 +25,7 @@ from tests.helpers.processes import kill_and_read
 from vision_rl.files import CONTENT_KEY, ArtifactWriteError, sealed_record
 from vision_rl.phase2_rl.train import train_policy
 from vision_rl.training.artifact import PolicyError, PolicySpec, convert_run, convert_sb3_run, load_policy
-from vision_rl.training.persist import file_sha256
+from vision_rl.training.persist import ArtifactError, file_sha256, read_sb3_zip
 
 
 class _WritesAMarker:
@@ -286,6 +286,40 @@ def test_a_format_2_policy_is_refused_and_converts_without_unpickling(run_copy, 
     obs = np.random.default_rng(0).normal(size=(4, 38)).astype(np.float32)
     np.testing.assert_allclose(loaded.act(obs), model.predict(obs, deterministic=True)[0], atol=1e-6)
     assert loaded.spec.num_timesteps == 20
+
+
+def _states_equal(a, b) -> bool:
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(_states_equal(a[k], b[k]) for k in a)
+    if isinstance(a, torch.Tensor):
+        return isinstance(b, torch.Tensor) and torch.equal(a, b)
+    return a == b
+
+
+def test_single_bit_flips_of_a_stable_baselines3_zip_read_the_same_tensors_or_are_refused(tmp_path, fault):
+    """What convert-policy and evaluate --env-id read of a format-2 or outside agent's zip (deflated members)."""
+    import gymnasium
+    from stable_baselines3 import SAC
+
+    from vision_rl.envs import racing_env
+
+    class _Env(gymnasium.Env):
+        observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (38,), dtype=np.float32)
+        action_space = racing_env.action_space()
+
+    model = SAC("MlpPolicy", _Env(), buffer_size=50, policy_kwargs={"net_arch": [8, 8]}, device="cpu")
+    original = tmp_path / "original.zip"
+    model.save(original)
+    flips = sample_flips([range(original.stat().st_size)], 300, seed=7)
+    counts = check_flips(
+        original, flips, tmp_path / "policy.zip", read_sb3_zip, read_sb3_zip(original), ArtifactError, _states_equal
+    )
+    assert counts.refused >= 250
+    fault.refused(
+        f"300 single-bit flips of a Stable-Baselines3 zip read by convert-policy: {counts.refused} refused, "
+        f"{counts.unchanged} read the same tensors (the flip in a member never read)",
+        counts.example,
+    )
 
 
 def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeypatch, fault):
