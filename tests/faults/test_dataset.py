@@ -107,3 +107,17 @@ def test_a_file_cut_short_is_refused(capture_file: Path, tmp_path: Path, fault) 
         read_everything(cut)
     assert str(cut) in str(info.value)
     fault.refused("a capture file cut to two thirds of its bytes", str(info.value))
+
+
+def test_a_damaged_frame_met_in_a_loader_worker_is_one_line(capture_file: Path, fault) -> None:
+    # A DataLoader re-raises a worker's error with the worker's traceback as its message: the refusal stays one line.
+    from vision_rl.datasets import CaptureDataset
+
+    flip_byte(capture_file, "images", frame=9)
+    loader = CaptureDataset(FrameCatalogue.open(capture_file)).loader(batch_size=16, num_workers=1)
+    with pytest.raises(CaptureFormatError) as info:
+        next(iter(loader))
+    message = str(info.value)
+    assert len(message.splitlines()) == 1 and "Traceback" not in message, message
+    assert str(capture_file) in message and "frame 9" in message
+    fault.refused("a damaged frame read by a DataLoader worker process", message)

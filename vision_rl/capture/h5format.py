@@ -14,6 +14,9 @@ import hashlib
 import json
 import math
 import os
+import signal
+import subprocess
+import sys
 import threading
 import time
 import zipfile
@@ -544,6 +547,7 @@ class CaptureWriter:
     def _reopen(self, file_attrs: dict[str, Any]) -> tuple[h5py.File, dict[str, np.ndarray]]:
         """Reopen an incomplete file for appending, after checking everything it reads (the file, the fingerprint,
         the journal and the committed rows against their hash) before it changes anything."""
+        probe_captures([self.path])
         with _open_checked(self.path, locking=False) as existing:
             if existing.complete:
                 raise CaptureFormatError(
@@ -560,6 +564,18 @@ class CaptureWriter:
                         "the file's settings or start over with --force"
                     )
             committed, rewrite = existing.resumable_rows()
+        try:
+            return self._rewrite_for_resume(file_attrs, committed, rewrite)
+        except _H5_ERRORS as exc:
+            raise CaptureFormatError(
+                f"{self.path}: cannot be reopened for writing (damaged file): {_first_line(exc)}"
+            ) from exc
+
+    def _rewrite_for_resume(
+        self, file_attrs: dict[str, Any], committed: dict[str, np.ndarray], rewrite: bool
+    ) -> tuple[h5py.File, dict[str, np.ndarray]]:
+        """The checked file opened for appending: the last chunk's rows rewritten from the journal when
+        ``rewrite``, the uncommitted tail dropped."""
         f = h5py.File(self.path, "r+", locking=False)
         try:
             n_committed = int(f.attrs["n_frames"])
@@ -658,6 +674,8 @@ class CaptureWriter:
             self._broken = True
             if _is_disk_full(exc):
                 raise self._disk_full(exc) from exc
+            if isinstance(exc, RuntimeError):  # HDF5's word for a damaged file met while writing
+                raise CaptureFormatError(f"{self.path}: writing failed (damaged file?): {_first_line(exc)}") from exc
             raise
 
     def _reserve(self, n_bytes: int) -> None:
@@ -1003,7 +1021,7 @@ class CaptureFile:
         """The committed rows a resumed writer continues from, and whether the last, partly filled chunk must be
         rewritten from the journal (a kill inside HDF5's rewrite of that chunk damages it); refused, with nothing
         changed, when neither the file nor its journal gives rows matching the recorded hashes."""
-        self._check_indexes(("images",))
+        self._check_indexes()  # a damaged index is no kill's work: the journal cannot mend it
         try:
             return self._verified_tables(), False
         except CaptureFormatError as exc:
@@ -1159,8 +1177,83 @@ def _direct_decoder(ds: h5py.Dataset, image_hw_px: tuple[int, int]):
 
 def open_capture(path: str | os.PathLike[str]) -> CaptureFile:
     """Open a capture file read-only and check it against the format; :class:`CaptureFormatError` names any
-    problem (not HDF5, truncated, missing dataset or attribute, wrong dtype or shape, mismatched lengths)."""
+    problem (not HDF5, truncated, missing dataset or attribute, wrong dtype or shape, mismatched lengths).
+
+    HDF5 itself may crash on some damaged metadata: a file from a disk not yet trusted goes through
+    :func:`probe_captures` first (the datasets, a resume and a manifest do)."""
     return _open_checked(Path(path), locking=True)
+
+
+#: Longest a probe may read its files, s: a damaged index can send HDF5 round in circles.
+_PROBE_TIMEOUT_S = 300.0
+
+#: What a probe found of each file, by path, size and modification time (None: HDF5 reads it; else the refusal).
+_probed: dict[tuple[str, int, int], str | None] = {}
+
+
+def probe_captures(paths: Sequence[str | os.PathLike[str]]) -> None:
+    """Parse every file as a reader does (attributes, datasets, chunk indexes, tables) in a child process first,
+    and refuse, in one line naming it, a file that crashes or hangs it: HDF5's C code can segfault on a damaged
+    attribute or index, which no exception in this process could catch. Refusals of the format itself are left to
+    the reader, which repeats the same checks. Each file is probed once per process (until it changes)."""
+    found = crashing_captures(paths)
+    if found:
+        raise CaptureFormatError(next(iter(found.values())))
+
+
+def crashing_captures(paths: Sequence[str | os.PathLike[str]]) -> dict[Path, str]:
+    """The files of ``paths`` that crash or hang HDF5, each with its one-line refusal (see :func:`probe_captures`);
+    one child process reads them all, and another goes on after each crash."""
+    files = [Path(p) for p in paths if Path(p).is_file()]
+    keys = {p: (str(p.resolve()), p.stat().st_size, p.stat().st_mtime_ns) for p in files}
+    todo = [p for p in files if keys[p] not in _probed]
+    while todo:
+        reached, refusal = _probe_child(todo)
+        done = todo[: len(reached)] if refusal is None else todo[: max(len(reached) - 1, 0)]
+        _probed.update((keys[p], None) for p in done)
+        if refusal is not None:
+            culprit = todo[len(done)]
+            _probed[keys[culprit]] = f"{culprit}: {refusal}"
+            done.append(culprit)
+        todo = todo[len(done) :] if done else []
+    return {p: message for p in files if (message := _probed.get(keys[p])) is not None}
+
+
+def _probe_child(paths: list[Path]) -> tuple[list[str], str | None]:
+    """(the files the child reached, how it failed on the last of them, or None when it read them all)."""
+    code = "import sys\nfrom vision_rl.capture.h5format import _probe_main\nsys.exit(_probe_main(sys.argv[1:]))"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parents[2]), *sys.path])}
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", code, *map(str, paths)],
+            capture_output=True,
+            text=True,
+            timeout=_PROBE_TIMEOUT_S,
+            env=env,
+        )
+    except subprocess.TimeoutExpired as exc:
+        reached = (exc.stdout or b"").decode(errors="replace").splitlines()
+        return (
+            reached,
+            f"HDF5 did not finish reading it in {_PROBE_TIMEOUT_S:g} s (damaged file): restore or capture it again",
+        )
+    reached = proc.stdout.splitlines()
+    if proc.returncode == 0:
+        return reached, None
+    how = f"signal {signal.Signals(-proc.returncode).name}" if proc.returncode < 0 else f"exit {proc.returncode}"
+    return reached, f"HDF5 crashed reading it ({how}; damaged file): restore or capture it again"
+
+
+def _probe_main(paths: Sequence[str]) -> int:
+    """The child of :func:`probe_captures`: each path on stdout before it is read, so a crash names its file."""
+    for path in paths:
+        os.write(1, f"{path}\n".encode())  # to the parent, which names the file a crash stopped at
+        try:
+            with _open_checked(Path(path), locking=False) as cap:
+                cap._verified_tables()
+        except CaptureFormatError:
+            pass  # the reader refuses it in its own words
+    return 0
 
 
 def _open_checked(path: Path, locking: bool) -> CaptureFile:

@@ -22,7 +22,13 @@ from typing import Any
 import h5py
 import numpy as np
 
-from vision_rl.capture.h5format import CaptureFormatError, first_difference, lock_exclusive, open_capture
+from vision_rl.capture.h5format import (
+    CaptureFormatError,
+    first_difference,
+    lock_exclusive,
+    open_capture,
+    probe_captures,
+)
 from vision_rl.capture.sim_capture import CaptureConfig
 from vision_rl.files import atomic_write, json_text
 
@@ -224,6 +230,7 @@ def open_manifest(path: str | os.PathLike[str]) -> list[Path]:
     body = read_manifest(path)
     folder = path.parent
     out: list[Path] = []
+    probe_captures([folder / str(r["path"]) for r in body["shards"] if not os.path.isabs(str(r["path"]))])
     for record in body["shards"]:
         rel = str(record["path"])
         shard = folder / rel
@@ -432,6 +439,7 @@ def _prepare(
     # Which shards are done: a resumed run keeps every complete shard and restarts only the others.
     todo: list[int] = []
     restarted: list[int] = []
+    probe_captures([Path(shard.out) for shard in shards])
     for i, shard in enumerate(shards):
         path = Path(shard.out)
         if not path.exists():

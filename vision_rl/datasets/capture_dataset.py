@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, default_collate, get_worker_info
 
-from vision_rl.capture.h5format import CaptureFile, CaptureFormatError, open_capture
+from vision_rl.capture.h5format import CaptureFile, CaptureFormatError, open_capture, probe_captures
 from vision_rl.capture.sharded import open_manifest
 
 
@@ -140,6 +140,7 @@ class FrameCatalogue:
         """Read the catalogue of the given files (see :func:`expand_paths`); all must share frame size and targets.
         Non-finite or absurd targets are refused (:func:`check_targets`)."""
         files = expand_paths(paths)
+        probe_captures(files)  # a file that crashes HDF5 is refused here, not in a training step
         sources: list[dict[str, Any]] = []
         cols: dict[str, list[np.ndarray]] = {k: [] for k in ("targets", "lap", "car_id", "file", "frame")}
         meta: tuple[tuple[int, int], list[str], list[str]] | None = None

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from vision_rl.capture.h5format import CaptureFormatError, open_capture
+from vision_rl.capture.h5format import CaptureFormatError, open_capture, probe_captures
 from vision_rl.datasets.capture_dataset import (
     CaptureDataset,
     FrameCatalogue,
@@ -59,7 +59,9 @@ class CaptureDataModule(L.LightningDataModule):
 
     def prepare_data(self) -> None:
         # Nothing to download: fail early, before any worker starts, on a file that is not a capture.
-        for path in [*self.train_paths, *(self.val_paths or [])]:
+        paths = [*self.train_paths, *(self.val_paths or [])]
+        probe_captures(paths)
+        for path in paths:
             open_capture(path).close()
 
     def setup(self, stage: str | None = None) -> None:
