@@ -9,8 +9,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from vision_rl.budget import require_memory
 from vision_rl.config import nested
 from vision_rl.envs.core import RacingConfig
+from vision_rl.envs.observations import ObservationKind
 from vision_rl.sim.ai_driver import DEFAULT_SKILL
 from vision_rl.training.presets import PRESETS, SACOverrides
 from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule, SamplerOptions
@@ -51,6 +53,7 @@ class TrainOvertakingConfig:
     @staticmethod
     def check_options(options: Mapping[str, Any]) -> None:
         check_overtaking_ranges(options)
+        check_buffer_memory(options, ("buffer_size", "stage3_buffer_size"))
 
     agent: str = "1"
     """1 (stages 1-2), 2 (1-3, c 0.005 in stage 3), 3 (1-3, c 0.01 in stage 3) or standard (Eq. 2 from scratch)."""
@@ -135,6 +138,16 @@ class TrainOvertakingConfig:
     """Torch device: auto, cpu or cuda."""
 
 
+#: Bytes of a replay row of the 96-D observation: it and the next one, action, reward and done, as float32.
+ROW_BYTES = (2 * ObservationKind(OBSERVATION).vector_dim() + 4) * 4
+
+
+def check_buffer_memory(o: Mapping[str, Any], names: tuple[str, ...]) -> None:
+    """Price the replay buffers ``names`` of the flat options ``o`` against the memory budget."""
+    for name in names:
+        require_memory(f"--{name.replace('_', '-')} {o[name]}", float(o[name]) * ROW_BYTES)
+
+
 def check_overtaking_ranges(o: Mapping[str, Any]) -> None:
     """train-overtaking's flat options' values in their own words (:func:`~vision_rl.config.flat_values`)."""
     if o["agent"] not in AGENTS:
@@ -195,6 +208,7 @@ class TrainBaselineConfig:
     @staticmethod
     def check_options(options: Mapping[str, Any]) -> None:
         check_baseline_ranges(options)
+        check_buffer_memory(options, ("buffer_size",))
 
     algo: str = "bc"
     """bc, gail, td3, sac or dreamer (the PlaNet row)."""
