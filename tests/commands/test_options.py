@@ -188,7 +188,9 @@ def test_size_options_are_priced_against_the_memory_budget(monkeypatch):
         ({"batch_sizes": (64, 2_000_000)}, "--batch-sizes 2000000"),
         ({"cars": 300, "image_hw_px": (280, 470)}, "--image-hw-px 280 470"),  # 300 cars' frames: 1.3 GB
         ({"hidden_units": "4096,4096,4096"}, "--hidden-units 4096,4096,4096"),
+        ({"image_hw_px": (280, 470), "batch_size": 1_000}, "--batch-size 1000"),  # frames: 6.3 GB
     ):
         with pytest.raises(MemoryBudgetError, match=f"^{refused} needs about"):
             check_memory(values)
+    check_memory({"batch_size": 1_000})  # 1,000 state samples
     check_memory({"workers": 3, "address": "ray://head:10001"})  # samplers on a cluster use its machines' memory

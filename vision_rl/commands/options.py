@@ -202,6 +202,8 @@ UNIT_BYTES = {
 }
 #: Bytes per pixel of a frame size option, per car: capture's renderer tiles, read-back and queued copies.
 PIXEL_BYTES = 32
+#: Float32 copies of a batch's frame that a step keeps (input, normalised and augmented frames, first activations).
+BATCH_FRAME_FACTOR = 4
 #: SAC's networks (actor, two critics, two targets), each with gradients and two Adam moments, float32.
 PARAMETER_BYTES = 5 * 4 * 4
 
@@ -210,6 +212,9 @@ def check_memory(values: dict[str, Any]) -> None:
     """Price every size option in ``values`` (flat name -> value) against the memory budget; one line refuses the
     first one over it (:func:`vision_rl.budget.require_memory`)."""
     cars = max([1, *(v for v in (values.get("cars"), values.get("seeds")) if isinstance(v, int))])
+    hw_px = values.get("image_hw_px") or (0, 0)
+    # A batch of a command with a frame size is a batch of frames: float32 RGB and what a network keeps of them.
+    frame_sample_bytes = array_bytes(*hw_px, 3, BATCH_FRAME_FACTOR)
     for name, value in values.items():
         option = "--" + name.replace("_", "-")
         sizes = [v for v in (value if isinstance(value, tuple | list) else [value]) if isinstance(v, int | float)]
@@ -217,6 +222,8 @@ def check_memory(values: dict[str, Any]) -> None:
             continue  # the samplers run on the Ray cluster's machines, not in this one's memory
         if name in UNIT_BYTES and sizes:
             per_unit = UNIT_BYTES[name] * (cars if name == "frame_delay" else 1)
+            if "batch" in name:
+                per_unit = max(per_unit, frame_sample_bytes)
             require_memory(f"{option} {max(sizes)}", max(sizes) * per_unit)
         elif name.endswith("hw_px") and len(sizes) == 2:
             require_memory(f"{option} {sizes[0]} {sizes[1]}", array_bytes(cars, *sizes, PIXEL_BYTES, itemsize=1))
