@@ -13,8 +13,9 @@ Field types: int, float, str, bool, ``tuple[int, int]`` (two values after the op
 
 Every number is checked here, once for all commands: it must be finite and at least 0, or at least the field's
 ``metadata={"min": ...}`` / the config's ``option_minimums`` (``{"max_steps": -1}``; ``None``: any sign), and at
-most the field's ``metadata={"max": ...}`` where it has one. A device
-other than auto or cpu must be present. Ranges of their own and memory are the configs' ``check_options``.
+most the field's ``metadata={"max": ...}`` where it has one. A device other than auto or cpu must be present. Every
+size option is priced against the memory budget (:data:`UNIT_BYTES`, frame sizes, ``--hidden-units``); ranges of
+their own and finer prices are the configs' ``check_options``.
 """
 
 from __future__ import annotations
