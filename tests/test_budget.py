@@ -23,7 +23,7 @@ def test_the_budget_is_a_share_of_the_available_memory_unless_the_environment_gi
     assert 0 < limit <= AVAILABLE_SHARE * available_memory_bytes() * 1.05  # the available memory moves a little
     assert BUDGET_ENV in source and "available" in source
     monkeypatch.setenv(BUDGET_ENV, "2.5")
-    assert memory_budget() == (2.5e9, f"{BUDGET_ENV}=2.5")
+    assert memory_budget() == (2.5e9, f"set by {BUDGET_ENV}=2.5")
     for bad in ("0", "-1", "nan", "inf", "lots"):
         monkeypatch.setenv(BUDGET_ENV, bad)
         with pytest.raises(ValueError, match=f"^{BUDGET_ENV}='{bad}' is not a positive number of GB$"):
@@ -36,7 +36,7 @@ def test_a_request_over_the_budget_is_refused_with_both_figures(monkeypatch):
     with pytest.raises(MemoryBudgetError) as refused:
         require_memory("--cars 1000", 2.5e9)
     assert str(refused.value) == (
-        f"--cars 1000 needs about 2.5 GB of memory, over the budget of 1.0 GB ({BUDGET_ENV}=1 to change it)"
+        f"--cars 1000 needs about 2.5 GB of memory, over the budget of 1.0 GB (set by {BUDGET_ENV}=1)"
     )
     assert isinstance(refused.value, ValueError)  # the command line reports it as one line
     for absurd in (math.inf, math.nan, array_bytes(10**12, 10**12, 3)):

@@ -49,9 +49,10 @@ def memory_budget() -> tuple[float, str]:
             gb = math.nan
         if not (math.isfinite(gb) and gb > 0):
             raise ValueError(f"{BUDGET_ENV}={text!r} is not a positive number of GB")
-        return gb * 1e9, f"{BUDGET_ENV}={text}"
+        return gb * 1e9, f"set by {BUDGET_ENV}={text}"
     available = available_memory_bytes()
-    return AVAILABLE_SHARE * available, f"{AVAILABLE_SHARE:.0%} of the {_gb(available)} available; set {BUDGET_ENV}"
+    share = f"{AVAILABLE_SHARE:.0%} of the {_gb(available)} available"
+    return AVAILABLE_SHARE * available, f"{share}; set {BUDGET_ENV} to change it"
 
 
 def require_memory(what: str, n_bytes: float) -> None:
@@ -60,7 +61,7 @@ def require_memory(what: str, n_bytes: float) -> None:
     limit, source = memory_budget()
     if not n_bytes <= limit:  # NaN is refused too
         raise MemoryBudgetError(
-            f"{what} needs about {_gb(n_bytes)} of memory, over the budget of {_gb(limit)} ({source} to change it)"
+            f"{what} needs about {_gb(n_bytes)} of memory, over the budget of {_gb(limit)} ({source})"
         )
 
 

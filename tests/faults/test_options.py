@@ -204,7 +204,7 @@ def test_the_budget_is_overridable_and_its_override_checked(monkeypatch, capsys,
     monkeypatch.setenv(BUDGET_ENV, "0.5")
     assert memory_budget()[0] == 0.5e9
     line = _refused(["train-policy", "--buffer-size", "10000000"], capsys)  # 1 GB at the floor of 100 B a row
-    assert f"over the budget of 0.5 GB ({BUDGET_ENV}=0.5 to change it)" in line, line
+    assert f"over the budget of 0.5 GB (set by {BUDGET_ENV}=0.5)" in line, line
     fault.refused(f"{BUDGET_ENV}=0.5 and train-policy --buffer-size 10000000", line)
     monkeypatch.setenv(BUDGET_ENV, "lots")
     line = _refused(["drive", "--seeds", "3"], capsys)
