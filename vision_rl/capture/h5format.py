@@ -452,6 +452,13 @@ class CaptureWriter:
             raise
         if "compression" in self._file.attrs:
             compression = str(self._file.attrs["compression"])
+        self._start_buffers(committed, compression, compress_threads)
+        self._fingerprint_sha = str(file_attrs["fingerprint_sha256"])
+        self._closed = False
+        self._last_flush_s = time.monotonic()
+
+    def _start_buffers(self, committed: dict[str, np.ndarray], compression: str, compress_threads: int) -> None:
+        """The compression threads, the rows waiting for a flush, the running hashes and the journal's head."""
         self.compression = compression
         self._pool: ThreadPoolExecutor | None = None
         if compression in _ENCODERS:
@@ -476,9 +483,6 @@ class CaptureWriter:
         # Rows on disk from the start of the last, partly filled chunk: the head of the next journal.
         first = _chunk_start(self._n_rows_on_disk)
         self._chunk_rows = {name: committed[name][first:] for name in _TABLE_DATASETS}
-        self._fingerprint_sha = str(file_attrs["fingerprint_sha256"])
-        self._closed = False
-        self._last_flush_s = time.monotonic()
 
     def _open_file(self, file_attrs: dict[str, Any], compression: str, reopen: bool) -> dict[str, np.ndarray]:
         """Open the locked file (reopened, or created afresh); returns its committed rows of every table."""
@@ -973,7 +977,8 @@ class CaptureFile:
         return list(self.attrs["dedicated_units"])
 
     def _column(self, name: str) -> np.ndarray:
-        return self._verified_tables()[name].copy()
+        kept = self._verified_tables().get(name)
+        return kept.copy() if kept is not None else _read_table(self._f[name], self.n_frames, self.path)
 
     @property
     def fingerprint(self) -> dict[str, Any]:
@@ -987,14 +992,19 @@ class CaptureFile:
         return self._content_digest
 
     def _verified_tables(self) -> dict[str, np.ndarray]:
-        """Every table's committed rows, read once, after checking every dataset's chunk index; then checked
-        against the recorded hashes (so an edit, or a chunk lost from the index, is refused, never read)."""
-        if self._tables is None:
-            self._check_indexes()
-            tables = {name: _read_table(self._f[name], self.n_frames, self.path) for name in _TABLE_DATASETS}
-            self._content_digest = self._check_digests(tables)
-            self._tables = tables
-        return self._tables
+        """The tables kept in memory once every table was checked (:meth:`_read_verified`)."""
+        return self._tables if self._tables is not None else self._read_verified()
+
+    def _read_verified(self) -> dict[str, np.ndarray]:
+        """Every table's committed rows, after checking every dataset's chunk index; then checked against the
+        recorded hashes (so an edit, or a chunk lost from the index, is refused, never read)."""
+        self._check_indexes()
+        tables = {name: _read_table(self._f[name], self.n_frames, self.path) for name in _TABLE_DATASETS}
+        self._content_digest = self._check_digests(tables)
+        # Only the images' checksums stay in memory (4 bytes a frame, in every loader worker); the other tables
+        # are read again when asked for, through the same checked index and fletcher32 checksums.
+        self._tables = {"image_crc32": tables["image_crc32"]}
+        return tables
 
     def _check_indexes(self, names: Sequence[str] = ALL_DATASETS) -> None:
         file_bytes = self.path.stat().st_size
@@ -1023,7 +1033,7 @@ class CaptureFile:
         changed, when neither the file nor its journal gives rows matching the recorded hashes."""
         self._check_indexes()  # a damaged index is no kill's work: the journal cannot mend it
         try:
-            return self._verified_tables(), False
+            return self._read_verified(), False
         except CaptureFormatError as exc:
             damage = exc
         tails = {name: tuple(self._f[name].shape[1:]) for name in _TABLE_DATASETS}
@@ -1250,7 +1260,7 @@ def _probe_main(paths: Sequence[str]) -> int:
         os.write(1, f"{path}\n".encode())  # to the parent, which names the file a crash stopped at
         try:
             with _open_checked(Path(path), locking=False) as cap:
-                cap._verified_tables()
+                cap._read_verified()
         except CaptureFormatError:
             pass  # the reader refuses it in its own words
     return 0
