@@ -220,3 +220,25 @@ def test_bit_flips_in_a_shard_are_refused_through_its_manifest(tmp_path, fault):
         "6 single-bit flips over a shard of a sharded capture",
         f"{counts['unchanged']} unchanged, {counts['refused']} refused naming the shard",
     )
+
+
+def test_an_attribute_that_crashes_hdf5_is_refused_naming_the_file(captures, tmp_path, fault):
+    # The class bits of the vlen-string datatype of the attribute target_units: HDF5 segfaults reading the flipped
+    # type, so without the probe in a child process this test's own process would die.
+    data = bytearray(captures["incomplete"].read_bytes())
+    at = data.find(b"target_units\x00") + 17
+    assert data[at] == 0x01
+    data[at] ^= 0b10
+    damaged = tmp_path / "damaged.h5"
+    damaged.write_bytes(bytes(data))
+    before = damaged.read_bytes()
+    for read in (
+        lambda: CaptureDataset.from_path(str(damaged)),
+        lambda: _resume_and_read(damaged, captures["incomplete"]),
+    ):
+        with pytest.raises(CaptureFormatError) as info:
+            read()
+        message = str(info.value)
+        assert len(message.splitlines()) == 1 and str(damaged) in message and "damaged file" in message, message
+    assert damaged.read_bytes() == before
+    fault.refused("an attribute's datatype damaged so that HDF5 crashes reading it", message)
