@@ -4,6 +4,8 @@ incremental files, one update, save/load, the protocol driver and a tiny train-d
 from __future__ import annotations
 
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -332,3 +334,15 @@ def test_train_minutes_stop_a_run_and_a_resume_with_more_continues_it(track, tmp
     assert 2.4 <= second["train_time_s"] < 12.0
     with pytest.raises(ValueError, match="--train-minutes -1"):
         train_ddpg(from_flat(TrainDDPGConfig, {**base, "train_minutes": -1.0, "force": True}))
+
+
+def test_the_default_run_folder_is_under_runs_ddpg_with_the_track_path_flattened(track, tmp_path, monkeypatch):
+    """Without --out a run goes to runs/ddpg/<variant>-<track>-<car>-s<seed>: a track given as a CSV path adds no
+    folders, and the runs/ddpg folders stay (the name was once flattened whole into ./runs_ddpg_...)."""
+    from vision_rl.ddpg.config import TrainDDPGConfig
+    from vision_rl.ddpg.train import _Run
+
+    monkeypatch.chdir(tmp_path)
+    run = _Run(TrainDDPGConfig(variant="state-actor", env=_env(track)))
+    assert run.out.parent == Path("runs/ddpg")
+    assert run.out.name == f"state-actor-{track.replace(os.sep, '_')}-gt3-s0" and run.out.is_dir()

@@ -90,7 +90,9 @@ class _Run:
     def __init__(self, cfg: TrainDDPGConfig) -> None:
         check_bounds(flat_values(cfg))
         self.cfg = cfg
-        default = f"runs/ddpg/{cfg.variant}-{cfg.env.track}-{cfg.env.car}-s{cfg.seed}".replace(os.sep, "_")
+        # A track given as a CSV path must not add folders to the name: only its separators are replaced.
+        track = cfg.env.track.replace(os.sep, "_")
+        default = f"runs/ddpg/{cfg.variant}-{track}-{cfg.env.car}-s{cfg.seed}"
         self.out = Path(cfg.out or default)
         self.previous: dict[str, Any] | None = None
         if cfg.resume:
