@@ -14,13 +14,13 @@ import sys
 import time
 from pathlib import Path
 
-import h5py
 import numpy as np
 import pytest
 import torch
 
 from tests.helpers.captures import TARGET_NAMES, write_synthetic_capture
 from tests.helpers.processes import kill_and_read
+from vision_rl.capture.h5format import REQUIRED_ATTRS, CaptureWriter, open_capture
 from vision_rl.commands.main import main
 from vision_rl.datasets import TargetValueError
 from vision_rl.phase1_repr import EncoderCheckpointError, load_encoder
@@ -37,11 +37,27 @@ def small_capture(path: Path, seed: int = 0) -> Path:
 
 
 def rewrite_target(path: Path, frame: int, name: str, value: float) -> None:
-    """Change one stored target through HDF5 (valid checksums) and drop the completion digest, as a capture
-    program with a bug would have written it."""
-    with h5py.File(path, "r+") as f:
-        f["targets"][frame, list(TARGET_NAMES).index(name)] = value
-        del f.attrs["content_sha256"]
+    """Write the capture again with one target changed, through the writer (valid checksums and hashes), as a
+    capture program with a bug would have written it (an edit through HDF5 is refused before the targets are
+    read: the file's hashes no longer match)."""
+    with open_capture(path) as cap:
+        columns = [cap.read_images(np.arange(cap.n_frames)), cap.targets, cap.dedicated, cap.pose, cap.time_s]
+        columns += [cap.lap, cap.car_id]
+        names = (cap.target_names, cap.target_units, cap.dedicated_names, cap.dedicated_units)
+        attrs = {key: cap.attrs[key] for key in REQUIRED_ATTRS}
+    columns[1][frame, list(TARGET_NAMES).index(name)] = value
+    writer = CaptureWriter(
+        path,
+        image_hw_px=columns[0].shape[1:3],
+        target_names=names[0],
+        target_units=names[1],
+        dedicated_names=names[2],
+        dedicated_units=names[3],
+        attrs=attrs,
+        force=True,
+    )
+    writer.append(*columns)
+    writer.close(complete=True)
 
 
 @pytest.mark.parametrize(
