@@ -8,15 +8,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
-import osqp
-from scipy import interpolate, sparse
-from scipy.ndimage import maximum_filter1d, minimum_filter1d
-from scipy.sparse.linalg import splu
-from scipy.spatial import cKDTree
 
 from vision_rl.sim.track import Track, TrackError
+
+if TYPE_CHECKING:  # scipy is imported where it is used: --help of every command stays light
+    from scipy import sparse
 
 #: Spacing of the optimisation grid. Heilmeier et al. optimise on 3 m steps (their ``stepsize_opt``); the track's own
 #: 1 m samples cost 0.3-0.5 s on a 5-7 km track and follow the database's lines a little closer (Catalunya 0.95 m mean
@@ -182,6 +181,8 @@ def _curvature_and_jacobian(
     ignores that offsets towards the inside of a corner shorten the path and so favours the inside of long corners;
     with the previous QP's line, the iterative QP.
     """
+    from scipy import sparse
+
     n = len(lateral_m)
     w1, w2 = _difference_weights(centre_xy_m)
     p = centre_xy_m + normal * lateral_m[:, None]
@@ -236,6 +237,9 @@ def _box_qp(
     iterations and no successful polish at 1e-6 on Monza, 2,895 offsets). Returns None when it does not converge.
     Requires lower < upper everywhere.
     """
+    from scipy import sparse
+    from scipy.sparse.linalg import splu
+
     n = len(grad)
     x = 0.5 * (lower + upper)
     slack_lo, slack_up = x - lower, upper - x
@@ -288,6 +292,9 @@ def _solve_qp(
 
 def _osqp(hess: sparse.csc_matrix, grad: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """Fallback solver: OSQP at a tolerance it reaches in well under a second (lines within a few mm)."""
+    import osqp
+    from scipy import sparse
+
     solver = osqp.OSQP()
     solver.setup(
         P=sparse.triu(hess, format="csc"),
@@ -319,6 +326,9 @@ def optimise_racing_line(
     about every ``opt_step_m`` metres of centre line with bounds that hold over each sample's neighbourhood; the
     offsets are then interpolated onto every track sample by a periodic cubic spline and clipped to the bounds.
     """
+    from scipy import interpolate
+    from scipy.ndimage import maximum_filter1d, minimum_filter1d
+
     if margin_m < 0:
         raise ValueError(f"margin_m must be >= 0, got {margin_m}")
     if curvature_model not in CURVATURE_MODELS:
@@ -387,6 +397,8 @@ def racing_line_from_offsets(track: Track, lateral_m: np.ndarray, margin_m: floa
 
 def lateral_distance_between_lines(ours_xy_m: np.ndarray, theirs_xy_m: np.ndarray) -> np.ndarray:
     """Distance (m) from each point of ``theirs_xy_m`` (k, 2) to the closed polyline ``ours_xy_m`` (n, 2)."""
+    from scipy.spatial import cKDTree
+
     a = np.asarray(ours_xy_m, dtype=np.float64)
     b = np.roll(a, -1, axis=0)
     pts = np.asarray(theirs_xy_m, dtype=np.float64)

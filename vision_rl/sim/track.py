@@ -10,13 +10,15 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
-from scipy import interpolate
-from scipy.spatial import cKDTree
 
 from vision_rl.budget import require_memory
+
+if TYPE_CHECKING:  # scipy is imported where it is used: --help of every command stays light
+    from scipy.spatial import cKDTree
 
 #: Default spacing of the resampled centre line: 1 m keeps polyline errors
 #: (kappa * ds^2 / 8) below 3 mm even in a 40 m hairpin.
@@ -114,6 +116,8 @@ class Track:
         ``smoothing_m`` is the RMS distance the spline may keep from the input points (0 interpolates them);
         a few centimetres remove the jitter of surveyed centre lines without moving the track.
         """
+        from scipy import interpolate
+
         xy = np.asarray(xy_m, dtype=np.float64)
         k = len(xy)
         w_left = np.broadcast_to(np.asarray(width_left_m, dtype=np.float64), (k,))
@@ -192,6 +196,8 @@ class Track:
 
     @cached_property
     def _kdtree(self) -> cKDTree:
+        from scipy.spatial import cKDTree
+
         return cKDTree(self.centre_xy_m)
 
     def wall_segments(self) -> np.ndarray:
@@ -334,6 +340,8 @@ def trimmed_widths(
     twice the widest width can cut (``share t < w`` needs ``|d| < 2 w / share``); a k-d tree finds them, so the cost
     is O(n log n) and vectorised.
     """
+    from scipy.spatial import cKDTree
+
     kappa = np.asarray(curvature_1pm, dtype=np.float64)
     with np.errstate(divide="ignore"):
         left = np.minimum(width_left_m, np.where(kappa > 0.0, share / kappa, np.inf))

@@ -23,7 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from vision_rl.sim.track import DEFAULT_SPACING_M, Track, TrackError, require_track_memory
 
@@ -93,6 +92,8 @@ def _segment_crossings(rings: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray,
     segment midpoints: two segments of length <= L that touch have midpoints at most L apart, so the search is
     O(n log n) and vectorised.
     """
+    from scipy.spatial import cKDTree
+
     starts = np.vstack(rings)
     ends = np.vstack([np.roll(r, -1, axis=0) for r in rings])
     ring_len = np.concatenate([np.full(len(r), len(r)) for r in rings])
@@ -629,6 +630,8 @@ def _random_candidate(rng: np.random.Generator, name: str, spacing_m: float) -> 
 
 
 def _random_track_ok(track: Track) -> bool:
+    from scipy.spatial import cKDTree
+
     total = track.width_left_m + track.width_right_m
     half = np.maximum(track.width_left_m, track.width_right_m)
     kappa = np.abs(track.curvature_1pm)
