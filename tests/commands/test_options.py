@@ -194,3 +194,12 @@ def test_size_options_are_priced_against_the_memory_budget(monkeypatch):
             check_memory(values)
     check_memory({"batch_size": 1_000})  # 1,000 state samples
     check_memory({"workers": 3, "address": "ray://head:10001"})  # samplers on a cluster use its machines' memory
+
+
+def test_every_path_of_a_comma_separated_list_has_its_tilde_expanded(monkeypatch, tmp_path):
+    from vision_rl.commands.options import comma_list, comma_paths
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    # `--curves ~/a,~/b`: the shell expands the first ~ only.
+    assert comma_paths(f"{tmp_path}/a, ~/b,,") == [f"{tmp_path}/a", f"{tmp_path}/b"]
+    assert comma_list(" 1, 2 ,", int) == [1, 2]

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from vision_rl.commands.options import comma_list
 from vision_rl.commands.output import emit
 
 #: What the ratios (2 workers over 1) should reach on a 2-core machine.
@@ -209,7 +210,7 @@ def _lines(result: dict[str, Any]) -> list[str]:
 
 
 def run_bench_scaling(opts: BenchScalingOptions) -> int:
-    rows = [r.strip() for r in opts.rows.split(",") if r.strip()]
+    rows = comma_list(opts.rows)
     unknown = [r for r in rows if r not in ROWS]
     if unknown or not rows:
         raise ValueError(f"--rows takes {', '.join(ROWS)} (comma-separated), got {opts.rows!r}")

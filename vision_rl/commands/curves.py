@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from vision_rl.commands.options import comma_list, comma_paths
 from vision_rl.commands.output import emit
 
 
@@ -58,10 +59,10 @@ def run_curves(opts: CurvesOptions) -> int:
     from vision_rl.evaluation.protocol import BuiltinAI, time_laps
     from vision_rl.phase2_rl.experiment import compare_learning_curves
 
-    files = [f.strip() for f in opts.files.split(",") if f.strip()]
+    files = comma_paths(opts.files)
     if not files:
         raise ValueError("--files: give at least one learning_curves.json")
-    names = [n.strip() for n in opts.names.split(",") if n.strip()] or [str(f) for f in files]
+    names = comma_list(opts.names) or [str(f) for f in files]
     if len(names) != len(files):
         raise ValueError(f"--names gives {len(names)} names for {len(files)} curve files")
     ai = time_laps(BuiltinAI(), opts.track, opts.car, seeds=AI_SEEDS).summary()

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from vision_rl.commands.choices import SETTINGS
+from vision_rl.commands.options import comma_list, comma_paths
 from vision_rl.commands.output import emit
 
 
@@ -52,10 +53,6 @@ class EvaluateOvertakingOptions:
     """2 runs of at most 20 s each (for a check in seconds)."""
     json: bool = False
     """Print the result as JSON."""
-
-
-def _split(text: str) -> list[str]:
-    return [part.strip() for part in text.split(",") if part.strip()]
 
 
 def format_setting(result: dict[str, Any]) -> list[str]:
@@ -147,7 +144,7 @@ def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
     )
 
     if opts.curves:
-        result = learning_curves(_split(opts.curves), opts.curves_agent)
+        result = learning_curves(comma_paths(opts.curves), opts.curves_agent)
         result["files"] = write_learning_curves(result, opts.out)
         emit(result, opts.json, format_curves)
         return 0
@@ -156,17 +153,17 @@ def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
     if opts.analysis:
         return _analysis(opts, runs, limit)
     result = evaluate_overtaking(
-        _split(opts.policy),
+        comma_paths(opts.policy),
         opts.setting,
         runs,
         opts.seed,
         limit,
         opts.lead_margin_m,
         opts.reference,
-        _split(opts.names),
+        comma_list(opts.names),
         opts.track,
         opts.car,
-        humans=_split(opts.human),
+        humans=comma_paths(opts.human),
     )
     result["files"] = write_setting_outputs(result, opts.out)
     emit(result, opts.json, format_setting)
@@ -179,12 +176,12 @@ def _analysis(opts: EvaluateOvertakingOptions, runs: int, limit_s: float) -> int
     from vision_rl.sim.track_library import load_track
     from vision_rl.sim.vehicle import get_preset
 
-    policies = _split(opts.policy)
+    policies = comma_paths(opts.policy)
     if len(policies) != 1:
         raise SettingError(f"--analysis takes one --policy, got {len(policies)}")
     policy = load_overtaking_policy(policies[0])
     track, car = load_track(policy.config.track), get_preset(policy.config.car)
-    name = _split(opts.names)[0] if opts.names else policies[0]
+    name = comma_list(opts.names)[0] if opts.names else policies[0]
     driver = policy.driver()
     try:
         result, trace = analyse_overtaking(

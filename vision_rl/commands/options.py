@@ -24,6 +24,7 @@ import argparse
 import inspect
 import itertools
 import math
+import os
 import re
 from collections.abc import Callable
 from typing import Any
@@ -238,3 +239,13 @@ def check_memory(values: dict[str, Any]) -> None:
             f"--hidden-units {values['hidden_units']}",
             weights * PARAMETER_BYTES + array_bytes(batch, sum(widths), 5 * 3),
         )
+
+
+def comma_list(text: str, kind: Callable[[str], Any] = str) -> list[Any]:
+    """The items of a comma-separated option, stripped, empty ones dropped, each through ``kind``."""
+    return [kind(part.strip()) for part in text.split(",") if part.strip()]
+
+
+def comma_paths(text: str) -> list[str]:
+    """The paths of a comma-separated option, ``~`` expanded (a shell expands only the first one of such a list)."""
+    return comma_list(text, os.path.expanduser)

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from vision_rl.commands.options import comma_list
 from vision_rl.commands.output import emit, progress_bar, show
 
 
@@ -106,7 +107,7 @@ def run_tracks(opts: TracksOptions) -> int:
         raise ValueError(f"--laps must be >= 1, got {opts.laps}")
     names = [(n, "built-in") for n in BUILTIN_TRACKS] + [(n, "racetrack-database") for n in DATABASE_TRACKS]
     if opts.only:
-        wanted = [w.strip() for w in opts.only.split(",") if w.strip()]
+        wanted = comma_list(opts.only)
         by_key = {n.lower(): (n, src) for n, src in names}
         unknown = [w for w in wanted if w.lower() not in by_key]
         if unknown:

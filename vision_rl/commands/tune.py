@@ -6,6 +6,7 @@ from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
 from vision_rl.commands.choices import POLICY_CHOICES
+from vision_rl.commands.options import comma_list
 from vision_rl.commands.output import emit, interrupt_on_sigterm, progress_bar, restore_sigterm, show
 from vision_rl.phase2_rl.config import SEARCH_SPACE, TrainPolicyConfig
 
@@ -62,7 +63,7 @@ def run_tune_command(opts: TuneOptions) -> int:
     base = TrainPolicyConfig(**{f.name: getattr(opts, f.name) for f in fields(TrainPolicyConfig)})
     tune = TuneConfig(
         opts.trials,
-        tuple(p.strip() for p in opts.space.split(",") if p.strip()),
+        tuple(comma_list(opts.space)),
         opts.eval_starts,
         opts.wall_weight,
         opts.prune_after_steps,
