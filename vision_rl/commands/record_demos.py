@@ -23,7 +23,12 @@ class RecordDemosOptions(RecordDemosConfig):
 def format_record_demos(result: dict[str, Any]) -> list[str]:
     return [
         f"{result['out']}: {result['n_transitions']} transitions in {result['n_episodes']} episodes, "
-        f"{result['laps_driven']:.2f} laps, mean reward {result['mean_reward']:.3f} per step",
+        f"{result['laps_driven']:.2f} laps, mean reward {result['mean_reward']:.3f} per step"
+        + (
+            f" (the laps are those of the {result['n_recorded_now']} recorded now)"
+            if result["n_recorded_now"] != result["n_transitions"]
+            else ""
+        ),
         f"demonstrator: {result['demonstrator']['driver']} (skill {result['demonstrator']['skill']})"
         + (f", labelling {result['driven_by']['learner']}'s driving" if "learner" in result["driven_by"] else ""),
         f"recorded in {result['record_time_s']:.1f} s ({result['transitions_per_s']:.0f} transitions/s)",
