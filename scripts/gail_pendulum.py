@@ -3,7 +3,8 @@ whose rewards are its log-odds, vision_rl.overtaking.gail) with an SB3 SAC learn
 imitate an analytic expert on Pendulum-v1, where the expected result is known: close to the expert's return
 (-130 to -180 over 200 steps, by start states; a random policy about -1,000 to -1,200).
 
-    .venv/bin/python scripts/gail_pendulum.py --steps 12000 --seed 0 --out docs/results/overtaking-gail-reference/pendulum-s0.json
+    .venv/bin/python scripts/gail_pendulum.py --steps 12000 --seed 0 \
+        --out docs/results/overtaking-gail-reference/pendulum-s0.json
 """
 
 from __future__ import annotations
