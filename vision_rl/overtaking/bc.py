@@ -210,13 +210,7 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
     }
     sha = write_agent_state(state, run.out / MODEL_NAME, fingerprint)
     normalizer = _demo_normalizer(demos)
-    recipe = {
-        "learning_rate": cfg.sac.learning_rate or 1e-3,
-        "batch_size": cfg.sac.batch_size or 256,
-        "loss": "mse of tanh actions in [-1, 1]",
-        "steering_label": f"mean of the demonstrator's last {cfg.bc_smooth_steps} labels",
-    }
-    policy_spec(cfg, racing, normalizer, fingerprint, sha, recipe, 0, train_time_s, run.settings).write(
+    policy_spec(cfg, racing, normalizer, fingerprint, sha, _recipe(cfg), 0, train_time_s, run.settings).write(
         run.out / SIDECAR_NAME
     )
     rmse = np.sqrt(fit["best_held_out_mse"])
@@ -236,6 +230,15 @@ def train_bc(cfg: TrainBaselineConfig, progress: Progress | None = None) -> dict
         updates_per_s=round(fit["updates"] / max(train_time_s, 1e-9), 1),
     )
     return {**run.record, "out": str(run.out), "policy": str(run.out), "trained_now": True, "interrupted": False}
+
+
+def _recipe(cfg: TrainBaselineConfig) -> dict[str, Any]:
+    return {
+        "learning_rate": cfg.sac.learning_rate or 1e-3,
+        "batch_size": cfg.sac.batch_size or 256,
+        "loss": "mse of tanh actions in [-1, 1]",
+        "steering_label": f"mean of the demonstrator's last {cfg.bc_smooth_steps} labels",
+    }
 
 
 def _demo_normalizer(demos: Demos):
