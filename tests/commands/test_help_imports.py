@@ -1,5 +1,6 @@
-"""`--help` of every command answers without torch, Lightning, Stable-Baselines3 or moderngl: a command's module
-holds its options and imports the heavy libraries in its run function, after parsing (issue 62)."""
+"""`--help` of every command answers without torch, Lightning, Stable-Baselines3, moderngl or the simulator's scipy
+and osqp: a command's module holds its options and imports the heavy libraries in its run function, after parsing
+(issue 62)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import sys
 
 from vision_rl.commands.main import COMMANDS
 
-HEAVY = ("torch", "lightning", "stable_baselines3", "moderngl")
+HEAVY = ("torch", "lightning", "stable_baselines3", "moderngl", "scipy.interpolate", "osqp")
 
 # In a fresh interpreter: import one command module, list the heavy libraries loaded, then parse --help of each of
 # its commands and list them again.

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from vision_rl.commands.options import comma_list
 from vision_rl.commands.output import emit
 
 
@@ -126,7 +127,7 @@ class BenchDDPGOptions:
 
 
 def _ddpg_list(text: str, option: str, allowed: tuple[str, ...]) -> list[str]:
-    items = [v.strip() for v in text.split(",") if v.strip()]
+    items = comma_list(text)
     if not items or any(v not in allowed for v in items):
         raise ValueError(f"{option} {text!r}: choose from {', '.join(allowed)}")
     return items

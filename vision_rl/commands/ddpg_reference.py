@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Any
 
+from vision_rl.commands.options import comma_list
 from vision_rl.commands.output import emit, progress_bar, show
 from vision_rl.config import nested
 from vision_rl.ddpg.config import REFERENCE_HYPER, DDPGHyper
@@ -57,10 +58,6 @@ class DDPGReferenceOptions:
     """Print the summary as JSON."""
 
 
-def _split(text: str, kind: type) -> list[Any]:
-    return [kind(part.strip()) for part in text.split(",") if part.strip()]
-
-
 def format_reference(result: dict[str, Any]) -> list[str]:
     lines = [
         f"{result['task']}: returns, mean ± std over seeds: the final evaluation (deterministic), the last 5 "
@@ -93,7 +90,7 @@ def run_ddpg_reference(opts: DDPGReferenceOptions) -> int:
         final_eval_episodes=opts.final_eval_episodes,
         hyper=opts.hyper,
     )
-    runs = [replace(base, algo=a, seed=s) for a in _split(opts.algos, str) for s in _split(opts.seeds, int)]
+    runs = [replace(base, algo=a, seed=s) for a in comma_list(opts.algos) for s in comma_list(opts.seeds, int)]
     if not runs:
         raise ValueError("--algos and --seeds must name at least one algorithm and one seed")
     records = []

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from vision_rl.commands.choices import DDPG_VARIANTS
+from vision_rl.commands.options import comma_list, comma_paths
 from vision_rl.commands.output import emit
 
 
@@ -120,8 +121,8 @@ def run_compare_ddpg(opts: CompareDDPGOptions) -> int:
     from vision_rl.ddpg.compare import compare_runs, plot_comparison
     from vision_rl.files import write_json
 
-    runs = [r.strip() for r in opts.runs.split(",") if r.strip()]
-    names = [n.strip() for n in opts.names.split(",") if n.strip()]
+    runs = comma_paths(opts.runs)
+    names = comma_list(opts.names)
     result = compare_runs(runs, names, opts.bin_minutes)
     result["figure"] = str(plot_comparison(result, opts.out))
     result["json"] = str(Path(opts.out).with_suffix(".json"))
