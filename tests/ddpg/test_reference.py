@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from vision_rl.ddpg.agent import DDPGAgent, DDPGError, DDPGHyper, FrameReplay, VectorTask
-from vision_rl.ddpg.reference import REFERENCE_HYPER, ReferenceRun, TaskScaling, run_reference
+from vision_rl.ddpg.config import REFERENCE_HYPER, ReferenceRun
+from vision_rl.ddpg.reference import TaskScaling, run_reference
 
 #: The test's run: seed 0, batch-norm (the paper's networks), 3,000 updates at batch 64; measured: the first three
 #: episodes -1,437 on average, the final evaluation -88 (a gain of 1,349) in 88 s on a loaded 2-core machine.

@@ -9,7 +9,7 @@ from typing import Any
 from vision_rl.commands.options import comma_list
 from vision_rl.commands.output import emit, progress_bar, show
 from vision_rl.config import nested
-from vision_rl.ddpg.config import REFERENCE_HYPER, DDPGHyper
+from vision_rl.ddpg.config import ReferenceRun
 
 
 @dataclass(frozen=True)
@@ -19,33 +19,15 @@ class DDPGReferenceOptions:
     record per run in --out/<task>/ (a record of the same settings there is reused, not trained again), a figure of
     the learning curves (mean and one standard deviation over seeds) and a table of final returns."""
 
-    task: str = "Pendulum-v1"
-    """Gymnasium task id (Box observation and action): Pendulum-v1, MountainCarContinuous-v0."""
+    run: ReferenceRun = nested(
+        ReferenceRun(),
+        only=("task", "steps", "learning_starts", "eval_every_steps", "eval_episodes", "final_eval_episodes", "hyper"),
+    )
+    """What every run does: the task, its length, evaluations and hyper-parameters."""
     algos: str = "ours,ours-bn,sb3-ddpg,sb3-td3"
     """Algorithms, comma-separated: ours, ours-bn, sb3-ddpg, sb3-td3."""
     seeds: str = "0,1,2"
     """Seeds, comma-separated."""
-    steps: int = 20_000
-    """Environment steps per run."""
-    learning_starts: int = 1_000
-    """Steps of uniform random actions (plus noise) before the first update."""
-    eval_every_steps: int = 1_000
-    """Deterministic evaluation every this many steps (0: only at the end)."""
-    eval_episodes: int = 5
-    """Episodes per periodic evaluation."""
-    final_eval_episodes: int = 10
-    """Episodes of the final evaluation (the final return)."""
-    hyper: DDPGHyper = nested(
-        REFERENCE_HYPER,
-        only=("actor_lr", "critic_lr", "tau", "gamma", "batch_size", "buffer_size", "ou_theta", "ou_sigma"),
-        help={
-            "actor_lr": "Adam step size of the actor (SB3: the same as --critic-lr).",
-            "ou_theta": "OU noise mean reversion per step (1: Gaussian noise).",
-            "ou_sigma": "OU noise scale, on actions in [-1, 1].",
-            "buffer_size": "Replay capacity, transitions.",
-        },
-    )
-    """Hyper-parameters of every algorithm (the shared recipe by default)."""
     out: str = "runs/ddpg-reference"
     """Folder of the records (<out>/<task>/<algo>-s<seed>.json), the figure and the summary."""
     force: bool = False
@@ -76,21 +58,12 @@ def format_reference(result: dict[str, Any]) -> list[str]:
 def run_ddpg_reference(opts: DDPGReferenceOptions) -> int:
     import torch
 
-    from vision_rl.ddpg.reference import ReferenceRun, load_or_run, plot_reference, summarise
+    from vision_rl.ddpg.reference import load_or_run, plot_reference, summarise
     from vision_rl.files import write_json
 
     if opts.torch_threads > 0:
         torch.set_num_threads(opts.torch_threads)
-    base = ReferenceRun(
-        task=opts.task,
-        steps=opts.steps,
-        learning_starts=opts.learning_starts,
-        eval_every_steps=opts.eval_every_steps,
-        eval_episodes=opts.eval_episodes,
-        final_eval_episodes=opts.final_eval_episodes,
-        hyper=opts.hyper,
-    )
-    runs = [replace(base, algo=a, seed=s) for a in comma_list(opts.algos) for s in comma_list(opts.seeds, int)]
+    runs = [replace(opts.run, algo=a, seed=s) for a in comma_list(opts.algos) for s in comma_list(opts.seeds, int)]
     if not runs:
         raise ValueError("--algos and --seeds must name at least one algorithm and one seed")
     records = []
@@ -99,9 +72,9 @@ def run_ddpg_reference(opts: DDPGReferenceOptions) -> int:
             show(bar, i, algo=run.algo, seed=run.seed)
             records.append(load_or_run(run, opts.out, opts.force)[0])
         show(bar, len(runs))
-    folder = f"{opts.out}/{opts.task}"
+    folder = f"{opts.out}/{opts.run.task}"
     result = {
-        "task": opts.task,
+        "task": opts.run.task,
         "rows": summarise(records),
         "records": folder,
         "figure": str(plot_reference(records, f"{folder}/curves.png", max(opts.eval_every_steps, 1_000))),

@@ -117,6 +117,61 @@ REFERENCE_HYPER = DDPGHyper(
 )
 
 
+#: The algorithms of the reference check (vision_rl.ddpg.reference).
+ALGOS = ("ours", "ours-bn", "sb3-ddpg", "sb3-td3")
+
+
+@dataclass(frozen=True)
+class ReferenceRun:
+    """One run of the reference check: an algorithm on a task with a seed."""
+
+    task: str = "Pendulum-v1"
+    """Gymnasium task id (Box observation and action): Pendulum-v1, MountainCarContinuous-v0."""
+    algo: str = "ours"
+    """ours (no batch-norm, as SB3), ours-bn (the paper's batch-norm), sb3-ddpg or sb3-td3."""
+    seed: int = 0
+    """Seed of the networks, the noise, the warm-up actions and the task's first reset."""
+    steps: int = 20_000
+    """Environment steps to train for."""
+    learning_starts: int = 1_000
+    """Steps of uniform random actions (plus noise) before the first update."""
+    eval_every_steps: int = 1_000
+    """Deterministic evaluation every this many steps (0: only at the end)."""
+    eval_episodes: int = 5
+    """Episodes per periodic evaluation."""
+    final_eval_episodes: int = 10
+    """Episodes of the evaluation at the end (the run's final return)."""
+    hyper: DDPGHyper = nested(
+        REFERENCE_HYPER,
+        only=("actor_lr", "critic_lr", "tau", "gamma", "batch_size", "buffer_size", "ou_theta", "ou_sigma"),
+        help={
+            "actor_lr": "Adam step size of the actor (SB3: the same as --critic-lr).",
+            "ou_theta": "OU noise mean reversion per step (1: Gaussian noise).",
+            "ou_sigma": "OU noise scale, on actions in [-1, 1].",
+            "buffer_size": "Replay capacity, transitions.",
+        },
+    )
+    """Hyper-parameters of both sides (``batch_norm`` follows ``algo``; SB3 needs ``actor_lr == critic_lr``)."""
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGOS:
+            raise DDPGError(f"algo must be one of {ALGOS}, got {self.algo!r}")
+        if self.steps < 1 or self.learning_starts < 0 or self.eval_every_steps < 0:
+            raise DDPGError("need steps >= 1, learning_starts >= 0 and eval_every_steps >= 0")
+        if self.eval_episodes < 1 or self.final_eval_episodes < 1:
+            raise DDPGError("need eval_episodes >= 1 and final_eval_episodes >= 1")
+        if self.algo.startswith("sb3") and self.hyper.actor_lr != self.hyper.critic_lr:
+            raise DDPGError(
+                f"Stable-Baselines3 takes one learning rate for actor and critic: got actor_lr "
+                f"{self.hyper.actor_lr} and critic_lr {self.hyper.critic_lr}"
+            )
+
+    @property
+    def agent_hyper(self) -> DDPGHyper:
+        """The hyper-parameters of the run: batch-norm only for ours-bn."""
+        return dataclasses.replace(self.hyper, variant="state-actor", batch_norm=self.algo == "ours-bn")
+
+
 MAX_CARS = 64
 
 

@@ -22,16 +22,15 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from vision_rl.ddpg.agent import DDPGAgent, FrameReplay, VectorTask
-from vision_rl.ddpg.config import REFERENCE_HYPER, DDPGError, DDPGHyper
+from vision_rl.ddpg.config import ALGOS, DDPGError, DDPGHyper, ReferenceRun
 
-ALGOS = ("ours", "ours-bn", "sb3-ddpg", "sb3-td3")
 RECORD_FORMAT = "vision_rl.ddpg_reference"
 #: Evaluation episodes start from these seeds on (the same starts for every algorithm and run).
 EVAL_SEED = 10_000
@@ -40,48 +39,6 @@ SB3_ACTOR_ARCH = (150, 300, 300)
 #: SB3's critic, one MLP on (state, action): the widths along one path of ours (a pathway's 150, 300, 300, then the
 #: merge's 600).
 SB3_CRITIC_ARCH = (150, 300, 300, 600)
-
-
-@dataclass(frozen=True)
-class ReferenceRun:
-    """One run of the reference check: an algorithm on a task with a seed."""
-
-    task: str = "Pendulum-v1"
-    """Gymnasium task id (a Box observation and a Box action)."""
-    algo: str = "ours"
-    """ours (no batch-norm, as SB3), ours-bn (the paper's batch-norm), sb3-ddpg or sb3-td3."""
-    seed: int = 0
-    """Seed of the networks, the noise, the warm-up actions and the task's first reset."""
-    steps: int = 20_000
-    """Environment steps to train for."""
-    learning_starts: int = 1_000
-    """Steps of uniform random actions (plus noise) before the first update."""
-    eval_every_steps: int = 1_000
-    """Deterministic evaluation every this many steps (0: only at the end)."""
-    eval_episodes: int = 5
-    """Episodes per periodic evaluation."""
-    final_eval_episodes: int = 10
-    """Episodes of the evaluation at the end (the run's final return)."""
-    hyper: DDPGHyper = REFERENCE_HYPER
-    """Hyper-parameters of both sides (``batch_norm`` follows ``algo``; SB3 needs ``actor_lr == critic_lr``)."""
-
-    def __post_init__(self) -> None:
-        if self.algo not in ALGOS:
-            raise DDPGError(f"algo must be one of {ALGOS}, got {self.algo!r}")
-        if self.steps < 1 or self.learning_starts < 0 or self.eval_every_steps < 0:
-            raise DDPGError("need steps >= 1, learning_starts >= 0 and eval_every_steps >= 0")
-        if self.eval_episodes < 1 or self.final_eval_episodes < 1:
-            raise DDPGError("need eval_episodes >= 1 and final_eval_episodes >= 1")
-        if self.algo.startswith("sb3") and self.hyper.actor_lr != self.hyper.critic_lr:
-            raise DDPGError(
-                f"Stable-Baselines3 takes one learning rate for actor and critic: got actor_lr "
-                f"{self.hyper.actor_lr} and critic_lr {self.hyper.critic_lr}"
-            )
-
-    @property
-    def agent_hyper(self) -> DDPGHyper:
-        """The hyper-parameters of the run: batch-norm only for ours-bn."""
-        return replace(self.hyper, variant="state-actor", batch_norm=self.algo == "ours-bn")
 
 
 # ------------------------------------------------------------------------------------------------ the task
