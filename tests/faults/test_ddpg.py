@@ -183,3 +183,60 @@ def test_runs_compare_ddpg_cannot_compare_are_refused(tmp_path, fault):
     with pytest.raises(DDPGError, match="has not finished an episode yet") as excinfo:
         compare_runs([a])
     fault.refused("compare-ddpg of a run with no finished episode", str(excinfo.value))
+
+
+def test_an_edited_replay_index_or_run_sidecar_is_refused_and_format_1_still_reads(track, tmp_path, fault):
+    from vision_rl.ddpg.agent import SIDECAR_NAME, read_run_sidecar
+
+    buf = FrameReplay(20, 1, HW)
+    buf.start(
+        {
+            "image": np.ones((1, *HW, 3), np.uint8),
+            "motion": np.zeros((1, 15), np.float32),
+            "goal": np.zeros((1, 3), np.float32),
+        }
+    )
+    save_replay(buf, tmp_path / "replay", {"variant": "asymmetric"})
+    index_path = tmp_path / "replay" / "index.json"
+    index = json.loads(index_path.read_text())
+    assert index["format_version"] == 2 and "content_sha256" in index
+    index_path.write_text(json.dumps({**index, "pos": [7]}))  # where the next transition goes: a changed buffer
+    with pytest.raises(ArtifactError, match="the file changed after it was written") as excinfo:
+        load_replay(FrameReplay(20, 1, HW), tmp_path / "replay", {"variant": "asymmetric"})
+    fault.refused("a replay index whose write position was edited", str(excinfo.value))
+    index_path.write_text(json.dumps({**index, "format_version": 0}))  # one bit of the version: the hash still holds
+    with pytest.raises(ArtifactError):
+        load_replay(FrameReplay(20, 1, HW), tmp_path / "replay", {"variant": "asymmetric"})
+    legacy = {k: v for k, v in index.items() if k != "content_sha256"}
+    index_path.write_text(json.dumps({**legacy, "format_version": 1}))
+    loaded = FrameReplay(20, 1, HW)  # format 1, written before the hash, reads as it was
+    load_replay(loaded, tmp_path / "replay", {"variant": "asymmetric"})
+    assert loaded.pos.tolist() == index["pos"] and np.array_equal(loaded.image, buf.image)
+
+    from vision_rl.config import from_flat
+    from vision_rl.ddpg.train import TrainDDPGConfig, train_ddpg
+
+    flat = dict(
+        variant="state-actor",
+        track=track,
+        cars=2,
+        steps=10**7,
+        out=str(tmp_path / "run"),
+        buffer_size=200,
+        learning_starts=8,
+        batch_size=8,
+        eval_every_steps=0,
+        eval_seeds=0,
+        checkpoint_every_steps=0,
+        train_minutes=0.02,
+    )
+    train_ddpg(from_flat(TrainDDPGConfig, flat))
+    sidecar_path = tmp_path / "run" / SIDECAR_NAME
+    sidecar = json.loads(sidecar_path.read_text())
+    assert read_run_sidecar(sidecar_path) == sidecar and sidecar["format_version"] == 2
+    sidecar_path.write_text(json.dumps({**sidecar, "counters": {**sidecar["counters"], "train_time_s": 1.0}}))
+    with pytest.raises(DDPGError, match="the file changed after it was written") as excinfo:
+        train_ddpg(from_flat(TrainDDPGConfig, {**flat, "resume": True}))
+    fault.refused("a train-ddpg sidecar whose training time was edited, then resumed", str(excinfo.value))
+    with pytest.raises(DDPGError, match="the file changed after it was written"):
+        load_agent(tmp_path / "run")

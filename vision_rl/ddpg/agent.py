@@ -14,7 +14,6 @@ layers in detail, the measurements behind them and why not Stable-Baselines3's D
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import pickle
@@ -38,7 +37,7 @@ from vision_rl.envs.pixel_racing import (
     keys_to_action,
 )
 from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
-from vision_rl.files import atomic_write, write_json
+from vision_rl.files import CONTENT_KEY, atomic_write, content_damage, parse_json, sealed_record, write_json
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import get_preset
 from vision_rl.sim.world import World, WorldState
@@ -47,6 +46,8 @@ from vision_rl.training.persist import ArtifactError, check_fingerprint, file_sh
 AGENT_FORMAT = "vision_rl.ddpg_agent"
 REPLAY_FORMAT = "vision_rl.ddpg_replay"
 FORMAT_VERSION = 1
+#: The replay index and the run sidecar: 2 carries the SHA-256 of its content; 1 (no hash) still reads.
+SEALED_FORMAT_VERSION = 2
 AGENT_NAME = "ddpg.pt"
 SIDECAR_NAME = "ddpg.json"
 REPLAY_DIR = "replay"
@@ -465,7 +466,7 @@ def save_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint
         written += 1
     index = {
         "format": REPLAY_FORMAT,
-        "format_version": FORMAT_VERSION,
+        "format_version": SEALED_FORMAT_VERSION,
         "fingerprint": dict(fingerprint),
         "generation": generation,
         "n_cars": buffer.n_cars,
@@ -475,7 +476,7 @@ def save_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint
         "pos": buffer.pos.tolist(),
         "chunks": chunks,
     }
-    write_json(index_path, index, indent=None)
+    write_json(index_path, sealed_record(index), indent=None)
     buffer.dirty[:] = False
     keep = {c["file"] for c in chunks.values()}
     for stale in folder.glob("chunk_*.npz"):
@@ -486,12 +487,40 @@ def save_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint
 
 def _read_index(path: Path) -> dict[str, Any]:
     try:
-        index = json.loads(path.read_text())
+        index = parse_json(path.read_text())
     except (OSError, ValueError) as exc:
         raise ArtifactError(f"{path}: unreadable replay index: {exc}") from None
-    if index.get("format") != REPLAY_FORMAT or int(index.get("format_version", 0)) != FORMAT_VERSION:
-        raise ArtifactError(f"{path}: not a DDPG replay index of format {FORMAT_VERSION}")
+    versions = (FORMAT_VERSION, SEALED_FORMAT_VERSION)
+    if (
+        not isinstance(index, dict)
+        or index.get("format") != REPLAY_FORMAT
+        or index.get("format_version") not in versions
+    ):
+        raise ArtifactError(f"{path}: not a DDPG replay index of format {versions}")
+    if (damage := seal_damage(index)) is not None:
+        raise ArtifactError(f"{path} {damage}; delete {path.parent} to resume without the buffer")
     return index
+
+
+def seal_damage(data: Mapping[str, Any]) -> str | None:
+    """What is wrong with a sealed file's content hash, or None; a file of format 1 (before the hash) that carries
+    none passes. A hash present is always checked, so one flipped bit of the version cannot turn the check off."""
+    if data.get("format_version") == FORMAT_VERSION and CONTENT_KEY not in data:
+        return None
+    return content_damage(data)
+
+
+def read_run_sidecar(path: Path) -> dict[str, Any]:
+    """A train-ddpg run's sidecar (``ddpg.json``), its content hash checked (:func:`seal_damage`)."""
+    try:
+        data = parse_json(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise DDPGError(f"{path}: cannot read the run's sidecar: {exc}") from None
+    if not isinstance(data, dict):
+        raise DDPGError(f"{path}: not a train-ddpg sidecar (not a JSON object)")
+    if (damage := seal_damage({"format_version": FORMAT_VERSION, **data})) is not None:
+        raise DDPGError(f"{path} {damage}")
+    return data
 
 
 def load_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint: Mapping[str, Any]) -> int:
@@ -805,10 +834,7 @@ def load_agent(path: str | os.PathLike[str], variant: str | None = None, device:
     sidecar = path.with_name(SIDECAR_NAME)
     sha = None
     if sidecar.is_file() and path.name == AGENT_NAME:
-        try:
-            sha = json.loads(sidecar.read_text()).get("weights_sha256")
-        except (OSError, ValueError):
-            sha = None
+        sha = read_run_sidecar(sidecar).get("weights_sha256")
     state = read_agent_file(path, sha)
     try:
         hyper = DDPGHyper(**state["hyper"])

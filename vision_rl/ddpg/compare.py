@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from vision_rl.ddpg.agent import SIDECAR_NAME, DDPGError
+from vision_rl.ddpg.agent import SIDECAR_NAME, DDPGError, read_run_sidecar
 from vision_rl.ddpg.train import EPISODES_NAME
 
 #: Share of the common training time at its end over which the runs' distance per episode is summarised.
@@ -27,7 +27,7 @@ def read_episodes(run: str | os.PathLike[str]) -> tuple[dict[str, Any], list[dic
     """A train-ddpg run's sidecar and its episode records; one clear error for a folder that is not a run."""
     run = Path(run)
     try:
-        sidecar = json.loads((run / SIDECAR_NAME).read_text())
+        sidecar = read_run_sidecar(run / SIDECAR_NAME)
         variant = sidecar["hyper"]["variant"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise DDPGError(f"{run}: not a train-ddpg run folder ({SIDECAR_NAME}: {exc})") from None

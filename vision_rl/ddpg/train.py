@@ -31,6 +31,7 @@ from vision_rl.config import flat_values
 from vision_rl.ddpg.agent import (
     AGENT_NAME,
     REPLAY_DIR,
+    SEALED_FORMAT_VERSION,
     SIDECAR_NAME,
     DDPGAgent,
     DDPGDriver,
@@ -40,6 +41,7 @@ from vision_rl.ddpg.agent import (
     ddpg_fingerprint,
     load_replay,
     read_agent_file,
+    read_run_sidecar,
     save_agent_file,
     save_replay,
 )
@@ -48,7 +50,7 @@ from vision_rl.ddpg.sampling import episode_record
 from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.protocol import time_laps
-from vision_rl.files import atomic_write, json_text, write_json
+from vision_rl.files import atomic_write, json_text, sealed_record, write_json
 from vision_rl.training.interrupts import HeldSignal
 from vision_rl.training.persist import ArtifactError, check_fingerprint
 from vision_rl.training.sac import torch_device
@@ -60,10 +62,7 @@ Progress = Callable[[int, int, dict[str, Any] | None], None]
 
 
 def _read_sidecar(path: Path) -> dict[str, Any]:
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise DDPGError(f"{path}: cannot read the run's sidecar: {exc}") from None
+    data = read_run_sidecar(path)
     if data.get("format") != SIDECAR_FORMAT:
         raise DDPGError(f"{path}: not a train-ddpg sidecar (no format {SIDECAR_FORMAT!r})")
     return data
@@ -150,7 +149,7 @@ class _Run:
         sha = save_agent_file(agent, self.out / AGENT_NAME, self.fingerprint, counters)
         sidecar = {
             "format": SIDECAR_FORMAT,
-            "format_version": 1,
+            "format_version": SEALED_FORMAT_VERSION,
             "weights": AGENT_NAME,
             "weights_sha256": sha,
             "fingerprint": self.fingerprint,
@@ -160,7 +159,7 @@ class _Run:
             "seed": (self.previous or {}).get("seed", self.cfg.seed),
             "train_config": (self.previous or {}).get("train_config", train_config),
         }
-        write_json(self.out / SIDECAR_NAME, sidecar)
+        write_json(self.out / SIDECAR_NAME, sealed_record(sidecar))
         if buffer is not None:
             save_replay(buffer, self.out / REPLAY_DIR, self.fingerprint)
 
