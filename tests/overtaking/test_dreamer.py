@@ -151,6 +151,11 @@ def test_a_dreamer_run_continues_with_its_sequences_and_refuses_a_damaged_buffer
     assert state["counters"] == {"num_timesteps": 400, "n_updates": (400 - 100) // 50, "episode_num": 0}
     copy = tmp_path / "copy"
     shutil.copytree(out, copy)
+    with np.load(copy / "replay_buffer.npz") as data:  # re-saved with its rewards x -1000: its hashes no longer hold
+        arrays = {name: data[name] for name in data.files}
+    np.savez(copy / "replay_buffer.npz", **{**arrays, "rewards": arrays["rewards"] * -1000.0})
+    with pytest.raises(BaselineError, match="the array rewards is not the one written"):
+        train_baseline(replace_flat(cfg, out=str(copy), steps=500))
     (copy / "replay_buffer.npz").write_bytes(b"not a zip")
     with pytest.raises(BaselineError, match="damaged or mismatched sequence-replay file"):
         train_baseline(replace_flat(cfg, out=str(copy), steps=500))

@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +21,7 @@ import torch
 
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import time_laps
-from vision_rl.files import atomic_write, json_text
+from vision_rl.files import CONTENT_KEY, parse_json
 from vision_rl.overtaking.baseline_run import (
     HIDDEN_UNITS,
     BaselineError,
@@ -47,38 +46,46 @@ from vision_rl.overtaking.dreamer import (
     to_env_units,
 )
 from vision_rl.training.artifact import BUFFER_NAME, MODEL_NAME, SIDECAR_NAME, PolicyError, PolicySpec
-from vision_rl.training.persist import ArtifactError, check_fingerprint, read_agent, write_agent_state
+from vision_rl.training.persist import (
+    DAMAGED_FILE_ERRORS,
+    ArtifactError,
+    check_fingerprint,
+    check_sealed_arrays,
+    read_agent,
+    write_agent_state,
+    write_sealed_arrays,
+)
 from vision_rl.training.sac import SaveClock, next_multiple, torch_device
 
 SEQUENCE_BUFFER_FORMAT = "vision_rl.sequence_replay"
 
 
 def save_sequence_replay(replay: SequenceReplay, path: Path, fingerprint: dict[str, Any]) -> str:
-    """The replay's filled rows (oldest first per car) as ``.npz`` without pickle; returns the file's SHA-256."""
-    meta = {"format": SEQUENCE_BUFFER_FORMAT, "format_version": 1, "fingerprint": fingerprint, "n_cars": replay.n_cars}
-    arrays = replay.arrays()
-
-    def write(tmp: Path) -> None:
-        with open(tmp, "wb") as f:
-            np.savez(f, meta=np.array(json_text(meta)), **arrays)
-
-    return atomic_write(path, write)
+    """The replay's filled rows (oldest first per car) as ``.npz`` without pickle, sealed with the SHA-256 of each
+    array and of the meta (format 2); returns the file's SHA-256."""
+    meta = {"format": SEQUENCE_BUFFER_FORMAT, "format_version": 2, "fingerprint": fingerprint, "n_cars": replay.n_cars}
+    return write_sealed_arrays(path, meta, replay.arrays())
 
 
 def load_sequence_replay(replay: SequenceReplay, path: Path, fingerprint: dict[str, Any]) -> int:
-    """Fill a fresh replay from :func:`save_sequence_replay`'s file; returns the rows restored. Refuses a damaged
-    file, another fingerprint or another shape in one line (:class:`ArtifactError`)."""
+    """Fill a fresh replay from :func:`save_sequence_replay`'s file; returns the rows restored. Refuses a damaged or
+    edited file, another fingerprint or another shape in one line (:class:`ArtifactError`); format 1 (before the
+    hashes) reads as it was."""
     try:
         with np.load(path, allow_pickle=False) as data:
-            meta = json.loads(str(data["meta"]))
-            if meta.get("format") != SEQUENCE_BUFFER_FORMAT or meta.get("format_version") != 1:
-                raise ArtifactError(f"{path}: not a vision_rl sequence-replay file of format 1")
-            check_fingerprint(meta["fingerprint"], fingerprint, str(path))
-            arrays = {name: data[name] for name in (*SequenceReplay.ARRAYS, "written")}
-        return replay.restore(arrays)
+            meta = parse_json(str(data["meta"]))
+            if not isinstance(meta, dict) or meta.get("format") != SEQUENCE_BUFFER_FORMAT:
+                raise ArtifactError(f"{path}: not a vision_rl sequence-replay file")
+            if meta.get("format_version") not in (1, 2):
+                raise ArtifactError(f"{path}: sequence-replay format {meta.get('format_version')!r}, this code reads 2")
+            arrays = {name: data[name] for name in data.files if name != "meta"}
+        if meta["format_version"] == 2 or CONTENT_KEY in meta:
+            check_sealed_arrays(path, meta, arrays)
+        check_fingerprint(meta["fingerprint"], fingerprint, str(path))
+        return replay.restore({name: arrays[name] for name in (*SequenceReplay.ARRAYS, "written")})
     except ArtifactError:
         raise
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
+    except (*DAMAGED_FILE_ERRORS, KeyError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ArtifactError(f"{path}: damaged or mismatched sequence-replay file: {first}") from None
 

@@ -248,11 +248,12 @@ def save_buffer(buffer: ReplayBuffer, path: str | os.PathLike[str], fingerprint:
         "capacity": int(buffer.buffer_size),
         "n_envs": int(buffer.n_envs),
     }
-    return _write_buffer_file(path, meta, {name: getattr(buffer, name)[:n] for name in _buffer_arrays(buffer)})
+    return write_sealed_arrays(path, meta, {name: getattr(buffer, name)[:n] for name in _buffer_arrays(buffer)})
 
 
-def _write_buffer_file(path: str | os.PathLike[str], meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> str:
-    """``arrays`` and ``meta`` sealed with the arrays' and the meta's SHA-256, written atomically."""
+def write_sealed_arrays(path: str | os.PathLike[str], meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> str:
+    """``arrays`` and ``meta`` sealed with the arrays' and the meta's SHA-256 as ``.npz`` (no pickle), written
+    atomically; returns the file's SHA-256. :func:`check_sealed_arrays` checks them when read."""
     meta = sealed_record({**meta, "arrays_sha256": {k: array_sha256(v) for k, v in arrays.items()}})
 
     def write(tmp: Path) -> None:
@@ -285,6 +286,15 @@ def read_buffer_file(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict
         )
     if meta.get("format_version") != BUFFER_FORMAT_VERSION:
         raise ArtifactError(f"{path}: replay-buffer format {meta.get('format_version')!r}, this code reads 2")
+    check_sealed_arrays(path, meta, arrays)
+    for name, values in arrays.items():
+        if name in FINITE_BUFFER_ARRAYS and values.dtype.kind == "f" and not np.isfinite(values).all():
+            raise ArtifactError(f"{path}: the array {name} holds non-finite numbers (NaN or infinity)")
+    return meta, arrays
+
+
+def check_sealed_arrays(path: Path, meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> None:
+    """Refuse, naming ``path``, arrays or a meta that are not what :func:`write_sealed_arrays` wrote."""
     damage = content_damage(meta)
     if damage is not None:
         raise ArtifactError(f"{path}: the replay buffer's meta {damage}")
@@ -294,9 +304,6 @@ def read_buffer_file(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict
     for name, values in arrays.items():
         if array_sha256(values) != recorded[name]:
             raise ArtifactError(f"{path}: the array {name} is not the one written (its SHA-256 differs)")
-        if name in FINITE_BUFFER_ARRAYS and values.dtype.kind == "f" and not np.isfinite(values).all():
-            raise ArtifactError(f"{path}: the array {name} holds non-finite numbers (NaN or infinity)")
-    return meta, arrays
 
 
 def _read_npz(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -324,7 +331,7 @@ def seal_buffer_file(path: str | os.PathLike[str]) -> bool:
         return False
     if meta.get("format_version") != FORMAT_VERSION:
         raise ArtifactError(f"{path}: replay-buffer format {meta.get('format_version')!r}, not 1 or 2")
-    _write_buffer_file(path, {**meta, "format_version": BUFFER_FORMAT_VERSION}, arrays)
+    write_sealed_arrays(path, {**meta, "format_version": BUFFER_FORMAT_VERSION}, arrays)
     return True
 
 
