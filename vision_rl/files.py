@@ -135,12 +135,10 @@ def write_json(path: str | os.PathLike[str], data: Mapping[str, Any] | list[Any]
 
 def package_version() -> str:
     """The installed version of vision_rl's distribution, vision-rl-racing (the package index's ``vision_rl`` is
-    another project), or the source tree's when it is run without installing."""
-    try:
-        from importlib.metadata import PackageNotFoundError, version
+    another project), or ``unknown`` for a source tree run without installing (it has no distribution metadata)."""
+    from importlib.metadata import PackageNotFoundError, version
 
+    try:
         return version("vision-rl-racing")
     except PackageNotFoundError:
-        import vision_rl
-
-        return str(getattr(vision_rl, "__version__", "unknown"))
+        return "unknown"
