@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests.helpers.ddpg import timed_ddpg_config
 from tests.helpers.tracks import STADIUM, stadium_csv
 from vision_rl.ddpg.agent import (
     ConvTrunk,
@@ -309,31 +310,17 @@ def test_an_update_reads_no_scalar_back_outside_adam(track):
 def test_train_minutes_stop_a_run_and_a_resume_with_more_continues_it(track, tmp_path):
     """The equal wall-clock budget: a run stops when its training time reaches --train-minutes, long before its
     steps, and a resume with a larger budget trains on from where it stopped."""
-    from vision_rl.config import from_flat
-    from vision_rl.ddpg.train import TrainDDPGConfig, train_ddpg
+    from vision_rl.ddpg.train import train_ddpg
 
-    base = dict(
-        variant="state-actor",
-        track=track,
-        cars=2,
-        steps=10**7,
-        out=str(tmp_path / "run"),
-        buffer_size=200,
-        learning_starts=8,
-        batch_size=8,
-        eval_every_steps=0,
-        eval_seeds=0,
-        checkpoint_every_steps=0,
-        train_minutes=0.02,
-    )
-    first = train_ddpg(from_flat(TrainDDPGConfig, base))
+    run = tmp_path / "run"
+    first = train_ddpg(timed_ddpg_config(track, run))
     assert first["stopped_by"] == "train_minutes" and 0 < first["num_steps"] < 10**7
     assert 1.2 <= first["train_time_s"] < 10.0
-    second = train_ddpg(from_flat(TrainDDPGConfig, {**base, "train_minutes": 0.04, "resume": True}))
+    second = train_ddpg(timed_ddpg_config(track, run, train_minutes=0.04, resume=True))
     assert second["stopped_by"] == "train_minutes" and second["num_steps"] > first["num_steps"]
     assert 2.4 <= second["train_time_s"] < 12.0
     with pytest.raises(ValueError, match="--train-minutes -1"):
-        train_ddpg(from_flat(TrainDDPGConfig, {**base, "train_minutes": -1.0, "force": True}))
+        train_ddpg(timed_ddpg_config(track, run, train_minutes=-1.0, force=True))
 
 
 def test_the_default_run_folder_is_under_runs_ddpg_with_the_track_path_flattened(track, tmp_path, monkeypatch):

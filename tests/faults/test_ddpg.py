@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.helpers.ddpg import hand_made_run
+from tests.helpers.ddpg import hand_made_run, timed_ddpg_config
 from tests.helpers.tracks import STADIUM, stadium_csv
 from vision_rl.ddpg.agent import (
     DDPGAgent,
@@ -126,31 +126,17 @@ def test_a_changed_replay_chunk_is_refused(tmp_path, fault):
 
 
 def test_episodes_logged_after_the_last_checkpoint_are_dropped_on_resume(track, tmp_path, fault):
-    from vision_rl.config import from_flat
-    from vision_rl.ddpg.train import TrainDDPGConfig, train_ddpg
+    from vision_rl.ddpg.train import train_ddpg
 
-    base = dict(
-        variant="state-actor",
-        track=track,
-        cars=2,
-        steps=10**7,
-        out=str(tmp_path / "run"),
-        buffer_size=200,
-        learning_starts=8,
-        batch_size=8,
-        eval_every_steps=0,
-        eval_seeds=0,
-        checkpoint_every_steps=0,
-        train_minutes=0.02,
-    )
-    first = train_ddpg(from_flat(TrainDDPGConfig, base))
+    run = tmp_path / "run"
+    first = train_ddpg(timed_ddpg_config(track, run))
     episodes = tmp_path / "run" / "episodes.jsonl"
     logged = episodes.read_text().splitlines()
     assert len(logged) == first["episodes"] > 0
     # What a kill after the checkpoint leaves: an episode the resume drives again, and a line torn mid-write.
     with open(episodes, "a") as f:
         f.write(json.dumps({"episode": first["episodes"], "num_steps": first["num_steps"]}) + '\n{"episode": 9, "nu')
-    second = train_ddpg(from_flat(TrainDDPGConfig, {**base, "train_minutes": 0.03, "resume": True}))
+    second = train_ddpg(timed_ddpg_config(track, run, train_minutes=0.03, resume=True))
     records = [json.loads(line) for line in episodes.read_text().splitlines()]
     assert [r["episode"] for r in records] == list(range(second["episodes"]))  # each episode once, in order
     assert records[: len(logged)] == [json.loads(line) for line in logged]
@@ -213,30 +199,16 @@ def test_an_edited_replay_index_or_run_sidecar_is_refused_and_format_1_still_rea
     load_replay(loaded, tmp_path / "replay", {"variant": "asymmetric"})
     assert loaded.pos.tolist() == index["pos"] and np.array_equal(loaded.image, buf.image)
 
-    from vision_rl.config import from_flat
-    from vision_rl.ddpg.train import TrainDDPGConfig, train_ddpg
+    from vision_rl.ddpg.train import train_ddpg
 
-    flat = dict(
-        variant="state-actor",
-        track=track,
-        cars=2,
-        steps=10**7,
-        out=str(tmp_path / "run"),
-        buffer_size=200,
-        learning_starts=8,
-        batch_size=8,
-        eval_every_steps=0,
-        eval_seeds=0,
-        checkpoint_every_steps=0,
-        train_minutes=0.02,
-    )
-    train_ddpg(from_flat(TrainDDPGConfig, flat))
+    run = tmp_path / "run"
+    train_ddpg(timed_ddpg_config(track, run))
     sidecar_path = tmp_path / "run" / SIDECAR_NAME
     sidecar = json.loads(sidecar_path.read_text())
     assert read_run_sidecar(sidecar_path) == sidecar and sidecar["format_version"] == 2
     sidecar_path.write_text(json.dumps({**sidecar, "counters": {**sidecar["counters"], "train_time_s": 1.0}}))
     with pytest.raises(DDPGError, match="the file changed after it was written") as excinfo:
-        train_ddpg(from_flat(TrainDDPGConfig, {**flat, "resume": True}))
+        train_ddpg(timed_ddpg_config(track, run, resume=True))
     fault.refused("a train-ddpg sidecar whose training time was edited, then resumed", str(excinfo.value))
     with pytest.raises(DDPGError, match="the file changed after it was written"):
         load_agent(tmp_path / "run")

@@ -34,6 +34,26 @@ def ddpg_config(track: str, out, **kw) -> TrainDDPGConfig:
     return from_flat(TrainDDPGConfig, {**base, **kw})
 
 
+def timed_ddpg_config(track: str, out, **kw) -> TrainDDPGConfig:
+    """train-ddpg of the state actor, 2 cars sampled in-process, stopped by a training budget of 1.2 s (not by its
+    steps), no evaluation and no checkpoint; ``kw`` overrides any option (flat names)."""
+    base = dict(
+        variant="state-actor",
+        track=track,
+        cars=2,
+        steps=10**7,
+        out=str(out),
+        buffer_size=200,
+        learning_starts=8,
+        batch_size=8,
+        eval_every_steps=0,
+        eval_seeds=0,
+        checkpoint_every_steps=0,
+        train_minutes=0.02,
+    )
+    return from_flat(TrainDDPGConfig, {**base, **kw})
+
+
 def hand_made_run(
     folder, variant: str, minutes: float, episodes: list[tuple[float, float, int]], track="Catalunya", updates=600
 ):
