@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 import pytest
 
-from tests.helpers.bitflips import sample_flips
+from tests.helpers.bitflips import FlipOutcomes, judge_flip, sample_flips, uncovered
 from tests.helpers.captures import write_synthetic_capture
 from vision_rl.capture.h5format import (
     ALL_DATASETS,
@@ -45,12 +45,7 @@ def regions(path: Path) -> dict[str, list[range]]:
             f[name].id.chunk_iter(
                 lambda info, kind=kind: found[kind].append(range(info.byte_offset, info.byte_offset + info.size))
             )
-    covered = np.zeros(size, bool)
-    for ranges in found.values():
-        for r in ranges:
-            covered[r.start : r.stop] = True
-    edges = np.flatnonzero(np.diff(np.concatenate([[1], covered.view(np.int8), [1]])))
-    found["metadata"] = [range(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True) if b > a]
+    found["metadata"] = uncovered(found["images"] + found["tables"], size)
     return found
 
 
@@ -112,19 +107,10 @@ def flipped_files(original: Path, flips: list[tuple[int, int]], folder: Path) ->
 
 def outcomes(files: list[tuple[Path, str]], load, expected: dict[str, np.ndarray]) -> dict[str, int]:
     """Each file loads as ``expected`` or is refused in one line naming it; any other outcome fails the test."""
-    counts = {"unchanged": 0, "refused": 0}
+    counts = FlipOutcomes()
     for path, where in files:
-        try:
-            got = load(path)
-        except CaptureFormatError as exc:
-            message = str(exc)
-            assert "\n" not in message.strip() and "Traceback" not in message, f"{where}: {message}"
-            assert path.name in message, f"{where}: the refusal does not name the file: {message}"
-            counts["refused"] += 1
-            continue
-        assert same(got, expected), f"{where}: loaded content that differs from what was written"
-        counts["unchanged"] += 1
-    return counts
+        judge_flip(counts, where, path, load, expected, CaptureFormatError, same)
+    return {"unchanged": counts.unchanged, "refused": counts.refused}
 
 
 @pytest.mark.parametrize("region", ["metadata", "images", "tables"])

@@ -26,12 +26,16 @@ def zip_regions(
             start += int.from_bytes(raw[local + 28 : local + 30], "little")
             if is_data(info.filename):
                 data.append(range(start + header(raw[start : start + info.file_size]), start + info.file_size))
-    covered = np.zeros(len(raw), bool)
-    for r in data:
+    return uncovered(data, len(raw)), [r for r in data if len(r)]
+
+
+def uncovered(ranges: list[range], size: int) -> list[range]:
+    """The byte ranges of ``[0, size)`` that none of ``ranges`` covers (a file's metadata around its data)."""
+    covered = np.zeros(size, bool)
+    for r in ranges:
         covered[r.start : r.stop] = True
     edges = np.flatnonzero(np.diff(np.concatenate([[1], covered.view(np.int8), [1]])))
-    metadata = [range(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True) if b > a]
-    return metadata, [r for r in data if len(r)]
+    return [range(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True) if b > a]
 
 
 def npz_regions(path: Path) -> tuple[list[range], list[range]]:
@@ -87,16 +91,29 @@ def check_flips(
     line naming ``target``; any other outcome fails with the flip named."""
     outcomes = FlipOutcomes()
     for offset, bit in flipped_copies(original, flips, target):
-        where = f"bit {bit} of byte {offset} of {original.name}"
-        try:
-            loaded = load(target)
-        except refusal as exc:
-            message = str(exc)
-            assert "\n" not in message.strip() and "Traceback" not in message, f"{where}: {message}"
-            assert target.name in message, f"{where}: the refusal does not name the file: {message}"
-            outcomes.refused += 1
-            outcomes.example = outcomes.example or message
-            continue
-        assert same(loaded, expected), f"{where}: loaded content that differs from what was written"
-        outcomes.unchanged += 1
+        judge_flip(outcomes, f"bit {bit} of byte {offset} of {original.name}", target, load, expected, refusal, same)
     return outcomes
+
+
+def judge_flip(
+    outcomes: FlipOutcomes,
+    where: str,
+    path: Path,
+    load: Callable[[Path], Any],
+    expected: Any,
+    refusal: type[BaseException],
+    same: Callable[[Any, Any], bool],
+) -> None:
+    """Count ``load(path)`` of a flipped file in ``outcomes``: ``expected`` back, or ``refusal`` in one line naming
+    the file; anything else fails with the flip (``where``) named."""
+    try:
+        loaded = load(path)
+    except refusal as exc:
+        message = str(exc)
+        assert "\n" not in message.strip() and "Traceback" not in message, f"{where}: {message}"
+        assert path.name in message, f"{where}: the refusal does not name the file: {message}"
+        outcomes.refused += 1
+        outcomes.example = outcomes.example or message
+        return
+    assert same(loaded, expected), f"{where}: loaded content that differs from what was written"
+    outcomes.unchanged += 1
