@@ -64,3 +64,10 @@ def test_the_agent_learns_pendulum() -> None:
     torch.set_num_threads(1)
     record = run_reference(QUICK_RUN)
     assert _gain(record) > MIN_GAIN, f"no learning: final {record['final_return']:.0f}, gain {_gain(record):.0f}"
+
+
+def test_a_run_of_an_unknown_task_or_algorithm_is_refused_before_anything_is_made() -> None:
+    with pytest.raises(DDPGError, match="'Nope-v0' is not a registered Gymnasium id"):
+        ReferenceRun(task="Nope-v0")
+    with pytest.raises(DDPGError, match="algo must be one of"):
+        ReferenceRun(algo="ppo")

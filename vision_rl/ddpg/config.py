@@ -156,6 +156,10 @@ class ReferenceRun:
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
             raise DDPGError(f"algo must be one of {ALGOS}, got {self.algo!r}")
+        import gymnasium  # loaded with vision_rl already (its ids are registered there)
+
+        if self.task not in gymnasium.registry:
+            raise DDPGError(f"task {self.task!r} is not a registered Gymnasium id (e.g. Pendulum-v1)")
         if self.steps < 1 or self.learning_starts < 0 or self.eval_every_steps < 0:
             raise DDPGError("need steps >= 1, learning_starts >= 0 and eval_every_steps >= 0")
         if self.eval_episodes < 1 or self.final_eval_episodes < 1:
