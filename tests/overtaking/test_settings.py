@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from vision_rl.commands.evaluate_overtaking import EvaluateOvertakingOptions
 from vision_rl.evaluation.protocol import BuiltinAI
 from vision_rl.overtaking.settings import (
     SETTINGS,
@@ -25,6 +26,7 @@ from vision_rl.overtaking.settings import (
     write_learning_curves,
     write_setting_outputs,
 )
+from vision_rl.sim.ai_driver import OPPONENT_SKILL_RANGE
 from vision_rl.sim.track_library import load_track
 
 
@@ -67,6 +69,19 @@ def test_a_braking_driver_is_stuck_with_no_contact_and_nobody_passed(small_track
     assert runs[0]["opponent_skills"] != runs[1]["opponent_skills"]  # drawn per run seed
     again, _ = run_setting(Scripted(0.0, -1.0), small_track, "tt_cup", "A", runs=2, time_limit_s=30.0)
     assert again == runs  # the same seeds, the same runs
+
+
+def test_opponents_drive_at_the_asked_skill_and_a_bad_range_is_refused(small_track):
+    runs, _ = run_setting(Scripted(0.0, 0.0), small_track, "tt_cup", "A", runs=2, time_limit_s=0.02)
+    assert all(0.80 <= k <= 0.88 for run in runs for k in run["opponent_skills"])  # the default range
+    runs, _ = run_setting(
+        Scripted(0.0, 0.0), small_track, "tt_cup", "A", runs=2, time_limit_s=0.02, opponent_skill=(0.92, 0.92)
+    )
+    assert [run["opponent_skills"] for run in runs] == [[0.92] * 5] * 2
+    for bad in ((0.9, 0.8), (0.0, 0.5), (0.9, 1.2), (float("nan"), 0.9)):
+        with pytest.raises(SettingError, match="--opponent-skill"):
+            run_setting(Scripted(0.0, 0.0), small_track, "tt_cup", "A", runs=1, opponent_skill=bad)
+    assert EvaluateOvertakingOptions().opponent_skill == OPPONENT_SKILL_RANGE  # the option's default is the library's
 
 
 def test_the_built_in_ai_follows_and_the_outputs_are_written(small_track, tmp_path):

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from vision_rl.commands.choices import SETTINGS
@@ -40,6 +40,8 @@ class EvaluateOvertakingOptions:
     """Time limit per run, s (0: 300 for A, 600 for B)."""
     lead_margin_m: float = 10.0
     """A run ends once the agent leads all five opponents by this much progress, m."""
+    opponent_skill: tuple[float, float] = field(default=(0.80, 0.88), metadata={"metavar": ("LOW", "HIGH")})
+    """Range the opponents' skills are drawn from (1: the limit profile; Table III's AI drives at 0.92)."""
     out: str = "runs/overtaking/eval"
     """Folder of the JSON and PNG files."""
     curves: str = ""
@@ -164,6 +166,7 @@ def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
         opts.track,
         opts.car,
         humans=comma_paths(opts.human),
+        opponent_skill=opts.opponent_skill,
     )
     result["files"] = write_setting_outputs(result, opts.out)
     emit(result, opts.json, format_setting)

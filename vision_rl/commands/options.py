@@ -125,7 +125,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_cls: type) -> N
         item, n = (_SCALARS[kind], None) if kind in _SCALARS else _TUPLES[kind]
         if item is not str:
             item = _number(item, _minimum(flat, config_cls), flat.field.metadata.get("max"))
-        metavar = ("HEIGHT", "WIDTH") if flat.name.endswith("hw_px") else None
+        metavar = ("HEIGHT", "WIDTH") if flat.name.endswith("hw_px") else flat.field.metadata.get("metavar")
         parser.add_argument(
             flag,
             dest=flat.name,

@@ -53,6 +53,13 @@ class SettingError(ValueError):
     """A setting or policy that cannot be evaluated as asked; the message says why."""
 
 
+def check_opponent_skill(skill: tuple[float, float]) -> None:
+    """Refuse an opponents' skill range that is not 0 < low <= high <= 1 (1: the QSS limit profile)."""
+    low, high = (float(x) for x in skill)
+    if not 0.0 < low <= high <= 1.0:  # also refuses NaN
+        raise SettingError(f"--opponent-skill must be LOW HIGH with 0 < LOW <= HIGH <= 1, got {low:g} {high:g}")
+
+
 def check_setting(setting: str) -> float:
     """The separation of ``setting`` (A or B), refusing another name."""
     if setting not in SETTINGS:
@@ -95,19 +102,22 @@ def run_setting(
     seed: int = 0,
     time_limit_s: float = 0.0,
     lead_margin_m: float = LEAD_MARGIN_M,
+    opponent_skill: tuple[float, float] = OPPONENT_SKILL_RANGE,
 ) -> tuple[list[dict[str, Any]], list[RunTrace]]:
     """``runs`` runs of ``setting`` with ``driver`` on the agent's car (see the module's docstring): one dict of
-    metrics per run, and each run's :class:`RunTrace`."""
+    metrics per run, and each run's :class:`RunTrace`. Each opponent's skill is drawn from ``opponent_skill``
+    (low, high; equal bounds: every opponent at that skill)."""
     separation_m = check_setting(setting)
     if runs < 1:
         raise SettingError(f"--runs must be >= 1, got {runs}")
+    check_opponent_skill(opponent_skill)
     track = track if isinstance(track, Track) else load_track(track)
     car = car if isinstance(car, VehicleParams) else get_preset(car)
     limit_s = time_limit_s if time_limit_s > 0 else DEFAULT_TIME_LIMIT_S[setting]
     every = ai_ticks(driver.control_dt_s)
     if every is None:
         raise SettingError(f"a driver must act every {AI_CONTROL_DT_S} s or a whole multiple of it")
-    field = _place_runs(driver, track, car, runs, seed, separation_m)
+    field = _place_runs(driver, track, car, runs, seed, separation_m, opponent_skill)
     steps = math.ceil(limit_s / AI_CONTROL_DT_S - 1e-9)
     tracer = _Tracer(field.world, field.ego, runs, steps)
     end, reason = _drive_runs(driver, field, tracer, steps, every, lead_margin_m)
@@ -141,7 +151,15 @@ class _Field(NamedTuple):
     stuck: StuckDetector
 
 
-def _place_runs(driver: Driver, track: Track, car: VehicleParams, runs: int, seed: int, separation_m: float) -> _Field:
+def _place_runs(
+    driver: Driver,
+    track: Track,
+    car: VehicleParams,
+    runs: int,
+    seed: int,
+    separation_m: float,
+    opponent_skill: tuple[float, float] = OPPONENT_SKILL_RANGE,
+) -> _Field:
     """One world of ``runs`` groups: opponents on the racing line at their skill's speed, the agent on the start
     line with run ``r``'s draws from ``default_rng(seed + r)`` (the opponents' skills, the agent's start jitter)."""
     k = OPPONENTS + 1
@@ -154,7 +172,7 @@ def _place_runs(driver: Driver, track: Track, car: VehicleParams, runs: int, see
     jitter = np.empty((runs, 2))
     for r in range(runs):  # one draw per run (set-up, not a step)
         rng = np.random.default_rng(seed + r)
-        skill[r, 1:] = rng.uniform(OPPONENT_SKILL_RANGE[0], OPPONENT_SKILL_RANGE[1], OPPONENTS)
+        skill[r, 1:] = rng.uniform(opponent_skill[0], opponent_skill[1], OPPONENTS)
         jitter[r] = rng.uniform(-1.0, 1.0, 2)
     fleet = AIFleet(world, line, profile, skill=skill.ravel())
     start_gap_m = np.arange(1, k) * separation_m
@@ -299,12 +317,16 @@ def evaluate_overtaking(
     car: str = "",
     device: str = "cpu",
     humans: Sequence[str] = (),
+    opponent_skill: tuple[float, float] = OPPONENT_SKILL_RANGE,
 ) -> dict[str, Any]:
     """Each policy (a stage folder of train-overtaking) and, with ``reference``, the built-in AI through
     ``setting``; all on the policies' track and car (``track``/``car`` refuse a policy made for others, and say
     where to evaluate when no policy is given). ``humans``: ``setting.json`` files of ``play --setting``, added as
     reference rows (refused when made for another setting, track or car)."""
     separation_m = check_setting(setting)
+    check_opponent_skill(opponent_skill)
+    if humans and tuple(opponent_skill) != OPPONENT_SKILL_RANGE:
+        raise SettingError("--human runs were driven against the default opponents: leave --opponent-skill as it is")
     if not policies and not reference and not humans:
         raise SettingError("nothing to evaluate: give --policy or --human, or keep --reference")
     if names and len(names) != len(policies):
@@ -321,7 +343,9 @@ def evaluate_overtaking(
     rows = []
     for name, driver, identity in drivers:
         try:
-            per_run, _ = run_setting(driver, track_obj, car, setting, runs, seed, time_limit_s, lead_margin_m)
+            per_run, _ = run_setting(
+                driver, track_obj, car, setting, runs, seed, time_limit_s, lead_margin_m, opponent_skill
+            )
         finally:
             if hasattr(driver, "close"):
                 driver.close()
@@ -347,7 +371,7 @@ def evaluate_overtaking(
         "track_name": track_obj.name,
         "track_geometry_hash": track_obj.geometry_hash,
         "car": car,
-        "opponent_skill_range": list(OPPONENT_SKILL_RANGE),
+        "opponent_skill_range": [float(x) for x in opponent_skill],
         "drivers": rows,
     }
 
