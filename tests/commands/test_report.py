@@ -9,6 +9,7 @@ from pathlib import Path
 
 from vision_rl.commands.main import COMMANDS, main
 from vision_rl.commands.report import commands_table
+from vision_rl.evaluation.report import sealed
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -34,7 +35,7 @@ def test_a_changed_record_makes_the_pages_stale_until_the_report_runs(tmp_path, 
     job = tmp_path / "docs" / "results" / "make-quick" / "job.json"
     record = json.loads(job.read_text(encoding="utf-8"))
     record["job_minutes"] = 9.4
-    job.write_text(json.dumps(record), encoding="utf-8")
+    job.write_text(json.dumps(sealed(record)), encoding="utf-8")  # a record measured again, sealed as written
 
     assert report("--check", root=tmp_path) == 1
     assert f"{tmp_path / 'README.md'}: stale" in capsys.readouterr().out

@@ -11,6 +11,7 @@ import pytest
 
 from vision_rl.evaluation.report import (
     AI_HATCHBACK,
+    AI_TT_CUP,
     QUICK_JOB,
     RESULTS,
     TABLE3,
@@ -22,7 +23,10 @@ from vision_rl.evaluation.report import (
     lap_text,
     mean_std_s,
     page_results_href,
+    records_read,
     render_pages,
+    seal_record_file,
+    sealed,
 )
 
 RESULTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "results"
@@ -36,11 +40,13 @@ def results_copy(tmp_path: Path) -> Path:
     return target
 
 
-def edit_record(results: Path, relative_path: str, change) -> None:
+def edit_record(results: Path, relative_path: str, change, seal: bool = True) -> None:
+    """``change`` the record in place; sealed again unless ``seal`` is False (an edit behind the seal's back)."""
     path = results / relative_path
     record = json.loads(path.read_text(encoding="utf-8"))
     change(record)
-    path.write_text(json.dumps(record), encoding="utf-8")
+    record.pop("content_sha256", None)
+    path.write_text(json.dumps(sealed(record) if seal else record), encoding="utf-8")
 
 
 def test_laps_and_gaps_read_as_the_papers_write_them():
@@ -123,3 +129,28 @@ def test_pages_at_different_depths_link_the_same_records(tmp_path, results_copy)
     assert set(rendered) == {readme, paper_page}
     assert "(docs/results/make-quick/job.json)" in rendered[readme][1]
     assert "(../results/make-quick/job.json)" in rendered[paper_page][1]
+
+
+def test_every_committed_record_is_sealed_and_an_edit_behind_its_seal_is_refused(results_copy):
+    assert len(records_read(results_copy)) >= 20
+    assert not any(seal_record_file(path) for path in records_read(results_copy))  # all sealed already
+    path = results_copy / AI_HATCHBACK
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({**record, "best_lap_time_s": 99.0}))  # a faster AI, the seal kept
+    with pytest.raises(ReportError) as excinfo:
+        build_tables(results_copy, ["reference"])
+    assert str(excinfo.value).startswith(f"the record {path} has content SHA-256")
+    with pytest.raises(ReportError, match="remove its content_sha256"):
+        seal_record_file(path)  # the sealer does not vouch for a changed record
+    edit_record(results_copy, TABLE3, lambda r: None, seal=False)  # format 1: no seal
+    with pytest.raises(ReportError, match=r"table3\.json has no content_sha256 .*scripts/seal_records\.py PATH"):
+        build_tables(results_copy, ["overtaking"])
+    assert seal_record_file(results_copy / TABLE3) and build_tables(results_copy, ["overtaking"])
+
+
+def test_an_evaluation_record_is_sealed_without_its_output_paths(results_copy):
+    edit_record(results_copy, AI_TT_CUP, lambda r: None)
+    path = results_copy / AI_TT_CUP
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({**record, "plot": "elsewhere.png"}))  # an output path, added after timing
+    assert build_tables(results_copy, ["reference"])

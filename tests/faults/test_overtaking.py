@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -15,10 +16,13 @@ import pytest
 
 from tests.helpers.overtaking import tiny_overtaking_config
 from tests.helpers.processes import kill_and_read
+from vision_rl.commands.convert_policy import ConvertPolicyOptions, run_convert_policy
 from vision_rl.overtaking.config import TrainOvertakingConfig
 from vision_rl.overtaking.curriculum import (
     OvertakingRunError,
     check_config,
+    convert_overtaking_run,
+    learning_curve,
     load_overtaking_policy,
     read_overtaking_spec,
     train_overtaking,
@@ -173,3 +177,63 @@ def test_the_analysis_takes_one_policy_and_writes_its_figures(agent1_run, tmp_pa
     assert analysis["reference"]["name"] == "built-in AI" and analysis["agent"]["run"]["seed"] == analysis["run"]
     assert len(analysis["agent"]["time_s"]) == len(analysis["agent"]["x_m"]) and analysis["agent"]["time_s"][0] == 0
     assert (tmp_path / "overtaking_timeline.png").stat().st_size > 1000
+
+
+def _unsealed_copy(run: Path, target: Path) -> Path:
+    """``run`` as a trainer before sealed run records wrote it: run.json, stage.json and agent1.json without their
+    content hash or version, the stages' policy.json of format 3 (no content hash)."""
+    shutil.copytree(run, target)
+    for path in [target / "run.json", target / "agent1.json", *target.glob("*/stage.json")]:
+        record = json.loads(path.read_text())
+        for key in ("content_sha256", "format_version"):
+            record.pop(key)
+        if path.name == "agent1.json":
+            record.pop("format")
+        path.write_text(json.dumps(record, indent=2))
+    for sidecar in target.glob("*/policy.json"):
+        spec = json.loads(sidecar.read_text())
+        spec.pop("content_sha256")
+        sidecar.write_text(json.dumps({**spec, "format_version": 3}, indent=2))
+    return target
+
+
+def test_unsealed_run_records_are_refused_then_converted(agent1_run, tmp_path, fault):
+    old = _unsealed_copy(agent1_run, tmp_path / "old")
+    with pytest.raises(OvertakingRunError) as excinfo:
+        learning_curve(old, "1")  # Fig. 3 reads where stage 2 began from stage2/stage.json
+    message = str(excinfo.value)
+    assert "stage2/stage.json" in message and f"vision-rl convert-policy --run {old}`" in message
+    fault.refused("a stage.json of format 1 (no content hash), read for Fig. 3", message)
+    assert run_convert_policy(ConvertPolicyOptions(run=str(old))) == 0
+    stage2 = json.loads((old / "stage2" / "stage.json").read_text())
+    assert stage2["format_version"] == 2 and stage2["content_sha256"]
+    assert json.loads((old / "agent1.json").read_text())["content_sha256"]
+    assert learning_curve(old, "1")["stage_switches"] == learning_curve(agent1_run, "1")["stage_switches"]
+    assert convert_overtaking_run(old) == []  # sealed and whole: nothing to write
+    fault.recovered("a run folder of format 1 (unsealed records)", "`vision-rl convert-policy --run RUN` seals it")
+
+
+def test_an_unsealed_stage_record_that_disagrees_with_its_policy_is_not_sealed(agent1_run, tmp_path, fault):
+    old = _unsealed_copy(agent1_run, tmp_path / "old")
+    path = old / "stage2" / "stage.json"
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({**record, "end_steps": record["end_steps"] + 1000}))
+    with pytest.raises(OvertakingRunError) as excinfo:
+        convert_overtaking_run(old)
+    assert str(excinfo.value).startswith(f"{path}: ends at step") and "not sealed" in str(excinfo.value)
+    assert "content_sha256" not in json.loads(path.read_text())
+    assert "content_sha256" not in json.loads((old / "run.json").read_text())  # nothing sealed before all is checked
+    fault.refused("convert-policy on a stage.json whose end steps are not its policy's", str(excinfo.value))
+
+
+@pytest.mark.parametrize("name", ["run.json", "stage1/stage.json", "agent1.json"])
+def test_an_edited_run_record_is_refused(agent1_run, tmp_path, name, fault):
+    run = shutil.copytree(agent1_run, tmp_path / "run")
+    path = run / name
+    record = json.loads(path.read_text())
+    key = {"run.json": "ai_lap_time_s", "stage1/stage.json": "start_steps", "agent1.json": "agent"}[name]
+    path.write_text(json.dumps({**record, key: 7}))
+    with pytest.raises(OvertakingRunError) as excinfo:
+        convert_overtaking_run(run)
+    assert str(excinfo.value).startswith(f"{path}: the run record has content SHA-256")
+    fault.refused(f"an edited {name} of an overtaking run", str(excinfo.value))

@@ -13,7 +13,7 @@ import pytest
 from tests.helpers.bitflips import check_flips, sample_flips
 from vision_rl.evaluation import leaderboard as lb
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
-from vision_rl.evaluation.report import ReportError, build_tables
+from vision_rl.evaluation.report import CURRICULUM_CURVES, SETTINGS, TABLE3, Records, ReportError, build_tables, sealed
 from vision_rl.files import CONTENT_KEY, sealed_record
 
 
@@ -178,9 +178,31 @@ def test_a_damaged_result_record_stops_the_report_in_one_line(tmp_path, text, me
     shutil.copytree(results / "reference-laps", copy / "reference-laps")
     record = copy / "reference-laps" / "ai_expressway_hatchback.json"
     if text is None:  # a record of the right shape but a lap time as text
-        text = json.dumps({**json.loads(record.read_text()), "best_lap_time_s": "2:19.299"})
+        text = json.dumps(sealed({**json.loads(record.read_text()), "best_lap_time_s": "2:19.299"}))
     record.write_text(text)
     with pytest.raises(ReportError) as excinfo:
         build_tables(copy, ["reference"])
     assert message in str(excinfo.value) and "ai_expressway_hatchback.json" in str(excinfo.value)
     fault.refused(f"vision-rl report over a result record: {text[:24]}...", str(excinfo.value))
+
+
+@pytest.mark.parametrize(
+    "relative",
+    [TABLE3, SETTINGS.format(agents="agents23", setting="A"), CURRICULUM_CURVES],
+    ids=lambda p: p.split("/")[-1],
+)
+def test_single_bit_flips_of_a_result_record_read_the_same_or_stop_the_report(relative, tmp_path, fault):
+    original = Path(__file__).resolve().parents[2] / "docs" / "results" / relative
+    target = tmp_path / "results" / relative
+    target.parent.mkdir(parents=True)
+    expected = json.loads(original.read_text())
+    flips = sample_flips([range(original.stat().st_size)], 200, seed=7)
+    counts = check_flips(
+        original, flips, target, lambda path: Records(tmp_path / "results")(relative), expected, ReportError
+    )
+    assert counts.refused >= 190  # a flip in the layout's white space, or 'e' -> 'E' in an exponent, reads the same
+    fault.refused(
+        f"200 single-bit flips of the result record {target.name}: {counts.refused} refused, {counts.unchanged} read "
+        "the same",
+        counts.example,
+    )

@@ -11,6 +11,8 @@ import pytest
 
 from vision_rl.commands.evaluate_overtaking import EvaluateOvertakingOptions
 from vision_rl.evaluation.protocol import BuiltinAI
+from vision_rl.evaluation.report import record_damage
+from vision_rl.overtaking.curriculum import write_run_record
 from vision_rl.overtaking.settings import (
     SETTINGS,
     TRACE_DT_S,
@@ -138,7 +140,7 @@ def _fake_run(root: Path, seed: int, switch: int) -> Path:
     ):
         folder = root / f"s{seed}" / name
         folder.mkdir(parents=True)
-        (folder / "stage.json").write_text(json.dumps({"start_steps": start, "end_steps": end}))
+        write_run_record(folder / "stage.json", {"start_steps": start, "end_steps": end})
         lines = [
             json.dumps(
                 {"stage": name, "num_timesteps": n, "train_time_s": n / 10, "overtaking_return": base + n / 100 + seed}
@@ -162,6 +164,7 @@ def test_learning_curves_over_seeds_with_the_stage_switch(tmp_path):
     files = write_learning_curves(result, tmp_path / "fig")
     assert Path(files["png"]).stat().st_size > 1000
     assert json.loads(Path(files["json"]).read_text())["curriculum"]["x"] == cur["x"]
+    assert record_damage(json.loads(Path(files["json"]).read_text())) is None  # sealed: `vision-rl report` reads it
     assert result["complete"] and cur["n_seeds"] == [2] * 6 and cur["per_seed"][1][0] == pytest.approx(13.0)
     by_time = learning_curves(runs, "1", axis="train_time_s")
     assert by_time["curriculum"]["x"][-1] == 60.0

@@ -119,13 +119,13 @@ def run_compare_ddpg(opts: CompareDDPGOptions) -> int:
     from pathlib import Path
 
     from vision_rl.ddpg.compare import compare_runs, plot_comparison
-    from vision_rl.files import write_json
+    from vision_rl.files import sealed_record, write_json
 
     runs = comma_paths(opts.runs)
     names = comma_list(opts.names)
     result = compare_runs(runs, names, opts.bin_minutes)
     result["figure"] = str(plot_comparison(result, opts.out))
     result["json"] = str(Path(opts.out).with_suffix(".json"))
-    write_json(result["json"], result)
+    write_json(result["json"], sealed_record(result))  # `vision-rl report` reads it: sealed, as every record is
     emit(result, opts.json, format_compare)
     return 0

@@ -37,7 +37,7 @@ from vision_rl.envs.core import RacingConfig, RacingCore
 from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
-from vision_rl.files import json_text, write_json
+from vision_rl.files import CONTENT_KEY, content_damage, json_text, parse_json, sealed_record, write_json
 from vision_rl.overtaking.config import (
     BUDGETS,
     OBSERVATION,
@@ -53,6 +53,7 @@ from vision_rl.training.artifact import (
     PolicyDriver,
     PolicyError,
     PolicySpec,
+    convert_run,
     load_policy,
     policy_fingerprint,
     racing_config_to_dict,
@@ -70,6 +71,9 @@ RUN_NAME = "run.json"
 STAGE_NAME = "stage.json"
 METRICS_NAME = "metrics.jsonl"
 RUN_FORMAT = "vision_rl.overtaking_run"
+#: Version of run.json, stage.json and agentN.json / standard.json. 1 (no ``format_version``): no content hash;
+#: 2: sealed with the SHA-256 of their content (``vision-rl convert-policy --run RUN`` checks and seals a 1).
+RUN_FORMAT_VERSION = 2
 #: The paper's collision weights: stages 1-2 and Agent 2's stage 3 (0.005), Agent 3's stage 3 (0.01).
 PENALTY_STAGE2 = 0.005
 PENALTY_AGENT3 = 0.01
@@ -238,14 +242,50 @@ def default_out(cfg: TrainOvertakingConfig) -> Path:
     return Path("runs") / "overtaking" / f"{track}-{cfg.racing.car}-s{cfg.seed}"
 
 
-def _read_json(path: Path) -> dict[str, Any]:
+def _run_folder(path: Path) -> Path:
+    """The run folder of one of its records (``stage.json`` lies in a stage's folder)."""
+    return path.parent.parent if path.name == STAGE_NAME else path.parent
+
+
+def _parse_record(path: Path) -> dict[str, Any]:
+    """A run record's JSON of format :data:`RUN_FORMAT`, its seal not checked (the converter's read); an agent's
+    summary of format 1 names no format."""
     try:
-        data = json.loads(path.read_text())
+        data = parse_json(path.read_text())
     except (OSError, ValueError) as exc:
         raise OvertakingRunError(f"{path}: unreadable ({exc}); start over with --force") from None
-    if not isinstance(data, dict):
-        raise OvertakingRunError(f"{path}: not a train-overtaking record; start over with --force")
+    unsealed_summary = isinstance(data, dict) and "format" not in data and CONTENT_KEY not in data and "agent" in data
+    if not isinstance(data, dict) or (data.get("format") != RUN_FORMAT and not unsealed_summary):
+        raise OvertakingRunError(f"{path}: not a train-overtaking record (no format {RUN_FORMAT!r})")
     return data
+
+
+def _record_to_convert(path: Path) -> dict[str, Any]:
+    """A run record as the converter reads it: any of format 1, or a sealed one that is whole."""
+    data = _parse_record(path)
+    return _read_json(path) if CONTENT_KEY in data else data
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    """A sealed run record, or one line naming it: the steps, settings and stage boundaries it holds decide what a
+    resume trains and where Fig. 3 puts a stage switch, so an edit must not go unseen."""
+    data = _parse_record(path)
+    if CONTENT_KEY not in data:
+        raise OvertakingRunError(
+            f"{path}: a run record of format 1 has no content hash, so an edit of it would go unseen; check and seal "
+            f"the run with `vision-rl convert-policy --run {_run_folder(path)}`"
+        )
+    damage = content_damage(data)
+    if damage is not None:
+        raise OvertakingRunError(f"{path}: the run record {damage}; start over with --force")
+    if data.get("format_version") != RUN_FORMAT_VERSION:
+        raise OvertakingRunError(f"{path}: run record format {data.get('format_version')!r}, not {RUN_FORMAT_VERSION}")
+    return data
+
+
+def write_run_record(path: str | os.PathLike[str], record: dict[str, Any]) -> None:
+    """``record`` as a sealed run record (run.json, stage.json, agentN.json), written atomically."""
+    write_json(path, sealed_record({**record, "format": RUN_FORMAT, "format_version": RUN_FORMAT_VERSION}))
 
 
 def reinit_exploration(model: SAC) -> None:
@@ -357,7 +397,7 @@ class _StageSession:
             # The starting point (the kept buffer included) is on disk before any training: a kill at any moment
             # resumes this stage with a buffer, never from the previous stage again.
             self.save(model, buffer=True)
-            write_json(record_path, self.record)
+            write_run_record(record_path, self.record)
         return model
 
     def _source(self, record_path: Path) -> tuple[dict[str, Any] | None, Path | None]:
@@ -537,7 +577,7 @@ class _StageSession:
                 "ai_lap_time_s": ai,
                 "last_lap_time_s": self.last_eval["lap_time_s"] if self.last_eval else None,
             }
-        write_json(self.folder / STAGE_NAME, self.record)
+        write_run_record(self.folder / STAGE_NAME, self.record)
         return self.record
 
     def learn_with_samplers(self, model: SAC, loop: _StageLoop, cluster: Any) -> None:
@@ -644,7 +684,7 @@ class OvertakingRun:
             elif self.out.exists() and any(self.out.iterdir()):
                 raise OvertakingRunError(f"{self.out} is not empty and holds no {RUN_NAME}: give another --out")
             self.record = {"format": RUN_FORMAT, "settings": self.settings, "ai_lap_time_s": None}
-            write_json(run_path, self.record)
+            write_run_record(run_path, self.record)
         if cfg.stage1_from and not (self.out / "stage1").exists():
             self.adopt_stage1(Path(cfg.stage1_from))
         if self.sac.torch_threads > 0:
@@ -675,7 +715,7 @@ class OvertakingRun:
         self.record.update(
             {k: theirs[k] for k in ("ai_lap_time_s", "ai_timing") if k in theirs}, stage1_from=str(source)
         )
-        write_json(self.out / RUN_NAME, self.record)
+        write_run_record(self.out / RUN_NAME, self.record)
 
     def ai_lap_time_s(self) -> float | None:
         """The built-in AI's lap time on the evaluation's protocol (computed once per run folder)."""
@@ -690,7 +730,7 @@ class OvertakingRun:
                 cfg.eval_time_limit_s,
             ).summary()
             self.record.update(ai_lap_time_s=timing["best_lap_time_s"], ai_timing={"n_finished": timing["n_finished"]})
-            write_json(self.out / RUN_NAME, self.record)
+            write_run_record(self.out / RUN_NAME, self.record)
         return self.record["ai_lap_time_s"]
 
     def stage_record(self, stage: Stage) -> dict[str, Any] | None:
@@ -776,11 +816,96 @@ def _train_stages(cfg: TrainOvertakingConfig, cluster: Any, progress: Progress |
         "done": all(b["status"] == "done" for b in boundaries),
     }
     if result["done"]:
-        write_json(
-            run.out / f"agent{cfg.agent}.json" if cfg.agent != "standard" else run.out / "standard.json",
+        write_run_record(
+            agent_record_path(run.out, cfg.agent),
             {"agent": cfg.agent, "policy": str(policy), "stages": boundaries},
         )
     return result
+
+
+def agent_record_path(out: Path, agent: str) -> Path:
+    """Where a finished agent's summary goes: ``agentN.json``, or ``standard.json`` for standard SAC."""
+    return out / ("standard.json" if agent == "standard" else f"agent{agent}.json")
+
+
+def convert_overtaking_run(run: str | os.PathLike[str]) -> list[Path]:
+    """Seal a run folder written before its records were sealed, in place; returns the files written. Each stage's
+    policy and replay buffer go through :func:`~vision_rl.training.artifact.convert_run` first (their weights'
+    SHA-256 checked), then each record is checked against them (:func:`_stage_problem`, :func:`_agent_problem`) and
+    sealed: nothing is sealed that disagrees with the checked weights. Records sealed already must be intact."""
+    run = Path(run)
+    records = {run / RUN_NAME: _record_to_convert(run / RUN_NAME)}
+    if not isinstance(records[run / RUN_NAME].get("settings"), dict):
+        raise OvertakingRunError(f"{run / RUN_NAME}: holds no settings")
+    written: list[Path] = []
+    stages: dict[str, dict[str, Any]] = {}
+    for path in sorted(run.glob(f"*/{STAGE_NAME}")):
+        try:
+            written += convert_run(path.parent)
+        except PolicyError as exc:
+            raise OvertakingRunError(str(exc)) from None
+        stages[path.parent.name] = records[path] = _record_to_convert(path)
+    for path, record in records.items():
+        problem = _stage_problem(path, record, stages) if path.name == STAGE_NAME else None
+        if problem is not None:
+            raise OvertakingRunError(f"{path}: {problem}; not sealed")
+    for path in sorted([*run.glob("agent*.json"), run / "standard.json"]):
+        if path.is_file():
+            records[path] = _record_to_convert(path)
+            problem = _agent_problem(records[path], stages)
+            if problem is not None:
+                raise OvertakingRunError(f"{path}: {problem}; not sealed")
+    for path, record in records.items():  # every record checked before the first is written
+        if CONTENT_KEY not in record:
+            write_run_record(path, record)
+            written.append(path)
+    return written
+
+
+def _stage_problem(path: Path, record: dict[str, Any], stages: dict[str, dict[str, Any]]) -> str | None:
+    """What in a stage record disagrees with its stage's checked policy sidecar or with the stage before it."""
+    try:
+        stage = Stage(**record["stage"])
+    except (KeyError, TypeError) as exc:
+        return f"its stage is not one of train-overtaking ({exc})"
+    spec = read_overtaking_spec(path.parent / SIDECAR_NAME)
+    previous = stages.get(stage.previous or "", {})
+    if stage.name != path.parent.name:
+        return f"names stage {stage.name!r} in folder {path.parent.name!r}"
+    if record.get("status") not in ("running", "done") or not _whole(record.get("start_steps")):
+        return f"status {record.get('status')!r} and start_steps {record.get('start_steps')!r} are not a stage's"
+    if record.get("racing_config") != spec.racing_config:
+        return f"its racing_config differs from {SIDECAR_NAME}'s"
+    if previous.get("status") == "done" and record["start_steps"] != previous.get("end_steps"):
+        return f"starts at step {record['start_steps']}, not where {stage.previous} ended ({previous.get('end_steps')})"
+    done = (record.get("end_steps"), record.get("end_train_time_s"))
+    if record["status"] == "done" and done != (spec.num_timesteps, spec.train_time_s):
+        return (
+            f"ends at step {done[0]} after {done[1]} s, its policy at {spec.num_timesteps} after {spec.train_time_s} s"
+        )
+    if spec.num_timesteps < record["start_steps"]:
+        return f"starts at step {record['start_steps']}, after its policy's {spec.num_timesteps}"
+    return None
+
+
+def _agent_problem(record: dict[str, Any], stages: dict[str, dict[str, Any]]) -> str | None:
+    """What in an agent's summary disagrees with its stages' records."""
+    listed = record.get("stages")
+    if not isinstance(listed, list) or not listed:
+        return "lists no stages"
+    for entry in listed:
+        name = entry.get("stage") if isinstance(entry, dict) else None
+        own = stages.get(name) if isinstance(name, str) else None
+        if own is None:
+            return f"lists stage {name!r}, which has no {STAGE_NAME}"
+        for key in ("status", "start_steps", "end_steps", "start_train_time_s", "end_train_time_s"):
+            if entry.get(key) != own.get(key):
+                return f"its {name} {key} is {entry.get(key)!r}, its {STAGE_NAME}'s {own.get(key)!r}"
+    return None
+
+
+def _whole(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
 def read_metrics(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
@@ -809,10 +934,13 @@ def learning_curve(out: str | os.PathLike[str], agent: str) -> dict[str, Any]:
 __all__ = [
     "OvertakingPolicySpec",
     "OvertakingRunError",
+    "agent_record_path",
+    "convert_overtaking_run",
     "copy_newest",
     "learning_curve",
     "load_overtaking_policy",
     "reinit_exploration",
     "stages_of",
     "train_overtaking",
+    "write_run_record",
 ]

@@ -21,7 +21,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from vision_rl.evaluation.protocol import START_JITTER_LATERAL_M, START_JITTER_SPEED, BuiltinAI, Driver
-from vision_rl.files import atomic_write, write_json
+from vision_rl.files import atomic_write, sealed_record, write_json
 from vision_rl.overtaking.curriculum import learning_curve, load_overtaking_policy
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE
 from vision_rl.sim.driving import line_and_profile
@@ -425,7 +425,7 @@ def write_setting_outputs(result: dict[str, Any], out: str | os.PathLike[str]) -
     out.mkdir(parents=True, exist_ok=True)
     stem = f"overtaking_setting_{result['setting']}"
     json_path, png_path = out / f"{stem}.json", out / f"{stem}.png"
-    write_json(json_path, result)
+    write_json(json_path, sealed_record(result))
     rows = result["drivers"]
     fig, axes = _pyplot().subplots(1, len(METRICS), figsize=(4.0 * len(METRICS), 4.0))
     x = np.arange(len(rows))
@@ -569,7 +569,7 @@ def write_analysis_outputs(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Any] = {"json": str(out / "overtaking_analysis.json")}
-    write_json(out / "overtaking_analysis.json", analysis, indent=None)
+    write_json(out / "overtaking_analysis.json", sealed_record(analysis), indent=None)
     files["timeline"] = _save_figure(_timeline_figure(analysis), out / "overtaking_timeline.png")
     moments = analysis["agent"]["moments"]
     if moments:
@@ -757,7 +757,7 @@ def write_learning_curves(result: dict[str, Any], out: str | os.PathLike[str]) -
     out.mkdir(parents=True, exist_ok=True)
     stem = f"learning_curves_{result['axis']}"
     json_path, png_path = out / f"{stem}.json", out / f"{stem}.png"
-    write_json(json_path, result)
+    write_json(json_path, sealed_record(result))
     fig, ax = _pyplot().subplots(figsize=(7.0, 4.0))
     for label, color in (("curriculum", "C0"), ("standard", "C1")):
         data = result[label]

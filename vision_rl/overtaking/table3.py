@@ -22,6 +22,7 @@ from typing import Any
 
 from vision_rl.evaluation.leaderboard import aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
+from vision_rl.files import sealed_record
 from vision_rl.overtaking.baseline_run import BaselineError, baseline_algo, check_table_track
 from vision_rl.overtaking.baselines import load_baseline
 from vision_rl.overtaking.config import Table3Config
@@ -121,16 +122,19 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
         _beside_the_paper(row, ai)
     from vision_rl.evaluation.protocol import rules
 
-    return {
-        "table": "overtaking paper, Table III: a baseline comparison for the single-car race",
-        "track": cfg.track,
-        "track_name": track.name,
-        "track_geometry_hash": track.geometry_hash,
-        "car": cfg.car,
-        "protocol": {**rules(), "seeds": cfg.seeds, "laps": cfg.laps, "time_limit_s": cfg.time_limit_s},
-        "rows": rows,
-        "skipped": skipped,
-    }
+    # Sealed: `table3 --json` is the record `vision-rl report` builds Table III from, and it refuses one without.
+    return sealed_record(
+        {
+            "table": "overtaking paper, Table III: a baseline comparison for the single-car race",
+            "track": cfg.track,
+            "track_name": track.name,
+            "track_geometry_hash": track.geometry_hash,
+            "car": cfg.car,
+            "protocol": {**rules(), "seeds": cfg.seeds, "laps": cfg.laps, "time_limit_s": cfg.time_limit_s},
+            "rows": rows,
+            "skipped": skipped,
+        }
+    )
 
 
 def _load_runs(paths: list[Path], cfg: Table3Config, refuse: bool) -> tuple[list[tuple[Path, Any]], list[dict]]:
