@@ -129,6 +129,12 @@ COMMANDS: dict[str, Command] = {
     "table3": Command(
         "Table III: AI and baselines on the protocol, beside the paper", f"{_C}.table3", "Table3Options", "run_table3"
     ),
+    "dreamer-model": Command(
+        "a Dreamer run's world-model prediction error on held-out laps",
+        f"{_C}.dreamer_model",
+        "DreamerModelOptions",
+        "run_dreamer_model",
+    ),
     "play": Command(
         "drive the protocol's laps yourself (keyboard or gamepad)", f"{_C}.play", "PlayOptions", "run_play"
     ),

@@ -448,6 +448,12 @@ def to_env_units(actions: np.ndarray) -> np.ndarray:
     return space.low + 0.5 * (np.clip(actions, -1.0, 1.0) + 1.0) * (space.high - space.low)
 
 
+def to_model_units(actions: np.ndarray) -> np.ndarray:
+    """The environment's ``[steer rad, omega]`` to the agent's [-1, 1]: the inverse of :func:`to_env_units`."""
+    space = action_space()
+    return np.clip(2.0 * (np.asarray(actions, dtype=np.float64) - space.low) / (space.high - space.low) - 1.0, -1, 1)
+
+
 class DreamerDriver(PolicyDriver):
     """A Dreamer agent as a protocol driver: its recurrent state restarts with every protocol run."""
 
@@ -519,4 +525,5 @@ __all__ = [
     "frozen",
     "lambda_returns",
     "to_env_units",
+    "to_model_units",
 ]
