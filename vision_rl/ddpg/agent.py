@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 import os
-import pickle
 import zipfile
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
@@ -37,11 +36,19 @@ from vision_rl.envs.pixel_racing import (
     keys_to_action,
 )
 from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
-from vision_rl.files import CONTENT_KEY, atomic_write, content_damage, parse_json, sealed_record, write_json
+from vision_rl.files import (
+    CONTENT_KEY,
+    atomic_write,
+    content_damage,
+    content_sha256,
+    parse_json,
+    sealed_record,
+    write_json,
+)
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import get_preset
 from vision_rl.sim.world import World, WorldState
-from vision_rl.training.persist import ArtifactError, check_fingerprint, file_sha256
+from vision_rl.training.persist import DAMAGED_FILE_ERRORS, ArtifactError, check_fingerprint, file_sha256
 
 AGENT_FORMAT = "vision_rl.ddpg_agent"
 REPLAY_FORMAT = "vision_rl.ddpg_replay"
@@ -794,7 +801,29 @@ def save_agent_file(
         "counters": dict(counters),
         **agent.state(),
     }
+    payload[STATE_KEY] = state_sha256(payload)
     return atomic_write(path, lambda tmp: torch.save(payload, tmp))
+
+
+#: The key under which an agent file carries :func:`state_sha256` of the rest of it (files from before it have none).
+STATE_KEY = "state_sha256"
+
+
+def state_sha256(state: Mapping[str, Any]) -> str:
+    """SHA-256 of an agent file's content but :data:`STATE_KEY`, each tensor by its dtype, shape and bytes: an agent
+    file loaded alone, without the run sidecar that records its file's SHA-256, is still checked."""
+    from vision_rl.phase1_repr.checkpoint import tensor_sha256
+
+    def plain(value: Any) -> Any:
+        if isinstance(value, torch.Tensor):
+            return {"tensor_sha256": tensor_sha256(value)}
+        if isinstance(value, Mapping):
+            return {str(k): plain(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [plain(v) for v in value]
+        return value
+
+    return content_sha256(plain(state), leave_out=(STATE_KEY,))
 
 
 def read_agent_file(path: str | os.PathLike[str], sha256: str | None = None) -> dict[str, Any]:
@@ -804,16 +833,20 @@ def read_agent_file(path: str | os.PathLike[str], sha256: str | None = None) -> 
         raise ArtifactError(f"{path}: its SHA-256 is not the recorded one: the file changed after it was written")
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError, OSError) as exc:
+    except DAMAGED_FILE_ERRORS as exc:  # a flipped bit of the pickled index can fail anywhere in the unpickler
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ArtifactError(
             f"{path}: not a DDPG agent file (it holds more than tensors and plain values, or is damaged): {first}"
         ) from None
     if not isinstance(state, dict) or state.get("format") != AGENT_FORMAT:
         raise ArtifactError(f"{path}: not a DDPG agent file (no format {AGENT_FORMAT!r})")
-    if int(state.get("format_version", 0)) != FORMAT_VERSION:
+    if state.get("format_version") != FORMAT_VERSION:
         version = state.get("format_version")
-        raise ArtifactError(f"{path}: DDPG agent format {version}, this code reads {FORMAT_VERSION}")
+        raise ArtifactError(f"{path}: DDPG agent format {version!r}, this code reads {FORMAT_VERSION}")
+    if STATE_KEY in state and state[STATE_KEY] != state_sha256(state):  # absent in files from before it
+        raise ArtifactError(
+            f"{path}: its content does not have its recorded {STATE_KEY}: the file changed after it was written"
+        )
     return state
 
 
