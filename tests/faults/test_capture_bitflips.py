@@ -89,11 +89,10 @@ def captures(tmp_path_factory) -> dict[str, Path]:
     return {"complete": complete, "incomplete": incomplete}
 
 
-def flipped_files(original: Path, flips: list[tuple[int, int]], folder: Path) -> list[tuple[Path, str]]:
-    """A copy of ``original`` per flip, each (path, which bit), probed by one child process (the loaders' own
-    probes then find them known, and only a file that crashed HDF5 is probed again)."""
+def flipped_copies(original: Path, flips: list[tuple[int, int]], folder: Path) -> list[tuple[Path, str]]:
+    """A copy of ``original`` per flip in ``folder``, each (path, which bit)."""
     data = original.read_bytes()
-    folder.mkdir(exist_ok=True)
+    folder.mkdir(parents=True, exist_ok=True)
     out = []
     for i, (offset, bit) in enumerate(flips):
         changed = bytearray(data)
@@ -101,7 +100,22 @@ def flipped_files(original: Path, flips: list[tuple[int, int]], folder: Path) ->
         path = folder / f"flip{i:03d}.h5"
         path.write_bytes(bytes(changed))
         out.append((path, f"bit {bit} of byte {offset} of {original.name}"))
-    crashing_captures([path for path, _ in out])
+    return out
+
+
+@pytest.fixture(scope="module")
+def flipped(captures, tmp_path_factory) -> dict[tuple[str, str], list[tuple[Path, str]]]:
+    """The flipped copies of every test of this module, by (capture, region), all probed by one child process: the
+    loaders' own probes then find them known, and only a file that crashed HDF5 is probed again (a child process
+    per test cost more than the reads it guards)."""
+    root = tmp_path_factory.mktemp("flipped")
+    out = {}
+    for name, seed_offset in (("complete", 0), ("incomplete", 1)):
+        original = captures[name]
+        for region, spans in regions(original).items():
+            flips = sample_flips(spans, FLIPS, seed=seed_offset + SEEDS[region])
+            out[name, region] = flipped_copies(original, flips, root / f"{name}-{region}")
+    crashing_captures([path for files in out.values() for path, _ in files])
     return out
 
 
@@ -114,9 +128,9 @@ def outcomes(files: list[tuple[Path, str]], load, expected: dict[str, np.ndarray
 
 
 @pytest.mark.parametrize("region", ["metadata", "images", "tables"])
-def test_bit_flips_in_a_capture_file_load_the_original_or_are_refused_naming_it(captures, tmp_path, region, fault):
+def test_bit_flips_in_a_capture_file_load_the_original_or_are_refused_naming_it(captures, flipped, region, fault):
     original = captures["complete"]
-    files = flipped_files(original, sample_flips(regions(original)[region], FLIPS, seed=SEEDS[region]), tmp_path)
+    files = flipped["complete", region]
     read = outcomes(files, read_all, read_all(original))
     dataset = outcomes(files, train_repr_reads, train_repr_reads(original))
     # Every flip is accounted for, and the sample reaches bytes the checks read (a region nobody reads would pass).
@@ -165,9 +179,9 @@ def _resume_and_read(path: Path, source: Path) -> dict[str, np.ndarray]:
 
 
 @pytest.mark.parametrize("region", ["metadata", "images", "tables"])
-def test_bit_flips_before_a_resume_resume_the_original_or_are_refused_naming_it(captures, tmp_path, region, fault):
+def test_bit_flips_before_a_resume_resume_the_original_or_are_refused_naming_it(captures, flipped, region, fault):
     original = captures["incomplete"]
-    files = flipped_files(original, sample_flips(regions(original)[region], FLIPS, seed=1 + SEEDS[region]), tmp_path)
+    files = flipped["incomplete", region]
     with open_capture(original) as cap:
         expected = everything(cap) | {"n": np.asarray(cap.n_frames)}
     counts = outcomes(files, lambda path: _resume_and_read(path, original), expected)
@@ -194,11 +208,11 @@ def test_bit_flips_in_a_shard_are_refused_through_its_manifest(tmp_path, fault):
     expected = train_repr_reads(Path(cfg.out))
     flips = sample_flips(regions(pristine)["metadata"] + regions(pristine)["tables"], 6, seed=5)
     counts = {"unchanged": 0, "refused": 0}
-    data = pristine.read_bytes()
-    for offset, bit in flips:
-        changed = bytearray(data)
-        changed[offset] ^= 1 << bit
-        shard.write_bytes(bytes(changed))
+    copies = flipped_copies(pristine, flips, tmp_path / "flipped")
+    crashing_captures([path for path, _ in copies])  # one child process probes them all
+    for (path, _), (offset, bit) in zip(copies, flips, strict=True):
+        shard.unlink()
+        shard.symlink_to(path)  # the manifest's shard, read through the link: the probe knows the file it resolves to
         try:
             open_manifest(cfg.out)
             got = train_repr_reads(Path(cfg.out))
