@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from tests.helpers.overtaking import tiny_baseline_config
+from vision_rl.config import replace_flat
 from vision_rl.files import sealed_record
-from vision_rl.overtaking.baseline_run import BaselineError, check_config
+from vision_rl.overtaking.baseline_run import BaselineError, RunFolder, check_config
 from vision_rl.overtaking.baselines import load_baseline, train_baseline
 from vision_rl.overtaking.config import RecordDemosConfig, Table3Config, TrainBaselineConfig
 from vision_rl.overtaking.demos import DemoError, load_demos, load_demos_for, record_demos, write_demos
@@ -238,3 +239,23 @@ def test_a_stopped_run_saves_and_continues(small_track, small_demos, tmp_path, f
         "weights, optimisers, counters and the replay buffer are saved; the same command with the run's "
         "settings continues from them",
     )
+
+
+def test_an_edited_baseline_record_is_refused_and_one_of_format_1_still_reads(
+    runs, small_track, small_demos, tmp_path, fault
+):
+    demos, _ = small_demos
+    run = Path(shutil.copytree(runs / "td3", tmp_path / "td3"))
+    cfg = tiny_baseline_config(small_track, demos, run, algo="td3", eval_every_steps=0)
+    path = run / "baseline.json"
+    record = json.loads(path.read_text())
+    assert record["content_sha256"] == sealed_record(record)["content_sha256"]
+    path.write_text(json.dumps({**record, "settings": {**record["settings"], "td3_noise": 0.3}}))
+    with pytest.raises(BaselineError) as excinfo:
+        RunFolder(replace_flat(cfg, td3_noise=0.3), None)  # the edit would let a resume change its noise
+    assert str(excinfo.value).startswith(f"{path}: the run record has content SHA-256")
+    fault.refused("a baseline.json whose settings were edited, then resumed", str(excinfo.value))
+    path.write_text(
+        json.dumps({k: v for k, v in record.items() if k != "content_sha256"})
+    )  # before records were sealed
+    assert RunFolder(cfg, None).record["settings"] == record["settings"]

@@ -18,7 +18,7 @@ from typing import Any
 
 from vision_rl.config import flat_values
 from vision_rl.envs.core import RacingConfig
-from vision_rl.files import json_text, write_json
+from vision_rl.files import CONTENT_KEY, content_damage, json_text, parse_json, sealed_record, write_json
 from vision_rl.overtaking.config import BUDGETS, OBSERVATION, TrainBaselineConfig, check_baseline_ranges
 from vision_rl.overtaking.demos import OBS_DIM, Demos
 from vision_rl.overtaking.dreamer import DreamerRecipe
@@ -118,12 +118,17 @@ def settings_of(cfg: TrainBaselineConfig, demos: Demos | None) -> dict[str, Any]
 
 
 def _read_json(path: Path) -> dict[str, Any]:
+    """``baseline.json``, its content hash checked when it has one: one written before it was sealed (none) still
+    reads, as its settings only guard a resume and the policies beside it are sealed themselves."""
     try:
-        data = json.loads(path.read_text())
+        data = parse_json(path.read_text())
     except (OSError, ValueError) as exc:
         raise BaselineError(f"{path}: unreadable ({exc}); start over with --force") from None
     if not isinstance(data, dict) or data.get("format") != RUN_FORMAT:
         raise BaselineError(f"{path}: not a train-baseline record; start over with --force")
+    damage = content_damage(data) if CONTENT_KEY in data else None
+    if damage is not None:
+        raise BaselineError(f"{path}: the run record {damage}; start over with --force")
     return data
 
 
@@ -173,11 +178,11 @@ class RunFolder:
             if self.out.exists() and any(self.out.iterdir()):
                 raise BaselineError(f"{self.out} is not empty and holds no {RUN_NAME}: give another --out")
             self.record = {"format": RUN_FORMAT, "algo": cfg.algo, "settings": self.settings, "status": "new"}
-            write_json(path, self.record)
+            write_json(path, sealed_record(self.record))
 
     def update(self, **fields: Any) -> None:
         self.record.update(fields)
-        write_json(self.out / RUN_NAME, self.record)
+        write_json(self.out / RUN_NAME, sealed_record(self.record))
 
 
 def policy_spec(
