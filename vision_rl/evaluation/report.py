@@ -45,6 +45,7 @@ PHASE1_R2 = "phase1-expressway-hatchback/r2.json"
 TABLE3 = "table3-expressway-tt_cup/table3.json"
 SETTINGS = "overtaking-expressway-tt_cup/{agents}_setting_{setting}.json"
 CURRICULUM_CURVES = "overtaking-expressway-tt_cup/learning_curves_num_timesteps.json"
+OPPONENT_SKILL = "overtaking-expressway-tt_cup/opponent-skill/skill-{skill}/overtaking_setting_{setting}.json"
 DDPG_EVALUATIONS = "ddpg-catalunya-gt3/evaluation_set3/{variant}-s{seed}.json"
 DDPG_COMPARE = "ddpg-catalunya-gt3/standing_start_sigmoid_compare.json"
 DDPG_VARIANTS = ("asymmetric", "symmetric", "state-actor")
@@ -429,6 +430,43 @@ def overtaking_table(records: Records) -> str:
     return markdown_table(("result", "paper (GT Sport)", "ours", "built-in AI", "physical limit", "command"), rows)
 
 
+def opponent_skill_table(records: Records) -> str:
+    """Settings A and B for one agent with the opponents at our skills (0.80-0.88) and at Table III's AI's (0.92)."""
+    rows = []
+    for setting in ("A", "B"):
+        for skill in ("0.80-0.88", "0.92"):
+            path = OPPONENT_SKILL.format(skill=skill, setting=setting)
+            record = records(path)
+            agent = next(d for d in record["drivers"] if not d["reference"])
+            s = agent["summary"]
+            fastest = s["fastest_all_five_s"]
+            rows.append(
+                (
+                    f"{setting} ({record['separation_m']:.0f} m apart)",
+                    f"{agent['name']}",
+                    "-".join(f"{x:.2f}" for x in sorted(set(record["opponent_skill_range"]))),
+                    f"{s['all_overtaken_runs']}/{s['runs']}",
+                    f"{s['overtaken']['mean']:.1f} ({s['overtaken']['min']}-{s['overtaken']['max']})",
+                    f"{s['travel_time_s']['mean']:.1f} +- {s['travel_time_s']['std']:.1f}",
+                    "-" if fastest is None else f"{fastest:.1f}",
+                    f"{s['car_contact_s']['mean']:.1f} / {s['wall_contact_s']['mean']:.1f}",
+                    _link("record", path),
+                )
+            )
+    header = (
+        "setting",
+        "agent",
+        "opponents' skill",
+        "all five overtaken",
+        "cars passed, mean (range)",
+        "travel time, s",
+        "fastest run with all five, s",
+        "car / wall contact, s",
+        "record",
+    )
+    return markdown_table(header, rows)
+
+
 def _ddpg_laps(records: Records, limit_s: float) -> str:
     """Each variant's best start over its two training seeds through the protocol."""
     parts = []
@@ -512,6 +550,7 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "quick": quick_table,
     "phase1": phase1_table,
     "overtaking": overtaking_table,
+    "opponent-skill": opponent_skill_table,
     "ddpg": ddpg_table,
 }
 
