@@ -241,7 +241,7 @@ class TrainDDPGConfig:
     out: str = ""
     """Run folder (default runs/ddpg/<variant>-<track>-<car>-s<seed>)."""
     resume: bool = False
-    """Continue the run in --out (its variant, track, car and settings win)."""
+    """Continue the run in --out (its track, car and settings win; --variant must name its variant)."""
     force: bool = False
     """Start over in a folder that holds a run."""
     env: PixelRacingConfig = nested(
