@@ -14,6 +14,9 @@ import os
 
 #: Environment variable overriding the budget, in GB (docs/guarantees.md).
 BUDGET_ENV = "VISION_RL_MEMORY_GB"
+#: The longest duration a setting takes, s (a year): longer is no run's length, and 1e308 s overflowed the step
+#: counts derived from it (``range(ceil(limit_s / step_s))``: OverflowError tracebacks).
+DURATION_MAX_S = 365 * 24 * 3600.0
 #: Share of the available memory the budget allows when :data:`BUDGET_ENV` is unset.
 AVAILABLE_SHARE = 0.8
 #: Assumed when the system does not say (no /proc/meminfo, no sysconf): a small machine.

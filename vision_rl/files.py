@@ -7,18 +7,79 @@ The lowest layer: any layer that writes or checks a file imports it; it imports 
 
 from __future__ import annotations
 
+import contextlib
 import errno
+import fcntl
 import hashlib
 import json
 import math
 import os
-from collections.abc import Callable, Mapping
+import shutil
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 
 class ArtifactWriteError(OSError):
     """A file that could not be written (a full disk, no permission); nothing was replaced."""
+
+
+class InUseError(OSError):
+    """Another process writes (or reads) this output: refused before anything was changed."""
+
+
+def lock_exclusive(path: Path, holder: str, error: Callable[[str], Exception] = InUseError) -> int:
+    """A descriptor holding an exclusive lock on ``path`` (a file, created empty when missing and never truncated,
+    or an existing folder), taken before a writer changes anything: a second writer is refused with ``error``,
+    nothing changed. ``holder`` names what else may hold it in the refusal."""
+    if path.is_dir():
+        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    else:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        # flock, as HDF5's own locking: a reader (h5py's shared lock) and a writer exclude each other too.
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(fd)
+        if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+            raise
+        raise error(
+            f"{path}: in use by another process ({holder}): nothing was changed; wait for it to end or stop it"
+        ) from exc
+    return fd
+
+
+def lock_run_folder(folder: Path, holder: str) -> int:
+    """:func:`lock_exclusive` on a trainer's run folder, made when missing. Two trainers in one folder (a --force
+    or --resume of a running run) deleted or overwrote each other's files: the second is refused."""
+    folder.mkdir(parents=True, exist_ok=True)
+    return lock_exclusive(folder, holder)
+
+
+@contextlib.contextmanager
+def run_folder_locked(folder: Path, holder: str) -> Iterator[Path]:
+    """Hold :func:`lock_run_folder` on ``folder`` inside; a folder made for the lock and left empty (the command
+    refused its input) is removed again, so that a refusal leaves nothing behind."""
+    made = not folder.exists()
+    fd = lock_run_folder(folder, holder)
+    try:
+        yield folder
+    finally:
+        os.close(fd)
+        if made:
+            with contextlib.suppress(OSError):  # not empty (the run wrote), or already gone: kept as it is
+                folder.rmdir()
+
+
+def clear_folder(folder: Path) -> None:
+    """Delete what ``folder`` holds but keep the folder itself: its lock (:func:`lock_run_folder`) is on it, and a
+    folder deleted and made again would be one that another writer could lock."""
+    for entry in folder.iterdir():
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink()
 
 
 def file_sha256(path: str | os.PathLike[str]) -> str:

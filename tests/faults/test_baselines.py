@@ -259,3 +259,23 @@ def test_an_edited_baseline_record_is_refused_and_one_of_format_1_still_reads(
         json.dumps({k: v for k, v in record.items() if k != "content_sha256"})
     )  # before records were sealed
     assert RunFolder(cfg, None).record["settings"] == record["settings"]
+
+
+def test_a_second_writer_of_a_running_run_is_refused_with_its_files_intact(runs, small_track, small_demos, fault):
+    """train-baseline --force on the folder of a running run deleted its files; the running run's lock (held here
+    as it holds it) refuses it before anything changes."""
+    import os
+
+    from vision_rl.files import InUseError, lock_run_folder
+
+    demos, _ = small_demos
+    run = runs / "td3"
+    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    held = lock_run_folder(run, "a running train-baseline")
+    try:
+        with pytest.raises(InUseError, match="in use by another process") as excinfo:
+            train_baseline(tiny_baseline_config(small_track, demos, run, algo="td3", force=True))
+    finally:
+        os.close(held)
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
+    fault.refused("train-baseline --force on the folder of a running train-baseline", str(excinfo.value))

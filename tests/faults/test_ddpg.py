@@ -212,3 +212,23 @@ def test_an_edited_replay_index_or_run_sidecar_is_refused_and_format_1_still_rea
     fault.refused("a train-ddpg sidecar whose training time was edited, then resumed", str(excinfo.value))
     with pytest.raises(DDPGError, match="the file changed after it was written"):
         load_agent(tmp_path / "run")
+
+
+def test_a_second_writer_of_a_running_run_is_refused_with_its_files_intact(track, tmp_path, fault):
+    """train-ddpg --force on the folder of a running run deleted its files (the first went on, exit 0); the
+    running run's lock (held here as it holds it) refuses it before anything changes."""
+    import os
+
+    from vision_rl.ddpg.train import train_ddpg
+    from vision_rl.files import InUseError, lock_run_folder
+
+    run = _saved(track, tmp_path / "run", "symmetric").parent
+    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    held = lock_run_folder(run, "a running train-ddpg")
+    try:
+        with pytest.raises(InUseError, match="in use by another process") as excinfo:
+            train_ddpg(timed_ddpg_config(track, run, force=True))
+    finally:
+        os.close(held)
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
+    fault.refused("train-ddpg --force on the folder of a running train-ddpg", str(excinfo.value))

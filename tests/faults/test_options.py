@@ -177,6 +177,17 @@ SILENT_BEFORE = {
     "convert-policy without --run": (["convert-policy"], "required: --run"),
     "evaluate-ddpg without --agent": (["evaluate-ddpg"], "required: --agent"),
     "compare-ddpg without --runs": (["compare-ddpg"], "required: --runs"),
+    # Durations of 1e308 s overflowed the step counts made from them (OverflowError tracebacks) or were kept.
+    "train-policy --episode-s 1e308": (["train-policy", "--episode-s", "1e308"], "above the greatest value"),
+    "evaluate --time-limit-s 1e308": (["evaluate", "--policy", "x", "--time-limit-s", "1e308"], "greatest value"),
+    "evaluate-ddpg --time-limit-s 1e308": (
+        ["evaluate-ddpg", "--agent", "x", "--time-limit-s", "1e308"],
+        "above the greatest value",
+    ),
+    "train-policy --checkpoint-every-min 1e308": (
+        ["train-policy", "--checkpoint-every-min", "1e308"],
+        "above the greatest value, 525600",
+    ),
 }
 
 

@@ -514,3 +514,47 @@ def test_a_stopped_experiment_saves_every_seed_running_side_by_side_and_resumes(
         "SIGTERM to experiment --seeds-at-once 2 mid-run",
         "each seed's process saves its run, exit 130; the same command resumes both",
     )
+
+
+def test_a_resume_of_a_baseline_run_is_refused(run_copy, small_track, tmp_path, fault):
+    """train-policy --resume of a train-baseline folder raised a TypeError traceback (its sac settings are no SAC
+    preset's); it is refused, the folder intact."""
+    spec = json.loads((run_copy / "policy.json").read_text())
+    spec["sac"]["loss"] = "mse of tanh actions in [-1, 1]"  # what a bc run's sidecar holds
+    baseline = tmp_path / "bc"
+    shutil.copytree(run_copy, baseline)
+    (baseline / "policy.json").write_text(json.dumps(sealed_record(spec)))
+    before = {p.name: p.read_bytes() for p in baseline.iterdir() if p.is_file()}
+    with pytest.raises(PolicyError, match="not a train-policy run") as excinfo:
+        train_policy(tiny_train_config(small_track, baseline, steps=300, resume=True))
+    assert {p.name: p.read_bytes() for p in baseline.iterdir() if p.is_file()} == before
+    fault.refused("train-policy --resume of a train-baseline (bc) run folder", str(excinfo.value))
+
+
+def test_a_diverged_training_is_one_line_and_keeps_the_folder(small_track, tmp_path, fault):
+    """--learning-rate 1e308 turned the actor's outputs to NaN: torch's check printed a multi-line message with the
+    tensor. It is one line naming the step."""
+    from vision_rl.training.interrupts import TrainingDivergedError
+
+    with pytest.raises(TrainingDivergedError, match="training diverged at step") as excinfo:
+        train_policy(tiny_train_config(small_track, tmp_path / "run", learning_rate=1e308))
+    assert "\n" not in str(excinfo.value)
+    fault.refused("train-policy --learning-rate 1e308 (the policy's outputs become NaN)", str(excinfo.value))
+
+
+@pytest.mark.parametrize("mode", ["force", "resume"])
+def test_a_second_writer_of_a_running_run_is_refused_with_its_files_intact(run_copy, small_track, mode, fault):
+    """A second train-policy --force on the folder of a running one deleted its files and wrote its own (the first
+    went on and ended with exit 0 over a mixed folder); --resume wrote over it. The running run's lock (held here as
+    it holds it) refuses both before anything changes."""
+    from vision_rl.files import InUseError, lock_run_folder
+
+    before = {p.name: p.read_bytes() for p in run_copy.iterdir() if p.is_file()}
+    held = lock_run_folder(run_copy, "a running train-policy")
+    try:
+        with pytest.raises(InUseError, match="in use by another process") as excinfo:
+            train_policy(tiny_train_config(small_track, run_copy, steps=300, **{mode: True}))
+    finally:
+        os.close(held)
+    assert {p.name: p.read_bytes() for p in run_copy.iterdir() if p.is_file()} == before
+    fault.refused(f"train-policy --{mode} on the folder of a running train-policy", str(excinfo.value))

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import fcntl
 import hashlib
 import json
 import math
@@ -31,6 +30,7 @@ import hdf5plugin  # registers HDF5's Zstandard filter, so h5py reads zstd image
 import numpy as np
 import zstandard
 
+from vision_rl import files
 from vision_rl.files import atomic_write, package_version
 
 FORMAT_VERSION = 3
@@ -193,26 +193,9 @@ def _journal_rows(path: Path, owner: str, n_committed: int, tails: Mapping[str, 
 
 
 def lock_exclusive(path: Path, holder: str = "") -> int:
-    """A descriptor holding an exclusive lock on ``path`` (a file, created empty when missing and never truncated,
-    or an existing folder), taken before a writer changes anything: a second writer is refused, nothing changed.
-    ``holder`` names what else may hold it in the refusal."""
-    if path.is_dir():
-        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
-    else:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        # flock, as HDF5's own locking: a reader (h5py's shared lock) and a writer exclude each other too.
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError as exc:
-        os.close(fd)
-        if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
-            raise
-        raise CaptureLockedError(
-            f"{path}: in use by another process ({holder or 'a running capture or a reader'}): nothing was "
-            "changed; wait for it to end or stop it"
-        ) from exc
-    return fd
+    """:func:`vision_rl.files.lock_exclusive` refusing with :class:`CaptureLockedError`; ``holder`` defaults to a
+    running capture or a reader."""
+    return files.lock_exclusive(path, holder or "a running capture or a reader", CaptureLockedError)
 
 
 def _table_hashers() -> dict[str, Any]:

@@ -200,6 +200,11 @@ def run_command(name: str, argv: Sequence[str]) -> int:
             raise
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM where the command had nothing of its own to save (its set-up)
+        if _debug():
+            raise
+        print(f"{prog}: stopped by Ctrl-C or SIGTERM; the files it wrote are whole or absent", file=sys.stderr)
+        return 130
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -13,9 +13,10 @@ Field types: int, float, str, bool, ``tuple[int, int]`` (two values after the op
 
 Every number is checked here, once for all commands: it must be finite and at least 0, or at least the field's
 ``metadata={"min": ...}`` / the config's ``option_minimums`` (``{"max_steps": -1}``; ``None``: any sign), and at
-most the field's ``metadata={"max": ...}`` where it has one. A device other than auto or cpu must be present. Every
-size option is priced against the memory budget (:data:`UNIT_BYTES`, frame sizes, ``--hidden-units``); ranges of
-their own and finer prices are the configs' ``check_options``.
+most the field's ``metadata={"max": ...}`` where it has one; a duration (a name ending in ``_s``, ``_seconds``,
+``_min`` or ``_minutes``) without one is at most :data:`DURATION_MAX_S`. A device other than auto or cpu must be
+present. Every size option is priced against the memory budget (:data:`UNIT_BYTES`, frame sizes,
+``--hidden-units``); ranges of their own and finer prices are the configs' ``check_options``.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import re
 from collections.abc import Callable
 from typing import Any
 
-from vision_rl.budget import array_bytes, require_memory
+from vision_rl.budget import DURATION_MAX_S, array_bytes, require_memory
 from vision_rl.config import field_docs, flat_fields, from_flat  # noqa: F401  (field_docs: read by the tests here)
 
 _SCALARS = {"int": int, "float": float, "str": str}
@@ -60,6 +61,21 @@ def _add_bool(parser: argparse.ArgumentParser, flat: Any, help_text: str, config
     negative = dict(getattr(config_cls, "negative_switches", {})).get(flat.name) or flat.field.metadata.get("negative")
     if negative:
         parser.add_argument(negative, dest=flat.name, action="store_false", help=f"same as --no-{flag[2:]}")
+
+
+_DURATION_SUFFIXES = {"_s": 1.0, "_seconds": 1.0, "_min": 60.0, "_minutes": 60.0}
+_NOT_DURATIONS = {"steer_change_penalty_c_s"}  # a weight per second of steering change, c_s
+
+
+def _maximum(flat: Any) -> float | None:
+    """The greatest value of a number option: the field's ``max``, else :data:`DURATION_MAX_S` in the option's unit
+    for a duration, else none."""
+    if "max" in flat.field.metadata:
+        return flat.field.metadata["max"]
+    for suffix, unit_s in _DURATION_SUFFIXES.items():
+        if flat.name.endswith(suffix) and flat.name not in _NOT_DURATIONS:
+            return DURATION_MAX_S / unit_s
+    return None
 
 
 def _minimum(flat: Any, config_cls: type) -> float | None:
@@ -124,7 +140,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_cls: type) -> N
             raise TypeError(f"{config_cls.__name__}.{flat.name}: options must be int, float, str, bool or a tuple")
         item, n = (_SCALARS[kind], None) if kind in _SCALARS else _TUPLES[kind]
         if item is not str:
-            item = _number(item, _minimum(flat, config_cls), flat.field.metadata.get("max"))
+            item = _number(item, _minimum(flat, config_cls), _maximum(flat))
         metavar = ("HEIGHT", "WIDTH") if flat.name.endswith("hw_px") else flat.field.metadata.get("metavar")
         parser.add_argument(
             flag,

@@ -18,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -50,7 +49,7 @@ from vision_rl.ddpg.sampling import episode_record
 from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.protocol import time_laps
-from vision_rl.files import atomic_write, json_text, sealed_record, write_json
+from vision_rl.files import atomic_write, clear_folder, json_text, lock_run_folder, sealed_record, write_json
 from vision_rl.training.interrupts import HeldSignal
 from vision_rl.training.persist import ArtifactError, check_fingerprint
 from vision_rl.training.sac import torch_device
@@ -107,13 +106,13 @@ class _Run:
             self.env = PixelRacingConfig.from_dict(self.previous["env"])
         else:
             self.hyper, self.env = cfg.agent_configs()
-            if (self.out / SIDECAR_NAME).exists() or (self.out / AGENT_NAME).exists():
-                if not cfg.force:
-                    raise FileExistsError(
-                        f"{self.out} holds a run: pass --resume to continue it or --force to start over"
-                    )
-                shutil.rmtree(self.out)
-        self.out.mkdir(parents=True, exist_ok=True)
+        # Locked before anything in it changes: a second writer of a running run is refused with its files intact.
+        self._lock_fd: int | None = lock_run_folder(self.out, "a running train-ddpg")
+        if not cfg.resume and ((self.out / SIDECAR_NAME).exists() or (self.out / AGENT_NAME).exists()):
+            if not cfg.force:
+                self.release_folder()
+                raise FileExistsError(f"{self.out} holds a run: pass --resume to continue it or --force to start over")
+            clear_folder(self.out)
         self.fingerprint = ddpg_fingerprint(self.hyper, self.env)
         counters = (self.previous or {}).get("counters", {})
         self.num_steps = int(counters.get("num_steps", 0))
@@ -201,6 +200,12 @@ class _Run:
         if self.driver is not None:
             self.driver.close()
 
+    def release_folder(self) -> None:
+        """Let another writer have the run folder (once this session saved or failed)."""
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
 
 def train_ddpg(cfg: TrainDDPGConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Train (or resume) as configured; returns where things went and the last evaluation. A KeyboardInterrupt
@@ -215,6 +220,13 @@ def train_ddpg(cfg: TrainDDPGConfig, progress: Progress | None = None) -> dict[s
 
 def _train(cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dict[str, Any]:
     run = _Run(cfg)
+    try:
+        return _train_run(run, cfg, cluster, progress)
+    finally:
+        run.release_folder()
+
+
+def _train_run(run: _Run, cfg: TrainDDPGConfig, cluster: Any, progress: Progress | None) -> dict[str, Any]:
     if cfg.torch_threads > 0:
         torch.set_num_threads(cfg.torch_threads)
     hyper, env = run.hyper, run.env

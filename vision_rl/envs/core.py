@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vision_rl.budget import DURATION_MAX_S
 from vision_rl.envs import observations as obs_lib
 from vision_rl.envs.observer import Observer
 from vision_rl.envs.rewards import (
@@ -286,6 +287,11 @@ class RacingConfig:
             raise ValueError(f"restart_before_stuck_m must be >= 0, got {self.restart_before_stuck_m}")
         if self.wall_hit_throttle_cut_s < 0:
             raise ValueError(f"wall_hit_throttle_cut_s must be >= 0, got {self.wall_hit_throttle_cut_s}")
+        if not (isinstance(self.episode_s, int | float) and 0 < self.episode_s <= DURATION_MAX_S):
+            # NaN or 1e308 s failed later in round(episode_s / control_dt_s) as a bare ValueError or OverflowError
+            raise ValueError(
+                f"episode_s must be a number of seconds in (0, {DURATION_MAX_S:g}], got {self.episode_s!r}"
+            )
         if self.episode_s < self.control_dt_s:
             raise ValueError("episode_s must cover at least one control step")
         if ai_ticks(self.control_dt_s) is None:

@@ -40,6 +40,11 @@ def racing_config(defaults: dict[str, Any], config: dict[str, Any], n_groups: in
     unknown = set(config) - fields
     if unknown:
         raise TypeError(f"unknown argument(s) {sorted(unknown)}; accepted: {sorted(fields)}")
+    if config.get("n_groups", n_groups) != n_groups:  # it was overridden silently: n_groups=0 made one group
+        raise ValueError(
+            f"n_groups={config['n_groups']!r}: the environment sets it ({n_groups}); for several groups give "
+            "num_envs to gymnasium.make_vec"
+        )
     return RacingConfig(**{**defaults, **config, "n_groups": n_groups})
 
 

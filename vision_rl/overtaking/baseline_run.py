@@ -11,14 +11,21 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from vision_rl.config import flat_values
 from vision_rl.envs.core import RacingConfig
-from vision_rl.files import CONTENT_KEY, content_damage, json_text, parse_json, sealed_record, write_json
+from vision_rl.files import (
+    CONTENT_KEY,
+    clear_folder,
+    content_damage,
+    json_text,
+    parse_json,
+    sealed_record,
+    write_json,
+)
 from vision_rl.overtaking.config import BUDGETS, OBSERVATION, TrainBaselineConfig, check_baseline_ranges
 from vision_rl.overtaking.demos import OBS_DIM, Demos
 from vision_rl.overtaking.dreamer import DreamerRecipe
@@ -163,7 +170,7 @@ class RunFolder:
         self.settings = settings_of(cfg, demos)
         path = self.out / RUN_NAME
         if cfg.force and self.out.exists():
-            shutil.rmtree(self.out)
+            clear_folder(self.out)  # the folder itself holds train_baseline's lock
         if path.is_file():
             record = _read_json(path)
             recorded = record.get("settings") or {}

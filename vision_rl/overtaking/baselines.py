@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from vision_rl.files import run_folder_locked
 from vision_rl.overtaking.baseline_run import (
     HIDDEN_UNITS,
     BaselineError,
@@ -17,6 +18,7 @@ from vision_rl.overtaking.baseline_run import (
     TrainBaselineConfig,
     baseline_algo,
     check_config,
+    default_out,
 )
 from vision_rl.overtaking.bc import train_bc
 from vision_rl.overtaking.config import OBSERVATION
@@ -54,9 +56,11 @@ def train_baseline(cfg: TrainBaselineConfig, progress: Progress | None = None) -
     """Train (or continue) one Table III baseline; returns its run record, the policy folder and the figures."""
     check_config(cfg)
     learner = ALGOS[cfg.algo]
-    if learner.companion is not None:
-        return learner.train(cfg, progress, learner.companion(cfg))
-    return learner.train(cfg, progress)
+    # Two runs in one folder (a --force of a running one) deleted each other's files: the second is refused.
+    with run_folder_locked(Path(cfg.out) if cfg.out else default_out(cfg), "a running train-baseline"):
+        if learner.companion is not None:
+            return learner.train(cfg, progress, learner.companion(cfg))
+        return learner.train(cfg, progress)
 
 
 def load_baseline(

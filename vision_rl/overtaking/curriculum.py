@@ -37,7 +37,16 @@ from vision_rl.envs.core import RacingConfig, RacingCore
 from vision_rl.envs.observations import OBS_NAMES, ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
-from vision_rl.files import CONTENT_KEY, content_damage, json_text, parse_json, sealed_record, write_json
+from vision_rl.files import (
+    CONTENT_KEY,
+    clear_folder,
+    content_damage,
+    json_text,
+    parse_json,
+    run_folder_locked,
+    sealed_record,
+    write_json,
+)
 from vision_rl.overtaking.config import (
     BUDGETS,
     OBSERVATION,
@@ -680,7 +689,7 @@ class OvertakingRun:
             self.record = recorded
         else:
             if cfg.force and self.out.exists():
-                shutil.rmtree(self.out)
+                clear_folder(self.out)  # the folder itself holds train_overtaking's lock
             elif self.out.exists() and any(self.out.iterdir()):
                 raise OvertakingRunError(f"{self.out} is not empty and holds no {RUN_NAME}: give another --out")
             self.record = {"format": RUN_FORMAT, "settings": self.settings, "ai_lap_time_s": None}
@@ -748,7 +757,12 @@ def train_overtaking(cfg: TrainOvertakingConfig, progress: Progress | None = Non
         cfg.samplers.workers is not None
     ):  # Ray's cluster and the worker count are checked before the run folder is touched
         check_config(cfg)
-    with cluster_for(cfg.samplers.workers, cfg.samplers.address) as cluster:
+    out = Path(cfg.out) if cfg.out else default_out(cfg)
+    # Two runs in one folder (a --force of a running one) deleted each other's files: the second is refused.
+    with (
+        cluster_for(cfg.samplers.workers, cfg.samplers.address) as cluster,
+        run_folder_locked(out, "a running train-overtaking"),
+    ):
         return _train_stages(cfg, cluster, progress)
 
 

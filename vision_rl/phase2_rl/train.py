@@ -28,7 +28,7 @@ from vision_rl.config import flat_values
 from vision_rl.envs.observations import ObservationKind, ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import CLEAN_WALL_CONTACT_S, time_laps
-from vision_rl.files import json_text
+from vision_rl.files import clear_folder, json_text, lock_run_folder
 from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
 from vision_rl.phase2_rl.config import SELECT_SEED_BASE, TrainPolicyConfig, check_bounds
 from vision_rl.training.artifact import (
@@ -123,6 +123,7 @@ class _Run:
             if not (self.out / MODEL_NAME).is_file() or not (self.out / SIDECAR_NAME).is_file():
                 raise FileNotFoundError(f"{self.out}: nothing to resume (no {MODEL_NAME} and {SIDECAR_NAME})")
             self.previous = PolicySpec.read(self.out / SIDECAR_NAME)
+            check_resumable(self.previous, self.out / SIDECAR_NAME)
         self.preset = resolve_preset(cfg.sac) if self.previous is None else _preset_from_spec(self.previous)
         if self.previous is None and cfg.steps <= self.preset.learning_starts:
             raise ValueError(
@@ -136,12 +137,14 @@ class _Run:
         if self.preset.torch_threads > 0:  # before the encoder loads: ONNX Runtime takes torch's thread count
             torch.set_num_threads(self.preset.torch_threads)
         self.encoder = self._load_encoder()  # the one read of the checkpoint: its frame size and hash come from it
-        # Checked only now, so that a bad option never deletes the run it would have replaced.
+        # Checked only now, so that a bad option never deletes the run it would have replaced; the folder is
+        # locked first, so that a second writer of a running run is refused with its files intact.
+        self._lock_fd: int | None = lock_run_folder(self.out, "a running train-policy")
         if self.previous is None and ((self.out / SIDECAR_NAME).exists() or (self.out / MODEL_NAME).exists()):
             if not cfg.force:
+                self.release_folder()
                 raise FileExistsError(f"{self.out} holds a run: pass --resume to continue it or --force to start over")
-            shutil.rmtree(self.out)
-        self.out.mkdir(parents=True, exist_ok=True)
+            clear_folder(self.out)
         if self.previous is not None:
             self.kind = self.previous.kind
             self.racing = self.previous.config
@@ -439,6 +442,23 @@ class _Run:
         if self.eval_driver is not None:
             self.eval_driver.close()
 
+    def release_folder(self) -> None:
+        """Let another writer have the run folder (once this session saved or failed)."""
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
+
+def check_resumable(previous: PolicySpec, sidecar: Path) -> None:
+    """Refuse a resume of a run that train-policy did not make: a baseline's policy.json holds settings that are no
+    SAC preset's (its resume raised a TypeError traceback)."""
+    foreign = sorted(set(previous.sac) - {f.name for f in dataclasses.fields(SACPreset)})
+    if foreign:
+        raise PolicyError(
+            f"{sidecar}: not a train-policy run (its settings hold {', '.join(foreign)}): resume it with the "
+            "command that made it, or give another --out"
+        )
+
 
 def _preset_from_spec(spec: PolicySpec) -> SACPreset:
     sac = dict(spec.sac)
@@ -455,23 +475,29 @@ def train_policy(cfg: TrainPolicyConfig, progress: Progress | None = None) -> di
         check_bounds(flat_values(cfg))
     with cluster_for(cfg.samplers.workers, cfg.samplers.address) as cluster:
         run = _Run(cfg)
-        model = run.build()
-        loop = _TrainingLoop(run, progress)
-        remaining = cfg.steps - run.start_steps
-        interrupted = False
-        sampling = None
         try:
-            if remaining > 0 and cluster is not None:
-                sampling = _learn_with_samplers(run, model, loop, cluster)
-            elif remaining > 0:
-                learn_between_interrupts(
-                    model, loop, total_timesteps=remaining, reset_num_timesteps=False, log_interval=4
-                )
-            loop.evaluate_held_back()
-        except KeyboardInterrupt:
-            interrupted = True
-        run.save(model, buffer=True, snapshot=not interrupted and remaining > 0)
-        run.close()
+            return _train(run, cfg, cluster, progress)
+        finally:
+            run.release_folder()
+
+
+def _train(run: _Run, cfg: TrainPolicyConfig, cluster: Any, progress: Progress | None) -> dict[str, Any]:
+    """:func:`train_policy` once its run folder is checked and locked."""
+    model = run.build()
+    loop = _TrainingLoop(run, progress)
+    remaining = cfg.steps - run.start_steps
+    interrupted = False
+    sampling = None
+    try:
+        if remaining > 0 and cluster is not None:
+            sampling = _learn_with_samplers(run, model, loop, cluster)
+        elif remaining > 0:
+            learn_between_interrupts(model, loop, total_timesteps=remaining, reset_num_timesteps=False, log_interval=4)
+        loop.evaluate_held_back()
+    except KeyboardInterrupt:
+        interrupted = True
+    run.save(model, buffer=True, snapshot=not interrupted and remaining > 0)
+    run.close()
     return {
         "out": str(run.out),
         "policy": str(run.out / MODEL_NAME),

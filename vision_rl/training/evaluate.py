@@ -10,6 +10,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from vision_rl.budget import DURATION_MAX_S
 from vision_rl.envs.core import RacingConfig
 from vision_rl.evaluation.controls import lap_controls
 from vision_rl.evaluation.encoder_error import encoder_error_on_lap
@@ -64,8 +67,17 @@ class ProtocolRun:
 
     def check(self) -> None:
         """Refuse, before any driving, what cannot be run or written."""
+        for name in ("laps", "seeds", "seed"):  # a str or float here failed deep in numpy, or drove on
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer):
+                raise ValueError(f"{name} must be a whole number, got {value!r}")
         if self.seeds < 1:
             raise ValueError(f"seeds must be >= 1, got {self.seeds}")
+        if not (isinstance(self.time_limit_s, int | float) and 0 <= self.time_limit_s <= DURATION_MAX_S):
+            raise ValueError(
+                f"time_limit_s must be a number of seconds from 0 (the protocol's limit) to {DURATION_MAX_S:g}, "
+                f"got {self.time_limit_s!r}"
+            )
         if self.sections_m < 0 or not 0.0 < self.reference_skill <= 1.0:
             raise ValueError(
                 f"--sections-m must be >= 0 and --reference-skill in (0, 1], got {self.sections_m}, "

@@ -70,8 +70,22 @@ class _ReleaseAtRolloutStart(BaseCallback):
         return True
 
 
+class TrainingDivergedError(ValueError):
+    """The networks' outputs became NaN or infinite: what follows would only train on garbage."""
+
+
 def learn_between_interrupts(model: Any, callback: BaseCallback, **learn_kwargs: Any) -> Any:
-    """``model.learn(callback=callback, **learn_kwargs)`` with the first interrupt held to a rollout's start."""
+    """``model.learn(callback=callback, **learn_kwargs)`` with the first interrupt held to a rollout's start. A
+    policy whose outputs became non-finite (torch's distribution check: a multi-line message with the tensor) is
+    one line, :class:`TrainingDivergedError`; the run folder keeps what it last saved."""
     held = HeldSignal()
     with held.installed():
-        return model.learn(callback=CallbackList([callback, _ReleaseAtRolloutStart(held)]), **learn_kwargs)
+        try:
+            return model.learn(callback=CallbackList([callback, _ReleaseAtRolloutStart(held)]), **learn_kwargs)
+        except ValueError as exc:
+            if "found invalid values" not in str(exc):
+                raise
+            raise TrainingDivergedError(
+                f"training diverged at step {getattr(model, 'num_timesteps', '?')}: the policy's outputs became NaN "
+                "or infinite (a learning rate or reward weight too large?); the run folder keeps what it last saved"
+            ) from None
