@@ -77,7 +77,7 @@ def run_ddpg_reference(opts: DDPGReferenceOptions) -> int:
         "task": opts.run.task,
         "rows": summarise(records),
         "records": folder,
-        "figure": str(plot_reference(records, f"{folder}/curves.png", max(opts.eval_every_steps, 1_000))),
+        "figure": str(plot_reference(records, f"{folder}/curves.png", max(opts.run.eval_every_steps, 1_000))),
     }
     write_json(f"{folder}/summary.json", result)
     emit(result, opts.json, format_reference)
