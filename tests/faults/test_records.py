@@ -206,3 +206,12 @@ def test_single_bit_flips_of_a_result_record_read_the_same_or_stop_the_report(re
         "the same",
         counts.example,
     )
+
+
+def test_a_leaderboard_of_runs_that_is_a_file_is_refused(small_track, tmp_path, fault):
+    """leaderboard --runs FILE showed the built-in AI's row alone, as if no run had been evaluated."""
+    runs = tmp_path / "demos.npz"
+    runs.write_bytes(b"PK\x03\x04")
+    with pytest.raises(lb.RecordError, match="is a file, not the folder of runs") as excinfo:
+        lb.leaderboard(small_track, "hatchback", str(runs))
+    fault.refused("leaderboard --runs a regular file", str(excinfo.value))

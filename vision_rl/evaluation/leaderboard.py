@@ -277,6 +277,8 @@ def leaderboard(track: str = "expressway", car: str = "hatchback", runs: str = "
     """The table for (track, car): the limit, the built-in AI at its default skill and every policy evaluated on
     them under ``runs``, fastest first; DNF rows last. A row more than :data:`LIMIT_TOLERANCE_PCT` under the limit
     is refused, naming its file."""
+    if Path(runs).exists() and not Path(runs).is_dir():  # a file here gave the AI's row alone, without a word
+        raise RecordError(f"--runs {runs} is a file, not the folder of runs to search for evaluation.json")
     ai = time_laps(BuiltinAI(), track, car, seeds=AI_SEEDS)
     ai_record = evaluation_record(ai, BuiltinAI().identity, "built-in AI (default skill)")
     limit_s, ai_s = ai.limit_lap_time_s, ai_record["best_lap_time_s"]
