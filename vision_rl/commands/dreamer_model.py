@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from vision_rl.commands.output import emit
+from vision_rl.commands.output import emit, number_text
 
 #: Bytes a start point holds per step of its context and horizon: its observation, action, reward, the encoder's
 #: embedding and the squared errors, float32, with room for the recurrent states.
@@ -65,29 +65,28 @@ class DreamerModelOptions:
     """Print the result as JSON."""
 
 
-def _num(value: float | None, digits: int = 3) -> str:
-    return "-" if value is None else f"{value:.{digits}f}"
-
-
 def format_dreamer_model(result: dict[str, Any]) -> list[str]:
     settings = result["settings"]
     lines = [
         f"world model of {result['made_from']['policy']} ({result['num_timesteps']} steps) on "
         f"{result['made_from']['laps']}: {result['n_starts']} start points of {result['n_start_points_available']}, "
         f"context {settings['context_steps']} steps",
-        f"  the context's last observation reconstructed: RMSE {_num(result['reconstruction']['observation_rmse'])}",
+        "  the context's last observation reconstructed: RMSE "
+        + number_text(result["reconstruction"]["observation_rmse"], 3),
         f"  {'horizon':>12} | {'obs RMSE':>9} {'hold last':>9} {'ratio':>6} | {'reward RMSE':>11} {'hold last':>9}",
     ]
     for row in result["horizons"]:
         model, hold = row["model"], row["hold_last"]
+        obs_model, obs_hold = (number_text(x["observation_rmse"], 3) for x in (model, hold))
+        reward_model, reward_hold = (number_text(x["reward_rmse"], 3) for x in (model, hold))
+        ratio = number_text(row["observation_rmse_ratio_to_hold_last"], 2)
         lines.append(
-            f"  {row['horizon_steps']:>4} ({row['horizon_s']:>4.1f} s) | {_num(model['observation_rmse']):>9} "
-            f"{_num(hold['observation_rmse']):>9} {_num(row['observation_rmse_ratio_to_hold_last'], 2):>6} | "
-            f"{_num(model['reward_rmse']):>11} {_num(hold['reward_rmse']):>9}"
+            f"  {row['horizon_steps']:>4} ({row['horizon_s']:>4.1f} s) | {obs_model:>9} {obs_hold:>9} {ratio:>6} | "
+            f"{reward_model:>11} {reward_hold:>9}"
         )
     longest = result["horizons"][-1]
     groups = ", ".join(
-        f"{name} {_num(value, 2)}/{_num(longest['hold_last']['groups'][name], 2)}"
+        f"{name} {number_text(value, 2)}/{number_text(longest['hold_last']['groups'][name], 2)}"
         for name, value in longest["model"]["groups"].items()
     )
     lines.append(f"  per group at {longest['horizon_steps']} steps (model/hold last): {groups}")

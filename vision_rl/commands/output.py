@@ -22,6 +22,11 @@ def emit(result: Any, as_json: bool, lines: Callable[[Any], list[str]] | None = 
             print(f"{key}: {value}")
 
 
+def number_text(value: float | None, digits: int = 1) -> str:
+    """``value`` with ``digits`` decimals, ``-`` for none."""
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
 def note(text: str) -> None:
     """A status line on stderr (what a command is doing, where it writes), apart from its result on stdout."""
     print(text, file=sys.stderr, flush=True)

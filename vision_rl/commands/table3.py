@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from vision_rl.commands.output import emit
+from vision_rl.commands.output import emit, number_text
 from vision_rl.overtaking.config import Table3Config
 
 
@@ -16,10 +16,6 @@ class Table3Options(Table3Config):
 
     json: bool = False
     """Print the result as JSON."""
-
-
-def _num(value: float | None, digits: int = 1) -> str:
-    return "-" if value is None else f"{value:.{digits}f}"
 
 
 def format_table3(result: dict[str, Any]) -> list[str]:
@@ -34,15 +30,15 @@ def format_table3(result: dict[str, Any]) -> list[str]:
         paper = row["paper"] or {}
         if row["status"] in ("timed", "DNF") and row.get("lap_time_s") is not None:
             ours = (
-                f"{_num(row['lap_time_s']):>7} {_num(row['avg_speed_kmh']):>7} "
-                f"{_num(row['lap_ratio_to_ai'], 3):>7} {_num(row['speed_ratio_to_ai'], 3):>7}"
+                f"{number_text(row['lap_time_s']):>7} {number_text(row['avg_speed_kmh']):>7} "
+                f"{number_text(row['lap_ratio_to_ai'], 3):>7} {number_text(row['speed_ratio_to_ai'], 3):>7}"
             )
         else:
             word = "DNF" if row["status"] in ("timed", "DNF") else row["status"]
             ours = f"{word:>31}"
         theirs = (
-            f"{_num(paper.get('lap_time_s')):>9} {_num(paper.get('avg_speed_kmh')):>6} "
-            f"{_num(paper.get('lap_ratio_to_ai'), 3):>7} {_num(paper.get('speed_ratio_to_ai'), 3):>7}"
+            f"{number_text(paper.get('lap_time_s')):>9} {number_text(paper.get('avg_speed_kmh')):>6} "
+            f"{number_text(paper.get('lap_ratio_to_ai'), 3):>7} {number_text(paper.get('speed_ratio_to_ai'), 3):>7}"
             if paper
             else f"{'':>32}"
         )
@@ -57,19 +53,19 @@ def format_table3(result: dict[str, Any]) -> list[str]:
             lines.append(f"  {row['name']}: {row['reason']}")
         over = row.get("over_training_seeds")
         if over:
-            spread = "" if over["lap_time_std_s"] is None else f" +- {_num(over['lap_time_std_s'])}"
+            spread = "" if over["lap_time_std_s"] is None else f" +- {number_text(over['lap_time_std_s'])}"
             mean_s = over["lap_time_mean_s"]
             mean = (
                 "no lap"
                 if mean_s is None
-                else f"lap mean {_num(mean_s)}{spread} s (of the {over['n_training_seeds_finished']} with a lap)"
+                else f"lap mean {number_text(mean_s)}{spread} s (of the {over['n_training_seeds_finished']} with a lap)"
             )
             lines.append(
                 f"  {row['name']}: over {over['n_training_seeds']} training seed(s), {mean}, "
                 f"starts finished {over['finished']}"
             )
         for run in row.get("runs") or []:
-            lap = "DNF" if run["lap_time_s"] is None else f"{_num(run['lap_time_s'])} s"
+            lap = "DNF" if run["lap_time_s"] is None else f"{number_text(run['lap_time_s'])} s"
             steps = f", {run['num_timesteps']} steps" if run["num_timesteps"] else ""  # bc trains on no env steps
             lines.append(f"  {row['name']}: {run['run']} (seed {run['seed']}{steps}): {lap}")
     for skip in result["skipped"]:
