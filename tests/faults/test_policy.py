@@ -558,3 +558,21 @@ def test_a_second_writer_of_a_running_run_is_refused_with_its_files_intact(run_c
         os.close(held)
     assert {p.name: p.read_bytes() for p in run_copy.iterdir() if p.is_file()} == before
     fault.refused(f"train-policy --{mode} on the folder of a running train-policy", str(excinfo.value))
+
+
+def test_a_full_disk_while_copying_a_snapshot_leaves_no_cut_file(run_copy, monkeypatch, fault):
+    """The snapshot checkpoints/policy_<steps>.pt was copied in place: a disk that filled (a 600 kB tmpfs) left a cut
+    copy without its sidecar and a bare "[Errno 28]" line. It is written through a temporary file now."""
+    from vision_rl.phase2_rl import train as train_module
+
+    def disk_full(src, dst, *args, **kwargs):
+        Path(dst).write_bytes(Path(src).read_bytes()[:100])
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(train_module.shutil, "copyfile", disk_full)
+    with pytest.raises(ArtifactWriteError, match=r"cannot write .*policy_\d+\.pt: No space left") as excinfo:
+        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True, eval_every_steps=0))
+    snapshots = {p.name for p in (run_copy / "checkpoints").iterdir()}
+    assert all(name.endswith(".json") or name.replace(".pt", ".json") in snapshots for name in snapshots), snapshots
+    assert not list((run_copy / "checkpoints").glob(".*.tmp"))
+    fault.refused("a full disk while copying a snapshot to checkpoints/", str(excinfo.value))

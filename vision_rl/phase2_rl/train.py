@@ -28,7 +28,7 @@ from vision_rl.config import flat_values
 from vision_rl.envs.observations import ObservationKind, ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import CLEAN_WALL_CONTACT_S, time_laps
-from vision_rl.files import clear_folder, json_text, lock_run_folder
+from vision_rl.files import atomic_write, clear_folder, json_text, lock_run_folder
 from vision_rl.phase1_repr.onnx_runtime import resolve_runtime
 from vision_rl.phase2_rl.config import SELECT_SEED_BASE, TrainPolicyConfig, check_bounds
 from vision_rl.training.artifact import (
@@ -434,7 +434,8 @@ class _Run:
         if snapshot:
             weights = self.out / "checkpoints" / f"policy_{model.num_timesteps}.pt"
             weights.parent.mkdir(exist_ok=True)
-            shutil.copyfile(self.out / MODEL_NAME, weights)
+            # Through a temporary file: a full disk left a cut policy_<steps>.pt without its sidecar.
+            atomic_write(weights, lambda tmp: shutil.copyfile(self.out / MODEL_NAME, tmp))
             dataclasses.replace(spec, model=weights.name).write(snapshot_sidecar(weights))
 
     def close(self) -> None:
