@@ -576,3 +576,20 @@ def test_a_full_disk_while_copying_a_snapshot_leaves_no_cut_file(run_copy, monke
     assert all(name.endswith(".json") or name.replace(".pt", ".json") in snapshots for name in snapshots), snapshots
     assert not list((run_copy / "checkpoints").glob(".*.tmp"))
     fault.refused("a full disk while copying a snapshot to checkpoints/", str(excinfo.value))
+
+
+def test_a_stop_during_set_up_is_one_line_with_exit_130(small_track, tmp_path, monkeypatch, capsys, fault):
+    """SIGTERM a few seconds into train-policy (mapped to KeyboardInterrupt, before training had anything to save)
+    printed a KeyboardInterrupt traceback. The command says it in one line and exits 130."""
+    from vision_rl.commands.main import main
+    from vision_rl.phase2_rl import train as train_module
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train_module, "make_sb3_vec_env", stopped)
+    argv = ["--track", small_track, "--steps", "300", "--learning-starts", "50", "--cars", "2", "--device", "cpu"]
+    code = main(["train-policy", *argv, "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err.strip()
+    assert code == 130 and "Traceback" not in err and len(err.splitlines()) == 1, err
+    fault.refused("SIGTERM (or Ctrl-C) to train-policy while it sets up", err)
