@@ -40,7 +40,7 @@ class EvaluateOvertakingOptions:
     """Time limit per run, s (0: 300 for A, 600 for B)."""
     lead_margin_m: float = 10.0
     """A run ends once the agent leads all five opponents by this much progress, m."""
-    opponent_skill: tuple[float, float] = field(default=(0.80, 0.88), metadata={"metavar": ("LOW", "HIGH")})
+    opponent_skill: tuple[float, float] = field(default=(0.80, 0.88), metadata={"metavar": ("LOW", "HIGH"), "max": 1.0})
     """Range the opponents' skills are drawn from (1: the limit profile; Table III's AI drives at 0.92)."""
     out: str = "runs/overtaking/eval"
     """Folder of the JSON and PNG files."""
