@@ -13,7 +13,7 @@ import dataclasses
 import functools
 import inspect
 import textwrap
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -145,6 +145,23 @@ def flat_values(config: Any) -> dict[str, Any]:
             value = getattr(value, name)
         values[flat.name] = value
     return values
+
+
+def resume_conflicts(config: Any, kept: Mapping[str, Any], names: Iterable[str]) -> list[str]:
+    """The options among ``names`` that ``config`` sets away from their defaults and from a resumed run's own value
+    (``kept``: flat name -> value, as JSON holds it): a resumed run keeps its own, so each would be ignored without a
+    word. An option typed at its default value cannot be told from one left out; it is not reported."""
+    now = flat_values(config)
+    defaults = {flat.name: flat.default for flat in flat_fields(type(config))}
+
+    def same(a: Any, b: Any) -> bool:
+        return (tuple(a) if isinstance(a, list) else a) == (tuple(b) if isinstance(b, list) else b)
+
+    return [
+        f"--{name.replace('_', '-')} {now[name]!r} (the run's: {kept[name]!r})"
+        for name in names
+        if name in kept and not same(now[name], defaults[name]) and not same(now[name], kept[name])
+    ]
 
 
 def replace_flat(config: Any, **values: Any) -> Any:

@@ -316,6 +316,8 @@ def test_train_minutes_stop_a_run_and_a_resume_with_more_continues_it(track, tmp
     first = train_ddpg(timed_ddpg_config(track, run))
     assert first["stopped_by"] == "train_minutes" and 0 < first["num_steps"] < 10**7
     assert 1.2 <= first["train_time_s"] < 10.0
+    with pytest.raises(ValueError, match=r"--gamma 0.5 \(the run's: 0.98\)"):  # not ignored without a word
+        train_ddpg(timed_ddpg_config(track, run, train_minutes=0.04, resume=True, gamma=0.5))
     second = train_ddpg(timed_ddpg_config(track, run, train_minutes=0.04, resume=True))
     assert second["stopped_by"] == "train_minutes" and second["num_steps"] > first["num_steps"]
     assert 2.4 <= second["train_time_s"] < 12.0

@@ -61,3 +61,15 @@ def test_a_registered_environment_refuses_bad_arguments(small_track, what, env_i
     with pytest.raises(ValueError, match=message) as excinfo:
         gym.make(env_id, track=small_track, **kwargs)
     fault.refused(what, str(excinfo.value))
+
+
+@pytest.mark.parametrize("action", [np.zeros(7), np.zeros(1), np.zeros((2, 2))])
+def test_an_action_of_the_wrong_shape_names_the_action(small_track, action, fault):
+    env = gym.make("vision_rl/TimeTrial-v2", track=small_track)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"an action is \[steering, pedal\], shape \(2,\): got shape") as excinfo:
+        env.step(action)
+    env.step(np.zeros(2, np.float32))  # the environment is still usable
+    fault.refused(
+        f"env.step with an action of shape {action.shape} (numpy's reshape message before)", str(excinfo.value)
+    )

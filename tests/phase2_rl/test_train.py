@@ -13,7 +13,7 @@ from vision_rl.config import flat_values, from_flat, replace_flat
 from vision_rl.envs import RacingConfig
 from vision_rl.envs.observations import STATE_OBS_NAMES
 from vision_rl.phase2_rl.train import _TrainingLoop, train_policy
-from vision_rl.training.artifact import PolicySpec, load_policy
+from vision_rl.training.artifact import PolicyError, PolicySpec, load_policy
 from vision_rl.training.evaluate import evaluate_policy
 from vision_rl.training.presets import PRESETS, SACOverrides, resolve_preset
 from vision_rl.training.sac import read_metrics
@@ -59,15 +59,18 @@ def test_resume_continues_the_step_count(state_run, tmp_path):
     src, first = state_run
     out = tmp_path / "resumed"
     shutil.copytree(src, out)
-    result = train_policy(tiny_train_config("ignored-on-resume", out, steps=300, resume=True))
+    track = PolicySpec.read(src / "policy.json").config.track
+    with pytest.raises(PolicyError, match=r"--track 'elsewhere' \(the run's: "):  # not ignored without a word
+        train_policy(tiny_train_config("elsewhere", out, steps=300, resume=True))
+    result = train_policy(tiny_train_config(track, out, steps=300, resume=True))
     assert result["resumed_from_steps"] == 200 and result["num_timesteps"] == 300
     assert result["n_updates"] == first["n_updates"] + 100 // 2  # the buffer came back: no new random phase
     assert result["buffer_restored"] == 200 // 2  # transitions per car
     spec = PolicySpec.read(out / "policy.json")
     assert spec.num_timesteps == 300 and spec.train_time_s > PolicySpec.read(src / "policy.json").train_time_s
-    assert spec.train_config["track"] == spec.config.track != "ignored-on-resume"  # the run's own options win
+    assert spec.train_config == PolicySpec.read(src / "policy.json").train_config  # the run's own settings
     assert [m["num_timesteps"] for m in read_metrics(out / "metrics.jsonl")] == [100, 200, 300]
-    again = train_policy(tiny_train_config("x", out, steps=300, resume=True))  # nothing left to do
+    again = train_policy(tiny_train_config(track, out, steps=300, resume=True))  # nothing left to do
     assert again["num_timesteps"] == 300
 
 

@@ -66,7 +66,9 @@ def test_vision_policy_records_its_encoder_and_refuses_another(small_track, tiny
     with pytest.raises(PolicyError, match="trained with encoder sha256"):
         evaluate_policy(out, encoder=str(enc_b))
     with pytest.raises(PolicyError, match="trained with encoder sha256"):
-        train_policy(tiny_train_config(small_track, out, encoder=str(enc_b), resume=True, steps=160))
+        train_policy(
+            tiny_train_config(small_track, out, encoder=str(enc_b), resume=True, steps=160, learning_starts=40)
+        )
     ev = evaluate_policy(out, encoder=str(enc_a), seeds=1, time_limit_s=5.0, encoder_error=True)
     assert ev["driver"]["observation"] == "vision" and ev["driver"]["encoder_sha256"] == spec.encoder["sha256"]
     assert ev["seeds"][0]["distance_m"] != 0.0

@@ -241,7 +241,8 @@ class TrainDDPGConfig:
     out: str = ""
     """Run folder (default runs/ddpg/<variant>-<track>-<car>-s<seed>)."""
     resume: bool = False
-    """Continue the run in --out (its track, car and settings win; --variant must name its variant)."""
+    """Continue the run in --out with its own track, car and settings (another value given for one is refused);
+    --variant must name its variant."""
     force: bool = False
     """Start over in a folder that holds a run."""
     env: PixelRacingConfig = nested(

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from vision_rl.config import flat_values
+from vision_rl.config import flat_fields, flat_values, resume_conflicts
 from vision_rl.ddpg.agent import (
     AGENT_NAME,
     REPLAY_DIR,
@@ -84,6 +84,10 @@ def _drop_lost_episodes(path: Path, num_steps: int) -> None:
         atomic_write(path, lambda tmp: tmp.write_text("".join(line + "\n" for line in kept)))
 
 
+#: The options a resumed run takes from its own start: the agent's hyper-parameters and its environment.
+RESUME_KEEPS = tuple(flat.name for flat in flat_fields(TrainDDPGConfig) if flat.path[0] in ("hyper", "env"))
+
+
 class _Run:
     def __init__(self, cfg: TrainDDPGConfig) -> None:
         check_bounds(flat_values(cfg))
@@ -101,6 +105,12 @@ class _Run:
                 raise DDPGError(
                     f"{self.out} holds a run of variant {self.previous['hyper']['variant']!r}, not {cfg.variant!r}: "
                     f"resume it with --variant {self.previous['hyper']['variant']} or start a new run in another --out"
+                )
+            conflicts = resume_conflicts(cfg, self.previous.get("train_config", {}), RESUME_KEEPS)
+            if conflicts:
+                raise DDPGError(
+                    f"{self.out}: a resumed run keeps its own settings, and these options differ from them: "
+                    f"{', '.join(conflicts)}; leave them out or start a new run in another --out"
                 )
             self.hyper = DDPGHyper(**self.previous["hyper"])
             self.env = PixelRacingConfig.from_dict(self.previous["env"])

@@ -75,7 +75,12 @@ class _RacingEnv(gym.Env):
         return self._single(self.core.observation()), {}
 
     def step(self, action):
-        actions = physical_actions(np.asarray(action)[None, :], self.normalized_spaces)
+        action = np.asarray(action)
+        if action.shape != self.action_space.shape:  # numpy's broadcast message names neither the action nor its space
+            raise ValueError(
+                f"an action is [steering, pedal], shape {self.action_space.shape}: got shape {action.shape}"
+            )
+        actions = physical_actions(action[None, :], self.normalized_spaces)
         obs, reward, terminated, truncated, infos = self.core.step(actions, autoreset=False)
         return self._single(obs), float(reward[0]), bool(terminated[0]), bool(truncated[0]), infos[0]
 

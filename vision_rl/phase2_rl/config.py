@@ -113,7 +113,8 @@ class TrainPolicyConfig:
     seed: int = 0
     """Seed of the networks, exploration and start points."""
     resume: bool = False
-    """Continue the run in --out up to --steps (its own track, car, cars, encoder and SAC settings; weights, buffer)."""
+    """Continue the run in --out up to --steps with its own track, car, cars, encoder and SAC settings (another value
+    given for one is refused), weights and buffer."""
     force: bool = False
     """Start over in an --out that holds a run."""
     racing: RacingConfig = nested(

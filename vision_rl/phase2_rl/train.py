@@ -24,7 +24,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecMonitor
 
-from vision_rl.config import flat_values
+from vision_rl.config import flat_fields, flat_values, resume_conflicts
 from vision_rl.envs.observations import ObservationKind, ObsNormalizer
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import CLEAN_WALL_CONTACT_S, time_laps
@@ -109,6 +109,16 @@ class _TrainingLoop(BaseCallback):
                 self.progress(self.num_timesteps, self.run.cfg.steps, self.run.last_eval)
 
 
+#: The options a resumed run takes from its own start (its environment, SAC settings, seed, guidance, selection).
+RESUME_KEEPS = tuple(
+    flat.name
+    for flat in flat_fields(TrainPolicyConfig)
+    if flat.path[0] in ("racing", "sac")
+    or flat.name in ("seed", "select_starts", "select_clean")
+    or flat.name.startswith("guide_")
+)
+
+
 class _Run:
     """One training session of a run folder: environments, model, artifact and bookkeeping."""
 
@@ -124,6 +134,12 @@ class _Run:
                 raise FileNotFoundError(f"{self.out}: nothing to resume (no {MODEL_NAME} and {SIDECAR_NAME})")
             self.previous = PolicySpec.read(self.out / SIDECAR_NAME)
             check_resumable(self.previous, self.out / SIDECAR_NAME)
+            conflicts = resume_conflicts(cfg, self.previous.train_config, RESUME_KEEPS)
+            if conflicts:
+                raise PolicyError(
+                    f"{self.out}: a resumed run keeps its own settings, and these options differ from them: "
+                    f"{', '.join(conflicts)}; leave them out or start a new run in another --out"
+                )
         self.preset = resolve_preset(cfg.sac) if self.previous is None else _preset_from_spec(self.previous)
         if self.previous is None and cfg.steps <= self.preset.learning_starts:
             raise ValueError(
