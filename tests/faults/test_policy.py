@@ -58,7 +58,7 @@ def _rewrite_spec(run: Path, reseal: bool = True, **changes) -> None:
     (run / "policy.json").write_text(json.dumps(sealed_record(data) if reseal else data))
 
 
-def test_a_crafted_pickle_is_refused_and_never_runs(run_copy, tmp_path, fault):
+def test_a_crafted_pickle_is_refused_and_never_runs(run_copy, small_track, tmp_path, fault):
     marker = tmp_path / "marker"
     torch.save({"format": "vision_rl.agent", "payload": _WritesAMarker(marker)}, run_copy / "policy.pt")
     _rewrite_spec(run_copy, weights_sha256=file_sha256(run_copy / "policy.pt"))  # even with a matching checksum
@@ -67,7 +67,7 @@ def test_a_crafted_pickle_is_refused_and_never_runs(run_copy, tmp_path, fault):
     assert not marker.exists()
     fault.refused("policy.pt holding a pickled object that runs code (with a matching checksum)", str(excinfo.value))
     with pytest.raises(PolicyError, match="cannot resume") as excinfo:
-        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+        train_policy(tiny_train_config(small_track, run_copy, steps=300, resume=True))
     assert not marker.exists()
     fault.refused("--resume from that policy.pt", str(excinfo.value))
 
@@ -155,7 +155,7 @@ def test_a_sidecar_that_is_not_a_json_object_is_refused_in_one_line(run_copy, te
     fault.refused(f"policy.json {what}", str(excinfo.value))
 
 
-def test_a_format_3_run_is_refused_until_convert_policy_seals_it(run_copy, fault):
+def test_a_format_3_run_is_refused_until_convert_policy_seals_it(run_copy, small_track, fault):
     data = json.loads((run_copy / "policy.json").read_text())
     data.pop(CONTENT_KEY)
     (run_copy / "policy.json").write_text(json.dumps({**data, "format_version": 3}))
@@ -163,7 +163,7 @@ def test_a_format_3_run_is_refused_until_convert_policy_seals_it(run_copy, fault
         load_policy(run_copy)
     fault.refused("a format-3 policy (no content hash)", str(excinfo.value))
     with pytest.raises(PolicyError, match="vision-rl convert-policy --run") as excinfo:
-        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+        train_policy(tiny_train_config(small_track, run_copy, steps=300, resume=True))
     fault.refused("--resume of a format-3 run", str(excinfo.value))
     written = {p.name for p in convert_run(run_copy)}
     assert "policy.json" in written and not convert_run(run_copy)  # sealed once; the second pass writes nothing
@@ -209,29 +209,29 @@ def test_single_bit_flips_of_a_sidecar_or_its_weights_load_the_same_policy_or_ar
     )
 
 
-def test_a_damaged_or_foreign_buffer_stops_resume_with_a_message(run_copy, fault):
+def test_a_damaged_or_foreign_buffer_stops_resume_with_a_message(run_copy, small_track, fault):
     buffer = run_copy / "replay_buffer.npz"
     original = buffer.read_bytes()
     damaged = bytearray(original)
     damaged[len(damaged) // 2] ^= 0xFF
     buffer.write_bytes(bytes(damaged))
     with pytest.raises(PolicyError, match=r"replay_buffer\.npz") as excinfo:
-        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+        train_policy(tiny_train_config(small_track, run_copy, steps=300, resume=True))
     fault.refused("one flipped byte in replay_buffer.npz on --resume", str(excinfo.value))
     buffer.write_bytes(original[: len(original) // 3])
     with pytest.raises(PolicyError, match=r"replay_buffer\.npz") as excinfo:
-        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+        train_policy(tiny_train_config(small_track, run_copy, steps=300, resume=True))
     fault.refused("replay_buffer.npz cut short on --resume", str(excinfo.value))
     np.savez(buffer, observations=np.zeros(3))
     with pytest.raises(PolicyError, match=r"replay_buffer\.npz") as excinfo:
-        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+        train_policy(tiny_train_config(small_track, run_copy, steps=300, resume=True))
     fault.refused("an .npz that is not a replay buffer on --resume", str(excinfo.value))
     buffer.write_bytes(original)
     with np.load(buffer, allow_pickle=False) as data:
         arrays = {name: data[name] for name in data.files}
     np.savez(buffer, **{**arrays, "rewards": arrays["rewards"] * -1000})  # its meta as it was
     with pytest.raises(PolicyError, match=r"replay_buffer\.npz: the array rewards is not the one written") as excinfo:
-        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True))
+        train_policy(tiny_train_config(small_track, run_copy, steps=300, resume=True))
     fault.refused("replay_buffer.npz re-saved with its rewards x -1000, on --resume", str(excinfo.value))
 
 
@@ -322,7 +322,7 @@ def test_single_bit_flips_of_a_stable_baselines3_zip_read_the_same_tensors_or_ar
     )
 
 
-def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeypatch, fault):
+def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, small_track, monkeypatch, fault):
     before = (run_copy / "policy.pt").read_bytes()
 
     def disk_full(obj, f, *args, **kwargs):  # how torch reports it: a RuntimeError from its zip writer
@@ -334,7 +334,7 @@ def test_a_full_disk_names_the_file_and_keeps_the_previous_one(run_copy, monkeyp
 
     monkeypatch.setattr(torch, "save", disk_full)
     with pytest.raises(ArtifactWriteError, match=r"cannot write .*policy\.pt: .*No space left") as excinfo:
-        train_policy(tiny_train_config("x", run_copy, steps=210, resume=True, eval_every_steps=0))
+        train_policy(tiny_train_config(small_track, run_copy, steps=210, resume=True, eval_every_steps=0))
     assert (run_copy / "policy.pt").read_bytes() == before and not list(run_copy.glob(".*.tmp"))
     assert excinfo.value.errno == errno.ENOSPC and not str(excinfo.value).startswith("[Errno")
     fault.refused("a full disk while saving policy.pt", str(excinfo.value))
@@ -560,7 +560,7 @@ def test_a_second_writer_of_a_running_run_is_refused_with_its_files_intact(run_c
     fault.refused(f"train-policy --{mode} on the folder of a running train-policy", str(excinfo.value))
 
 
-def test_a_full_disk_while_copying_a_snapshot_leaves_no_cut_file(run_copy, monkeypatch, fault):
+def test_a_full_disk_while_copying_a_snapshot_leaves_no_cut_file(run_copy, small_track, monkeypatch, fault):
     """The snapshot checkpoints/policy_<steps>.pt was copied in place: a disk that filled (a 600 kB tmpfs) left a cut
     copy without its sidecar and a bare "[Errno 28]" line. It is written through a temporary file now."""
     from vision_rl.phase2_rl import train as train_module
@@ -571,7 +571,7 @@ def test_a_full_disk_while_copying_a_snapshot_leaves_no_cut_file(run_copy, monke
 
     monkeypatch.setattr(train_module.shutil, "copyfile", disk_full)
     with pytest.raises(ArtifactWriteError, match=r"cannot write .*policy_\d+\.pt: No space left") as excinfo:
-        train_policy(tiny_train_config("x", run_copy, steps=300, resume=True, eval_every_steps=0))
+        train_policy(tiny_train_config(small_track, run_copy, steps=300, resume=True, eval_every_steps=0))
     snapshots = {p.name for p in (run_copy / "checkpoints").iterdir()}
     assert all(name.endswith(".json") or name.replace(".pt", ".json") in snapshots for name in snapshots), snapshots
     assert not list((run_copy / "checkpoints").glob(".*.tmp"))
