@@ -139,3 +139,27 @@ def test_only_the_emitter_and_the_dispatcher_print():
         "main.py",
         "output.py",
     ]
+
+
+def test_an_error_in_a_library_thread_is_one_line(monkeypatch, capsys):
+    """TensorBoard's writer thread on a full disk printed its traceback before the command's own line."""
+    import errno
+    import threading
+
+    from vision_rl.commands import tracks
+
+    def run_with_a_failing_thread(options) -> int:
+        def write() -> None:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        thread = threading.Thread(target=write, name="EventFileWriter")
+        thread.start()
+        thread.join()
+        return 2
+
+    before = threading.excepthook
+    monkeypatch.setattr(tracks, "run_tracks", run_with_a_failing_thread)
+    assert main(["tracks"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "vision-rl tracks: error in EventFileWriter: OSError: [Errno 28] No space left on device"
+    assert threading.excepthook is before  # restored once the command ends

@@ -12,6 +12,7 @@ import importlib
 import inspect
 import os
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, NoReturn
@@ -188,10 +189,24 @@ def parse_command(name: str, argv: Sequence[str]) -> Any:
     return config_from_args(options_cls, args)
 
 
+def _thread_error_in_one_line(prog: str) -> Callable[[threading.ExceptHookArgs], None]:
+    """An error in a thread of a library (TensorBoard's writer on a full disk) in one line, not its traceback: the
+    command's own error or exit code says the rest."""
+
+    def hook(args: threading.ExceptHookArgs) -> None:
+        where = args.thread.name if args.thread is not None else "a thread"
+        print(f"{prog}: error in {where}: {args.exc_type.__name__}: {args.exc_value}", file=sys.stderr)
+
+    return hook
+
+
 def run_command(name: str, argv: Sequence[str]) -> int:
     """Parse ``argv`` into the command's options and run it; bad input is a one-line error (exit 2)."""
     command = COMMANDS[name]
     prog = f"vision-rl {name}"
+    previous_hook = threading.excepthook
+    if not _debug():
+        threading.excepthook = _thread_error_in_one_line(prog)
     try:
         options = parse_command(name, argv)
         return int(getattr(importlib.import_module(command.module), command.run)(options))
@@ -205,6 +220,8 @@ def run_command(name: str, argv: Sequence[str]) -> int:
             raise
         print(f"{prog}: stopped by Ctrl-C or SIGTERM; the files it wrote are whole or absent", file=sys.stderr)
         return 130
+    finally:
+        threading.excepthook = previous_hook
 
 
 def main(argv: Sequence[str] | None = None) -> int:
