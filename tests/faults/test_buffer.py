@@ -10,7 +10,7 @@ import pytest
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 
-from tests.helpers.bitflips import check_flips, npz_regions, sample_flips
+from tests.helpers.bitflips import check_flips, npz_regions, same_arrays, sample_flips
 from vision_rl.files import CONTENT_KEY, content_sha256, json_text
 from vision_rl.training.persist import ArtifactError, array_sha256, load_buffer, save_buffer, seal_buffer_file
 
@@ -97,10 +97,7 @@ def test_single_bit_flips_of_a_buffer_load_the_same_arrays_or_are_refused(tmp_pa
         load_buffer(buffer, path, FINGERPRINT)
         return _arrays(buffer)
 
-    def same(a, b):
-        return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
-
-    counts = check_flips(original, flips, tmp_path / "replay_buffer.npz", load, expected, ArtifactError, same)
+    counts = check_flips(original, flips, tmp_path / "replay_buffer.npz", load, expected, ArtifactError, same_arrays)
     assert counts.refused >= 250  # a flip in a zip's unused fields (its timestamps) changes no content
     fault.refused(
         f"{len(flips)} single-bit flips of replay_buffer.npz (150 over its zip and .npy headers and meta, 150 over "

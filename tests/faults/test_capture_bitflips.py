@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 import pytest
 
-from tests.helpers.bitflips import FlipOutcomes, judge_flip, sample_flips, uncovered
+from tests.helpers.bitflips import FlipOutcomes, judge_flip, same_arrays, sample_flips, uncovered
 from tests.helpers.captures import write_synthetic_capture
 from vision_rl.capture.h5format import (
     ALL_DATASETS,
@@ -55,10 +55,6 @@ def everything(cap) -> dict[str, np.ndarray]:
         **{name: getattr(cap, name) for name in TABLES},
         "complete": np.asarray(cap.complete),
     }
-
-
-def same(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> bool:
-    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 
 def read_all(path: Path) -> dict[str, np.ndarray]:
@@ -123,7 +119,7 @@ def outcomes(files: list[tuple[Path, str]], load, expected: dict[str, np.ndarray
     """Each file loads as ``expected`` or is refused in one line naming it; any other outcome fails the test."""
     counts = FlipOutcomes()
     for path, where in files:
-        judge_flip(counts, where, path, load, expected, CaptureFormatError, same)
+        judge_flip(counts, where, path, load, expected, CaptureFormatError, same_arrays)
     return {"unchanged": counts.unchanged, "refused": counts.refused}
 
 
@@ -221,7 +217,7 @@ def test_bit_flips_in_a_shard_are_refused_through_its_manifest(tmp_path, fault):
             assert "\n" not in message and shard.name in message, message
             counts["refused"] += 1
             continue
-        assert same(got, expected), f"bit {bit} of byte {offset}: other content loaded"
+        assert same_arrays(got, expected), f"bit {bit} of byte {offset}: other content loaded"
         counts["unchanged"] += 1
     fault.recovered(
         "6 single-bit flips over a shard of a sharded capture",

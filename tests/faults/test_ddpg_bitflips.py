@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.helpers.bitflips import check_flips, npz_regions, sample_flips, torch_regions
+from tests.helpers.bitflips import check_flips, npz_regions, same_arrays, sample_flips, torch_regions
 from tests.helpers.ddpg import HW, ddpg_config
 from tests.helpers.tracks import STADIUM, stadium_csv
 from vision_rl.ddpg.agent import (
@@ -129,10 +129,6 @@ def _loaded_replay(folder: Path, fingerprint: dict) -> dict[str, np.ndarray]:
     }
 
 
-def _same_arrays(a: dict, b: dict) -> bool:
-    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
-
-
 def test_single_bit_flips_of_the_replay_index_and_a_chunk_load_the_same_or_are_refused(ddpg_run, tmp_path, fault):
     run, fingerprint = ddpg_run
     folder = _copy(run, tmp_path / "run") / REPLAY_DIR
@@ -144,13 +140,13 @@ def test_single_bit_flips_of_the_replay_index_and_a_chunk_load_the_same_or_are_r
 
     index = run / REPLAY_DIR / "index.json"
     flips = sample_flips([range(index.stat().st_size)], 300, seed=14)
-    counts = check_flips(index, flips, folder / "index.json", load, expected, ArtifactError, _same_arrays)
+    counts = check_flips(index, flips, folder / "index.json", load, expected, ArtifactError, same_arrays)
     assert counts.refused >= 285
     shutil.copy(index, folder / "index.json")  # the index whole again: now the chunk's flips
     (chunk,) = (run / REPLAY_DIR).glob("chunk_*.npz")
     metadata, data = npz_regions(chunk)
     chunk_flips = sample_flips(metadata, 40, seed=15) + sample_flips(data, 40, seed=16)
-    chunks = check_flips(chunk, chunk_flips, folder / chunk.name, load, expected, ArtifactError, _same_arrays)
+    chunks = check_flips(chunk, chunk_flips, folder / chunk.name, load, expected, ArtifactError, same_arrays)
     assert chunks.refused == len(chunk_flips)  # the index holds each chunk's SHA-256
     fault.refused(
         f"300 single-bit flips of the DDPG replay index: {counts.refused} refused, {counts.unchanged} load the same "

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.helpers.bitflips import check_flips, npz_regions, sample_flips, torch_regions
+from tests.helpers.bitflips import check_flips, npz_regions, same_arrays, sample_flips, torch_regions
 from vision_rl.overtaking.dreamer import DreamerAgent, DreamerRecipe, SequenceReplay
 from vision_rl.overtaking.dreamer_train import load_sequence_replay, save_sequence_replay
 from vision_rl.training.persist import ArtifactError, read_agent, write_agent_state
@@ -39,10 +39,6 @@ def _replay() -> SequenceReplay:
     return replay
 
 
-def _same(a: dict, b: dict) -> bool:
-    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
-
-
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> dict[str, Path | str]:
     folder = tmp_path_factory.mktemp("dreamer-flips")
@@ -67,7 +63,7 @@ def test_single_bit_flips_of_the_sequence_replay_load_the_same_rows_or_are_refus
 
     expected = load(original)  # a restore keeps the rows, and counts a wrapped car's writes from them
     assert expected["observations"].shape == (CAPACITY, CARS, OBS_DIM) and expected["rewards"].any()
-    counts = check_flips(original, flips, tmp_path / "replay_buffer.npz", load, expected, ArtifactError, _same)
+    counts = check_flips(original, flips, tmp_path / "replay_buffer.npz", load, expected, ArtifactError, same_arrays)
     assert counts.refused >= 250  # a flip in a zip's unused fields (its timestamps) changes no content
     fault.refused(
         f"300 single-bit flips of a Dreamer sequence replay (150 over its zip and .npy headers and meta, 150 over its "

@@ -217,7 +217,11 @@ def test_a_vision_agent_reads_the_encoders_embedding_and_the_record_names_the_en
         return np.tile(np.array([0.0, 1.0], np.float32), (len(obs), 1))
 
     protocol = dict(
-        env_id="vision_rl/TimeTrial-v2", track=small_track, observation="vision", runs=tmp_path, seeds=1,
+        env_id="vision_rl/TimeTrial-v2",
+        track=small_track,
+        observation="vision",
+        runs=tmp_path,
+        seeds=1,
         time_limit_s=4.0,
     )
     record = vision_rl.evaluate(straight_on, name="vision-door", encoder=str(encoder), **protocol)
