@@ -10,7 +10,8 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 
-from vision_rl.training.interrupts import HeldSignal, learn_between_interrupts
+from vision_rl.sim.world import WorldInputError
+from vision_rl.training.interrupts import HeldSignal, TrainingDivergedError, learn_between_interrupts
 
 
 class _SignalAt(BaseCallback):
@@ -99,3 +100,31 @@ def test_a_run_that_ends_with_nothing_held_returns_normally():
     model = _sac()
     learn_between_interrupts(model, _SignalAt(-1), total_timesteps=40)
     assert model.num_timesteps == 40
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        ValueError("Expected parameter loc ... found invalid values:\ntensor([[nan, nan]])"),
+        WorldInputError("steer_cmd_rad[0] = nan is not a finite number; pass a finite value for every car"),
+    ],
+)
+def test_nan_outputs_are_one_line_whichever_check_meets_them_first(error):
+    class Diverging:
+        num_timesteps = 120
+
+        def learn(self, **kwargs):
+            raise error
+
+    with pytest.raises(TrainingDivergedError, match="training diverged at step 120") as excinfo:
+        learn_between_interrupts(Diverging(), _SignalAt(at=-1))
+    assert "\n" not in str(excinfo.value)
+
+
+def test_another_value_error_is_not_taken_for_divergence():
+    class Failing:
+        def learn(self, **kwargs):
+            raise WorldInputError("steer_cmd_rad must be a number or an array of shape (2,), one per car")
+
+    with pytest.raises(WorldInputError, match="one per car"):
+        learn_between_interrupts(Failing(), _SignalAt(at=-1))

@@ -17,6 +17,8 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
+from vision_rl.sim.world import WorldInputError
+
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
@@ -83,7 +85,9 @@ def learn_between_interrupts(model: Any, callback: BaseCallback, **learn_kwargs:
         try:
             return model.learn(callback=CallbackList([callback, _ReleaseAtRolloutStart(held)]), **learn_kwargs)
         except ValueError as exc:
-            if "found invalid values" not in str(exc):
+            # NaN outputs meet torch's distribution check, or, when they reach the actions first, the world's.
+            nan_action = isinstance(exc, WorldInputError) and "is not a finite number" in str(exc)
+            if "found invalid values" not in str(exc) and not nan_action:
                 raise
             raise TrainingDivergedError(
                 f"training diverged at step {getattr(model, 'num_timesteps', '?')}: the policy's outputs became NaN "
