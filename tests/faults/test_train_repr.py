@@ -363,6 +363,7 @@ def test_ctrl_c_inside_an_epoch_exits_130_keeping_the_last_epochs_end(tmp_path: 
     argv = ["train-repr", "--data", str(data), "--out", str(out), "--epochs", "3", "--batch-size", "4"]
     argv += ["--num-workers", "0", "--width-mult", "0.25", "--val-fraction", "0.25", "--no-progress", "--json"]
     sigterm_before = signal.getsignal(signal.SIGTERM)  # another test of this process (Ray's) may have set one
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # ... or left SIGINT ignored: Python's own before the run
     assert main(argv) == 130
     said = json.loads(capsys.readouterr().out)
     assert said["interrupted"] and said["finished_epochs"] == 1 and "--resume" in said["note"]
