@@ -103,7 +103,8 @@ def test_a_crafted_pickle_in_ddpg_pt_is_refused_and_never_runs(tmp_path, fault):
     fault.refused("ddpg.pt holding a pickled object that runs code", str(excinfo.value))
 
 
-def test_a_changed_replay_chunk_is_refused(tmp_path, fault):
+def _saved_one_frame_replay(folder) -> FrameReplay:
+    """A replay of one car holding its first frame, saved to ``folder``; returns it."""
     buf = FrameReplay(20, 1, HW)
     buf.start(
         {
@@ -112,7 +113,12 @@ def test_a_changed_replay_chunk_is_refused(tmp_path, fault):
             "goal": np.zeros((1, 3), np.float32),
         }
     )
-    save_replay(buf, tmp_path / "replay", {"variant": "asymmetric"})
+    save_replay(buf, folder, {"variant": "asymmetric"})
+    return buf
+
+
+def test_a_changed_replay_chunk_is_refused(tmp_path, fault):
+    _saved_one_frame_replay(tmp_path / "replay")
     chunk = next((tmp_path / "replay").glob("chunk_*.npz"))
     data = bytearray(chunk.read_bytes())
     data[len(data) // 2] ^= 0xFF
@@ -174,15 +180,7 @@ def test_runs_compare_ddpg_cannot_compare_are_refused(tmp_path, fault):
 def test_an_edited_replay_index_or_run_sidecar_is_refused_and_format_1_still_reads(track, tmp_path, fault):
     from vision_rl.ddpg.agent import SIDECAR_NAME, read_run_sidecar
 
-    buf = FrameReplay(20, 1, HW)
-    buf.start(
-        {
-            "image": np.ones((1, *HW, 3), np.uint8),
-            "motion": np.zeros((1, 15), np.float32),
-            "goal": np.zeros((1, 3), np.float32),
-        }
-    )
-    save_replay(buf, tmp_path / "replay", {"variant": "asymmetric"})
+    buf = _saved_one_frame_replay(tmp_path / "replay")
     index_path = tmp_path / "replay" / "index.json"
     index = json.loads(index_path.read_text())
     assert index["format_version"] == 2 and "content_sha256" in index

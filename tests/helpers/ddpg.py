@@ -10,48 +10,24 @@ from vision_rl.ddpg.train import TrainDDPGConfig
 
 #: Frames of the tiny runs, (height, width) px.
 HW = (32, 48)
+#: What every tiny run shares: 2 cars, a small buffer and batch, no evaluation and no checkpoint.
+_TINY = dict(
+    cars=2, buffer_size=200, learning_starts=8, batch_size=8, eval_every_steps=0, eval_seeds=0, checkpoint_every_steps=0
+)
 
 
 def ddpg_config(track: str, out, **kw) -> TrainDDPGConfig:
     """train-ddpg for 24 steps of 2 cars on ``track`` with one sampler actor, no evaluation and no checkpoint;
     ``kw`` overrides any option (flat names)."""
-    base = dict(
-        track=track,
-        cars=2,
-        steps=24,
-        out=str(out),
-        image_hw_px=HW,
-        buffer_size=200,
-        learning_starts=8,
-        batch_size=8,
-        eval_every_steps=0,
-        eval_seeds=0,
-        checkpoint_every_steps=0,
-        workers=1,
-        max_staleness=0,
-        version_every_updates=2,
-    )
-    return from_flat(TrainDDPGConfig, {**base, **kw})
+    base = dict(steps=24, image_hw_px=HW, workers=1, max_staleness=0, version_every_updates=2)
+    return from_flat(TrainDDPGConfig, {**_TINY, "track": track, "out": str(out), **base, **kw})
 
 
 def timed_ddpg_config(track: str, out, **kw) -> TrainDDPGConfig:
     """train-ddpg of the state actor, 2 cars sampled in-process, stopped by a training budget of 1.2 s (not by its
     steps), no evaluation and no checkpoint; ``kw`` overrides any option (flat names)."""
-    base = dict(
-        variant="state-actor",
-        track=track,
-        cars=2,
-        steps=10**7,
-        out=str(out),
-        buffer_size=200,
-        learning_starts=8,
-        batch_size=8,
-        eval_every_steps=0,
-        eval_seeds=0,
-        checkpoint_every_steps=0,
-        train_minutes=0.02,
-    )
-    return from_flat(TrainDDPGConfig, {**base, **kw})
+    base = dict(variant="state-actor", steps=10**7, train_minutes=0.02)
+    return from_flat(TrainDDPGConfig, {**_TINY, "track": track, "out": str(out), **base, **kw})
 
 
 def hand_made_run(
