@@ -10,7 +10,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 
-from vision_rl.sim.world import WorldInputError
+from vision_rl.sim.world import NonFiniteInputError, WorldInputError
 from vision_rl.training.interrupts import HeldSignal, TrainingDivergedError, learn_between_interrupts
 
 
@@ -106,7 +106,7 @@ def test_a_run_that_ends_with_nothing_held_returns_normally():
     "error",
     [
         ValueError("Expected parameter loc ... found invalid values:\ntensor([[nan, nan]])"),
-        WorldInputError("steer_cmd_rad[0] = nan is not a finite number; pass a finite value for every car"),
+        NonFiniteInputError("steer_cmd_rad[0] = nan is not a finite number; pass a finite value for every car"),
     ],
 )
 def test_nan_outputs_are_one_line_whichever_check_meets_them_first(error):

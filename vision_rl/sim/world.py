@@ -56,6 +56,10 @@ class WorldInputError(ValueError):
     the car and the value."""
 
 
+class NonFiniteInputError(WorldInputError):
+    """A NaN or infinite value given to the world (a trainer tells a diverged policy's actions by it)."""
+
+
 def _per_car(name: str, value, k: int) -> np.ndarray:
     """``value`` as a finite (k,) float64 array (a scalar or a length-1 array broadcasts), or a WorldInputError."""
     try:
@@ -68,7 +72,9 @@ def _per_car(name: str, value, k: int) -> np.ndarray:
     if len(bad):
         i = int(bad[0])
         where = f"{name}[{i}]" if a.ndim else name
-        raise WorldInputError(f"{where} = {a.reshape(-1)[i]} is not a finite number; pass a finite value for every car")
+        raise NonFiniteInputError(
+            f"{where} = {a.reshape(-1)[i]} is not a finite number; pass a finite value for every car"
+        )
     return np.broadcast_to(a, (k,))
 
 

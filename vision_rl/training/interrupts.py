@@ -17,7 +17,7 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
-from vision_rl.sim.world import WorldInputError
+from vision_rl.sim.world import NonFiniteInputError
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -86,8 +86,7 @@ def learn_between_interrupts(model: Any, callback: BaseCallback, **learn_kwargs:
             return model.learn(callback=CallbackList([callback, _ReleaseAtRolloutStart(held)]), **learn_kwargs)
         except ValueError as exc:
             # NaN outputs meet torch's distribution check, or, when they reach the actions first, the world's.
-            nan_action = isinstance(exc, WorldInputError) and "is not a finite number" in str(exc)
-            if "found invalid values" not in str(exc) and not nan_action:
+            if "found invalid values" not in str(exc) and not isinstance(exc, NonFiniteInputError):
                 raise
             raise TrainingDivergedError(
                 f"training diverged at step {getattr(model, 'num_timesteps', '?')}: the policy's outputs became NaN "
