@@ -342,7 +342,9 @@ def resolve_policy_paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
         spec_path = path.parent / SIDECAR_NAME if path.name == MODEL_NAME else snapshot_sidecar(path)
     if not spec_path.is_file():
         if not path.exists():
-            raise PolicyError(f"{path}: no such policy (give a train-policy run folder or its {MODEL_NAME})")
+            raise PolicyError(
+                f"{path}: no such policy (give a run folder of the command that trained it, or its {MODEL_NAME})"
+            )
         raise PolicyError(f"{path}: the policy has no sidecar ({spec_path.name}) beside it")
     weights = spec_path.parent / PolicySpec.read(spec_path).model
     if not weights.is_file():
