@@ -66,3 +66,22 @@ def test_train_minutes_end_a_sampled_session(ray_local, track, tmp_path):
     result = train_ddpg(ddpg_config(track, tmp_path / "run", variant="state-actor", steps=10**7, train_minutes=0.03))
     assert result["stopped_by"] == "train_minutes" and 0 < result["num_steps"] < 10**7
     assert result["train_time_s"] >= 1.8 and result["sampling"]["samplers_lost"] == []
+
+
+def test_an_episode_record_names_the_rule_that_ended_it():
+    """A crashState ends an episode only under terminate_on_crash: without it, the line-distance or stuck rule did."""
+    from vision_rl.ddpg.sampling import episode_record
+
+    info = {
+        "crash_state": np.array([2, 3]),
+        "line_distance_m": np.array([1.0, 20.0]),
+        "episode_return": np.zeros(2),
+        "episode_steps": np.array([7, 9]),
+        "progress_m": np.zeros(2),
+        "laps_completed": np.zeros(2, int),
+    }
+    crash_ends = PixelRacingConfig(max_line_distance_m=15.0)
+    crash_goes_on = PixelRacingConfig(max_line_distance_m=15.0, terminate_on_crash=False)
+    assert [episode_record(info, i, True, crash_ends)["end"] for i in (0, 1)] == ["crash 2", "crash 3"]
+    assert [episode_record(info, i, True, crash_goes_on)["end"] for i in (0, 1)] == ["stuck", "line distance"]
+    assert episode_record(info, 0, False, crash_goes_on)["end"] == "time"

@@ -180,7 +180,7 @@ MAX_CARS = 64
 
 
 #: The environment's fields that are train-ddpg options, with the command's help for them (PixelRacingConfig's own
-#: docstrings say more); the rest (control step, frames, crash and stuck rules) keep their defaults or follow --variant.
+#: docstrings say more); the rest (control step, frames, the stuck rule) keep their defaults or follow --variant.
 ENV_OPTIONS_HELP = {
     "track": "Track (the paper's Barcelona-Catalunya).",
     "car": "Car preset (the paper's Porsche 911 GT3 R).",
@@ -193,6 +193,10 @@ ENV_OPTIONS_HELP = {
     "line_distance_alpha": "alpha of the reward V - alpha |racing-line distance| - beta crashState, (m/s) per m.",
     "crash_penalty_beta": "beta of the reward (0: the paper's simple reward).",
     "max_line_distance_m": "An episode ends farther than this from the racing line, m.",
+    "terminate_on_crash": (
+        "the end of an episode at a non-zero crashState (off track, a wall, spinning): it goes on, penalised by "
+        "beta (the paper's alternative reward)."
+    ),
     "start": "Episodes start at a random point (random) or on the start/finish line (line).",
     "start_skill": (
         "Episodes start at this share of the limit speed there (the built-in AI's; 0: from standstill, as a race in "

@@ -17,7 +17,7 @@ import os
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,17 +30,20 @@ from vision_rl.training.distributed import (
     worker_seed,
 )
 
+if TYPE_CHECKING:
+    from vision_rl.envs.pixel_racing import PixelRacingConfig
+
 OBS_KEYS = ("image", "motion", "goal")
 
 
-def episode_record(info: Mapping[str, np.ndarray], i: int, terminated: bool, max_line_distance_m: float) -> dict:
-    """The line of episodes.jsonl of car ``i``, whose episode ended in a PixelRacing step with ``info``: return,
-    steps, distance, laps and why it ended (time, crash <state>, line distance, stuck)."""
+def episode_record(info: Mapping[str, np.ndarray], i: int, terminated: bool, env: PixelRacingConfig) -> dict:
+    """The line of episodes.jsonl of car ``i``, whose episode ended in a PixelRacing step with ``info`` under the
+    rules of ``env``: return, steps, distance, laps and why it ended (time, crash <state>, line distance, stuck)."""
     if not terminated:
         end = "time"
-    elif info["crash_state"][i]:
+    elif env.terminate_on_crash and info["crash_state"][i]:
         end = f"crash {int(info['crash_state'][i])}"
-    elif info["line_distance_m"][i] > max_line_distance_m:
+    elif info["line_distance_m"][i] > env.max_line_distance_m:
         end = "line distance"
     else:
         end = "stuck"
@@ -100,7 +103,7 @@ class DDPGSampler:
         self.core = PixelRacingCore(env, seed=seed)
         self.core.reset_cars(self.core.ids)
         self.obs = self.core.observation()
-        self.max_line_distance_m = env.max_line_distance_m
+        self.env = env
         self.version = -1
 
     def ready(self) -> dict[str, np.ndarray]:
@@ -135,7 +138,7 @@ class DDPGSampler:
             ended = np.flatnonzero(done)
             if len(ended):
                 for i in ended:
-                    record = episode_record(info, i, bool(terminated[i]), self.max_line_distance_m)
+                    record = episode_record(info, i, bool(terminated[i]), self.env)
                     out["episodes"].append({"step": k, **record})
                 self.core.reset_cars(ended)
                 reset_obs = self.core.observation(ended)

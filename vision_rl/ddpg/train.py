@@ -404,7 +404,7 @@ def _learn_here(
             if done.any():
                 ids = np.flatnonzero(done)
                 for i in ids:  # one line per finished episode (episode ends, not steps)
-                    log_episode(episode_record(info, i, bool(terminated[i]), env.max_line_distance_m))
+                    log_episode(episode_record(info, i, bool(terminated[i]), env))
                 core.reset_cars(ids)
                 reset_obs = core.observation(ids)
                 agent.noise.reset(ids)
