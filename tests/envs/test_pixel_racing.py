@@ -183,6 +183,23 @@ def test_the_episode_ends_beyond_the_line_distance(small_track):
     assert terminated[0] and info["crash_state"][0] == CRASH_NONE and info["line_distance_m"][0] > 0.5
 
 
+@pytest.mark.parametrize("terminate_on_crash", [True, False])
+def test_a_crash_ends_the_episode_only_when_asked_and_costs_beta_per_unit(small_track, terminate_on_crash):
+    """A car turned round (crashState 3, spinning) on the line: the paper's next-step rule ends the episode; without
+    it the episode goes on and the reward loses beta x 3."""
+    config = PixelRacingConfig(
+        track=small_track, frames=False, start="line", crash_penalty_beta=2.0, terminate_on_crash=terminate_on_crash
+    )
+    core = PixelRacingCore(config, seed=0)
+    core.reset_cars(core.ids)
+    lateral = core.observer.line.lateral_at(np.zeros(1))
+    core.world.reset(s_m=np.zeros(1), lateral_m=lateral, speed_mps=5.0, heading_offset_rad=math.pi)
+    _, reward, terminated, _, info = core.step(np.zeros((1, 4)))
+    assert info["crash_state"][0] == CRASH_SPINNING and terminated[0] == terminate_on_crash
+    expected = info["forward_speed_mps"] - info["line_distance_m"] - 2.0 * 3
+    np.testing.assert_allclose(reward, expected, rtol=1e-5)
+
+
 def test_vector_form_resets_finished_cars_in_the_same_step(small_track):
     env = PixelRacingVectorEnv(n_cars=3, seed=1, track=small_track, frames=False, episode_s=0.3)
     try:
