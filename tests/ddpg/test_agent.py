@@ -321,6 +321,7 @@ def test_train_minutes_stop_a_run_and_a_resume_with_more_continues_it(track, tmp
     second = train_ddpg(timed_ddpg_config(track, run, train_minutes=0.04, resume=True))
     assert second["stopped_by"] == "train_minutes" and second["num_steps"] > first["num_steps"]
     assert 2.4 <= second["train_time_s"] < 12.0
+    assert 0 < first["train_cpu_s"] < second["train_cpu_s"]  # CPU time adds up over sessions too
     with pytest.raises(ValueError, match="--train-minutes -1"):
         train_ddpg(timed_ddpg_config(track, run, train_minutes=-1.0, force=True))
 

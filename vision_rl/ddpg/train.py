@@ -128,15 +128,26 @@ class _Run:
         self.num_steps = int(counters.get("num_steps", 0))
         self.episodes = int(counters.get("episodes", 0))
         self.train_time_before_s = float(counters.get("train_time_s", 0.0))
+        # CPU time tells what a shared core really gave a run of an equal-compute comparison (older runs: 0).
+        self.train_cpu_before_s = float(counters.get("train_cpu_s", 0.0))
         if cfg.resume:
             _drop_lost_episodes(self.out / EPISODES_NAME, self.num_steps)
-        self.session_start = time.perf_counter()
+        self.start_clocks()
         self.last_eval: dict[str, Any] | None = None
         self.driver: DDPGDriver | None = None
+
+    def start_clocks(self) -> None:
+        """Training time (wall-clock and this process's CPU) counts from here on."""
+        self.session_start, self.cpu_session_start = time.perf_counter(), time.process_time()
 
     @property
     def train_time_s(self) -> float:
         return self.train_time_before_s + time.perf_counter() - self.session_start
+
+    @property
+    def train_cpu_s(self) -> float:
+        """CPU seconds of this process's training (all its threads; evaluations and Ray samplers excluded)."""
+        return self.train_cpu_before_s + time.process_time() - self.cpu_session_start
 
     @property
     def out_of_time(self) -> bool:
@@ -149,6 +160,7 @@ class _Run:
             "n_updates": agent.n_updates,
             "episodes": self.episodes,
             "train_time_s": round(self.train_time_s, 2),
+            "train_cpu_s": round(self.train_cpu_s, 2),
         }
 
     def save(self, agent: DDPGAgent, buffer: FrameReplay | None) -> None:
@@ -174,7 +186,7 @@ class _Run:
 
     def evaluate(self, agent: DDPGAgent) -> dict[str, Any]:
         cfg = self.cfg
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         if self.driver is None:
             self.driver = DDPGDriver(agent)
         timing = time_laps(
@@ -188,6 +200,7 @@ class _Run:
         summary = timing.summary()
         eval_time = time.perf_counter() - t0
         self.session_start += eval_time  # evaluation time is not training time
+        self.cpu_session_start += time.process_time() - cpu0
         record = {
             "num_steps": self.num_steps,
             "n_updates": agent.n_updates,
@@ -292,6 +305,7 @@ def _train_run(run: _Run, cfg: TrainDDPGConfig, cluster: Any, progress: Progress
         "n_updates": agent.n_updates,
         "episodes": run.episodes,
         "train_time_s": round(run.train_time_s, 2),
+        "train_cpu_s": round(run.train_cpu_s, 2),
         "stopped_by": "interrupt" if interrupted else "steps" if run.num_steps >= cfg.steps else "train_minutes",
         "interrupted": interrupted,
         "resumed": cfg.resume,
@@ -395,7 +409,7 @@ def _learn_here(
         buffer.start(obs)
         agent.noise.reset()
         collected = 0
-        run.session_start = time.perf_counter()  # training time starts with the first step, after the set-up
+        run.start_clocks()  # training time starts with the first step, after the set-up
         while run.num_steps < cfg.steps and not run.out_of_time:
             keys = agent.act(obs, explore=True)
             next_obs, reward, terminated, truncated, info = core.step(keys)
@@ -467,7 +481,7 @@ def _learn_with_samplers(
     )
     setup = sampler_setup(run.hyper, env, run.fingerprint, cfg.seed + run.num_steps)
     learner = DDPGLearner(agent, buffer, n, rng, restored, on_vector_step)
-    run.session_start = time.perf_counter()  # training time starts with the samplers, after the set-up
+    run.start_clocks()  # training time starts with the samplers, after the set-up
     try:
         return learn_with_samplers(learner, setup, pacing, cluster, log_event=log_event)
     except SamplersLostError as exc:
