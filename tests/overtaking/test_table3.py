@@ -74,3 +74,31 @@ def test_found_runs_of_another_track_are_skipped_with_the_reason(bc_run, tmp_pat
 def test_a_run_named_twice_is_refused_as_one_training_seed(bc_run, small_track):
     with pytest.raises(ValueError, match="more than once"):
         table3(Table3Config(runs=f"{bc_run},{bc_run}", track=small_track, car="tt_cup", seeds=1, laps=1))
+
+
+def test_kept_rows_stand_in_for_algorithms_without_a_run_and_a_foreign_or_changed_record_is_refused(
+    bc_run, small_track, tmp_path
+):
+    """--keep: a row of an earlier record fills an algorithm with no run here (marked as kept), a run given here is
+    timed again, and a record of other protocol terms or changed after it was written is refused in one line."""
+    from vision_rl.files import write_json
+
+    table = dict(track=small_track, car="tt_cup", seeds=1, laps=1, demonstrator=False)
+    earlier = table3(Table3Config(runs=str(bc_run), **table))
+    kept_path = tmp_path / "earlier.json"
+    write_json(kept_path, earlier)
+    (tmp_path / "none").mkdir()
+    rows = {
+        r["key"]: r
+        for r in table3(Table3Config(runs_root=str(tmp_path / "none"), keep=str(kept_path), **table))["rows"]
+    }
+    assert rows["bc"]["kept_from"] == str(kept_path) and rows["bc"]["runs"] == earlier["rows"][1]["runs"]
+    assert rows["gail"]["status"] == "not trained" and "kept_from" not in rows["ai"]
+    again = {r["key"]: r for r in table3(Table3Config(runs=str(bc_run), keep=str(kept_path), **table))["rows"]}
+    assert "kept_from" not in again["bc"] and again["bc"]["run"] == str(bc_run)
+    with pytest.raises(ValueError, match=r"would not compare: protocol laps 1 \(here 2\)"):
+        table3(Table3Config(runs=str(bc_run), keep=str(kept_path), **{**table, "laps": 2}))
+    earlier["rows"][1]["lap_time_s"] = 1.0
+    write_json(kept_path, earlier)
+    with pytest.raises(ValueError, match="changed after it was written"):
+        table3(Table3Config(runs=str(bc_run), keep=str(kept_path), **table))

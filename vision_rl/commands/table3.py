@@ -51,6 +51,8 @@ def format_table3(result: dict[str, Any]) -> list[str]:
             )
         if row.get("reason"):
             lines.append(f"  {row['name']}: {row['reason']}")
+        if row.get("kept_from"):
+            lines.append(f"  {row['name']}: kept from {row['kept_from']} (not timed again)")
         over = row.get("over_training_seeds")
         if over:
             spread = "" if over["lap_time_std_s"] is None else f" +- {number_text(over['lap_time_std_s'])}"

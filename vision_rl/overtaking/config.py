@@ -353,6 +353,9 @@ class Table3Config:
     """Protocol time limit, s (0: the protocol's, 3 x the limit lap per lap)."""
     demonstrator: bool = True
     """Add the imitation baselines' demonstrator (the AI held at 10 Hz) as an extra row."""
+    keep: str = ""
+    """A table3 record (its --json) whose rows stand in for the algorithms with no run here (runs gone, or not
+    timed again), each marked as kept; it must be of the same track, car and protocol."""
 
 
 ALIAS_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,31}")

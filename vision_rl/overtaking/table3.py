@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from vision_rl.evaluation.leaderboard import aggregate_seeds
-from vision_rl.evaluation.protocol import BuiltinAI, time_laps
-from vision_rl.files import sealed_record
+from vision_rl.evaluation.protocol import BuiltinAI, rules, time_laps
+from vision_rl.files import content_damage, parse_json, sealed_record
 from vision_rl.overtaking.baseline_run import BaselineError, baseline_algo, check_table_track
 from vision_rl.overtaking.baselines import load_baseline
 from vision_rl.overtaking.config import Table3Config
@@ -112,16 +112,19 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
 
     if progress is not None:
         progress("ai")
+    protocol = {**rules(), "seeds": cfg.seeds, "laps": cfg.laps, "time_limit_s": cfg.time_limit_s}
+    kept = kept_rows(cfg.keep, track.geometry_hash, cfg.car, protocol) if cfg.keep else {}
     ai = _timed_row("ai", _figures(timed(BuiltinAI())))
-    rows = [ai, *(_algo_row(algo, key, loaded, timed, progress) for algo, key in ROW_OF_ALGO.items())]
+    rows = [ai]
+    for algo, key in ROW_OF_ALGO.items():
+        row = _algo_row(algo, key, loaded, timed, progress)
+        rows.append({**kept[key], "kept_from": cfg.keep} if row["status"] == "not trained" and key in kept else row)
     if cfg.demonstrator:
         if progress is not None:
             progress("demonstrator")
         rows.append(_timed_row("demonstrator", _figures(timed(HeldAIDriver()))))
     for row in rows:
         _beside_the_paper(row, ai)
-    from vision_rl.evaluation.protocol import rules
-
     # Sealed: `table3 --json` is the record `vision-rl report` builds Table III from, and it refuses one without.
     return sealed_record(
         {
@@ -130,11 +133,42 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
             "track_name": track.name,
             "track_geometry_hash": track.geometry_hash,
             "car": cfg.car,
-            "protocol": {**rules(), "seeds": cfg.seeds, "laps": cfg.laps, "time_limit_s": cfg.time_limit_s},
+            "protocol": protocol,
             "rows": rows,
             "skipped": skipped,
         }
     )
+
+
+def kept_rows(path: str, geometry_hash: str, car: str, protocol: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The algorithm rows of the sealed table3 record at ``path`` that hold figures, by key; refused in one line when
+    the record is damaged or of another track, car or protocol than the table being made."""
+    try:
+        record = parse_json(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise BaselineError(f"--keep {path}: cannot read it as a table3 record ({exc})") from None
+    if not isinstance(record, dict) or not isinstance(record.get("rows"), list):
+        raise BaselineError(f"--keep {path}: not a table3 record (no rows)")
+    damage = content_damage(record)
+    if damage:
+        raise BaselineError(f"--keep {path} {damage}")
+    # The protocol's version is its contract (a change of rules bumps it); seeds, laps and limit are the table's.
+    terms = ("version", "seeds", "laps", "time_limit_s")
+    theirs_protocol = record.get("protocol") if isinstance(record.get("protocol"), dict) else {}
+    mine = {"track geometry": geometry_hash, "car": car, **{f"protocol {t}": protocol[t] for t in terms}}
+    theirs = {
+        "track geometry": record.get("track_geometry_hash"),
+        "car": record.get("car"),
+        **{f"protocol {t}": theirs_protocol.get(t) for t in terms},
+    }
+    differ = [f"{name} {theirs[name]} (here {value})" for name, value in mine.items() if theirs[name] != value]
+    if differ:
+        raise BaselineError(f"--keep {path}: its rows would not compare: {', '.join(differ)}")
+    return {
+        row["key"]: row
+        for row in record["rows"]
+        if isinstance(row, dict) and row.get("key") in ROW_OF_ALGO.values() and row.get("status") != "not trained"
+    }
 
 
 def _load_runs(paths: list[Path], cfg: Table3Config, refuse: bool) -> tuple[list[tuple[Path, Any]], list[dict]]:
