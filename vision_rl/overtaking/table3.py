@@ -8,7 +8,8 @@ the best scored lap over the protocol's seeds and that lap's average speed (cent
 km/h); with several runs of one algorithm (training seeds) the fastest run is the row, every run is listed, and
 ``over_training_seeds`` gives the mean and spread of the runs' best laps. Each row stands beside the paper's as
 ratios to their own table's built-in AI. The PlaNet row is timed from ``dreamer`` runs (:mod:`.dreamer` says why).
-An algorithm without a run reads "not trained". Why ratios, and the vision paper's rule: docs/notes/overtaking.md,
+An algorithm without a run reads "not trained", or keeps its row from an earlier record (``--keep``, marked
+``kept_from``) when its runs are gone. Why ratios, and the vision paper's rule: docs/notes/overtaking.md,
 "table3.py".
 """
 
