@@ -110,7 +110,8 @@ def format_compare(result: dict) -> list[str]:
         )
         lines.append(
             f"  {r['name']:<20} {distance:>8} (best {r['best_distance_m'] or 0:.0f} m), {r['episodes']} "
-            f"episodes, {r['updates']} updates ({r['updates_per_s']:.2f}/s); {lap}"
+            f"episodes, {r['updates']} updates ({r['updates_per_s']:.2f}/s), {r['train_cpu_minutes']:.1f} CPU "
+            f"minutes; {lap}"
         )
     return [*lines, f"figure: {result['figure']}   numbers: {result['json']}"]
 

@@ -34,7 +34,7 @@ def format_train_ddpg(result: dict[str, Any]) -> list[str]:
     lines = [
         f"agent: {result['agent']} ({result['variant']}, {result['track']}, {result['car']}), {result['num_steps']} "
         f"steps, {result['n_updates']} updates, {result['episodes']} episodes, {result['train_time_s']:.0f} s of "
-        "training"
+        f"training ({result['train_cpu_s']:.0f} s of CPU)"
         + (" (interrupted: saved, continue with --resume)" if result["interrupted"] else "")
         + (
             " (its --train-minutes are up: continue with --resume and more)"
