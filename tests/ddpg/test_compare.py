@@ -14,7 +14,7 @@ def test_runs_are_cut_at_the_common_time_and_binned(tmp_path):
     a = hand_made_run(tmp_path / "a", "asymmetric", 30.0, a_episodes)
     # Trained 40 minutes: its episodes after minute 30 are not compared.
     s_episodes = [(2, 50, 0), (21, 150, 0), (28, 250, 0), (35, 9000, 1)]
-    s = hand_made_run(tmp_path / "s", "symmetric", 40.0, s_episodes, updates=1200)
+    s = hand_made_run(tmp_path / "s", "symmetric", 40.0, s_episodes, updates=1200, cpu_minutes=13.5)
     result = compare_runs([a, s], bin_min=10.0)
     assert result["common_minutes"] == 30.0 and result["bin_start_minutes"] == [0.0, 10.0, 20.0]
     ra, rs = result["runs"]
@@ -25,5 +25,6 @@ def test_runs_are_cut_at_the_common_time_and_binned(tmp_path):
     assert rs["episodes"] == 3 and rs["bin_mean_distance_m"] == [50.0, None, 200.0]
     assert rs["first_lap_episode"] is None and rs["best_distance_m"] == 250.0
     assert ra["updates_per_s"] == pytest.approx(600 / 1800) and rs["updates_per_s"] == pytest.approx(1200 / 2400)
+    assert ra["train_cpu_minutes"] is None and rs["train_cpu_minutes"] == 13.5  # a run's own CPU time, not cut
     png = plot_comparison(result, tmp_path / "fig.png")
     assert png.stat().st_size > 5000

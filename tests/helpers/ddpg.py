@@ -31,16 +31,21 @@ def timed_ddpg_config(track: str, out, **kw) -> TrainDDPGConfig:
 
 
 def hand_made_run(
-    folder, variant: str, minutes: float, episodes: list[tuple[float, float, int]], track="Catalunya", updates=600
+    folder,
+    variant: str,
+    minutes: float,
+    episodes: list[tuple[float, float, int]],
+    track="Catalunya",
+    updates=600,
+    cpu_minutes: float | None = None,
 ):
-    """A run folder whose episodes end at (training minute, distance m, laps)."""
+    """A run folder whose episodes end at (training minute, distance m, laps); ``cpu_minutes`` None: a run from
+    before the CPU-time counter."""
     folder.mkdir()
-    sidecar = {
-        "hyper": {"variant": variant},
-        "env": {"track": track, "car": "gt3"},
-        "seed": 1,
-        "counters": {"train_time_s": 60.0 * minutes, "num_steps": 1000, "n_updates": updates},
-    }
+    counters = {"train_time_s": 60.0 * minutes, "num_steps": 1000, "n_updates": updates}
+    if cpu_minutes is not None:
+        counters["train_cpu_s"] = 60.0 * cpu_minutes
+    sidecar = {"hyper": {"variant": variant}, "env": {"track": track, "car": "gt3"}, "seed": 1, "counters": counters}
     (folder / "ddpg.json").write_text(json.dumps(sidecar))
     lines = [
         json.dumps({"train_time_s": 60.0 * m, "distance_m": d, "laps": laps, "return": d, "end": "crash 2"})

@@ -108,10 +108,10 @@ def format_compare(result: dict) -> list[str]:
             if r["first_lap_episode"] is None
             else (f"first lap in episode {r['first_lap_episode']} after {r['first_lap_minutes']:.1f} min")
         )
+        cpu = "" if r["train_cpu_minutes"] is None else f", {r['train_cpu_minutes']:.1f} CPU minutes"
         lines.append(
             f"  {r['name']:<20} {distance:>8} (best {r['best_distance_m'] or 0:.0f} m), {r['episodes']} "
-            f"episodes, {r['updates']} updates ({r['updates_per_s']:.2f}/s), {r['train_cpu_minutes']:.1f} CPU "
-            f"minutes; {lap}"
+            f"episodes, {r['updates']} updates ({r['updates_per_s']:.2f}/s){cpu}; {lap}"
         )
     return [*lines, f"figure: {result['figure']}   numbers: {result['json']}"]
 

@@ -84,7 +84,9 @@ def compare_runs(
                 "steps": int(counters["num_steps"]),
                 "updates": int(counters["n_updates"]),
                 "updates_per_s": int(counters["n_updates"]) / max(float(counters["train_time_s"]), 1e-9),
-                "train_cpu_minutes": round(float(counters.get("train_cpu_s", 0.0)) / 60.0, 2),
+                "train_cpu_minutes": (  # None: a run from before the counter
+                    round(float(counters["train_cpu_s"]) / 60.0, 2) if "train_cpu_s" in counters else None
+                ),
                 "episodes": len(t),
                 "mean_distance_last_m": round(float(distance[last].mean()), 1) if last.any() else None,
                 "best_distance_m": round(float(distance.max()), 1) if len(t) else None,
