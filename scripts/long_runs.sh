@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Long trainings in chunks that survive the end of a session: each lane is a file of vision-rl command lines run in
 # turn, each line again and again in chunks of CHUNK_MIN minutes (SIGTERM saves weights and replay buffer; the same
-# line continues the run) until it exits 0. Run folders live outside the checkout (RUNS, default ~/vision_rl-runs).
+# line continues the run, given --resume if its trainer asks for it) until it exits 0. Run folders live outside the
+# checkout (RUNS, default ~/vision_rl-runs).
 #
 #   scripts/long_runs.sh start LANE.txt [LANE.txt ...]   start each lane in the background (niced)
 #   scripts/long_runs.sh status                          the lanes' last lines
@@ -17,19 +18,24 @@ LOGS=$RUNS/logs
 mkdir -p "$LOGS"
 
 run_lane() {
-  local lane=$1 name line rc
+  local lane=$1 name line rc resume
   name=$(basename "$lane" .txt)
   while IFS= read -r line || [ -n "$line" ]; do
     [ -z "$line" ] && continue
     case $line in \#*) continue ;; esac
+    resume=""
     while true; do
-      echo "$(date -Is) start $line" >> "$LOGS/$name.log"
+      echo "$(date -Is) start $line $resume" >> "$LOGS/$name.log"
       (cd "$CODE" && eval nice -n 19 timeout -s TERM "${CHUNK_MIN}m" "$PYTHON" -m vision_rl.commands.main $line \
-        --no-progress) >> "$LOGS/$name.out" 2>> "$LOGS/$name.err"
+        $resume --no-progress) >> "$LOGS/$name.out" 2>> "$LOGS/$name.err"
       rc=$?
-      echo "$(date -Is) rc=$rc $line" >> "$LOGS/$name.log"
+      echo "$(date -Is) rc=$rc $line $resume" >> "$LOGS/$name.log"
       [ $rc -eq 0 ] && break
       case $rc in 124|130|143) continue ;; esac  # a chunk ended (timeout's SIGTERM saved the run): go on
+      # A trainer that continues a run only when asked (train-ddpg, train-policy) refuses a folder holding one: ask.
+      if [ -z "$resume" ] && tail -n 1 "$LOGS/$name.err" | grep -q "holds a run: pass --resume"; then
+        resume=--resume; continue
+      fi
       echo "$(date -Is) FAILED rc=$rc $line" >> "$LOGS/$name.log"; break
     done
   done < "$lane"
