@@ -82,11 +82,13 @@ def test_a_changed_record_changes_its_tables(results_copy):
     edit_record(results_copy, AI_HATCHBACK, lambda r: r.update(best_lap_time_s=150.0))
     edit_record(results_copy, QUICK_JOB, lambda r: r["vision"].update(lap_time_s=128.5, train_seconds=401))
     edit_record(results_copy, TABLE3, lambda r: next(x for x in r["rows"] if x["key"] == "sac").update(lap_time_s=88.0))
+    edit_record(results_copy, TABLE3, lambda r: next(x for x in r["rows"] if x["key"] == "td3").update(kept_from="a"))
     after = build_tables(results_copy)
     assert "| 2:30.000 |" in after["vision"] and "| 2:19.299 |" in before["vision"]
     assert "13.80 % faster than the AI" in after["vision"]  # 2:09.293 against 2:30.000
     assert "vision 2:08.500" in after["vision"] and "| 401 s | lap 2:08.500 (3/3 starts) |" in after["quick"]
-    assert "**88.00 s** (0.875 of the AI's)" in after["overtaking"]
+    assert "**88.00 s** (0.875 of the AI's), 9/9 starts" in after["overtaking"]
+    assert "**92.16 s** (0.916 of the AI's), kept from an earlier timing of the table, 7/9" in after["overtaking"]
     assert after["ddpg"] == before["ddpg"] and after["phase1"] == before["phase1"]
 
 

@@ -370,6 +370,8 @@ def _table3_rows(records: Records) -> list[tuple[str, ...]]:
         row, seeds = rows[key], rows[key]["over_training_seeds"]
         lap_s = row["lap_time_s"]
         ours = "DNF" if lap_s is None else f"**{lap_s:.2f} s** ({lap_s / ai_s:.3f} of the AI's)"
+        if row.get("kept_from"):  # `table3 --keep`: a row whose runs were not timed again
+            ours += ", kept from an earlier timing of the table"
         out.append(
             (
                 f"Table III, {name}: lap 2, the best start of {seeds['n_training_seeds']} training "
