@@ -23,7 +23,8 @@ from typing import Any
 
 from vision_rl.evaluation.leaderboard import aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, rules, time_laps
-from vision_rl.files import content_damage, parse_json, sealed_record
+from vision_rl.evaluation.report import record_damage
+from vision_rl.files import parse_json, sealed_record
 from vision_rl.overtaking.baseline_run import BaselineError, baseline_algo, check_table_track
 from vision_rl.overtaking.baselines import load_baseline
 from vision_rl.overtaking.config import Table3Config
@@ -106,6 +107,8 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
     repeated = sorted({str(p) for p in paths if paths.count(p) > 1})
     if repeated:
         raise ValueError(f"--runs names {', '.join(repeated)} more than once: each run is one training seed")
+    protocol = {**rules(), "seeds": cfg.seeds, "laps": cfg.laps, "time_limit_s": cfg.time_limit_s}
+    kept = kept_rows(cfg.keep, track.geometry_hash, cfg.car, protocol) if cfg.keep else {}
     loaded, skipped = _load_runs(paths, cfg, refuse=bool(explicit))
 
     def timed(driver) -> dict[str, Any]:
@@ -113,8 +116,6 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
 
     if progress is not None:
         progress("ai")
-    protocol = {**rules(), "seeds": cfg.seeds, "laps": cfg.laps, "time_limit_s": cfg.time_limit_s}
-    kept = kept_rows(cfg.keep, track.geometry_hash, cfg.car, protocol) if cfg.keep else {}
     ai = _timed_row("ai", _figures(timed(BuiltinAI())))
     rows = [ai]
     for algo, key in ROW_OF_ALGO.items():
@@ -148,11 +149,11 @@ def kept_rows(path: str, geometry_hash: str, car: str, protocol: dict[str, Any])
         record = parse_json(Path(path).read_text())
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise BaselineError(f"--keep {path}: cannot read it as a table3 record ({exc})") from None
-    if not isinstance(record, dict) or not isinstance(record.get("rows"), list):
-        raise BaselineError(f"--keep {path}: not a table3 record (no rows)")
-    damage = content_damage(record)
+    damage = record_damage(record)  # the reader of every result record: a changed or unsealed one is refused
     if damage:
         raise BaselineError(f"--keep {path} {damage}")
+    if not isinstance(record.get("rows"), list):
+        raise BaselineError(f"--keep {path}: not a table3 record (no rows)")
     # The protocol's version is its contract (a change of rules bumps it); seeds, laps and limit are the table's.
     terms = ("version", "seeds", "laps", "time_limit_s")
     theirs_protocol = record.get("protocol") if isinstance(record.get("protocol"), dict) else {}
