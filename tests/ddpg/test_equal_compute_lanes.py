@@ -26,7 +26,7 @@ def test_the_lanes_run_each_variant_and_seed_once_at_one_training_time() -> None
     assert sorted((r.variant, r.seed) for r in runs) == sorted(
         (v, s) for v in ("asymmetric", "symmetric", "state-actor") for s in (0, 1)
     )
-    assert {r.train_minutes for r in runs} == {180.0} and len({r.out for r in runs}) == len(runs)
+    assert {r.train_minutes for r in runs} == {200.0} and len({r.out for r in runs}) == len(runs)
     assert {(r.env.terminate_on_crash, r.env.crash_penalty_beta, r.env.max_line_distance_m) for r in runs} == {
         (False, 10.0, 15.0)
     }
