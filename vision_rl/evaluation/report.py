@@ -494,11 +494,7 @@ def ddpg_table(records: Records) -> str:
     paper = records(DDPG_PAPER)
     ai_s, limit_s = _reference(records, AI_GT3)
     compare = records(DDPG_COMPARE)
-    by_variant = {v: [r for r in compare["runs"] if r["variant"] == v] for v in DDPG_VARIANTS}
-    distances = " / ".join(
-        ", ".join(f"{r['mean_distance_last_m']:.0f}" for r in sorted(by_variant[v], key=lambda r: r["seed"]))
-        for v in DDPG_VARIANTS
-    )
+    distances = _by_variant(compare, "mean_distance_last_m", lambda m: f"{m:.0f}")
     rows = [
         (
             "lap 2 through the protocol, the best start of 2 training seeds (standing starts, sigmoid pedals)",
@@ -552,6 +548,103 @@ def _ddpg_state_actor_row(records: Records, ai_s: float, limit_s: float) -> tupl
     )
 
 
+#: The first trainings of the three variants (docs/studies/ddpg.md): each set's compare-ddpg record.
+DDPG_FIRST_SETS = (
+    ("rolling start at the AI's speed, relu (the paper's)", "ddpg-catalunya-gt3/rolling_start_compare.json"),
+    ("standing start on the line, relu", "ddpg-catalunya-gt3/standing_start_relu_compare.json"),
+    (
+        "standing start on the line, sigmoid (`--pedal-activation sigmoid`, not in the paper)",
+        "ddpg-catalunya-gt3/standing_start_sigmoid_compare.json",
+    ),
+)
+
+
+def _by_variant(compare: dict[str, Any], key: str, text: Callable[[Any], str]) -> str:
+    """One figure of each run of a compare-ddpg record, seeds by variant: ``a0, a1 / s0, s1 / ...``."""
+    return " / ".join(
+        ", ".join(
+            text(r[key]) for r in sorted((r for r in compare["runs"] if r["variant"] == v), key=lambda r: r["seed"])
+        )
+        for v in DDPG_VARIANTS
+    )
+
+
+def ddpg_first_trainings_table(records: Records) -> str:
+    """The three variants x 2 seeds at equal training time in each of the first sets of trainings."""
+    rows = []
+    for name, path in DDPG_FIRST_SETS:
+        compare = records(path)
+        rows.append(
+            (
+                name,
+                f"{compare['common_minutes']:.1f} min",
+                f"{_by_variant(compare, 'mean_distance_last_m', lambda m: f'{m:.0f}')} m",
+                _by_variant(compare, "updates", lambda n: f"{n / 1000:.1f}k"),
+                _link("record", path),
+            )
+        )
+    header = (
+        "set (start of an episode, pedal outputs)",
+        "training time per run",
+        "distance per episode, last third: asymmetric / symmetric / state-actor (seeds 0, 1)",
+        "updates per run",
+        "record",
+    )
+    return markdown_table(header, rows)
+
+
+#: The equal-compute study (issue 64, step 4): compare-ddpg's record of the six runs and each run's protocol laps.
+DDPG_EQUAL_COMPUTE = "ddpg-equal-compute/compare.json"
+DDPG_EQUAL_COMPUTE_LAPS = "ddpg-equal-compute/evaluation-{variant}-s{seed}.json"
+
+
+def _ddpg_protocol_text(evaluation: dict[str, Any], limit_s: float) -> str:
+    """Starts finished through the protocol, and the best lap 2 with its wall contact, or the farthest DNF."""
+    finished = f"{evaluation['n_finished']}/{evaluation['n_seeds']}"
+    lap_s = evaluation["best_lap_time_s"]
+    if lap_s is None:
+        return f"{finished} (at most {max(seed['distance_m'] for seed in evaluation['seeds']):,.0f} m)"
+    wall_s = evaluation["best_lap"]["wall_contact_s"]
+    return (
+        f"{finished}: **{lap_text(lap_s)}** ({gap_text(lap_s, limit_s)} on the limit, {wall_s:.1f} s of wall contact)"
+    )
+
+
+def ddpg_equal_compute_table(records: Records) -> str:
+    """Each run of the study: the compute it got, how far its training episodes went, and its protocol laps."""
+    _, limit_s = _reference(records, AI_GT3)
+    compare = records(DDPG_EQUAL_COMPUTE)
+    rows = []
+    for run in sorted(compare["runs"], key=lambda r: (DDPG_VARIANTS.index(r["variant"]), r["seed"])):
+        path = DDPG_EQUAL_COMPUTE_LAPS.format(variant=run["variant"], seed=run["seed"])
+        first_lap = (
+            "-"
+            if run["first_lap_episode"] is None
+            else f"episode {run['first_lap_episode']} ({run['first_lap_minutes']:.0f} min)"
+        )
+        rows.append(
+            (
+                f"{run['variant']} s{run['seed']}",
+                f"{run['train_minutes']:.0f} / {run['train_cpu_minutes']:.0f}",
+                f"{run['steps']:,} / {run['updates']:,}",
+                f"{run['episodes']:,}",
+                f"{run['mean_distance_last_m']:,.0f} m (farthest {run['best_distance_m']:,.0f} m)",
+                first_lap,
+                f"{_ddpg_protocol_text(records(path), limit_s)} ({_link('record', path)})",
+            )
+        )
+    header = (
+        "run",
+        "training minutes / CPU minutes",
+        "transitions / updates",
+        f"training episodes in {compare['common_minutes']:.0f} min",
+        "distance per training episode, last third",
+        "first lap in training",
+        "protocol starts finished, best lap 2",
+    )
+    return markdown_table(header, rows)
+
+
 def reference_table(records: Records) -> str:
     """The built-in AI's protocol lap and the physical limit of each track and car the papers' tables use."""
     rows = []
@@ -583,6 +676,7 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "overtaking": overtaking_table,
     "opponent-skill": opponent_skill_table,
     "ddpg": ddpg_table,
+    "ddpg-first-trainings": ddpg_first_trainings_table,
 }
 
 
