@@ -74,6 +74,17 @@ def test_the_committed_records_give_the_tables_figures():
     assert "**89.82 s** (0.893 of the AI's), 9/9 starts finished" in tables["overtaking"]
     assert "9/10, 9/10, 8/10; fastest 28.5, 29.1, 29.2 s" in tables["overtaking"]
     assert "symmetric **2:10.339** (+22.59 % on the limit, 97.9 s of wall contact)" in tables["ddpg"]
+    assert (
+        "| 40.0 min | 5, 18 / 12, 10 / 29, 9 m | 2.7k, 2.6k / 1.2k, 1.1k / 52.2k, 51.6k |"
+        in tables["ddpg-first-trainings"]
+    )
+    pendulum, mountain_car = tables["ddpg-reference-pendulum"], tables["ddpg-reference-mountaincar"]
+    assert (
+        "| ours-bn (the paper's networks) | -168 ± 93 (-276, -112, -117) | -121 ± 18 | -226 ± 8 | 1,357 |" in pendulum
+    )
+    assert (
+        "| SB3 DDPG | -33.6 ± 57.4 (-0.0, -99.9, -1.0) | -33.9 ± 57.2 | -22.4 ± 31.6 | 285 | 4 of 15 |" in mountain_car
+    )
     assert all(f"]({RESULTS}" in table for table in tables.values())  # each table links its records
 
 
@@ -90,6 +101,16 @@ def test_a_changed_record_changes_its_tables(results_copy):
     assert "**88.00 s** (0.875 of the AI's), 9/9 starts" in after["overtaking"]
     assert "**92.16 s** (0.916 of the AI's), kept from an earlier timing of the table, 7/9" in after["overtaking"]
     assert after["ddpg"] == before["ddpg"] and after["phase1"] == before["phase1"]
+    for seed in (0, 1, 2):  # SB3 DDPG's training episodes on MountainCar, none of them ending at the goal now
+        edit_record(
+            results_copy,
+            f"ddpg-reference/MountainCarContinuous-v0/sb3-ddpg-s{seed}.json",
+            lambda r: [e.update(length=999) for e in r["episodes"]],
+        )
+    assert "| 4 of 15 |" in before["ddpg-reference-mountaincar"]
+    assert (
+        "| 285 | 0 of 15 |" in build_tables(results_copy, ["ddpg-reference-mountaincar"])["ddpg-reference-mountaincar"]
+    )
 
 
 def test_a_missing_record_or_figure_is_an_error(results_copy):

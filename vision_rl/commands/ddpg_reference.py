@@ -59,7 +59,7 @@ def run_ddpg_reference(opts: DDPGReferenceOptions) -> int:
     import torch
 
     from vision_rl.ddpg.reference import load_or_run, plot_reference, summarise
-    from vision_rl.files import write_json
+    from vision_rl.files import sealed_record, write_json
 
     if opts.torch_threads > 0:
         torch.set_num_threads(opts.torch_threads)
@@ -79,6 +79,6 @@ def run_ddpg_reference(opts: DDPGReferenceOptions) -> int:
         "records": folder,
         "figure": str(plot_reference(records, f"{folder}/curves.png", max(opts.run.eval_every_steps, 1_000))),
     }
-    write_json(f"{folder}/summary.json", result)
+    write_json(f"{folder}/summary.json", sealed_record(result))
     emit(result, opts.json, format_reference)
     return 0

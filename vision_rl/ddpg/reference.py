@@ -373,7 +373,7 @@ def load_or_run(run: ReferenceRun, out: str | Path, force: bool = False) -> tupl
     written there; returns (record, whether it was trained now)."""
     import json
 
-    from vision_rl.files import write_json
+    from vision_rl.files import sealed_record, write_json
 
     path = record_path(out, run)
     if path.is_file() and not force:
@@ -385,5 +385,5 @@ def load_or_run(run: ReferenceRun, out: str | Path, force: bool = False) -> tupl
             return record, False
     record = run_reference(run)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_json(path, record, indent=None)
+    write_json(path, sealed_record(record), indent=None)  # `vision-rl report` reads it: sealed, as every record is
     return record, True

@@ -645,6 +645,54 @@ def ddpg_equal_compute_table(records: Records) -> str:
     return markdown_table(header, rows)
 
 
+#: The reference check (issue 64, step 1): ours beside SB3 on a Gymnasium task, a summary and a record per run.
+DDPG_REFERENCE = "ddpg-reference/{task}/{name}.json"
+DDPG_REFERENCE_ALGOS = {
+    "ours-bn": "ours-bn (the paper's networks)",
+    "ours": "ours (no batch-norm)",
+    "sb3-ddpg": "SB3 DDPG",
+    "sb3-td3": "SB3 TD3",
+}
+
+
+def _spread(figure: dict[str, float], per_seed: Iterable[float] = (), decimals: int = 0) -> str:
+    seeds = ", ".join(f"{x:.{decimals}f}" for x in per_seed)
+    return f"{figure['mean']:.{decimals}f} ± {figure['std']:.{decimals}f}" + (f" ({seeds})" if seeds else "")
+
+
+def ddpg_reference_table(records: Records, task: str, decimals: int = 0, time_limit_steps: int | None = None) -> str:
+    """Each algorithm over its seeds: the final evaluation (with each seed's), the last evaluations, the last training
+    episodes and the wall-clock per run, returns to ``decimals``; with ``time_limit_steps``, the training episodes
+    that reached the goal (ended before the task's time limit)."""
+    summary = records(DDPG_REFERENCE.format(task=task, name="summary"))
+    rows = []
+    for algo in (a for a in DDPG_REFERENCE_ALGOS if any(row["algo"] == a for row in summary["rows"])):
+        row = next(row for row in summary["rows"] if row["algo"] == algo)
+        paths = [DDPG_REFERENCE.format(task=task, name=f"{algo}-s{seed}") for seed in row["seeds"]]
+        runs = [records(path) for path in paths]
+        cells = [
+            DDPG_REFERENCE_ALGOS[algo],
+            _spread(row["final_return"], [run["final_return"] for run in runs], decimals),
+            _spread(row["last5_eval_return"], decimals=decimals),
+            _spread(row["last10_train_return"], decimals=decimals),
+            f"{row['train_time_s']['mean']:,.0f}",
+        ]
+        if time_limit_steps is not None:
+            goals = [sum(e["length"] < time_limit_steps for e in run["episodes"]) for run in runs]
+            cells.append(f"{sum(goals)} of {sum(len(run['episodes']) for run in runs)}")
+        rows.append([*cells, ", ".join(_link(f"s{seed}", p) for seed, p in zip(row["seeds"], paths, strict=True))])
+    header = [
+        "algorithm",
+        "final evaluation (10 episodes; each seed's)",
+        "mean of the last 5 evaluations",
+        "last 10 training episodes (all, if fewer)",
+        "s per run",
+    ]
+    if time_limit_steps is not None:
+        header.append("training episodes that reached the goal")
+    return markdown_table([*header, "records"], rows)
+
+
 def reference_table(records: Records) -> str:
     """The built-in AI's protocol lap and the physical limit of each track and car the papers' tables use."""
     rows = []
@@ -677,6 +725,8 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "opponent-skill": opponent_skill_table,
     "ddpg": ddpg_table,
     "ddpg-first-trainings": ddpg_first_trainings_table,
+    "ddpg-reference-pendulum": lambda records: ddpg_reference_table(records, "Pendulum-v1"),
+    "ddpg-reference-mountaincar": lambda records: ddpg_reference_table(records, "MountainCarContinuous-v0", 1, 999),
 }
 
 
