@@ -78,6 +78,10 @@ def test_the_committed_records_give_the_tables_figures():
         "| 40.0 min | 5, 18 / 12, 10 / 29, 9 m | 2.7k, 2.6k / 1.2k, 1.1k / 52.2k, 51.6k |"
         in tables["ddpg-first-trainings"]
     )
+    assert (
+        "lap 2 1:46.198 (-0.11 % on the limit), worst 1:46.744; 52 s of wall contact"
+        in tables["ddpg-state-actor-crashgo"]
+    )  # training seed 0's fastest start, not its median (1:46.323)
     pendulum, mountain_car = tables["ddpg-reference-pendulum"], tables["ddpg-reference-mountaincar"]
     assert (
         "| ours-bn (the paper's networks) | -168 ± 93 (-276, -112, -117) | -121 ± 18 | -226 ± 8 | 1,357 |" in pendulum

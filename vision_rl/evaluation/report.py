@@ -17,6 +17,7 @@ import os
 import re
 import statistics
 from collections.abc import Callable, Iterable, Mapping
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -593,6 +594,74 @@ def ddpg_first_trainings_table(records: Records) -> str:
     return markdown_table(header, rows)
 
 
+#: The state actor's screens on Catalunya (docs/notes/ddpg.md): rows of (label, evaluation records), one column each.
+DDPG_STATE_ACTOR_SCREENS: dict[str, tuple[tuple[str, ...], tuple[tuple[str, tuple[str, ...]], ...]]] = {
+    "ddpg-state-actor-15min": (
+        ("training seed", "15 training minutes: protocol starts finished"),
+        tuple((f"{seed}", (f"evaluation-s{seed}",)) for seed in (0, 1)),
+    ),
+    "ddpg-state-actor-seed1": (
+        ("training seed 1 with", "protocol starts finished"),
+        (
+            ("nothing (the paper's task)", ("evaluation-s1",)),
+            (
+                "`--goal-frame body` (the racing-line point relative to the car, not in world coordinates: the "
+                "critic need not learn the track's geometry to read the line)",
+                ("evaluation-body-s1",),
+            ),
+            (
+                "`--start-speed-share 0.5` (rolling starts at half the AI's speed: more time to correct before the "
+                "5 m end)",
+                ("evaluation-slow-s1",),
+            ),
+        ),
+    ),
+    "ddpg-state-actor-body": (
+        ("training seed", "10,000 transitions: starts finished", "20,000 transitions"),
+        tuple((f"{seed}", (f"evaluation-body10k-s{seed}", f"evaluation-body20k-s{seed}")) for seed in (0, 1, 2)),
+    ),
+    "ddpg-state-actor-crashgo": (
+        ("training seed", "beta 10, 10,000 transitions: starts finished", "30,000", "50,000", "beta 0, 50,000"),
+        tuple(
+            (
+                f"{seed}",
+                tuple(f"evaluation-crashgo{n}-s{seed}" for n in ("10k", "30k", "50k", "-beta0-50k")),
+            )
+            for seed in (0, 1, 2)
+        ),
+    ),
+}
+
+
+def _starts_text(records: Records, path: str, limit_s: float) -> str:
+    """Starts finished through the protocol, linked to the record; with a lap, the best and worst lap 2 against the
+    limit and the best lap's wall contact, else how far the starts went."""
+    evaluation = records(path)
+    finished = _link(f"{evaluation['n_finished']} of {evaluation['n_seeds']}", path)
+    laps_s = sorted(seed["lap_time_s"] for seed in evaluation["seeds"] if seed["finished"])
+    if not laps_s:
+        reached_m = sorted(seed["distance_m"] for seed in evaluation["seeds"])
+        span = f"{reached_m[0]:,.0f}" + (f"-{reached_m[-1]:,.0f}" if reached_m[-1] - reached_m[0] >= 0.5 else "")
+        return f"{finished} ({span} m)"
+    wall_s = evaluation["best_lap"]["wall_contact_s"]
+    worst = f", worst {lap_text(laps_s[-1])}" if len(laps_s) > 1 else ""
+    return (
+        f"**{finished}**: lap 2 {lap_text(laps_s[0])} ({gap_text(laps_s[0], limit_s)} on the limit){worst}; "
+        f"{wall_s:.0f} s of wall contact"
+    )
+
+
+def ddpg_state_actor_table(records: Records, name: str) -> str:
+    """One of the state actor's screens: each row's evaluations through the protocol (:func:`_starts_text`)."""
+    _, limit_s = _reference(records, AI_GT3)
+    header, rows = DDPG_STATE_ACTOR_SCREENS[name]
+    folder = "ddpg-state-actor-catalunya-gt3"
+    return markdown_table(
+        header,
+        [(label, *(_starts_text(records, f"{folder}/{n}.json", limit_s) for n in names)) for label, names in rows],
+    )
+
+
 #: The equal-compute study (issue 64, step 4): compare-ddpg's record of the six runs and each run's protocol laps.
 DDPG_EQUAL_COMPUTE = "ddpg-equal-compute/compare.json"
 DDPG_EQUAL_COMPUTE_LAPS = "ddpg-equal-compute/evaluation-{variant}-s{seed}.json"
@@ -727,6 +796,7 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "ddpg-first-trainings": ddpg_first_trainings_table,
     "ddpg-reference-pendulum": lambda records: ddpg_reference_table(records, "Pendulum-v1"),
     "ddpg-reference-mountaincar": lambda records: ddpg_reference_table(records, "MountainCarContinuous-v0", 1, 999),
+    **{name: partial(ddpg_state_actor_table, name=name) for name in DDPG_STATE_ACTOR_SCREENS},
 }
 
 
