@@ -82,6 +82,10 @@ def test_the_committed_records_give_the_tables_figures():
         "lap 2 1:46.198 (-0.11 % on the limit), worst 1:46.744; 52 s of wall contact"
         in tables["ddpg-state-actor-crashgo"]
     )  # training seed 0's fastest start, not its median (1:46.323)
+    assert (
+        "| asymmetric, channels_last | 0.71 (1,408 ms; 402 ms of CPU) | 3.75 (267 ms; 78 ms of CPU) | 5.3x"
+        in tables["ddpg-bench"]
+    )
     pendulum, mountain_car = tables["ddpg-reference-pendulum"], tables["ddpg-reference-mountaincar"]
     assert (
         "| ours-bn (the paper's networks) | -168 ± 93 (-276, -112, -117) | -121 ± 18 | -226 ± 8 | 1,357 |" in pendulum

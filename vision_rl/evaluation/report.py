@@ -594,6 +594,35 @@ def ddpg_first_trainings_table(records: Records) -> str:
     return markdown_table(header, rows)
 
 
+#: `bench ddpg --presets paper,cpu --layouts channels_last,eager --profile` on the 2-core CPU.
+DDPG_BENCH = "ddpg-bench/bench_ddpg_presets_run1.json"
+
+
+def ddpg_bench_table(records: Records) -> str:
+    """Updates/s of each variant and layout with the paper's trunk and the cpu trunk, and their ratio."""
+    rows_by_key = {(r["variant"], r["preset"], r["layout"]): r for r in records(DDPG_BENCH)["rows"]}
+
+    def rate(row: dict[str, Any]) -> str:
+        return f"{row['updates_per_s']:.2f} ({row['ms_per_update']:,.0f} ms; {row['cpu_ms_per_update']:,.0f} ms of CPU)"
+
+    rows = []
+    for variant, preset, layout in rows_by_key:
+        if preset == "cpu":
+            continue
+        paper = rows_by_key[variant, preset, layout]
+        cpu = rows_by_key.get((variant, "cpu", layout))
+        ratio = (
+            "-"
+            if cpu is None
+            else f"{cpu['updates_per_s'] / paper['updates_per_s']:.1f}x updates/s, "
+            f"{paper['cpu_ms_per_update'] / cpu['cpu_ms_per_update']:.1f}x less CPU time"
+        )
+        cells = (f"{variant}, {layout}", rate(paper), "-" if cpu is None else rate(cpu), ratio)
+        rows.append((*cells, _link("record", DDPG_BENCH)))
+    header = ("variant, layout", "paper trunk: updates/s (wall; CPU)", "cpu trunk", "cpu / paper", "record")
+    return markdown_table(header, rows)
+
+
 #: The state actor's screens on Catalunya (docs/notes/ddpg.md): rows of (label, evaluation records), one column each.
 DDPG_STATE_ACTOR_SCREENS: dict[str, tuple[tuple[str, ...], tuple[tuple[str, tuple[str, ...]], ...]]] = {
     "ddpg-state-actor-15min": (
@@ -796,6 +825,7 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "ddpg-first-trainings": ddpg_first_trainings_table,
     "ddpg-reference-pendulum": lambda records: ddpg_reference_table(records, "Pendulum-v1"),
     "ddpg-reference-mountaincar": lambda records: ddpg_reference_table(records, "MountainCarContinuous-v0", 1, 999),
+    "ddpg-bench": ddpg_bench_table,
     **{name: partial(ddpg_state_actor_table, name=name) for name in DDPG_STATE_ACTOR_SCREENS},
 }
 
