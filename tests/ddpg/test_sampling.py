@@ -69,7 +69,8 @@ def test_train_minutes_end_a_sampled_session(ray_local, track, tmp_path):
 
 
 def test_an_episode_record_names_the_rule_that_ended_it():
-    """A crashState ends an episode only under terminate_on_crash: without it, the line-distance or stuck rule did."""
+    """A crashState ends an episode only under terminate_on_crash: without it, the line-distance or stuck rule did;
+    a truncated episode ended by time, or stuck under truncate_when_stuck."""
     from vision_rl.ddpg.sampling import episode_record
 
     info = {
@@ -79,9 +80,12 @@ def test_an_episode_record_names_the_rule_that_ended_it():
         "episode_steps": np.array([7, 9]),
         "progress_m": np.zeros(2),
         "laps_completed": np.zeros(2, int),
+        "stuck": np.array([True, False]),
     }
     crash_ends = PixelRacingConfig(max_line_distance_m=15.0)
     crash_goes_on = PixelRacingConfig(max_line_distance_m=15.0, terminate_on_crash=False)
     assert [episode_record(info, i, True, crash_ends)["end"] for i in (0, 1)] == ["crash 2", "crash 3"]
     assert [episode_record(info, i, True, crash_goes_on)["end"] for i in (0, 1)] == ["stuck", "line distance"]
     assert episode_record(info, 0, False, crash_goes_on)["end"] == "time"
+    stuck_truncates = PixelRacingConfig(truncate_when_stuck=True)  # a truncated episode: stuck, or out of time
+    assert [episode_record(info, i, False, stuck_truncates)["end"] for i in (0, 1)] == ["stuck", "time"]

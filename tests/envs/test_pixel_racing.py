@@ -200,6 +200,25 @@ def test_a_crash_ends_the_episode_only_when_asked_and_costs_beta_per_unit(small_
     np.testing.assert_allclose(reward, expected, rtol=1e-5)
 
 
+@pytest.mark.parametrize("truncate_when_stuck", [False, True])
+def test_a_stuck_car_ends_its_episode_as_a_termination_or_when_asked_a_truncation(small_track, truncate_when_stuck):
+    """A car standing on the line with no throttle is stuck by the project's rule (less than 5 m in 5 s) at the 50th
+    0.1 s step: a termination by default, a truncation (bootstrapped by a learner) with ``truncate_when_stuck``."""
+    config = PixelRacingConfig(
+        track=small_track, frames=False, start="line", start_skill=0.0, truncate_when_stuck=truncate_when_stuck
+    )
+    core = PixelRacingCore(config, seed=0)
+    core.reset_cars(core.ids)
+    ended_at = None
+    for step in range(1, 61):
+        _, _, terminated, truncated, info = core.step(np.zeros((1, 4)))
+        if terminated[0] or truncated[0]:
+            ended_at = step
+            break
+    assert ended_at == 50 and info["stuck"][0] and info["crash_state"][0] == CRASH_NONE
+    assert (terminated[0], truncated[0]) == (not truncate_when_stuck, truncate_when_stuck)
+
+
 def test_vector_form_resets_finished_cars_in_the_same_step(small_track):
     env = PixelRacingVectorEnv(n_cars=3, seed=1, track=small_track, frames=False, episode_s=0.3)
     try:

@@ -197,6 +197,10 @@ ENV_OPTIONS_HELP = {
         "the end of an episode at a non-zero crashState (off track, a wall, spinning): it goes on, penalised by "
         "beta (the paper's alternative reward)."
     ),
+    "truncate_when_stuck": (
+        "A stuck car's episode ends as a truncation, not a termination: the critic bootstraps the stuck state's "
+        "value, so stopping is worth what staying stopped costs, not 0 (not in the paper)."
+    ),
     "start": "Episodes start at a random point (random) or on the start/finish line (line).",
     "start_skill": (
         "Episodes start at this share of the limit speed there (the built-in AI's; 0: from standstill, as a race in "

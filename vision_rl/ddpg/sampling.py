@@ -38,9 +38,10 @@ OBS_KEYS = ("image", "motion", "goal")
 
 def episode_record(info: Mapping[str, np.ndarray], i: int, terminated: bool, env: PixelRacingConfig) -> dict:
     """The line of episodes.jsonl of car ``i``, whose episode ended in a PixelRacing step with ``info`` under the
-    rules of ``env``: return, steps, distance, laps and why it ended (time, crash <state>, line distance, stuck)."""
+    rules of ``env``: return, steps, distance, laps and why it ended (time, crash <state>, line distance, stuck; a
+    stuck end is a truncation with ``truncate_when_stuck``)."""
     if not terminated:
-        end = "time"
+        end = "stuck" if env.truncate_when_stuck and info["stuck"][i] else "time"
     elif env.terminate_on_crash and info["crash_state"][i]:
         end = f"crash {int(info['crash_state'][i])}"
     elif info["line_distance_m"][i] > env.max_line_distance_m:

@@ -100,6 +100,10 @@ class PixelRacingConfig:
     """The episode ends on a non-zero crashState (the paper's next-step rule)."""
     terminate_when_stuck: bool = True
     """The episode also ends when the car is stuck by the project's one rule (less than 5 m in 5 s)."""
+    truncate_when_stuck: bool = False
+    """A stuck car's episode ends as a truncation, not a termination, whatever ``terminate_when_stuck`` says (not in
+    the paper): a learner bootstraps the stuck state's value, so stopping against a wall is worth what staying there
+    costs, not a terminal 0."""
     spin_slip_deg: float = 30.0
     """Sideslip angle above which a moving car is spinning (crashState 3), deg."""
     start: str = "random"
@@ -460,9 +464,9 @@ class PixelRacingCore:
         terminated = dist > cfg.max_line_distance_m
         if cfg.terminate_on_crash:
             terminated |= crash != CRASH_NONE
-        if cfg.terminate_when_stuck:
+        if cfg.terminate_when_stuck and not cfg.truncate_when_stuck:
             terminated |= stuck
-        truncated = (self.steps >= cfg.max_episode_steps) & ~terminated
+        truncated = ((self.steps >= cfg.max_episode_steps) | (stuck & cfg.truncate_when_stuck)) & ~terminated
         info = {
             "crash_state": crash,
             "line_distance_m": dist,
@@ -526,7 +530,8 @@ class PixelRacing(gym.Env):
     ``r = V - alpha |d| - beta crashState``: V the forward (body-frame x) speed in m/s, d the distance from the car
     to its racing-line point in m, alpha ``line_distance_alpha`` (default 1 (m/s)/m: a metre off the line costs
     as much as 1 m/s), beta ``crash_penalty_beta`` (default 0, the paper's simple reward; the alternative with a
-    positive beta charges beta per crashState unit on the step that ends the episode).
+    positive beta charges beta per crashState unit on every step with a crash: with ``terminate_on_crash`` off the
+    episode goes on, otherwise that step ends it).
 
     crashState, as the paper's enum, set from our simulator (the most severe that applies): 1 off-track (the car's
     centre beyond the painted edge line, on the kerb or shoulder), 2 large prop (a wall touched during the step),
@@ -542,7 +547,8 @@ class PixelRacing(gym.Env):
     Termination, the paper's next-step rule: a non-zero crashState (``terminate_on_crash``), or a racing-line
     distance above ``max_line_distance_m`` (5 m), or stuck by the project's one rule (less than 5 m of progress in
     5 s; ``terminate_when_stuck``). Truncation after ``episode_s`` (300 s: three laps of Catalunya in a GT3), also
-    ``max_episode_steps`` of the spec ``gymnasium.make`` gives (``episode_s / control_dt_s``, 3,000 by default).
+    ``max_episode_steps`` of the spec ``gymnasium.make`` gives (``episode_s / control_dt_s``, 3,000 by default), and
+    when stuck with ``truncate_when_stuck`` (not in the paper; it replaces the stuck termination).
 
     ## Info
     ``crash_state``, ``line_distance_m``, ``forward_speed_mps``, ``lap_distance_m`` (the paper's
@@ -554,9 +560,9 @@ class PixelRacing(gym.Env):
     Any field of :class:`PixelRacingConfig` but ``n_cars``: ``track`` (default ``Catalunya``), ``car`` (``gt3``),
     ``episode_s``, ``image_hw_px``, ``render_scale``, ``frames``, ``goal_frame``, ``racing_line``,
     ``line_distance_alpha``, ``crash_penalty_beta``, ``max_line_distance_m``, ``terminate_on_crash``,
-    ``terminate_when_stuck``, ``spin_slip_deg``, ``start``, ``start_skill``; and ``normalized_spaces`` (v1's spaces;
-    its spec sets it). Several cars in one world: :class:`PixelRacingVectorEnv`, or ``gymnasium.make_vec(id,
-    num_envs, vectorization_mode="vector_entry_point")``.
+    ``terminate_when_stuck``, ``truncate_when_stuck``, ``spin_slip_deg``, ``start``, ``start_skill``; and
+    ``normalized_spaces`` (v1's spaces; its spec sets it). Several cars in one world: :class:`PixelRacingVectorEnv`, or
+    ``gymnasium.make_vec(id, num_envs, vectorization_mode="vector_entry_point")``.
 
     ## Version History
     - v1: actions in [-1, 1] mapped onto the keys' ranges inside the environment; the goal bounded where known.
