@@ -86,6 +86,14 @@ def test_the_committed_records_give_the_tables_figures():
         "| asymmetric, channels_last | 0.71 (1,408 ms; 402 ms of CPU) | 3.75 (267 ms; 78 ms of CPU) | 5.3x"
         in tables["ddpg-bench"]
     )
+    seeds = tables["overtaking-seeds"]
+    assert (
+        "| 1 | agent 3 | [9/10](RESULTS/overtaking-expressway-tt_cup/seeds/s1/agent3_setting_A.json) | [8/10]" in seeds
+    )
+    assert (
+        "| B (200 m apart) | agent 2 | 10/10 | 5.0 (5-5) | 165.5 +- 30.2 | 114.9 | 0.4 / 6.9 |"
+        in tables["overtaking-settings"]
+    )
     pendulum, mountain_car = tables["ddpg-reference-pendulum"], tables["ddpg-reference-mountaincar"]
     assert (
         "| ours-bn (the paper's networks) | -168 ± 93 (-276, -112, -117) | -121 ± 18 | -226 ± 8 | 1,357 |" in pendulum

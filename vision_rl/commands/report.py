@@ -15,7 +15,7 @@ class ReportOptions:
     """Regenerate the tables between <!-- report:NAME --> and <!-- /report --> on the pages from the JSON records."""
 
     pages: tuple[str, ...] = ("README.md", "docs")
-    """Pages to fill: Markdown files, or folders searched for them (the results folder itself is left out)."""
+    """Pages to fill: Markdown files, or folders searched for them (the results folders' own pages too)."""
     results: str = "docs/results"
     """The records' folder."""
     check: bool = False
@@ -38,11 +38,10 @@ def commands_table() -> str:
 
 
 def _pages(options: ReportOptions) -> list[Path]:
-    results = Path(options.results).resolve()
     found: list[Path] = []
     for entry in map(Path, options.pages):
         if entry.is_dir():
-            found += sorted(p for p in entry.rglob("*.md") if results not in p.resolve().parents)
+            found += sorted(entry.rglob("*.md"))
         elif entry.is_file():
             found.append(entry)
         else:

@@ -434,6 +434,29 @@ def overtaking_table(records: Records) -> str:
     return markdown_table(("result", "paper (GT Sport)", "ours", "built-in AI", "physical limit", "command"), rows)
 
 
+#: Column heads of a driver's row of settings A/B (:func:`_driver_cells`).
+DRIVER_HEADER = (
+    "all five overtaken",
+    "cars passed, mean (range)",
+    "travel time, s",
+    "fastest run with all five, s",
+    "car / wall contact, s",
+)
+
+
+def _driver_cells(driver: dict[str, Any]) -> tuple[str, ...]:
+    """One driver's summary over the runs of a setting, as :data:`DRIVER_HEADER` names it."""
+    s = driver["summary"]
+    fastest = s["fastest_all_five_s"]
+    return (
+        f"{s['all_overtaken_runs']}/{s['runs']}",
+        f"{s['overtaken']['mean']:.1f} ({s['overtaken']['min']}-{s['overtaken']['max']})",
+        f"{s['travel_time_s']['mean']:.1f} +- {s['travel_time_s']['std']:.1f}",
+        "-" if fastest is None else f"{fastest:.1f}",
+        f"{s['car_contact_s']['mean']:.1f} / {s['wall_contact_s']['mean']:.1f}",
+    )
+
+
 def opponent_skill_table(records: Records) -> str:
     """Settings A and B for one agent with the opponents at our skills (0.80-0.88) and at Table III's AI's (0.92)."""
     rows = []
@@ -442,33 +465,59 @@ def opponent_skill_table(records: Records) -> str:
             path = OPPONENT_SKILL.format(skill=skill, setting=setting)
             record = records(path)
             agent = next(d for d in record["drivers"] if not d["reference"])
-            s = agent["summary"]
-            fastest = s["fastest_all_five_s"]
             rows.append(
                 (
                     f"{setting} ({record['separation_m']:.0f} m apart)",
                     f"{agent['name']}",
                     "-".join(f"{x:.2f}" for x in sorted(set(record["opponent_skill_range"]))),
-                    f"{s['all_overtaken_runs']}/{s['runs']}",
-                    f"{s['overtaken']['mean']:.1f} ({s['overtaken']['min']}-{s['overtaken']['max']})",
-                    f"{s['travel_time_s']['mean']:.1f} +- {s['travel_time_s']['std']:.1f}",
-                    "-" if fastest is None else f"{fastest:.1f}",
-                    f"{s['car_contact_s']['mean']:.1f} / {s['wall_contact_s']['mean']:.1f}",
+                    *_driver_cells(agent),
                     _link("record", path),
                 )
             )
-    header = (
-        "setting",
-        "agent",
-        "opponents' skill",
-        "all five overtaken",
-        "cars passed, mean (range)",
-        "travel time, s",
-        "fastest run with all five, s",
-        "car / wall contact, s",
-        "record",
-    )
-    return markdown_table(header, rows)
+    return markdown_table(("setting", "agent", "opponents' skill", *DRIVER_HEADER, "record"), rows)
+
+
+def overtaking_settings_table(records: Records) -> str:
+    """Settings A and B of training seed 0: every driver of the records, the built-in AI in the agent's car too."""
+    rows = []
+    for setting in ("A", "B"):
+        for agents in ("agent1", "agents23"):
+            path = SETTINGS.format(agents=agents, setting=setting)
+            record = records(path)
+            rows.extend(
+                (
+                    f"{setting} ({record['separation_m']:.0f} m apart)",
+                    d["name"],
+                    *_driver_cells(d),
+                    _link("record", path),
+                )
+                for d in record["drivers"]
+                if not (d["reference"] and agents == "agents23")
+            )
+    return markdown_table(("setting", "driver", *DRIVER_HEADER, "record"), rows)
+
+
+#: Agents 2 and 3 of each training seed in settings A and B (10 runs each): the record and the driver's name there.
+OVERTAKING_SEEDS = {
+    (0, "agent 2"): (SETTINGS.format(agents="agents23", setting="{setting}"), "agent 2"),
+    (0, "agent 3"): (SETTINGS.format(agents="agents23", setting="{setting}"), "agent 3"),
+    (1, "agent 2"): (OPPONENT_SKILL.format(skill="0.80-0.88", setting="{setting}"), "agent2-s1"),
+    (1, "agent 3"): ("overtaking-expressway-tt_cup/seeds/s1/agent3_setting_{setting}.json", "agent3-s1"),
+}
+
+
+def overtaking_seeds_table(records: Records) -> str:
+    """Runs with all five overtaken by Agents 2 and 3 in settings A and B, per training seed (issue 65's target: at
+    least 9/10 in each, on every seed)."""
+    rows = []
+    for (seed, agent), (pattern, name) in OVERTAKING_SEEDS.items():
+        cells = []
+        for setting in ("A", "B"):
+            path = pattern.format(setting=setting)
+            driver = next(d for d in records(path)["drivers"] if d["name"] == name)
+            cells.append(_link(_driver_cells(driver)[0], path))
+        rows.append((f"{seed}", agent, *cells))
+    return markdown_table(("training seed", "agent", "setting A: all five overtaken", "setting B"), rows)
 
 
 def _ddpg_laps(records: Records, limit_s: float) -> str:
@@ -821,6 +870,8 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "phase1": phase1_table,
     "overtaking": overtaking_table,
     "opponent-skill": opponent_skill_table,
+    "overtaking-settings": overtaking_settings_table,
+    "overtaking-seeds": overtaking_seeds_table,
     "ddpg": ddpg_table,
     "ddpg-first-trainings": ddpg_first_trainings_table,
     "ddpg-reference-pendulum": lambda records: ddpg_reference_table(records, "Pendulum-v1"),
