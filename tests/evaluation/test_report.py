@@ -94,6 +94,12 @@ def test_the_committed_records_give_the_tables_figures():
         "| B (200 m apart) | agent 2 | 10/10 | 5.0 (5-5) | 165.5 +- 30.2 | 114.9 | 0.4 / 6.9 |"
         in tables["overtaking-settings"]
     )
+    assert "| GAIL s0 | 113.31 (113.94) | 3/3 | 52.4 | 8,823 | - |" in tables["table3-gail-dart40"]
+    assert "| TD3 s2 | 114.29 | 1/3 | 3.4 | 1,054 | 2,054-2,967 m into the lap |" in tables["table3-runs"]
+    assert (
+        "| SAC | 89.82 | 176.4 | 0.893 | 0.922 | 91.03 +- 1.06 s over 3 lapping seeds | 9/9 | 5.2 |"
+        in tables["table3-summary"]
+    )
     pendulum, mountain_car = tables["ddpg-reference-pendulum"], tables["ddpg-reference-mountaincar"]
     assert (
         "| ours-bn (the paper's networks) | -168 ± 93 (-276, -112, -117) | -121 ± 18 | -226 ± 8 | 1,357 |" in pendulum

@@ -361,6 +361,16 @@ def phase1_table(records: Records) -> str:
     return f"{table}\nR² per target group of the kept epoch on a clean lap ({_link('record', PHASE1_R2)}).\n"
 
 
+def _span_m(distances_m: Iterable[float]) -> str:
+    """The range of distances in whole metres, ``a-b m``, or ``a m`` when they round alike."""
+    low, high = f"{min(distances_m):,.0f}", f"{max(distances_m):,.0f}"
+    return f"{low} m" if low == high else f"{low}-{high} m"
+
+
+#: GAIL on the DART-style demonstrations, timed alone (issue 65): a table3 record of its own.
+TABLE3_GAIL_DART40 = "table3-expressway-tt_cup/gail-dart40/table3-s0.json"
+
+
 def _table3_rows(records: Records) -> list[tuple[str, ...]]:
     paper = records(OVERTAKING_PAPER)["table3"]["lap_time_s"]
     ai_s, limit_s = _reference(records, AI_TT_CUP)
@@ -385,6 +395,77 @@ def _table3_rows(records: Records) -> list[tuple[str, ...]]:
             )
         )
     return out
+
+
+#: Where a DNF reason of the protocol says a start stopped.
+_STOPPED_AT = re.compile(r"(\d+) m into the lap")
+
+
+def table3_summary_table(records: Records, path: str = TABLE3) -> str:
+    """Every driver of a table3 record: the best start's lap 2 against the AI and the paper's, and the learner's
+    figures over its training seeds."""
+    rows = []
+    for row in records(path)["rows"]:
+        if row["status"] not in ("timed", "DNF"):
+            continue
+        seeds, paper, lap_s = row.get("over_training_seeds"), row.get("paper"), row["lap_time_s"]
+        over = "-"
+        if seeds and seeds["lap_time_mean_s"] is not None:
+            spread = "" if seeds["lap_time_std_s"] is None else f" +- {seeds['lap_time_std_s']:.2f}"
+            lapping = seeds["n_training_seeds_finished"]
+            over = f"{seeds['lap_time_mean_s']:.2f}{spread} s over {lapping} lapping seed{'s' if lapping > 1 else ''}"
+        rows.append(
+            (
+                row["name"] + (" (kept from an earlier timing)" if row.get("kept_from") else ""),
+                "DNF" if lap_s is None else f"{lap_s:.2f}",
+                "-" if lap_s is None else f"{row['avg_speed_kmh']:.1f}",
+                "-" if lap_s is None else f"{row['lap_ratio_to_ai']:.3f}",
+                "-" if paper is None else f"{paper['lap_ratio_to_ai']:.3f}",
+                over,
+                seeds["finished"] if seeds else f"{row['finished']}/{row['seeds']}",
+                "-" if row["wall_contact_s"] is None else f"{row['wall_contact_s']:.1f}",
+            )
+        )
+    header = (
+        "driver",
+        "lap 2, s (best start)",
+        "km/h",
+        "lap / AI",
+        "the paper's lap / AI",
+        "over the training seeds",
+        "starts finished",
+        "wall contact, s per lap (best start)",
+    )
+    return markdown_table(header, rows) + f"\nRecord: {_link(path.rsplit('/', 1)[-1], path)}.\n"
+
+
+def table3_runs_table(records: Records, path: str = TABLE3) -> str:
+    """Each training run of a table3 record: its lap 2 (best and median start), starts finished, wall contact,
+    training time, and where the starts that did not finish stopped."""
+    rows = []
+    for row in records(path)["rows"]:
+        for run in row.get("runs") or ():
+            stopped_m = [float(m) for reason in run["dnf_reasons"] for m in _STOPPED_AT.findall(reason)]
+            lap_s, median_s = run["lap_time_s"], run["median_lap_time_s"]
+            rows.append(
+                (
+                    f"{row['name']} s{run['seed']}",
+                    "DNF" if lap_s is None else f"{lap_s:.2f}" + ("" if median_s is None else f" ({median_s:.2f})"),
+                    f"{run['finished']}/{run['seeds']}",
+                    "-" if run["wall_contact_s"] is None else f"{run['wall_contact_s']:.1f}",
+                    f"{run['train_time_s']:,.0f}",
+                    "-" if not stopped_m else f"{_span_m(stopped_m)} into the lap",
+                )
+            )
+    header = (
+        "run",
+        "lap 2, s: best (median) start",
+        "starts finished",
+        "wall contact, s per lap",
+        "training, s",
+        "the other starts stopped",
+    )
+    return markdown_table(header, rows) + f"\nRecord: {_link(path.rsplit('/', 1)[-1], path)}.\n"
 
 
 def _settings_rows(records: Records) -> list[tuple[str, ...]]:
@@ -718,9 +799,7 @@ def _starts_text(records: Records, path: str, limit_s: float) -> str:
     finished = _link(f"{evaluation['n_finished']} of {evaluation['n_seeds']}", path)
     laps_s = sorted(seed["lap_time_s"] for seed in evaluation["seeds"] if seed["finished"])
     if not laps_s:
-        reached_m = sorted(seed["distance_m"] for seed in evaluation["seeds"])
-        span = f"{reached_m[0]:,.0f}" + (f"-{reached_m[-1]:,.0f}" if reached_m[-1] - reached_m[0] >= 0.5 else "")
-        return f"{finished} ({span} m)"
+        return f"{finished} ({_span_m([seed['distance_m'] for seed in evaluation['seeds']])})"
     wall_s = evaluation["best_lap"]["wall_contact_s"]
     worst = f", worst {lap_text(laps_s[-1])}" if len(laps_s) > 1 else ""
     return (
@@ -871,6 +950,9 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "overtaking": overtaking_table,
     "opponent-skill": opponent_skill_table,
     "overtaking-settings": overtaking_settings_table,
+    "table3-summary": table3_summary_table,
+    "table3-runs": table3_runs_table,
+    "table3-gail-dart40": partial(table3_runs_table, path=TABLE3_GAIL_DART40),
     "overtaking-seeds": overtaking_seeds_table,
     "ddpg": ddpg_table,
     "ddpg-first-trainings": ddpg_first_trainings_table,
