@@ -100,6 +100,7 @@ def test_the_committed_records_give_the_tables_figures():
         "| SAC | 89.82 | 176.4 | 0.893 | 0.922 | 91.03 +- 1.06 s over 3 lapping seeds | 9/9 | 5.2 |"
         in tables["table3-summary"]
     )
+    assert "| 4/9 | 115.7 / 109.8 / 105.4 | 1.048 |" in tables["bc-recipes"]
     pendulum, mountain_car = tables["ddpg-reference-pendulum"], tables["ddpg-reference-mountaincar"]
     assert (
         "| ours-bn (the paper's networks) | -168 ± 93 (-276, -112, -117) | -121 ± 18 | -226 ± 8 | 1,357 |" in pendulum

@@ -468,6 +468,39 @@ def table3_runs_table(records: Records, path: str = TABLE3) -> str:
     return markdown_table(header, rows) + f"\nRecord: {_link(path.rsplit('/', 1)[-1], path)}.\n"
 
 
+#: BC's recipes on the race (issue 65): (recipe, demonstrations, its table3 record).
+BC_RECIPES = (
+    ("before (the Table III record)", "AI, 20 laps, noise 0.1", TABLE3),
+    (
+        "DART-style noise 0.3, label smoothed",
+        "AI, 40 laps, noise 0.3",
+        "overtaking-bc-expressway-tt_cup/bc_dart.json",
+    ),
+    (
+        "DART-style, two skills, label smoothed",
+        "the 40 laps above plus 40 laps of the AI at skill 0.85, noise 0.3 (`--include`)",
+        "overtaking-bc-expressway-tt_cup/bc_dart_two_skills.json",
+    ),
+    (
+        "DAgger, 3 rounds, label smoothed",
+        "AI 20 laps noise 0.1, then 3 x 10 laps of bc driving, AI labelling",
+        "overtaking-bc-expressway-tt_cup/bc_dagger.json",
+    ),
+)
+
+
+def bc_recipes_table(records: Records) -> str:
+    """BC's starts finished and laps per training seed under each recipe, through the protocol."""
+    rows = []
+    for recipe, demos, path in BC_RECIPES:
+        bc = next(row for row in records(path)["rows"] if row["key"] == "bc")
+        laps = " / ".join("DNF" if r["lap_time_s"] is None else f"{r['lap_time_s']:.1f}" for r in bc["runs"])
+        ratio = "-" if bc["lap_time_s"] is None else f"{bc['lap_ratio_to_ai']:.3f}"
+        rows.append((recipe, demos, bc["over_training_seeds"]["finished"], laps, ratio, _link("record", path)))
+    header = ("recipe", "demonstrations", "starts finished", "lap 2, s (s0 / s1 / s2)", "best lap / AI", "record")
+    return markdown_table(header, rows)
+
+
 def _settings_rows(records: Records) -> list[tuple[str, ...]]:
     separation = records(OVERTAKING_PAPER)["settings"]["separation_m"]
     out = []
@@ -953,6 +986,7 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "table3-summary": table3_summary_table,
     "table3-runs": table3_runs_table,
     "table3-gail-dart40": partial(table3_runs_table, path=TABLE3_GAIL_DART40),
+    "bc-recipes": bc_recipes_table,
     "overtaking-seeds": overtaking_seeds_table,
     "ddpg": ddpg_table,
     "ddpg-first-trainings": ddpg_first_trainings_table,
