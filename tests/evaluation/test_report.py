@@ -101,6 +101,7 @@ def test_the_committed_records_give_the_tables_figures():
         in tables["table3-summary"]
     )
     assert "| 4/9 | 115.7 / 109.8 / 105.4 | 1.048 |" in tables["bc-recipes"]
+    assert "| A (50 m apart) | c_r 2 | 10/10 | 5.0 (5-5) | 48.2 +- 26.5 | 27.7 | 1.2 / 2.8 |" in tables["c-r-ablation"]
     pendulum, mountain_car = tables["ddpg-reference-pendulum"], tables["ddpg-reference-mountaincar"]
     assert (
         "| ours-bn (the paper's networks) | -168 ± 93 (-276, -112, -117) | -121 ± 18 | -226 ± 8 | 1,357 |" in pendulum

@@ -591,23 +591,20 @@ def opponent_skill_table(records: Records) -> str:
     return markdown_table(("setting", "agent", "opponents' skill", *DRIVER_HEADER, "record"), rows)
 
 
-def overtaking_settings_table(records: Records) -> str:
-    """Settings A and B of training seed 0: every driver of the records, the built-in AI in the agent's car too."""
+def settings_drivers_table(records: Records, paths: Iterable[str]) -> str:
+    """Every driver of each settings record in ``paths``, in order (the built-in AI in the agent's car too)."""
     rows = []
-    for setting in ("A", "B"):
-        for agents in ("agent1", "agents23"):
-            path = SETTINGS.format(agents=agents, setting=setting)
-            record = records(path)
-            rows.extend(
-                (
-                    f"{setting} ({record['separation_m']:.0f} m apart)",
-                    d["name"],
-                    *_driver_cells(d),
-                    _link("record", path),
-                )
-                for d in record["drivers"]
-                if not (d["reference"] and agents == "agents23")
+    for path in paths:
+        record = records(path)
+        rows.extend(
+            (
+                f"{record['setting']} ({record['separation_m']:.0f} m apart)",
+                d["name"],
+                *_driver_cells(d),
+                _link("record", path),
             )
+            for d in record["drivers"]
+        )
     return markdown_table(("setting", "driver", *DRIVER_HEADER, "record"), rows)
 
 
@@ -982,7 +979,14 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "phase1": phase1_table,
     "overtaking": overtaking_table,
     "opponent-skill": opponent_skill_table,
-    "overtaking-settings": overtaking_settings_table,
+    "overtaking-settings": partial(
+        settings_drivers_table,
+        paths=[SETTINGS.format(agents=a, setting=x) for x in ("A", "B") for a in ("agent1", "agents23")],
+    ),
+    "c-r-ablation": partial(
+        settings_drivers_table,
+        paths=[f"overtaking-expressway-tt_cup/c_r_ablation/setting_{x}.json" for x in ("A", "B")],
+    ),
     "table3-summary": table3_summary_table,
     "table3-runs": table3_runs_table,
     "table3-gail-dart40": partial(table3_runs_table, path=TABLE3_GAIL_DART40),
