@@ -189,6 +189,23 @@ def test_a_seed_still_training_counts_only_where_every_seed_has_a_point(tmp_path
     assert Path(write_learning_curves(result, tmp_path / "fig")["png"]).stat().st_size > 1000
 
 
+def test_the_curriculum_is_timed_against_standard_sacs_first_arrival_at_its_final_return(tmp_path):
+    """Standard SAC at 5 from 200 steps on, dipping to 4 at 400: its final return (5) is first reached at 200, not at
+    its last step (600), so the curriculum's arrival at 100 is half of standard SAC's steps, not a sixth."""
+    runs = [_fake_run(tmp_path, 0, 200), _fake_run(tmp_path, 2, 300)]
+    for run in runs:
+        returns = dict(zip(range(100, 601, 100), (1.0, 5.0, 5.0, 4.0, 5.0, 5.0), strict=True))
+        metrics = run / "standard" / "metrics.jsonl"
+        lines = [json.loads(line) for line in metrics.read_text().splitlines()]
+        metrics.write_text(
+            "".join(json.dumps({**r, "overtaking_return": returns[r["num_timesteps"]]}) + "\n" for r in lines)
+        )
+    result = learning_curves(runs, "1")
+    assert (result["standard_final_x"], result["standard_final_return"]) == (600, 5.0)
+    assert result["standard_steps_to_final"] == 200 and result["curriculum_steps_to_standard_final"] == 100
+    assert result["share_of_standard_steps"] == 0.5
+
+
 def _trace(track, gaps: np.ndarray, car_contact_s: np.ndarray) -> RunTrace:
     """A hand-made trace: the agent on the centre line from s = 0 at 40 m/s, opponent j ``gaps[:, j-1]`` ahead."""
     t = np.arange(len(gaps)) * TRACE_DT_S

@@ -105,8 +105,8 @@ def format_curves(result: dict[str, Any]) -> list[str]:
     steps = result.get("curriculum_steps_to_standard_final")
     if steps is not None:
         lines.append(
-            f"curriculum (every seed) reaches it at {steps:.0f} steps, "
-            f"{100 * result['share_of_standard_steps']:.0f} % of standard SAC's steps"
+            f"curriculum (every seed) reaches it at {steps:.0f} steps, standard SAC first at "
+            f"{result['standard_steps_to_final']:.0f}: {100 * result['share_of_standard_steps']:.0f} % of its steps"
         )
     elif final is not None and result["axis"] == "num_timesteps":
         lines.append("curriculum (every seed) has not reached it")

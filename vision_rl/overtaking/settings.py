@@ -694,12 +694,13 @@ def _on_grid(curves: list[dict[str, Any]], axis: str, key: str = "overtaking_ret
 def learning_curves(
     runs: Sequence[str | os.PathLike[str]], curriculum_agent: str = "1", axis: str = "num_timesteps"
 ) -> dict[str, Any]:
-    """Curriculum (``curriculum_agent``'s stages) and standard SAC over the run folders (one per training seed):
-    mean and standard deviation of the overtaking return on a common axis (``num_timesteps`` or
-    ``train_time_s``), the seeds behind each point and each seed's own curve, each seed's stage switches, and the
-    share of standard SAC's steps at which the curriculum's mean first reaches standard SAC's final mean return
-    (the issue's target: at most one half). Only points that every seed with data reaches count for the target:
-    while a seed is still training, the final return is that of the last such point and ``complete`` is False."""
+    """Curriculum (``curriculum_agent``'s stages) and standard SAC over the run folders (one per training seed): mean
+    and standard deviation of the overtaking return on a common axis (``num_timesteps`` or ``train_time_s``), the seeds
+    behind each point and each seed's own curve, each seed's stage switches, and the steps at which the curriculum's
+    mean first reaches standard SAC's final mean return, as a share of the steps at which standard SAC's own mean first
+    reaches it (the issue's target: at most one half). Only points that every seed with data reaches count for the
+    target: while a seed is still training, the final return is that of the last such point and ``complete`` is
+    False."""
     if axis not in ("num_timesteps", "train_time_s"):
         raise SettingError(f"axis must be num_timesteps or train_time_s, got {axis!r}")
     if not runs:
@@ -740,10 +741,13 @@ def learning_curves(
     # Every run folder has both curves and each curve's last point has every seed.
     result["complete"] = all(result[k]["n_seeds"][-1:] == [len(runs)] for k in ("standard", "curriculum"))
     if standard and axis == "num_timesteps":
-        final_x, final = standard[-1]
+        final = standard[-1][1]
+        # The target compares first arrivals: standard SAC may reach its final return well before its last step.
+        standard_reach = next(x for x, v in standard if v >= final)
         reach = next((x for x, v in curriculum if v >= final), None)
+        result["standard_steps_to_final"] = standard_reach
         result["curriculum_steps_to_standard_final"] = reach
-        result["share_of_standard_steps"] = None if reach is None else reach / final_x
+        result["share_of_standard_steps"] = None if reach is None else reach / standard_reach
     return result
 
 
