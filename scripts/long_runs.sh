@@ -18,16 +18,18 @@ LOGS=$RUNS/logs
 mkdir -p "$LOGS"
 
 run_lane() {
-  local lane=$1 name line rc resume
+  local lane=$1 name line rc resume quiet
   name=$(basename "$lane" .txt)
   while IFS= read -r line || [ -n "$line" ]; do
     [ -z "$line" ] && continue
     case $line in \#*) continue ;; esac
     resume=""
+    # A command with a progress bar gets --no-progress (a log is no terminal); one without (evaluate-ddpg) nothing.
+    quiet=$(cd "$CODE" && "$PYTHON" -m vision_rl.commands.main ${line%% *} --help 2>/dev/null | grep -o -m1 -- --no-progress)
     while true; do
       echo "$(date -Is) start $line $resume" >> "$LOGS/$name.log"
       (cd "$CODE" && eval nice -n 19 timeout -s TERM "${CHUNK_MIN}m" "$PYTHON" -m vision_rl.commands.main $line \
-        $resume --no-progress) >> "$LOGS/$name.out" 2>> "$LOGS/$name.err"
+        $resume $quiet) >> "$LOGS/$name.out" 2>> "$LOGS/$name.err"
       rc=$?
       echo "$(date -Is) rc=$rc $line $resume" >> "$LOGS/$name.log"
       [ $rc -eq 0 ] && break

@@ -12,9 +12,17 @@ from pathlib import Path
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "long_runs.sh"
 
 #: Stands in for `python -m vision_rl.commands.main LINE --no-progress`: refuses a folder holding a run without
-#: --resume as train-ddpg does, counts its chunks in the folder, and times out (124) until its third chunk.
+#: --resume as train-ddpg does, counts its chunks in the folder, and times out (124) until its third chunk;
+#: evaluate-ddpg, which has no progress bar, refuses --no-progress as argparse does.
 STAND_IN = """#!/usr/bin/env bash
 shift 2; out=""; resume=0
+if [ "$1" = evaluate-ddpg ]; then  # a command without a progress bar: argparse refuses --no-progress
+  for a in "$@"; do
+    [ "$a" = --no-progress ] && { echo "error: unrecognized arguments: --no-progress" >&2; exit 2; }
+  done
+  exit 0
+fi
+for a in "$@"; do [ "$a" = --help ] && { echo "  --no-progress  No progress bar."; exit 0; }; done
 for a in "$@"; do [ "$a" = --resume ] && resume=1; done
 while [ $# -gt 0 ]; do [ "$1" = --out ] && out=$2; shift; done
 if [ $resume = 0 ] && [ -e "$out/chunks" ]; then
@@ -59,3 +67,10 @@ def test_a_line_goes_on_in_chunks_with_resume_once_its_folder_holds_a_run(tmp_pa
         f"0 train-ddpg --out {tmp_path / 'b'} --resume",
     ]
     assert (tmp_path / "a" / "chunks").read_text().strip() == "3" and not any("FAILED" in line for line in log)
+
+
+def test_a_command_without_a_progress_bar_is_not_given_no_progress(tmp_path):
+    log = _run_lanes(tmp_path, f"train-ddpg --out {tmp_path / 'a'}\nevaluate-ddpg --agent {tmp_path / 'a'}\n")
+    assert log[-1].split(" rc=")[1] == f"0 evaluate-ddpg --agent {tmp_path / 'a'} " and not any(
+        "FAILED" in x for x in log
+    )
