@@ -21,6 +21,7 @@ def test_runs_are_cut_at_the_common_time_and_binned(tmp_path):
     # The episode ending at the common minute 30 counts in the last bin.
     assert ra["name"] == "asymmetric s1" and ra["bin_mean_distance_m"] == [200.0, 500.0, 2200.0]
     assert ra["bin_episodes"] == [2, 1, 3] and ra["mean_distance_last_m"] == 2200.0  # minutes 20-30
+    assert ra["reward_per_step_last"] == 220.0 and ra["ends_last"] == {"crash 2": 3}  # 6,600 over 30 steps
     assert ra["first_lap_episode"] == 4 and ra["first_lap_minutes"] == 25.0 and ra["best_distance_m"] == 5000.0
     assert rs["episodes"] == 3 and rs["bin_mean_distance_m"] == [50.0, None, 200.0]
     assert rs["first_lap_episode"] is None and rs["best_distance_m"] == 250.0

@@ -48,7 +48,9 @@ def hand_made_run(
     sidecar = {"hyper": {"variant": variant}, "env": {"track": track, "car": "gt3"}, "seed": 1, "counters": counters}
     (folder / "ddpg.json").write_text(json.dumps(sidecar))
     lines = [
-        json.dumps({"train_time_s": 60.0 * m, "distance_m": d, "laps": laps, "return": d, "end": "crash 2"})
+        json.dumps(
+            {"train_time_s": 60.0 * m, "distance_m": d, "laps": laps, "return": d, "steps": 10, "end": "crash 2"}
+        )
         for m, d, laps in episodes
     ]
     (folder / "episodes.jsonl").write_text("".join(line + "\n" for line in lines))

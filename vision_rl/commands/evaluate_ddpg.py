@@ -99,7 +99,7 @@ class CompareDDPGOptions:
 def format_compare(result: dict) -> list[str]:
     lines = [
         f"{result['track']} / {result['car']}: {len(result['runs'])} runs over the common "
-        f"{result['common_minutes']:.1f} training minutes; distance per episode over its last third:"
+        f"{result['common_minutes']:.1f} training minutes; distance per episode and reward per step, last third:"
     ]
     for r in result["runs"]:
         distance = "none" if r["mean_distance_last_m"] is None else f"{r['mean_distance_last_m']:.0f} m"
@@ -109,8 +109,9 @@ def format_compare(result: dict) -> list[str]:
             else (f"first lap in episode {r['first_lap_episode']} after {r['first_lap_minutes']:.1f} min")
         )
         cpu = "" if r["train_cpu_minutes"] is None else f", {r['train_cpu_minutes']:.1f} CPU minutes"
+        reward = "" if r["reward_per_step_last"] is None else f", {r['reward_per_step_last']:+.1f} reward/step"
         lines.append(
-            f"  {r['name']:<20} {distance:>8} (best {r['best_distance_m'] or 0:.0f} m), {r['episodes']} "
+            f"  {r['name']:<20} {distance:>8} (best {r['best_distance_m'] or 0:.0f} m){reward}, {r['episodes']} "
             f"episodes, {r['updates']} updates ({r['updates_per_s']:.2f}/s){cpu}; {lap}"
         )
     return [*lines, f"figure: {result['figure']}   numbers: {result['json']}"]

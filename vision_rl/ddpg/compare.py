@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,12 @@ def read_episodes(run: str | os.PathLike[str]) -> tuple[dict[str, Any], list[dic
     for number, line in enumerate(path.read_text().splitlines(), 1):
         try:
             record = json.loads(line)
-            records.append({k: float(record[k]) for k in ("train_time_s", "distance_m", "laps")})
+            records.append(
+                {
+                    **{k: float(record[k]) for k in ("train_time_s", "distance_m", "laps", "return", "steps")},
+                    "end": record["end"],
+                }
+            )
         except (ValueError, KeyError, TypeError):
             raise DDPGError(f"{path}: line {number} is not an episode record") from None
     return sidecar, records
@@ -48,7 +54,8 @@ def compare_runs(
     runs: Sequence[str | os.PathLike[str]], names: Sequence[str] = (), bin_min: float = 5.0
 ) -> dict[str, Any]:
     """Distance per episode of each run in bins of ``bin_min`` training minutes up to the common time, with a
-    summary per run: episodes, mean and best distance over the last third of the common time, first lap. Episodes
+    summary per run: episodes, mean and best distance, reward per step and why episodes ended over the last third of
+    the common time, first lap. Episodes
     and distances count to the common time; the counters (minutes, steps, updates and their rate) are the run's."""
     if not runs:
         raise DDPGError("--runs is empty: give train-ddpg run folders, comma-separated")
@@ -64,11 +71,12 @@ def compare_runs(
     edges_s = np.arange(0.0, common_s + 60.0 * bin_min, 60.0 * bin_min)
     rows = []
     for run, name, (sidecar, records) in zip(runs, names or [None] * len(runs), loaded, strict=True):
-        t = np.array([r["train_time_s"] for r in records])
-        distance = np.array([r["distance_m"] for r in records])
-        laps = np.array([r["laps"] for r in records])
+        t, distance, laps, returns, steps = (
+            np.array([r[k] for r in records]) for k in ("train_time_s", "distance_m", "laps", "return", "steps")
+        )
         inside = t <= common_s
-        t, distance, laps = t[inside], distance[inside], laps[inside]
+        t, distance, laps, returns, steps = t[inside], distance[inside], laps[inside], returns[inside], steps[inside]
+        ends = [r["end"] for r, kept in zip(records, inside, strict=True) if kept]
         which = np.minimum(np.digitize(t, edges_s) - 1, len(edges_s) - 2)  # an episode ending at the common time
         per_bin = [distance[which == k] for k in range(len(edges_s) - 1)]
         last = t > (1 - LAST_SHARE) * common_s
@@ -89,6 +97,11 @@ def compare_runs(
                 ),
                 "episodes": len(t),
                 "mean_distance_last_m": round(float(distance[last].mean()), 1) if last.any() else None,
+                # Below 0: the run's last episodes lost more to crashes and the line than speed earned.
+                "reward_per_step_last": round(float(returns[last].sum() / steps[last].sum()), 2)
+                if last.any()
+                else None,
+                "ends_last": dict(Counter(end for end, late in zip(ends, last, strict=True) if late).most_common()),
                 "best_distance_m": round(float(distance.max()), 1) if len(t) else None,
                 "first_lap_episode": int(lapped[0]) + 1 if len(lapped) else None,
                 "first_lap_minutes": round(float(t[lapped[0]]) / 60.0, 2) if len(lapped) else None,
