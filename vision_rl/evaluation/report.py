@@ -854,18 +854,6 @@ DDPG_EQUAL_COMPUTE = "ddpg-equal-compute/compare.json"
 DDPG_EQUAL_COMPUTE_LAPS = "ddpg-equal-compute/evaluation-{variant}-s{seed}.json"
 
 
-def _ddpg_protocol_text(evaluation: dict[str, Any], limit_s: float) -> str:
-    """Starts finished through the protocol, and the best lap 2 with its wall contact, or the farthest DNF."""
-    finished = f"{evaluation['n_finished']}/{evaluation['n_seeds']}"
-    lap_s = evaluation["best_lap_time_s"]
-    if lap_s is None:
-        return f"{finished} (at most {max(seed['distance_m'] for seed in evaluation['seeds']):,.0f} m)"
-    wall_s = evaluation["best_lap"]["wall_contact_s"]
-    return (
-        f"{finished}: **{lap_text(lap_s)}** ({gap_text(lap_s, limit_s)} on the limit, {wall_s:.1f} s of wall contact)"
-    )
-
-
 def ddpg_equal_compute_table(records: Records) -> str:
     """Each run of the study: the compute it got, how far its training episodes went, and its protocol laps."""
     _, limit_s = _reference(records, AI_GT3)
@@ -885,8 +873,9 @@ def ddpg_equal_compute_table(records: Records) -> str:
                 f"{run['steps']:,} / {run['updates']:,}",
                 f"{run['episodes']:,}",
                 f"{run['mean_distance_last_m']:,.0f} m (farthest {run['best_distance_m']:,.0f} m)",
+                f"{run['reward_per_step_last']:+.1f}",
                 first_lap,
-                f"{_ddpg_protocol_text(records(path), limit_s)} ({_link('record', path)})",
+                _starts_text(records, path, limit_s),
             )
         )
     header = (
@@ -895,6 +884,7 @@ def ddpg_equal_compute_table(records: Records) -> str:
         "transitions / updates",
         f"training episodes in {compare['common_minutes']:.0f} min",
         "distance per training episode, last third",
+        "reward per step, last third",
         "first lap in training",
         "protocol starts finished, best lap 2",
     )
