@@ -1,0 +1,92 @@
+"""What every paper's tables share: laps and gaps as the papers write them, Markdown rows and links to the records,
+and the built-in AI's lap and the physical limit of each paper's track and car (and their table)."""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Iterable
+
+from vision_rl.evaluation.report.records import RESULTS, Records, ReportError
+
+AI_HATCHBACK = "reference-laps/ai_expressway_hatchback.json"
+AI_TT_CUP = "reference-laps/ai_expressway_tt_cup.json"
+AI_GT3 = "reference-laps/ai_catalunya_gt3.json"
+
+
+def lap_text(seconds: float | None) -> str:
+    """A lap as the papers write it: ``2:09.293``; ``DNF`` for none."""
+    if seconds is None:
+        return "DNF"
+    minutes, rest_s = divmod(round(seconds * 1000) / 1000, 60.0)
+    return f"{int(minutes)}:{rest_s:06.3f}" if minutes else f"{rest_s:.3f} s"
+
+
+def gap_pct(seconds: float, reference_s: float) -> float:
+    """How much longer ``seconds`` is than ``reference_s``, in percent (negative: faster)."""
+    return 100.0 * (seconds / reference_s - 1.0)
+
+
+def gap_text(seconds: float, reference_s: float) -> str:
+    return f"{gap_pct(seconds, reference_s):+.2f} %"
+
+
+def faster_text(seconds: float, ai_s: float) -> str:
+    """``7.18 % faster than the AI`` (or slower)."""
+    gap = gap_pct(seconds, ai_s)
+    return f"{abs(gap):.2f} % {'faster' if gap < 0 else 'slower'} than the AI"
+
+
+def mean_std_s(laps_s: Iterable[float]) -> tuple[float, float]:
+    """Mean and sample standard deviation (0 for one value) of lap times, s."""
+    laps_s = list(laps_s)
+    if not laps_s:
+        raise ReportError("no lap to average")
+    return statistics.fmean(laps_s), statistics.stdev(laps_s) if len(laps_s) > 1 else 0.0
+
+
+def _row(cells: Iterable[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def markdown_table(header: Iterable[str], rows: Iterable[Iterable[str]]) -> str:
+    header = list(header)
+    lines = [_row(header), _row("---" for _ in header), *(_row(row) for row in rows)]
+    return "\n".join(lines) + "\n"
+
+
+def link(text: str, relative_path: str) -> str:
+    return f"[{text}]({RESULTS}{relative_path})"
+
+
+def reference_laps(records: Records, path: str) -> tuple[float, float]:
+    """The built-in AI's protocol lap and the physical limit (QSS) of a track and car, s."""
+    ai = records(path)
+    return ai["best_lap_time_s"], ai["limit_lap_time_s"]
+
+
+def span_m(distances_m: Iterable[float]) -> str:
+    """The range of distances in whole metres, ``a-b m``, or ``a m`` when they round alike."""
+    low, high = f"{min(distances_m):,.0f}", f"{max(distances_m):,.0f}"
+    return f"{low} m" if low == high else f"{low}-{high} m"
+
+
+def reference_table(records: Records) -> str:
+    """The built-in AI's protocol lap and the physical limit of each track and car the papers' tables use."""
+    rows = []
+    for path, pair in (
+        (AI_HATCHBACK, "expressway, hatchback"),
+        (AI_TT_CUP, "expressway, tt_cup"),
+        (AI_GT3, "Catalunya, gt3"),
+    ):
+        ai_s, limit_s = reference_laps(records, path)
+        skill = records(path)["driver"]["skill"]
+        rows.append(
+            (
+                pair,
+                f"{lap_text(ai_s)} (skill {skill})",
+                lap_text(limit_s),
+                gap_text(ai_s, limit_s),
+                link("record", path),
+            )
+        )
+    return markdown_table(("track, car", "built-in AI", "physical limit", "the AI above the limit", "record"), rows)
