@@ -73,7 +73,11 @@ def test_the_committed_records_give_the_tables_figures():
     assert "| 0.989 | 0.999 | 0.999 | 0.992 | 0.994 |" in tables["phase1"]
     assert "**89.82 s** (0.893 of the AI's), 9/9 starts finished" in tables["overtaking"]
     assert "9/10, 9/10, 8/10; fastest 28.5, 29.1, 29.2 s" in tables["overtaking"]
-    assert "symmetric **2:10.339** (+22.59 % on the limit, 97.9 s of wall contact)" in tables["ddpg"]
+    assert "asymmetric **1:46.255** (-0.06 % on the limit, 52.6 s of wall contact)" in tables["ddpg"]
+    assert (
+        "| symmetric s1 | 200 / 65 | 15,362 / 14,362 | 59 | 2,725 m (farthest 5,330 m) | +15.1 | - |"
+        in tables["ddpg-equal-compute"]
+    )
     assert (
         "| 40.0 min | 5, 18 / 12, 10 / 29, 9 m | 2.7k, 2.6k / 1.2k, 1.1k / 52.2k, 51.6k |"
         in tables["ddpg-first-trainings"]

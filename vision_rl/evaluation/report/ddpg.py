@@ -10,8 +10,9 @@ from vision_rl.evaluation.report.common import AI_GT3, gap_text, lap_text, link,
 from vision_rl.evaluation.report.records import Records
 
 DDPG_PAPER = "papers/pcars2-ddpg-asymmetric-actor-critic.json"
-DDPG_EVALUATIONS = "ddpg-catalunya-gt3/evaluation_set3/{variant}-s{seed}.json"
-DDPG_COMPARE = "ddpg-catalunya-gt3/standing_start_sigmoid_compare.json"
+#: The equal-compute study (issue 64, step 4): compare-ddpg's record of the six runs and each run's protocol laps.
+DDPG_EVALUATIONS = "ddpg-equal-compute/evaluation-{variant}-s{seed}.json"
+DDPG_COMPARE = "ddpg-equal-compute/compare.json"
 DDPG_VARIANTS = ("asymmetric", "symmetric", "state-actor")
 DDPG_STATE_ACTOR = "ddpg-state-actor-catalunya-gt3/evaluation-crashgo50k-s{seed}.json"
 
@@ -36,23 +37,25 @@ def _ddpg_laps(records: Records, limit_s: float) -> str:
 
 
 def ddpg_table(records: Records) -> str:
-    """The DDPG paper beside our first trainings: laps through the protocol, distance per training episode."""
+    """The DDPG paper beside our trainings: the equal-compute study's laps through the protocol and distance per
+    training episode, and the state actor's laps."""
     paper = records(DDPG_PAPER)
     ai_s, limit_s = reference_laps(records, AI_GT3)
     compare = records(DDPG_COMPARE)
     distances = _by_variant(compare, "mean_distance_last_m", lambda m: f"{m:.0f}")
     rows = [
         (
-            "lap 2 through the protocol, the best start of 2 training seeds (standing starts, sigmoid pedals)",
+            "lap 2 through the protocol, the best start of 2 training seeds, one core-hour of training each (cpu "
+            "trunk, sigmoid pedals, crashes penalised and not ending an episode)",
             "no lap time (a reward plot over laps 1-3)",
-            f"{_ddpg_laps(records, limit_s)} ({link('record', DDPG_EVALUATIONS.format(variant='symmetric', seed=0))})",
+            f"{_ddpg_laps(records, limit_s)} ({link('record', DDPG_EVALUATIONS.format(variant='asymmetric', seed=0))})",
             lap_text(ai_s),
             lap_text(limit_s),
             "`vision-rl evaluate-ddpg --agent RUN`",
         ),
         (
-            f"distance per training episode, last third of {compare['common_minutes']:.0f} training minutes, "
-            "asymmetric / symmetric / state-actor (seeds 0, 1)",
+            f"distance per training episode, last third of {compare['common_minutes']:.0f} training minutes (a third "
+            "of a core each), asymmetric / symmetric / state-actor (seeds 0, 1)",
             f"the asymmetric agent learns in about {paper['training_episodes']} episodes "
             f"(more than {paper['training_hours_at_least']:.0f} h)",
             f"{distances} m ({link('record', DDPG_COMPARE)})",
@@ -234,18 +237,13 @@ def ddpg_state_actor_table(records: Records, name: str) -> str:
     )
 
 
-#: The equal-compute study (issue 64, step 4): compare-ddpg's record of the six runs and each run's protocol laps.
-DDPG_EQUAL_COMPUTE = "ddpg-equal-compute/compare.json"
-DDPG_EQUAL_COMPUTE_LAPS = "ddpg-equal-compute/evaluation-{variant}-s{seed}.json"
-
-
 def ddpg_equal_compute_table(records: Records) -> str:
     """Each run of the study: the compute it got, how far its training episodes went, and its protocol laps."""
     _, limit_s = reference_laps(records, AI_GT3)
-    compare = records(DDPG_EQUAL_COMPUTE)
+    compare = records(DDPG_COMPARE)
     rows = []
     for run in sorted(compare["runs"], key=lambda r: (DDPG_VARIANTS.index(r["variant"]), r["seed"])):
-        path = DDPG_EQUAL_COMPUTE_LAPS.format(variant=run["variant"], seed=run["seed"])
+        path = DDPG_EVALUATIONS.format(variant=run["variant"], seed=run["seed"])
         first_lap = (
             "-"
             if run["first_lap_episode"] is None

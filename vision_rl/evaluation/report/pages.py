@@ -12,6 +12,7 @@ from vision_rl.evaluation.report.common import reference_table
 from vision_rl.evaluation.report.ddpg import (
     DDPG_STATE_ACTOR_SCREENS,
     ddpg_bench_table,
+    ddpg_equal_compute_table,
     ddpg_first_trainings_table,
     ddpg_reference_table,
     ddpg_state_actor_table,
@@ -60,6 +61,7 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "ddpg-reference-pendulum": lambda records: ddpg_reference_table(records, "Pendulum-v1"),
     "ddpg-reference-mountaincar": lambda records: ddpg_reference_table(records, "MountainCarContinuous-v0", 1, 999),
     "ddpg-bench": ddpg_bench_table,
+    "ddpg-equal-compute": ddpg_equal_compute_table,
     **{name: partial(ddpg_state_actor_table, name=name) for name in DDPG_STATE_ACTOR_SCREENS},
 }
 
