@@ -55,8 +55,8 @@ def compare_runs(
 ) -> dict[str, Any]:
     """Distance per episode of each run in bins of ``bin_min`` training minutes up to the common time, with a
     summary per run: episodes, mean and best distance, reward per step and why episodes ended over the last third of
-    the common time, first lap. Episodes
-    and distances count to the common time; the counters (minutes, steps, updates and their rate) are the run's."""
+    the common time, first lap. Episodes and distances count to the common time; the counters (minutes, steps,
+    updates and their rate) are the run's."""
     if not runs:
         raise DDPGError("--runs is empty: give train-ddpg run folders, comma-separated")
     if names and len(names) != len(runs):
