@@ -17,22 +17,27 @@ DDPG_VARIANTS = ("asymmetric", "symmetric", "state-actor")
 DDPG_STATE_ACTOR = "ddpg-state-actor-catalunya-gt3/evaluation-crashgo50k-s{seed}.json"
 
 
+def _best_lap(evaluations: dict[str, str], records: Records, limit_s: float) -> tuple[str | None, str]:
+    """The fastest lap 2 among the evaluation records ``{label: path}``: (its label, ``**lap** (gap on the limit, wall
+    contact)``), or (None, ``DNF (at most D m)``) when none finished a start."""
+    read = {label: records(path) for label, path in evaluations.items()}
+    lapped = [label for label, e in read.items() if e["best_lap_time_s"] is not None]
+    if not lapped:
+        farthest_m = max(seed["distance_m"] for e in read.values() for seed in e["seeds"])
+        return None, f"DNF (at most {farthest_m:,.0f} m)"
+    best = min(lapped, key=lambda label: read[label]["best_lap_time_s"])
+    lap_s, wall_s = read[best]["best_lap_time_s"], read[best]["best_lap"]["wall_contact_s"]
+    return best, f"**{lap_text(lap_s)}** ({gap_text(lap_s, limit_s)} on the limit, {wall_s:.1f} s of wall contact)"
+
+
 def _ddpg_laps(records: Records, limit_s: float) -> str:
-    """Each variant's best start over its two training seeds through the protocol."""
+    """Each variant's best start over its two training seeds through the protocol, linked to that run's record."""
     parts = []
     for variant in DDPG_VARIANTS:
-        evaluations = [records(DDPG_EVALUATIONS.format(variant=variant, seed=seed)) for seed in (0, 1)]
-        lapped = [e for e in evaluations if e["best_lap_time_s"] is not None]
-        if lapped:
-            best = min(lapped, key=lambda e: e["best_lap_time_s"])
-            lap_s, wall_s = best["best_lap_time_s"], best["best_lap"]["wall_contact_s"]
-            parts.append(
-                f"{variant} **{lap_text(lap_s)}** ({gap_text(lap_s, limit_s)} on the limit, "
-                f"{wall_s:.1f} s of wall contact)"
-            )
-        else:
-            farthest_m = max(seed["distance_m"] for e in evaluations for seed in e["seeds"])
-            parts.append(f"{variant} DNF (at most {farthest_m:,.0f} m)")
+        paths = {str(seed): DDPG_EVALUATIONS.format(variant=variant, seed=seed) for seed in (0, 1)}
+        seed, text = _best_lap(paths, records, limit_s)
+        shown = paths.items() if seed is None else [(seed, paths[seed])]  # a DNF links every seed's record
+        parts.append(f"{variant} {text} ({', '.join(link(f'record s{k}', path) for k, path in shown)})")
     return "; ".join(parts)
 
 
@@ -48,7 +53,7 @@ def ddpg_table(records: Records) -> str:
             "lap 2 through the protocol, the best start of 2 training seeds, one core-hour of training each (cpu "
             "trunk, sigmoid pedals, crashes penalised and not ending an episode)",
             "no lap time (a reward plot over laps 1-3)",
-            f"{_ddpg_laps(records, limit_s)} ({link('record', DDPG_EVALUATIONS.format(variant='asymmetric', seed=0))})",
+            _ddpg_laps(records, limit_s),
             lap_text(ai_s),
             lap_text(limit_s),
             "`vision-rl evaluate-ddpg --agent RUN`",
@@ -73,23 +78,15 @@ def ddpg_table(records: Records) -> str:
 def _ddpg_state_actor_row(records: Records, ai_s: float, limit_s: float) -> tuple[str, ...]:
     """The state actor on the task whose training episodes go on after a crash: starts finished per training seed,
     and the best lap 2 with its wall contact."""
-    evaluations = {seed: records(DDPG_STATE_ACTOR.format(seed=seed)) for seed in (0, 1, 2)}
-    finished = " / ".join(f"{e['n_finished']}/{e['n_seeds']}" for e in evaluations.values())
-    lapped = [seed for seed, e in evaluations.items() if e["best_lap_time_s"] is not None]
-    lap, shown = "no lap", 0
-    if lapped:
-        shown = min(lapped, key=lambda seed: evaluations[seed]["best_lap_time_s"])
-        best = evaluations[shown]
-        lap_s = best["best_lap_time_s"]
-        lap = (
-            f"best lap 2 **{lap_text(lap_s)}** (training seed {shown}, {gap_text(lap_s, limit_s)} on the limit, "
-            f"{best['best_lap']['wall_contact_s']:.1f} s of wall contact)"
-        )
+    paths = {str(seed): DDPG_STATE_ACTOR.format(seed=seed) for seed in (0, 1, 2)}
+    finished = " / ".join(f"{e['n_finished']}/{e['n_seeds']}" for e in map(records, paths.values()))
+    seed, text = _best_lap(paths, records, limit_s)
+    lap = "no lap" if seed is None else f"best lap 2 {text.replace(' (', f' (training seed {seed}, ', 1)}"
     return (
         "state actor, training episodes that go on after a crash (beta 10), 50,000 transitions: starts finished, "
         "training seeds 0 / 1 / 2",
         "-",
-        f"{finished}; {lap} ({link('record', DDPG_STATE_ACTOR.format(seed=shown))})",
+        f"{finished}; {lap} ({link('record', paths[seed or '0'])})",
         lap_text(ai_s),
         lap_text(limit_s),
         "`vision-rl train-ddpg --variant state-actor --no-terminate-on-crash --crash-penalty-beta 10 "

@@ -58,8 +58,10 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "overtaking-seeds": overtaking_seeds_table,
     "ddpg": ddpg_table,
     "ddpg-first-trainings": ddpg_first_trainings_table,
-    "ddpg-reference-pendulum": lambda records: ddpg_reference_table(records, "Pendulum-v1"),
-    "ddpg-reference-mountaincar": lambda records: ddpg_reference_table(records, "MountainCarContinuous-v0", 1, 999),
+    "ddpg-reference-pendulum": partial(ddpg_reference_table, task="Pendulum-v1"),
+    "ddpg-reference-mountaincar": partial(
+        ddpg_reference_table, task="MountainCarContinuous-v0", decimals=1, time_limit_steps=999
+    ),
     "ddpg-bench": ddpg_bench_table,
     "ddpg-equal-compute": ddpg_equal_compute_table,
     **{name: partial(ddpg_state_actor_table, name=name) for name in DDPG_STATE_ACTOR_SCREENS},
