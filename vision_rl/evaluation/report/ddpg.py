@@ -14,7 +14,8 @@ DDPG_PAPER = "papers/pcars2-ddpg-asymmetric-actor-critic.json"
 DDPG_EVALUATIONS = "ddpg-equal-compute/evaluation-{variant}-s{seed}.json"
 DDPG_COMPARE = "ddpg-equal-compute/compare.json"
 DDPG_VARIANTS = ("asymmetric", "symmetric", "state-actor")
-DDPG_STATE_ACTOR = "ddpg-state-actor-catalunya-gt3/evaluation-crashgo50k-s{seed}.json"
+DDPG_STATE_ACTOR_DIR = "ddpg-state-actor-catalunya-gt3"
+DDPG_STATE_ACTOR = f"{DDPG_STATE_ACTOR_DIR}/evaluation-crashgo50k-s{{seed}}.json"
 
 
 def _best_lap(evaluations: dict[str, str], records: Records, limit_s: float) -> tuple[str | None, str]:
@@ -151,10 +152,9 @@ def ddpg_bench_table(records: Records) -> str:
         return f"{row['updates_per_s']:.2f} ({row['ms_per_update']:,.0f} ms; {row['cpu_ms_per_update']:,.0f} ms of CPU)"
 
     rows = []
-    for variant, preset, layout in rows_by_key:
-        if preset == "cpu":
+    for (variant, preset, layout), paper in rows_by_key.items():
+        if preset == "cpu":  # beside its paper-trunk row
             continue
-        paper = rows_by_key[variant, preset, layout]
         cpu = rows_by_key.get((variant, "cpu", layout))
         ratio = (
             "-"
@@ -227,10 +227,12 @@ def ddpg_state_actor_table(records: Records, name: str) -> str:
     """One of the state actor's screens: each row's evaluations through the protocol (:func:`_starts_text`)."""
     _, limit_s = reference_laps(records, AI_GT3)
     header, rows = DDPG_STATE_ACTOR_SCREENS[name]
-    folder = "ddpg-state-actor-catalunya-gt3"
     return markdown_table(
         header,
-        [(label, *(_starts_text(records, f"{folder}/{n}.json", limit_s) for n in names)) for label, names in rows],
+        [
+            (label, *(_starts_text(records, f"{DDPG_STATE_ACTOR_DIR}/{n}.json", limit_s) for n in names))
+            for label, names in rows
+        ],
     )
 
 
