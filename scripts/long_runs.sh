@@ -12,6 +12,7 @@
 set -u
 RUNS=${RUNS:-$HOME/vision_rl-runs}
 CHUNK_MIN=${CHUNK_MIN:-30}
+NICE=${NICE:-19}  # a lower value gives a short screen the cores before the long lanes beside it
 PYTHON=${PYTHON:-$(cd "$(dirname "$0")/.." && pwd)/.venv/bin/python}
 CODE=${CODE:-$(cd "$(dirname "$0")/.." && pwd)}
 LOGS=$RUNS/logs
@@ -28,7 +29,7 @@ run_lane() {
     quiet=$(cd "$CODE" && "$PYTHON" -m vision_rl.commands.main ${line%% *} --help 2>/dev/null | grep -o -m1 -- --no-progress)
     while true; do
       echo "$(date -Is) start $line $resume" >> "$LOGS/$name.log"
-      (cd "$CODE" && eval nice -n 19 timeout -s TERM "${CHUNK_MIN}m" "$PYTHON" -m vision_rl.commands.main $line \
+      (cd "$CODE" && eval nice -n "$NICE" timeout -s TERM "${CHUNK_MIN}m" "$PYTHON" -m vision_rl.commands.main $line \
         $resume $quiet) >> "$LOGS/$name.out" 2>> "$LOGS/$name.err"
       rc=$?
       echo "$(date -Is) rc=$rc $line $resume" >> "$LOGS/$name.log"
@@ -44,7 +45,7 @@ run_lane() {
 }
 
 case ${1:-} in
-  start) shift; for lane in "$@"; do nohup bash -c "$(declare -f run_lane); LOGS=$LOGS CHUNK_MIN=$CHUNK_MIN \
+  start) shift; for lane in "$@"; do nohup bash -c "$(declare -f run_lane); LOGS=$LOGS CHUNK_MIN=$CHUNK_MIN NICE=$NICE \
            PYTHON=$PYTHON CODE=$CODE run_lane $lane" > /dev/null 2>&1 & done ;;
   status) for log in "$LOGS"/*.log; do echo "$(basename "$log"): $(tail -1 "$log")"; done ;;
   *) sed -n '2,10p' "$0"; exit 2 ;;

@@ -30,17 +30,18 @@ if [ $resume = 0 ] && [ -e "$out/chunks" ]; then
   exit 2
 fi
 n=$(( $(cat "$out/chunks" 2>/dev/null || echo 0) + 1 )); mkdir -p "$out"; echo $n > "$out/chunks"
+nice > "$out/niceness"
 [ $n -ge 3 ] && exit 0 || exit 124
 """
 
 
-def _run_lanes(tmp_path: Path, lines: str) -> list[str]:
+def _run_lanes(tmp_path: Path, lines: str, **env_vars: str) -> list[str]:
     stand_in = tmp_path / "python"
     stand_in.write_text(STAND_IN)
     stand_in.chmod(0o755)
     lane = tmp_path / "lane.txt"
     lane.write_text(lines)
-    env = {**os.environ, "RUNS": str(tmp_path), "PYTHON": str(stand_in), "CODE": str(tmp_path)}
+    env = {**os.environ, "RUNS": str(tmp_path), "PYTHON": str(stand_in), "CODE": str(tmp_path), **env_vars}
     subprocess.run(["bash", str(SCRIPT), "start", str(lane)], env=env, check=True)
     log = tmp_path / "logs" / "lane.log"
     deadline = time.monotonic() + 30
@@ -74,3 +75,12 @@ def test_a_command_without_a_progress_bar_is_not_given_no_progress(tmp_path):
     assert log[-1].split(" rc=")[1] == f"0 evaluate-ddpg --agent {tmp_path / 'a'} " and not any(
         "FAILED" in x for x in log
     )
+
+
+def test_a_lane_runs_at_the_niceness_it_is_given_and_at_the_lowest_priority_by_default(tmp_path):
+    base = os.nice(0)
+    (tmp_path / "default").mkdir(), (tmp_path / "screen").mkdir()
+    _run_lanes(tmp_path / "default", f"train-ddpg --out {tmp_path / 'a'}\n")
+    _run_lanes(tmp_path / "screen", f"train-ddpg --out {tmp_path / 'b'}\n", NICE="5")
+    assert int((tmp_path / "a" / "niceness").read_text()) == min(base + 19, 19)
+    assert int((tmp_path / "b" / "niceness").read_text()) == min(base + 5, 19)
