@@ -181,14 +181,17 @@ def _settings_rows(records: Records) -> list[tuple[str, ...]]:
 def overtaking_table(records: Records) -> str:
     """The overtaking paper (Table III, settings A and B, Fig. 3) beside our runs."""
     curves = records(CURRICULUM_CURVES)
+    seeds = len(curves["runs"])
+    # A reading taken while seeds still train says so: its final return is that of the last step every seed reached.
+    interim = "" if curves.get("complete", True) else ", interim: seeds still training"
+    reach = curves["curriculum_steps_to_standard_final"]
     rows = [*_table3_rows(records), *_settings_rows(records)]
     rows.append(
         (
             "Fig. 3: curriculum (Agent 3) against standard SAC, steps to standard SAC's final overtaking return",
             "fewer for the curriculum",
-            f"{curves['curriculum_steps_to_standard_final'] / 1e6:.2f}M, "
-            f"{curves['share_of_standard_steps']:.2f}x standard SAC's (one training seed; "
-            f"{link('record', CURRICULUM_CURVES)})",
+            (f"{reach / 1e6:.2f}M, {curves['share_of_standard_steps']:.2f}x standard SAC's" if reach else "not reached")
+            + f" ({seeds} training seed{'s' if seeds > 1 else ''}{interim}; {link('record', CURRICULUM_CURVES)})",
             "-",
             "-",
             "`vision-rl evaluate-overtaking --curves ...`",
