@@ -30,6 +30,7 @@ from vision_rl.evaluation.report.overtaking import (
     table3_summary_table,
 )
 from vision_rl.evaluation.report.records import RESULTS, Records, ReportError
+from vision_rl.evaluation.report.scaling import SCALING_TABLES
 from vision_rl.evaluation.report.state import STATE_TABLES
 from vision_rl.evaluation.report.vision import phase1_table, quick_table, vision_table
 
@@ -67,6 +68,7 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "ddpg-equal-compute": ddpg_equal_compute_table,
     **{name: partial(ddpg_state_actor_table, name=name) for name in DDPG_STATE_ACTOR_SCREENS},
     **STATE_TABLES,
+    **SCALING_TABLES,
 }
 
 
