@@ -186,6 +186,23 @@ def driver_table(records: Records, recipes: tuple[Recipe, ...], quick: tuple[str
     return markdown_table(("driver", "lap", "gap to limit", "gap to AI"), rows)
 
 
+def curves_compare_table(records: Records, path: str) -> str:
+    """The periodic evaluations of the series in a `compare-curves` record side by side: each one's mean lap over its
+    seeds at each step, and how many seeds had a lap there."""
+    series = records(path)["series"]
+    steps = series[0]["num_timesteps"]
+    if any(s["num_timesteps"] != steps for s in series):
+        raise ReportError(f"the series of {path} were not evaluated at the same steps")
+
+    def cell(s: dict[str, Any], i: int) -> str:
+        lap_s = s["mean_lap_time_s"][i]
+        return "no seed finished" if lap_s is None else f"{lap_text(lap_s)} ({s['seeds_finished'][i]})"
+
+    rows = [(steps_text(n), *(cell(s, i) for s in series)) for i, n in enumerate(steps)]
+    header = ("steps", *(f"{s['name']}: mean lap (seeds with a lap)" for s in series))
+    return f"{markdown_table(header, rows)}\n{link('record', path)}\n"
+
+
 H25 = "state-expressway-hatchback-25hz/"
 CLEAN = "state-expressway-hatchback-clean/"
 SPEED = "state-expressway-hatchback-speed-scaled/"
@@ -327,6 +344,7 @@ STATE_AGENT_RECIPES = (
 )
 
 STATE_TABLES = {
+    "state-n-step": partial(curves_compare_table, path=f"{SPEED}n_step_compare.json"),
     "state-agent": partial(
         driver_table,
         recipes=STATE_AGENT_RECIPES,
