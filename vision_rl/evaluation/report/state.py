@@ -16,6 +16,7 @@ from vision_rl.evaluation.report.common import (
     markdown_table,
     mean_std_s,
     reference_laps,
+    span_text,
 )
 from vision_rl.evaluation.report.records import Records, ReportError
 from vision_rl.evaluation.report.vision import QUICK_JOB, experiment_seeds, seeds_summary
@@ -103,9 +104,9 @@ def _bold(text: str, bold: bool) -> str:
 
 def training_minutes(records: Records, paths: Iterable[str]) -> str:
     """The training time of each seed in learning-curve records (its last periodic evaluation), ``53-59 min``."""
-    minutes = [seed["train_time_s"][-1] / 60 for path in paths for seed in records(path)["per_seed"].values()]
-    low, high = f"{min(minutes):.0f}", f"{max(minutes):.0f}"
-    return f"{low} min" if low == high else f"{low}-{high} min"
+    return span_text(
+        (seed["train_time_s"][-1] / 60 for path in paths for seed in records(path)["per_seed"].values()), "min"
+    )
 
 
 def recipe_row(records: Records, recipe: Recipe, limit_s: float, ai_s: float) -> tuple[str, ...]:
@@ -201,6 +202,42 @@ def curves_compare_table(records: Records, path: str) -> str:
     rows = [(steps_text(n), *(cell(s, i) for s in series)) for i, n in enumerate(steps)]
     header = ("steps", *(f"{s['name']}: mean lap (seeds with a lap)" for s in series))
     return f"{markdown_table(header, rows)}\n{link('record', path)}\n"
+
+
+def seeds_columns_table(records: Records, columns: tuple[tuple[str, Seeds], ...], steering: str) -> str:
+    """Recipes side by side, one column each: the seeds' mean and best lap, starts finished (per seed), wall contact
+    on each seed's best lap, and the steering motion per step transcribed in ``steering`` ({column: [low, high]})."""
+    sets = [seed_rows(records, seeds) for _, seeds in columns]
+    motion = records(steering)
+
+    def row(label: str, cell: Any) -> tuple[str, ...]:
+        return (label, *(cell(rows, header) for (header, _), rows in zip(columns, sets, strict=True)))
+
+    def laps(rows: list[dict[str, Any]]) -> list[float]:
+        return [r["lap_time_s"] for r in rows if r["lap_time_s"] is not None]
+
+    rows = [
+        row("lap, mean ± std of the training seeds' best", lambda rows, _: _laps(rows, best=False)[1]),
+        row("best of the seeds", lambda rows, _: lap_text(min(laps(rows)))),
+        row(
+            "starts finished",
+            lambda rows, _: f"{seeds_summary(rows)['finished']} ({', '.join(r['finished'] for r in rows)})",
+        ),
+        row(
+            "wall contact on each seed's best lap",
+            lambda rows, _: span_text((r["wall_contact_s"] for r in rows if r["lap_time_s"]), "s", ".1f"),
+        ),
+        row(
+            "mean change of the steering command per step",
+            lambda _, h: span_text(motion["change_per_step_rad"][h], "rad", ".2f"),
+        ),
+        row(
+            "sign changes of the steering command", lambda _, h: span_text(motion["sign_changes_pct"][h], "% of steps")
+        ),
+    ]
+    links = ", ".join(link(header, path) for header, seeds in columns for path in seeds.paths)
+    table = markdown_table(("", *(header for header, _ in columns)), rows)
+    return f"{table}\nRecords: {links}, {link('steering', steering)}.\n"
 
 
 H25 = "state-expressway-hatchback-25hz/"
@@ -344,6 +381,14 @@ STATE_AGENT_RECIPES = (
 )
 
 STATE_TABLES = {
+    "state-steer05": partial(
+        seeds_columns_table,
+        columns=(
+            ("c_s = 0 (the papers' reward)", Seeds((f"{STEER05}baseline_at_400k.json",))),
+            ("c_s = 0.5", Seeds((f"{STEER05}experiment.json",))),
+        ),
+        steering=f"{STEER05}steering_motion.json",
+    ),
     "state-n-step": partial(curves_compare_table, path=f"{SPEED}n_step_compare.json"),
     "state-agent": partial(
         driver_table,
