@@ -1,5 +1,6 @@
-"""The driver tables of the state and vision agents' studies: each recipe's lap through the protocol over its training
-seeds beside the physical limit and the built-in AI, from the `vision-rl experiment` records."""
+"""The state agent's tables: each recipe's lap through the protocol over its training seeds beside the physical limit
+and the built-in AI (the study's driver table, whose builder the vision study's can share), the n-step comparison and
+the steering-change penalty's, from the `vision-rl experiment` and learning-curve records."""
 
 from __future__ import annotations
 
