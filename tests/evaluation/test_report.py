@@ -151,6 +151,26 @@ def test_a_missing_record_or_figure_is_an_error(results_copy):
         build_tables(results_copy, ["vision"])
 
 
+def test_the_state_tables_read_the_chosen_and_the_last_weights_each_from_its_own_field(results_copy):
+    before = build_tables(results_copy, ["state-agent"])["state-agent"]
+    two_million = "state-expressway-hatchback-25hz/dt04-ent4-lrf-select-2m_experiment.json"
+    edit_record(results_copy, two_million, lambda r: r["selected"]["per_seed"][0].update(lap_time_s=135.51531380758965))
+    after = build_tables(results_copy, ["state-agent"])["state-agent"]
+    assert "**2:09.293 ± 0.31 s**" in before and "**2:10.293 ± 2.58 s**" in after  # seed 0's chosen lap 6 s slower
+    assert "/ 2:10.115 ± 0.44 s |" in before and "/ 2:10.115 ± 0.44 s |" in after  # the last weights' figure as it was
+
+
+def test_a_state_or_scaling_table_refuses_a_record_without_its_figures(results_copy):
+    snapshots = "state-expressway-hatchback-steer05/baseline_at_400k.json"
+    edit_record(results_copy, snapshots, lambda r: [r.pop(seed) for seed in ("0", "1", "2")])
+    with pytest.raises(ReportError, match=r"no training seed in .*baseline_at_400k\.json"):
+        build_tables(results_copy, ["state-agent"])
+    curves = "scaling/staleness/one-process/learning_curves.json"
+    edit_record(results_copy, curves, lambda r: r["per_seed"]["2"].update(lap_time_s=[None] * 8))
+    with pytest.raises(ReportError, match="never beat the built-in AI's lap"):
+        build_tables(results_copy, ["scaling-staleness"])
+
+
 def test_a_page_keeps_its_text_and_gets_its_tables_with_links_from_its_folder():
     page = (
         "# Title\n\nbefore\n<!-- report:t -->\nold table\n<!-- /report -->\n"

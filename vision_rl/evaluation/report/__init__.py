@@ -10,8 +10,8 @@ from the protocol's evaluations of the AI (``docs/results/reference-laps/``), an
 command's printed summary are transcribed into a record that says so (``make-quick/job.json``,
 ``phase1-expressway-hatchback/r2.json``).
 
-``records`` reads and seals the records, ``common`` writes laps, gaps and Markdown, one module per paper builds its
-tables, and ``pages`` names them all and fills the pages.
+``records`` reads and seals the records, ``common`` writes laps, gaps and Markdown, one module per paper (and
+``state`` and ``scaling`` for those studies) builds its tables, and ``pages`` names them all and fills the pages.
 """
 
 from vision_rl.evaluation.report.common import (

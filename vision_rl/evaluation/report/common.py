@@ -64,10 +64,16 @@ def reference_laps(records: Records, path: str) -> tuple[float, float]:
     return ai["best_lap_time_s"], ai["limit_lap_time_s"]
 
 
+def span_text(values: Iterable[float], unit: str, spec: str = ".0f") -> str:
+    """The range of ``values`` written with the format ``spec``, ``a-b unit``, or ``a unit`` when they read alike."""
+    values = list(values)
+    low, high = (f"{x:{spec}}" for x in (min(values), max(values)))
+    return f"{low} {unit}" if low == high else f"{low}-{high} {unit}"
+
+
 def span_m(distances_m: Iterable[float]) -> str:
     """The range of distances in whole metres, ``a-b m``, or ``a m`` when they round alike."""
-    low, high = f"{min(distances_m):,.0f}", f"{max(distances_m):,.0f}"
-    return f"{low} m" if low == high else f"{low}-{high} m"
+    return span_text(distances_m, "m", ",.0f")
 
 
 def reference_table(records: Records) -> str:

@@ -30,6 +30,8 @@ from vision_rl.evaluation.report.overtaking import (
     table3_summary_table,
 )
 from vision_rl.evaluation.report.records import RESULTS, Records, ReportError
+from vision_rl.evaluation.report.scaling import SCALING_TABLES
+from vision_rl.evaluation.report.state import STATE_TABLES
 from vision_rl.evaluation.report.vision import phase1_table, quick_table, vision_table
 
 #: A generated table's place on a page: the opening marker names the table, the closing one ends it.
@@ -65,6 +67,8 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "ddpg-bench": ddpg_bench_table,
     "ddpg-equal-compute": ddpg_equal_compute_table,
     **{name: partial(ddpg_state_actor_table, name=name) for name in DDPG_STATE_ACTOR_SCREENS},
+    **STATE_TABLES,
+    **SCALING_TABLES,
 }
 
 
