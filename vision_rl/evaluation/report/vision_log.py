@@ -414,13 +414,167 @@ SEEDS_TABLES |= {
 }
 
 
+@dataclass(frozen=True)
+class ExperimentRow:
+    """A row of a table of `vision-rl experiment` records: its label, the record (and learning curves) in
+    :data:`LOG`, whether its figures are bold, the state agent's record it is set against (a path under the results),
+    and a record of its wall hits when the experiment's own has none."""
+
+    label: str
+    file: str
+    curves: str | None = None
+    bold: bool = False
+    state: str | None = None
+    hits: str | None = None
+
+
+def _hits_text(records: Records, row: ExperimentRow, per_seed: list[dict[str, Any]]) -> str:
+    """Wall hits in each seed's scored lap and the range of the fastest hit's speed."""
+    seeds = records(f"{LOG}/{row.hits}")["seeds"] if row.hits else per_seed
+    fastest = [seed["fastest_wall_hit_kmh"] for seed in seeds]
+    hits = ", ".join(str(seed["wall_hits"]) for seed in seeds)
+    return f"{hits} (fastest {min(fastest):.0f}-{max(fastest):.0f} km/h)"
+
+
+def _experiment_cells(records: Records, row: ExperimentRow) -> dict[str, str]:
+    """The figures of an experiment's final evaluation (the protocol's 3 starts per training seed) a table can show."""
+    record = records(f"{LOG}/{row.file}")
+    summary, per_seed = record["summary"], record["per_seed"]
+    mean_s, std_s = summary["lap_time_mean_s"], summary["lap_time_std_s"]
+    walls_s = [seed["wall_contact_s"] for seed in per_seed if seed["wall_contact_s"] is not None]
+    done, total = summary["finished"].split("/")
+    each = "" if done == total else f" ({', '.join(seed['finished'] for seed in per_seed)})"
+    lap = _bold(f"{lap_text(mean_s)} +- {std_s:.2f} s", row.bold)
+    cells = {
+        "lap": lap,
+        "lap_seeds": f"{lap} ({summary['n_training_seeds_finished']} of {summary['n_training_seeds']} seeds)",
+        "best": lap_text(summary["best_lap_time_s"]),
+        "starts": _bold(f"{summary['finished']}{each}", row.bold),
+        "wall_range": f"{min(walls_s):.1f}-{max(walls_s):.1f} s ({summary['wall_contact_mean_s']:.2f} +- "
+        f"{summary['wall_contact_std_s']:.2f})",
+        "wall_seeds": ", ".join("-" if w is None else f"{w:.2f}" for w in (seed["wall_contact_s"] for seed in per_seed))
+        + " s",
+        "ai": _bold(faster_text(mean_s, reference_laps(records, AI_HATCHBACK)[0]), row.bold),
+    }
+    if row.hits or "wall_hits" in per_seed[0]:
+        cells["hits"] = _hits_text(records, row, per_seed)
+    if row.state:
+        state_s = records(row.state)["summary"]["lap_time_mean_s"]
+        slower = 100.0 * (mean_s / state_s - 1.0)
+        cells["state"] = (
+            f"{abs(slower):.2f} % {'slower' if slower > 0 else 'faster'} than its {link(lap_text(state_s), row.state)}"
+        )
+    return cells
+
+
+EXPERIMENT_HEADERS = {
+    "lap": "lap: mean +- std over 3 training seeds",
+    "lap_seeds": "lap: mean +- std over the seeds that finished",
+    "best": "best seed",
+    "starts": "starts finished",
+    "wall_range": "wall contact per lap (mean +- std)",
+    "wall_seeds": "wall contact per lap (seeds 0, 1, 2)",
+    "hits": "wall hits (seeds 0, 1, 2)",
+    "ai": "against the AI ({ai})",
+    "state": "against the state agent of the same action",
+}
+
+
+def experiments_table(records: Records, first: str, rows: Sequence[ExperimentRow], columns: Sequence[str]) -> str:
+    """One row per experiment (a recipe over training seeds through the protocol), labelled under ``first``, with
+    links to its record and curves."""
+    body = []
+    for row in rows:
+        cells = _experiment_cells(records, row)
+        links = [link("record", f"{LOG}/{row.file}"), *([link("curves", f"{LOG}/{row.curves}")] if row.curves else [])]
+        body.append((f"{_bold(row.label, row.bold)} ({', '.join(links)})", *(cells[c] for c in columns)))
+    ai = lap_text(reference_laps(records, AI_HATCHBACK)[0])
+    return markdown_table((first, *(EXPERIMENT_HEADERS[c].format(ai=ai) for c in columns)), body)
+
+
 def seeds_log_table(records: Records, name: str) -> str:
     """One of :data:`SEEDS_TABLES`."""
     spec = SEEDS_TABLES[name]
     return seeds_table(records, spec.seeds, spec.rows, spec.files, spec.extras, spec.headers)
 
 
+STATE_SPEED_SCALED = "state-expressway-hatchback-speed-scaled"
+RATE_SCALED = ExperimentRow("`rate_scaled`, 1-step, 200k steps", "rate_scaled_experiment.json")
+N_STEP_3 = ExperimentRow("3-step, 400k steps (above)", "rate_scaled_n3_experiment.json")
+LABELS_CUT = ExperimentRow("the same with the labels and the cut", "label30_cut3_experiment.json")
+#: The log's tables of experiments: (the first column's header, rows, columns of :data:`EXPERIMENT_HEADERS`).
+EXPERIMENT_TABLES: dict[str, tuple[str, tuple[ExperimentRow, ...], tuple[str, ...]]] = {
+    "vision-log-steer-actions": (
+        "recipe",
+        (
+            ExperimentRow("the papers' steering action", "experiment.json", "learning_curves.png"),
+            ExperimentRow(
+                "`--steer-action speed_scaled`", "speed_scaled_experiment.json", "speed_scaled_learning_curves.png"
+            ),
+            ExperimentRow(
+                "`--steer-action rate_scaled`", RATE_SCALED.file, "rate_scaled_learning_curves.png", bold=True
+            ),
+            ExperimentRow(
+                "`speed_scaled` with the paper's frame delay, `--frame-delay-s 0.067`",
+                "frame_delay_experiment.json",
+                "frame_delay_learning_curves.png",
+                bold=True,
+            ),
+        ),
+        ("lap_seeds", "best", "starts", "wall_range"),
+    ),
+    "vision-log-encoder-seed1": (
+        "encoder",
+        (
+            ExperimentRow("Phase 1 seed 0 (the quick encoder)", RATE_SCALED.file),
+            ExperimentRow("Phase 1 seed 1", "encoder_seed1_experiment.json", "encoder_seed1_learning_curves.png"),
+        ),
+        ("lap_seeds", "best", "starts", "wall_range"),
+    ),
+    "vision-log-n-step": (
+        "recipe",
+        (
+            ExperimentRow(
+                RATE_SCALED.label, RATE_SCALED.file, state=f"{STATE_SPEED_SCALED}/rate_scaled_experiment.json"
+            ),
+            ExperimentRow(
+                "`rate_scaled`, 3-step, 400k steps",
+                N_STEP_3.file,
+                "rate_scaled_n3_learning_curves.png",
+                bold=True,
+                state=f"{STATE_SPEED_SCALED}/rate_scaled_n3_experiment.json",
+            ),
+        ),
+        ("lap", "best", "starts", "wall_range", "ai", "state"),
+    ),
+    "vision-log-labels-cut": (
+        "recipe",
+        (
+            ExperimentRow(N_STEP_3.label, N_STEP_3.file, hits="rate_scaled_n3_wall_hits.json"),
+            ExperimentRow(LABELS_CUT.label, LABELS_CUT.file, "label30_cut3_learning_curves.png"),
+        ),
+        ("lap", "best", "starts", "wall_seeds", "hits", "ai"),
+    ),
+    "vision-log-policy-frames": (
+        "encoder (the labelled recipe, 3 training seeds)",
+        (
+            ExperimentRow("quick (the AI's frames), above", LABELS_CUT.file),
+            ExperimentRow(
+                "the AI's frames and the labelled policies' own",
+                "label30_cut3_policy_frames_experiment.json",
+                "label30_cut3_policy_frames_learning_curves.png",
+                bold=True,
+            ),
+        ),
+        ("lap", "best", "starts", "wall_seeds", "hits", "ai"),
+    ),
+}
+
 #: The log's tables, by the name a page marks them with.
 VISION_LOG_TABLES: dict[str, Callable[[Records], str]] = {
     **{name: partial(seeds_log_table, name=name) for name in SEEDS_TABLES},
+    **{
+        name: partial(experiments_table, first=first, rows=rows, columns=columns)
+        for name, (first, rows, columns) in EXPERIMENT_TABLES.items()
+    },
 }
