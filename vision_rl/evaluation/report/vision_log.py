@@ -498,6 +498,64 @@ def seeds_log_table(records: Records, name: str) -> str:
     return seeds_table(records, spec.seeds, spec.rows, spec.files, spec.extras, spec.headers)
 
 
+CRITIC_STATE = "quick_critic_state_starts13.json"
+CRITIC_STATE_ENCODER_SEED1 = "quick_critic_state_encoder_seed1_starts13.json"
+#: The runs with the critic that reads the state: (label, batch, whether the lap is set against the AI).
+CRITIC_STATE_RUNS: tuple[tuple[str, Batch, bool], ...] = (
+    ("training seeds 0 and 12-18, the night's encoder (above)", (CRITIC_STATE, ("critic_state",), None), False),
+    (
+        "the job's own run (seed 0), the same encoder",
+        (CRITIC_STATE_ENCODER_SEED1, ("make_quick_job_vision_run",), None),
+        False,
+    ),
+    (
+        "training seeds 0-3, the encoder of Phase 1 seed 1",
+        (CRITIC_STATE_ENCODER_SEED1, ("critic_state_encoder_seed1",), None),
+        True,
+    ),
+)
+
+
+def critic_state_runs_table(records: Records) -> str:
+    """Every run with the critic that reads the state, by encoder: starts finished of 13, runs losing any, the
+    protocol's starts and lap, the seeds' median wall contact, and all the runs together."""
+    ai_s = reference_laps(records, AI_HATCHBACK)[0]
+    body, runs = [], []
+    for label, batch, against_ai in CRITIC_STATE_RUNS:
+        rows = _seed_rows(records, batch)
+        runs += rows
+        laps_s = [row["lap_s"] for row in rows if row["lap_s"] is not None]
+        mean_s, std_s = mean_std_s(laps_s)
+        lap = lap_text(mean_s) if len(laps_s) == 1 else f"{lap_text(mean_s)} +- {std_s:.2f} s"
+        walls_s = [row["wall_s"] for row in rows]
+        body.append(
+            (
+                f"{label} ({link('record', f'{LOG}/{batch[0]}')})",
+                ", ".join(str(row["of_13"]) for row in rows),
+                f"{sum(row['of_13'] for row in rows)}/{13 * len(rows)}",
+                f"{sum(row['of_13'] < 13 for row in rows)} of {len(rows)}",
+                f"{sum(row['of_3'] for row in rows)}/{3 * len(rows)}",
+                lap + (f" ({faster_text(mean_s, ai_s)})" if against_ai else ""),
+                f"{walls_s[0]:.2f} s" if len(walls_s) == 1 else f"{min(walls_s):.1f}-{max(walls_s):.1f} s",
+            )
+        )
+    body.append(
+        (
+            f"**all {len(runs)} runs, two encoders**",
+            "",
+            f"**{sum(row['of_13'] for row in runs)}/{13 * len(runs)}**",
+            f"**{sum(row['of_13'] < 13 for row in runs)} of {len(runs)}**",
+            f"**{sum(row['of_3'] for row in runs)}/{3 * len(runs)}**",
+            "",
+            "",
+        )
+    )
+    header = ("runs with the critic that reads the state", "starts finished of 13", "all", "runs losing any")
+    return markdown_table(
+        (*header, "protocol's starts", "lap: mean +- std", "wall contact per lap (the seeds' medians)"), body
+    )
+
+
 STATE_SPEED_SCALED = "state-expressway-hatchback-speed-scaled"
 RATE_SCALED = ExperimentRow("`rate_scaled`, 1-step, 200k steps", "rate_scaled_experiment.json")
 N_STEP_3 = ExperimentRow("3-step, 400k steps (above)", "rate_scaled_n3_experiment.json")
@@ -573,6 +631,7 @@ EXPERIMENT_TABLES: dict[str, tuple[str, tuple[ExperimentRow, ...], tuple[str, ..
 #: The log's tables, by the name a page marks them with.
 VISION_LOG_TABLES: dict[str, Callable[[Records], str]] = {
     **{name: partial(seeds_log_table, name=name) for name in SEEDS_TABLES},
+    "vision-log-critic-state-runs": critic_state_runs_table,
     **{
         name: partial(experiments_table, first=first, rows=rows, columns=columns)
         for name, (first, rows, columns) in EXPERIMENT_TABLES.items()
