@@ -3,6 +3,7 @@ training seeds through the protocol, and its batches of runs each timed from 13 
 
 from __future__ import annotations
 
+import statistics
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -498,6 +499,38 @@ def seeds_log_table(records: Records, name: str) -> str:
     return seeds_table(records, spec.seeds, spec.rows, spec.files, spec.extras, spec.headers)
 
 
+STEER_SHARE = "quick_steer_share_starts13.json"
+#: The two arms of the steering-step screen: (label, the arm's key in :data:`STEER_SHARE`).
+STEER_SHARE_ARMS = (
+    ("`rate_scaled` (`make quick`)", "qv-base"),
+    ("with a step of at most 0.25 of the usable angle", "qv-share25"),
+)
+
+
+def steer_share_table(records: Records) -> str:
+    """The screen of a smaller steering step: each policy's starts finished of 13 and the median of its laps."""
+    arms = records(f"{LOG}/{STEER_SHARE}")["arms"]
+    body = []
+    for label, key in STEER_SHARE_ARMS:
+        policies = sorted(arms[key]["policies"], key=lambda policy: policy["training_seed"])
+        medians_s = [
+            statistics.median(start["lap_time_s"] for start in policy["starts"] if start["finished"])
+            for policy in policies
+        ]
+        bold = key == "qv-base"
+        body.append(
+            (
+                label,
+                f"{', '.join(str(policy['finished']) for policy in policies)} of 13",
+                _bold(arms[key]["finished"], bold),
+                ", ".join(map(lap_text, medians_s)),
+            )
+        )
+    header = ("steering", "starts finished, per training seed (0-3)", "all", "scored laps: each policy's median")
+    table = markdown_table(header, body)
+    return f"{table}\nRecord: {link(STEER_SHARE, f'{LOG}/{STEER_SHARE}')}.\n"
+
+
 CRITIC_STATE = "quick_critic_state_starts13.json"
 CRITIC_STATE_ENCODER_SEED1 = "quick_critic_state_encoder_seed1_starts13.json"
 #: The runs with the critic that reads the state: (label, batch, whether the lap is set against the AI).
@@ -632,6 +665,7 @@ EXPERIMENT_TABLES: dict[str, tuple[str, tuple[ExperimentRow, ...], tuple[str, ..
 VISION_LOG_TABLES: dict[str, Callable[[Records], str]] = {
     **{name: partial(seeds_log_table, name=name) for name in SEEDS_TABLES},
     "vision-log-critic-state-runs": critic_state_runs_table,
+    "vision-log-steer-share": steer_share_table,
     **{
         name: partial(experiments_table, first=first, rows=rows, columns=columns)
         for name, (first, rows, columns) in EXPERIMENT_TABLES.items()
