@@ -531,6 +531,33 @@ def steer_share_table(records: Records) -> str:
     return f"{table}\nRecord: {link(STEER_SHARE, f'{LOG}/{STEER_SHARE}')}.\n"
 
 
+#: The frame groups of an encoder's error on the policies' own frames: (key, label).
+ENCODER_ERROR_GROUPS = (
+    ("all", "two policies that finished"),
+    ("near_wall", "the same, within 1.5 m of a wall"),
+    ("wall_contact", "the same, in wall contact"),
+    ("heading_0.2_1.2", "the same, heading 0.2-1.2 rad off the track's"),
+)
+
+
+def state_policy_laps_encoder_table(records: Records) -> str:
+    """The mean absolute error of the job's encoder and of the one that also saw the state policy's laps, on the
+    vision policies' own frames, per group of frames (the new encoder's figure bold)."""
+    error = records(f"{LOG}/{STATE_LAPS}")["encoder"]["error_on_policy_frames"]
+    old, new = error["job_encoder"], error["this_encoder"]
+    body = []
+    for key, label in ENCODER_ERROR_GROUPS:
+        if old[key]["frames"] != new[key]["frames"]:
+            raise ReportError(f"{STATE_LAPS}: the two encoders' errors on {key} are over different frames")
+        cells = [
+            f"{old[key][target]:.{decimals}f} / **{new[key][target]:.{decimals}f}**"
+            for target, decimals in (("centre_offset", 2), ("heading", 3), ("edge_rays", 2))
+        ]
+        body.append((f"{label} ({old[key]['frames']:,} frames)", *cells))
+    header = ("frames", "centre offset, m: job's / new", "heading, rad: job's / new", "edge rays, m: job's / new")
+    return f"{markdown_table(header, body)}\nRecord: {link(STATE_LAPS, f'{LOG}/{STATE_LAPS}')}, key `encoder`.\n"
+
+
 CRITIC_STATE = "quick_critic_state_starts13.json"
 CRITIC_STATE_ENCODER_SEED1 = "quick_critic_state_encoder_seed1_starts13.json"
 #: The runs with the critic that reads the state: (label, batch, whether the lap is set against the AI).
@@ -666,6 +693,7 @@ VISION_LOG_TABLES: dict[str, Callable[[Records], str]] = {
     **{name: partial(seeds_log_table, name=name) for name in SEEDS_TABLES},
     "vision-log-critic-state-runs": critic_state_runs_table,
     "vision-log-steer-share": steer_share_table,
+    "vision-log-state-policy-laps-encoder": state_policy_laps_encoder_table,
     **{
         name: partial(experiments_table, first=first, rows=rows, columns=columns)
         for name, (first, rows, columns) in EXPERIMENT_TABLES.items()
