@@ -29,12 +29,14 @@ Batch = tuple[str, tuple[str, ...], str | None]
 
 
 def _dig(record: Any, keys: Iterable[str]) -> Any:
+    """The part of ``record`` down ``keys``."""
     for key in keys:
         record = record[key]
     return record
 
 
 def _bold(text: str, bold: bool) -> str:
+    """``text`` in bold where the row is the one its section is about."""
     return f"**{text}**" if bold else text
 
 
@@ -65,6 +67,7 @@ def _seed_rows(records: Records, batch: Batch) -> list[dict[str, Any]]:
 
 
 def _pooled(records: Records, batches: Sequence[Batch]) -> list[dict[str, Any]]:
+    """The seeds of several batches (of one recipe, from several records) as one batch."""
     return [row for batch in batches for row in _seed_rows(records, batch)]
 
 
@@ -187,7 +190,10 @@ def _last(label: str, file: str, bold: bool = False) -> SeedsRow:
     return partial(_starts_row, label, ((file, (), LAST),), bold=bold)
 
 
-def _chosen(label: str, file: str, counts_key: str = RULE, chosen_keys: tuple[str, ...] = ("chosen_steps", RULE)):
+def _chosen(
+    label: str, file: str, counts_key: str = RULE, chosen_keys: tuple[str, ...] = ("chosen_steps", RULE)
+) -> SeedsRow:
+    """The row of the weights a batch's rule chose (by default `make quick`'s: 3 held-out starts)."""
     return partial(_choice_row, label, (file, (), counts_key), chosen_keys)
 
 
