@@ -225,3 +225,24 @@ def test_an_evaluation_record_is_sealed_without_its_output_paths(results_copy):
     record = json.loads(path.read_text())
     path.write_text(json.dumps({**record, "plot": "elsewhere.png"}))  # an output path, added after timing
     assert build_tables(results_copy, ["reference"])
+
+
+def test_the_vision_logs_tables_read_each_figure_from_its_record(results_copy):
+    names = ["vision-log-stuck-ends", "vision-log-critic-state", "vision-log-n-step"]
+    tables = build_tables(results_copy, names)
+    # seed 10's rule kept the last weights: none of its candidates finished the first 3 held-out starts
+    assert "| 7 (150k, none finished) | 10 (150k) | 93/104 |" in tables["vision-log-stuck-ends"]
+    # seeds 0 and 12-14 of one record pooled with 15-18 of another: starts, the protocol's starts, the mean lap
+    assert "| 5 | 13 | 8 | 88/104 | 19/24 | 2:15.213 +- 2.31 s |" in tables["vision-log-critic-state"]
+    state = "RESULTS/state-expressway-hatchback-speed-scaled/rate_scaled_experiment.json"
+    assert f"| 2.44 % faster than the AI | 3.32 % slower than its [2:11.537]({state}) |" in tables["vision-log-n-step"]
+    stuck = "vision-expressway-hatchback/quick_stuck_ends_starts13.json"
+    edit_record(
+        results_copy,
+        stuck,
+        lambda r: [start.update(finished=True) for start in r["seeds"][6]["held_out_starts_100_104"]["150000"]],
+    )  # seed 10's last weights now finish their held-out starts
+    assert "| 7 (150k) | 10 (150k) | 93/104 |" in build_tables(results_copy, names[:1])["vision-log-stuck-ends"]
+    edit_record(results_copy, stuck, lambda r: r["finished_of_13_per_seed"]["last (150k)"].pop())
+    with pytest.raises(ReportError, match="7 counts of starts finished for 8 training seeds"):
+        build_tables(results_copy, names[:1])
