@@ -42,7 +42,8 @@ class Seeds:
 class Recipe:
     """A row of a driver table: ``label`` (Markdown), then the mean lap of each set of seeds (``/`` between sets), or
     with ``best`` the fastest seed's (the paper's score); ``study`` a results page the row links; ``curves`` the
-    learning-curve records whose training time per seed the row states; no sets: a link row."""
+    learning-curve records of its seeds (a driver table states their training time per seed, a seeds table links
+    them); ``listed``: a seeds table gives each seed's own row above the recipe's; no sets: a link row."""
 
     label: str
     sets: tuple[Seeds, ...] = ()
@@ -50,6 +51,7 @@ class Recipe:
     bold: bool = False
     study: str = ""
     curves: tuple[str, ...] = ()
+    listed: bool = False
 
 
 def seed_rows(records: Records, seeds: Seeds) -> list[dict[str, Any]]:
@@ -72,16 +74,23 @@ def steps_text(steps: int) -> str:
     return f"{steps / 1e6:g}M" if steps >= 1_000_000 else f"{steps / 1e3:g}k"
 
 
+def wall_text(rows: list[dict[str, Any]]) -> str:
+    """Wall contact per scored lap, mean ± std over the seeds with a lap: ``0.10 ± 0.14 s``."""
+    wall_s, wall_std_s = mean_std_s(row["wall_contact_s"] for row in rows if row["lap_time_s"] is not None)
+    return f"{wall_s:.2f} ± {wall_std_s:.2f} s"
+
+
+def clean_text(rows: list[dict[str, Any]]) -> str:
+    """How many seeds were clean: ``clean for every seed``, ``clean for 2 of 3 seeds``, ``not clean``."""
+    clean = sum(bool(row.get("clean")) for row in rows)
+    return {len(rows): "clean for every seed", 0: "not clean"}.get(clean, f"clean for {clean} of {len(rows)} seeds")
+
+
 def seeds_details(rows: list[dict[str, Any]], selected: bool = False) -> str:
     """Starts finished, wall contact per scored lap (mean ± std over the seeds with a lap), how many seeds were clean,
     and with ``selected`` the steps whose weights the held-out starts chose."""
     done, total = (sum(int(row["finished"].split("/")[i]) for row in rows) for i in (0, 1))
-    wall_s, wall_std_s = mean_std_s(row["wall_contact_s"] for row in rows if row["lap_time_s"] is not None)
-    clean = sum(bool(row.get("clean")) for row in rows)
-    clean_text = {len(rows): "clean for every seed", 0: "not clean"}.get(
-        clean, f"clean for {clean} of {len(rows)} seeds"
-    )
-    text = f"{done} of {total} starts; {wall_s:.2f} ± {wall_std_s:.2f} s of wall contact per lap, {clean_text}"
+    text = f"{done} of {total} starts; {wall_text(rows)} of wall contact per lap, {clean_text(rows)}"
     if selected:
         kept = [row["kept_at_steps"] for row in rows]
         text += f"; chosen at {steps_text(min(kept))}-{steps_text(max(kept))} steps"
@@ -241,6 +250,49 @@ def seeds_columns_table(records: Records, columns: tuple[tuple[str, Seeds], ...]
     return f"{table}\nRecords: {links}, {link('steering', steering)}.\n"
 
 
+def _links(recipe: Recipe) -> str:
+    """Links to a recipe's records (``record``, or each by its name when several) and its learning curves."""
+    paths = [path for seeds in recipe.sets for path in seeds.paths]
+    names = (
+        ["record"] if len(paths) == 1 else [path.rsplit("/", 1)[-1].removesuffix("_experiment.json") for path in paths]
+    )
+    curves = [link("curves", path) for path in recipe.curves]
+    return ", ".join([*(link(name, path) for name, path in zip(names, paths, strict=True)), *curves])
+
+
+def _seed_cells(row: dict[str, Any]) -> tuple[str, ...]:
+    """A training seed's lap, starts finished, wall contact per lap and wall hits (the fastest one's speed)."""
+    if row["lap_time_s"] is None:
+        return (lap_text(None), row["finished"], "-", "-")
+    hits = f"{row['wall_hits']} ({row['fastest_wall_hit_kmh']:.0f} km/h)"
+    return (lap_text(row["lap_time_s"]), row["finished"], f"{row['wall_contact_s']:.2f} s", hits)
+
+
+def seeds_table(records: Records, recipes: tuple[Recipe, ...], gaps: bool = False) -> str:
+    """Each recipe's row (its seeds' mean lap, starts finished, wall contact) below its seeds' own rows where
+    ``listed``, with ``gaps`` its gap to the limit and to the AI: how a recipe's laps spread over its seeds."""
+    ai_s, limit_s = reference_laps(records, AI_HATCHBACK)
+    header = ("seed", "lap", "starts finished", "wall contact per lap", "wall hits (fastest)")
+    header += ("gap to limit", "gap to AI") if gaps else ()
+    rows: list[tuple[str, ...]] = []
+    for recipe in recipes:
+        (seeds,) = recipe.sets
+        pooled = seed_rows(records, seeds)
+        if recipe.listed:
+            rows += [(str(row["seed"]), *_seed_cells(row), *("",) * (len(header) - 5)) for row in pooled]
+        lap_s, lap = _laps(pooled, best=False)
+        cells = (
+            f"{recipe.label} ({_links(recipe)})",
+            lap,
+            seeds_summary(pooled)["finished"],
+            f"{wall_text(pooled)}, {clean_text(pooled)}",
+            "",
+            *((gap_text(lap_s, limit_s), gap_text(lap_s, ai_s)) if gaps else ()),
+        )
+        rows.append(tuple(_bold(cell, recipe.bold) if cell else cell for cell in cells))
+    return markdown_table(header, rows)
+
+
 H25 = "state-expressway-hatchback-25hz/"
 CLEAN = "state-expressway-hatchback-clean/"
 SPEED = "state-expressway-hatchback-speed-scaled/"
@@ -249,6 +301,10 @@ STEER05 = "state-expressway-hatchback-steer05/"
 
 def _h25(*names: str) -> tuple[str, ...]:
     return tuple(f"{H25}{name}_experiment.json" for name in names)
+
+
+def _h25_curves(*names: str) -> tuple[str, ...]:
+    return tuple(f"{H25}{name}_learning_curves.json" for name in names)
 
 
 SELECT_2M = _h25("dt04-ent4-lrf-select-2m", "dt04-ent4-lrf-select-2m-seeds345")
@@ -381,7 +437,20 @@ STATE_AGENT_RECIPES = (
     ),
 )
 
+
+def _seeds_recipes(name: str) -> tuple[Recipe, ...]:
+    """The 25 Hz study's seeds 0-2 and 3-5 of the recipe ``name``, each seed listed, and the record of all 6."""
+    first, second, both = _h25(name, f"{name}-seeds345", f"{name}-6seeds")
+    return (
+        Recipe("seeds 0-2", (Seeds((first,)),), curves=_h25_curves(name), listed=True),
+        Recipe("seeds 3-5", (Seeds((second,)),), listed=True),
+        Recipe("all 6 seeds", (Seeds((both,)),), bold=True, curves=_h25_curves(f"{name}-6seeds")),
+    )
+
+
 STATE_TABLES = {
+    "state-25hz-seeds": partial(seeds_table, recipes=_seeds_recipes("dt04")),
+    "state-25hz-ent4-lrf-seeds": partial(seeds_table, recipes=_seeds_recipes("dt04-ent4-lrf")),
     "state-steer05": partial(
         seeds_columns_table,
         columns=(
