@@ -11,6 +11,7 @@ from typing import Any
 
 from vision_rl.evaluation.report.common import (
     AI_HATCHBACK,
+    faster_text,
     gap_text,
     lap_text,
     link,
@@ -252,7 +253,7 @@ def seeds_columns_table(records: Records, columns: tuple[tuple[str, Seeds], ...]
 
 def _links(recipe: Recipe) -> str:
     """Links to a recipe's records (``record``, or each by its name when several) and its learning curves."""
-    paths = [path for seeds in recipe.sets for path in seeds.paths]
+    paths = list(dict.fromkeys(path for seeds in recipe.sets for path in seeds.paths))
     names = (
         ["record"] if len(paths) == 1 else [path.rsplit("/", 1)[-1].removesuffix("_experiment.json") for path in paths]
     )
@@ -291,6 +292,61 @@ def seeds_table(records: Records, recipes: tuple[Recipe, ...], gaps: bool = Fals
         )
         rows.append(tuple(_bold(cell, recipe.bold) if cell else cell for cell in cells))
     return markdown_table(header, rows)
+
+
+def _weights_cell(rows: list[dict[str, Any]], limit_s: float, ai_s: float, full: bool) -> str:
+    """A set of seeds' mean lap and gap to the limit, and whether every seed was clean; with ``full`` also its starts
+    finished, wall contact and gap to the AI."""
+    lap_s, lap = _laps(rows, best=False)
+    text = f"{lap}, {gap_text(lap_s, limit_s)}"
+    if full:
+        finished = seeds_summary(rows)["finished"]
+        return f"{text}, {finished}, {clean_text(rows)} ({wall_text(rows)}), {faster_text(lap_s, ai_s)}"
+    return text if all(row.get("clean") for row in rows) else f"{text}, {clean_text(rows)}"
+
+
+def _seed_weights(row: dict[str, Any]) -> str:
+    """A seed's lap with its wall contact: ``2:09.325 (0.09 s)``, ``: not clean`` where it was not."""
+    if row["lap_time_s"] is None:
+        return lap_text(None)
+    return f"{lap_text(row['lap_time_s'])} ({row['wall_contact_s']:.2f} s{'' if row.get('clean') else ': not clean'})"
+
+
+def selection_table(records: Records, recipes: tuple[Recipe, ...], held_out: str = "") -> str:
+    """Each seed's lap with its last weights and with those its held-out starts chose, and when (with ``held_out``,
+    at how many evaluations those starts were clean), then each recipe's means: what choosing the weights gains."""
+    ai_s, limit_s = reference_laps(records, AI_HATCHBACK)
+    clean_at = records(held_out) if held_out else {}
+
+    def held(seed: int) -> tuple[str, ...]:
+        if not held_out:
+            return ()
+        text = "{} of {}".format(*clean_at["per_seed"][str(seed)])
+        other = clean_at.get("one_million_step_run", {}).get(str(seed))
+        return (f"{text} (1M run: {other[0]} of {other[1]})" if other else text,)
+
+    rows: list[tuple[str, ...]] = []
+    for recipe in recipes:
+        if recipe.listed:
+            for path in recipe.sets[0].paths:
+                steps = records(path)["steps"]
+                last, chosen = (seed_rows(records, Seeds((path,), selected)) for selected in (False, True))
+                for a, b in zip(last, chosen, strict=True):
+                    kept = steps_text(b["kept_at_steps"]) + (
+                        " (the last weights)" if b["kept_at_steps"] == steps else ""
+                    )
+                    rows.append((str(a["seed"]), _seed_weights(a), _seed_weights(b), kept, *held(a["seed"])))
+        cells = [
+            " / ".join(
+                _weights_cell(seed_rows(records, Seeds(seeds.paths, selected)), limit_s, ai_s, recipe.bold)
+                for seeds in recipe.sets
+            )
+            for selected in (False, True)
+        ]
+        label = f"{recipe.label} ({_links(recipe)})"
+        rows.append(tuple(_bold(c, recipe.bold) for c in (label, *cells)) + ("",) * (1 + bool(held_out)))
+    header = ("seed", "last weights: lap (wall contact)", "chosen weights: lap (wall contact)", "chosen at (steps)")
+    return markdown_table(header + (("held-out starts clean at (evaluations)",) if held_out else ()), rows)
 
 
 H25 = "state-expressway-hatchback-25hz/"
@@ -448,7 +504,40 @@ def _seeds_recipes(name: str) -> tuple[Recipe, ...]:
     )
 
 
+REPEAT = _h25("dt04-ent4-lrf-repeat")
+
 STATE_TABLES = {
+    "state-25hz-select-1m": partial(
+        selection_table,
+        recipes=(
+            Recipe("seeds 0-2", (Seeds(SELECT_1M[:1]),), listed=True),
+            Recipe("seeds 3-5", (Seeds(SELECT_1M[1:2]),), listed=True),
+            Recipe("seeds 6-8", (Seeds(SELECT_1M[2:]),), listed=True),
+            Recipe("all 9", (Seeds(SELECT_1M),), bold=True),
+        ),
+    ),
+    "state-25hz-select-2m": partial(
+        selection_table,
+        recipes=(
+            Recipe("seeds 0-2 (`make experiment`)", (Seeds(SELECT_2M[:1]),), listed=True),
+            Recipe("seeds 3-5", (Seeds(SELECT_2M[1:]),), listed=True),
+            Recipe("all 6, 2M steps", (Seeds(SELECT_2M),), bold=True),
+            Recipe(
+                "the 1M runs (above): seeds 0-2 / 3-5 / 6-8 / all 9",
+                (Seeds(SELECT_1M[:1]), Seeds(SELECT_1M[1:2]), Seeds(SELECT_1M[2:]), Seeds(SELECT_1M)),
+            ),
+        ),
+        held_out=f"{H25}dt04-ent4-lrf-select-2m_held_out_clean.json",
+    ),
+    "state-25hz-repeat": partial(
+        seeds_table,
+        recipes=(
+            Recipe("the repeat", (Seeds(REPEAT),), bold=True, curves=_h25_curves("dt04-ent4-lrf-repeat"), listed=True),
+            Recipe("the first run of seeds 0-2, above", (Seeds(ENT4_LRF[:1]),)),
+            Recipe("all 9 runs: the 6 seeds above and this repeat", (Seeds((*ENT4_LRF, *REPEAT)),)),
+        ),
+        gaps=True,
+    ),
     "state-25hz-seeds": partial(seeds_table, recipes=_seeds_recipes("dt04")),
     "state-25hz-ent4-lrf-seeds": partial(seeds_table, recipes=_seeds_recipes("dt04-ent4-lrf")),
     "state-steer05": partial(
