@@ -4,7 +4,7 @@ the steering-change penalty's, from the `vision-rl experiment` and learning-curv
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -32,11 +32,13 @@ QUICK_STATE_OCCASIONS = "make-quick/state_occasions.json"
 @dataclass(frozen=True)
 class Seeds:
     """Training seeds pooled from records: the last weights', or with ``selected`` those chosen by held-out starts;
-    ``name`` says which in a row of several sets."""
+    ``name`` says which in a row of several sets; ``arm`` the arm of a probes record (``{"arms": [{"arm": ...,
+    "per_seed": [...]}]}``)."""
 
     paths: tuple[str, ...]
     selected: bool = False
     name: str = ""
+    arm: str = ""
 
 
 @dataclass(frozen=True)
@@ -61,7 +63,9 @@ def seed_rows(records: Records, seeds: Seeds) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     for path in seeds.paths:
         record = records(path)
-        if "per_seed" in record:
+        if seeds.arm:
+            rows += next(arm["per_seed"] for arm in record["arms"] if arm["arm"] == seeds.arm)
+        elif "per_seed" in record:
             rows += experiment_seeds(records, [path], seeds.selected)
         else:
             rows += [{"seed": int(key), **row} for key, row in record.items() if key.isdigit()]
@@ -349,6 +353,64 @@ def selection_table(records: Records, recipes: tuple[Recipe, ...], held_out: str
     return markdown_table(header + (("held-out starts clean at (evaluations)",) if held_out else ()), rows)
 
 
+#: A column of a changes table: its header and its cell from the records, the recipe and its seeds' rows.
+Column = tuple[str, Callable[[Records, Recipe, list[dict[str, Any]]], str]]
+
+
+def per_seed_cell(records: Records, recipe: Recipe, rows: list[dict[str, Any]], key: str, spec: str) -> str:
+    """``key`` of each seed with a lap, in seed order (``-`` where the record has none): ``3.3, 4.2, 3.6``."""
+    return ", ".join("-" if r.get(key) is None else f"{r[key]:{spec}}" for r in rows if r["lap_time_s"] is not None)
+
+
+def periodic_cell(
+    records: Records, recipe: Recipe, rows: list[dict[str, Any]], spans: tuple[tuple[int, int], ...], best: bool = False
+) -> str:
+    """The seeds' mean lap at the periodic evaluations of each span of steps, averaged (`` / `` between spans), with
+    ``best`` the fastest in brackets: where a recipe's plateau sits, not one draw of its last weights."""
+    (path,) = recipe.curves
+    curves = records(path)
+    texts = []
+    for low, high in spans:
+        laps_s = [
+            lap
+            for n, lap in zip(curves["num_timesteps"], curves["mean_lap_time_s"], strict=True)
+            if low <= n <= high and lap is not None
+        ]
+        mean_s = mean_std_s(laps_s)[0]
+        texts.append(f"{lap_text(mean_s, 2)} ({lap_text(min(laps_s), 2)})" if best else lap_text(mean_s, 2))
+    return " / ".join(texts)
+
+
+def _gap_cell(records: Records, recipe: Recipe, rows: list[dict[str, Any]], to_limit: bool) -> str:
+    """The seeds' mean lap against the physical limit or the built-in AI."""
+    ai_s, limit_s = reference_laps(records, AI_HATCHBACK)
+    return gap_text(_laps(rows, best=False)[0], limit_s if to_limit else ai_s)
+
+
+def _best_cell(records: Records, recipe: Recipe, rows: list[dict[str, Any]]) -> str:
+    return lap_text(min(row["lap_time_s"] for row in rows if row["lap_time_s"] is not None))
+
+
+#: The columns a changes table can pick.
+LAP_COLUMN: Column = ("lap: mean ± std", lambda records, recipe, rows: _laps(rows, best=False)[1])
+BEST_COLUMN: Column = ("best", _best_cell)
+STARTS_COLUMN: Column = ("starts finished", lambda records, recipe, rows: seeds_summary(rows)["finished"])
+WALL_COLUMN: Column = ("wall contact per lap", lambda records, recipe, rows: wall_text(rows))
+LIMIT_COLUMN: Column = ("gap to limit", partial(_gap_cell, to_limit=True))
+AI_COLUMN: Column = ("gap to AI", partial(_gap_cell, to_limit=False))
+TRAINING_COLUMN: Column = ("training per seed", lambda records, recipe, rows: training_minutes(records, recipe.curves))
+
+
+def changes_table(records: Records, recipes: tuple[Recipe, ...], columns: tuple[Column, ...]) -> str:
+    """One row per recipe (its label and records, then ``columns`` over its seeds): changes to a recipe side by side."""
+    rows = []
+    for recipe in recipes:
+        pooled = [row for seeds in recipe.sets for row in seed_rows(records, seeds)]
+        cells = (f"{recipe.label} ({_links(recipe)})", *(cell(records, recipe, pooled) for _, cell in columns))
+        rows.append(tuple(_bold(c, recipe.bold) for c in cells))
+    return markdown_table(("change", *(header for header, _ in columns)), rows)
+
+
 H25 = "state-expressway-hatchback-25hz/"
 CLEAN = "state-expressway-hatchback-clean/"
 SPEED = "state-expressway-hatchback-speed-scaled/"
@@ -507,6 +569,32 @@ def _seeds_recipes(name: str) -> tuple[Recipe, ...]:
 REPEAT = _h25("dt04-ent4-lrf-repeat")
 
 STATE_TABLES = {
+    "state-25hz-changes": partial(
+        changes_table,
+        recipes=tuple(
+            Recipe(label, (Seeds(_h25(name)),), bold=name == "dt04-ent4", curves=_h25_curves(name))
+            for label, name in (
+                ("none (the recipe)", "dt04"),
+                ("`--gamma 0.995`", "dt04-gamma0995"),
+                ("`--guide-label-weight 60`", "dt04-label60"),
+                ("`--target-entropy -4`", "dt04-ent4"),
+                ("`--target-entropy -6`", "dt04-ent6"),
+            )
+        ),
+        columns=(
+            LAP_COLUMN,
+            BEST_COLUMN,
+            STARTS_COLUMN,
+            WALL_COLUMN,
+            LIMIT_COLUMN,
+            AI_COLUMN,
+            TRAINING_COLUMN,
+            (
+                "periodic evaluations, 300k-1M: mean (best)",
+                partial(periodic_cell, spans=((300_000, 1_000_000),), best=True),
+            ),
+        ),
+    ),
     "state-25hz-select-1m": partial(
         selection_table,
         recipes=(
