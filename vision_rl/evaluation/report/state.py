@@ -358,8 +358,9 @@ Column = tuple[str, Callable[[Records, Recipe, list[dict[str, Any]]], str]]
 
 
 def per_seed_cell(records: Records, recipe: Recipe, rows: list[dict[str, Any]], key: str, spec: str) -> str:
-    """``key`` of each seed with a lap, in seed order (``-`` where the record has none): ``3.3, 4.2, 3.6``."""
-    return ", ".join("-" if r.get(key) is None else f"{r[key]:{spec}}" for r in rows if r["lap_time_s"] is not None)
+    """``key`` of each seed with a lap, in seed order (``3.30, 4.17, 3.58``); ``not counted`` where no record has it."""
+    values = [row.get(key) for row in rows if row["lap_time_s"] is not None]
+    return "not counted" if all(v is None for v in values) else ", ".join(f"{v:{spec}}" for v in values)
 
 
 def periodic_cell(
@@ -567,8 +568,68 @@ def _seeds_recipes(name: str) -> tuple[Recipe, ...]:
 
 
 REPEAT = _h25("dt04-ent4-lrf-repeat")
+PROBES = f"{CLEAN}probes.json"
+
+
+#: Each seed's wall contact per lap, wall hits and the fastest hit's speed.
+PER_SEED_WALL_COLUMNS: tuple[Column, ...] = (
+    ("wall contact per lap, s (per seed)", partial(per_seed_cell, key="wall_contact_s", spec=".2f")),
+    ("wall hits (per seed)", partial(per_seed_cell, key="wall_hits", spec="d")),
+    ("fastest hit, km/h (per seed)", partial(per_seed_cell, key="fastest_wall_hit_kmh", spec=".0f")),
+)
+
+
+#: docs/results/state-expressway-hatchback-clean: the ten probes against wall braking, (label, arm of probes.json).
+CLEAN_PROBES = (
+    ("off-track penalty c_o = 0.002 (`--off-track-penalty-c-o 0.002`)", "state-co0.002"),
+    ("off-track penalty c_o = 0.005", "state-co0.005"),
+    ("wall penalty at the impact speed, c_w = 0.005 (`--wall-penalty-speed impact`)", "state-impact-cw0.005"),
+    ("the same, c_w = 0.01 (`--wall-penalty-c-w 0.01`)", "state-impact-cw0.01"),
+    ("wall friction 0.6 instead of 0.4 (`WorldConfig.wall_friction`, changed in code for the probe)", "state-wf0.6"),
+    ("wall friction 0.8", "state-wf0.8"),
+    (
+        "100k transitions of the built-in AI in the replay buffer before the first update (`--guide-steps 100000`)",
+        "state-guide",
+    ),
+    ("the AI's transitions and the impact-speed penalty at c_w = 0.01", "state-guide-impact-cw0.01"),
+    (
+        "the AI's transitions cloned by the actor: a cloning step of weight 30 after each SAC update (`--guide-steps "
+        "100000 --guide-bc-weight 30`)",
+        "state-guide-bc30",
+    ),
+    (
+        "the actor cloned to the AI's transitions for 20k steps before SAC starts, and the impact-speed penalty at "
+        "c_w = 0.01 (`--guide-steps 100000 --guide-pretrain-steps 20000 --wall-penalty-speed impact "
+        "--wall-penalty-c-w 0.01`)",
+        "state-guide-pretrain-impact-cw0.01",
+    ),
+)
 
 STATE_TABLES = {
+    "state-clean-probes": partial(
+        changes_table,
+        recipes=tuple(Recipe(label, (Seeds((PROBES,), arm=arm),)) for label, arm in CLEAN_PROBES),
+        columns=(LAP_COLUMN, STARTS_COLUMN, *PER_SEED_WALL_COLUMNS),
+    ),
+    "state-clean-labels": partial(
+        changes_table,
+        recipes=(
+            Recipe("labels, W = 30 (`--guide-label-weight 30`)", (Seeds((f"{CLEAN}label30_experiment.json",)),)),
+            Recipe(
+                "labels, W = 30, and the 3 s throttle cut",
+                (Seeds(LABEL30_CUT3[:1]),),
+                bold=True,
+                curves=(f"{CLEAN}label30-cut3_learning_curves.json",),
+            ),
+            Recipe("the same, training seeds 3, 4, 5", (Seeds(LABEL30_CUT3[1:]),)),
+            Recipe("labels, W = 100, and the cut", (Seeds((f"{CLEAN}label100-cut3_experiment.json",)),)),
+            Recipe(
+                "for comparison: no change (docs/results/state-expressway-hatchback-speed-scaled)",
+                (Seeds((f"{SPEED}rate_scaled_n3_experiment.json",)),),
+            ),
+        ),
+        columns=(LAP_COLUMN, STARTS_COLUMN, *PER_SEED_WALL_COLUMNS),
+    ),
     "state-25hz-changes": partial(
         changes_table,
         recipes=tuple(
