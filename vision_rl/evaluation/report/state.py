@@ -219,6 +219,26 @@ def curves_compare_table(records: Records, path: str) -> str:
     return f"{markdown_table(header, rows)}\n{link('record', path)}\n"
 
 
+#: The rows a periodic-evaluations table can pick: each evaluation's cell from a learning-curve record.
+CURVE_ROWS: dict[str, Callable[[dict[str, Any], int], str]] = {
+    "epochs": lambda curves, i: f"{curves['epochs'][i]:.0f}",
+    "training, min": lambda curves, i: f"{curves['mean_train_time_s'][i] / 60:.1f}",
+    "seeds finished": lambda curves, i: curves["seeds_finished"][i],
+    "mean lap": lambda curves, i: lap_text(curves["mean_lap_time_s"][i], 1),
+    "spread, s": lambda curves, i: f"{curves['std_lap_time_s'][i]:.2f}",
+}
+
+
+def curves_steps_table(records: Records, path: str, rows: tuple[str, ...], from_steps: int = 0) -> str:
+    """The periodic evaluations of a learning-curve record from ``from_steps`` on, one column per evaluation and the
+    :data:`CURVE_ROWS` named in ``rows`` (the seeds' mean lap, its spread, training time): how a recipe learned."""
+    curves = records(path)
+    picked = [i for i, n in enumerate(curves["num_timesteps"]) if n >= from_steps]
+    header = ("steps", *(steps_text(curves["num_timesteps"][i]) for i in picked))
+    table = markdown_table(header, [(name, *(CURVE_ROWS[name](curves, i) for i in picked)) for name in rows])
+    return f"{table}\n{link('record', path)}\n"
+
+
 def seeds_columns_table(records: Records, columns: tuple[tuple[str, Seeds], ...], steering: str) -> str:
     """Recipes side by side, one column each: the seeds' mean and best lap, starts finished (per seed), wall contact
     on each seed's best lap, and the steering motion per step transcribed in ``steering`` ({column: [low, high]})."""
@@ -606,6 +626,19 @@ CLEAN_PROBES = (
 )
 
 STATE_TABLES = {
+    "state-25hz-curves": partial(
+        curves_steps_table,
+        path=f"{H25}dt04-6seeds_learning_curves.json",
+        rows=("epochs", "training, min", "seeds finished", "mean lap"),
+    ),
+    "state-25hz-ent4-lrf-curves": partial(
+        curves_steps_table,
+        path=f"{H25}dt04-ent4-lrf-6seeds_learning_curves.json",
+        rows=("epochs", "training, min", "seeds finished", "mean lap", "spread, s"),
+    ),
+    "state-clean-label30-cut3-1200k-curves": partial(
+        curves_steps_table, path=f"{CLEAN}label30-cut3-1.2M_learning_curves.json", rows=("mean lap",)
+    ),
     "state-clean-probes": partial(
         changes_table,
         recipes=tuple(Recipe(label, (Seeds((PROBES,), arm=arm),)) for label, arm in CLEAN_PROBES),
