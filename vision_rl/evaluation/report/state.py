@@ -419,6 +419,11 @@ STARTS_COLUMN: Column = ("starts finished", lambda records, recipe, rows: seeds_
 WALL_COLUMN: Column = ("wall contact per lap", lambda records, recipe, rows: wall_text(rows))
 LIMIT_COLUMN: Column = ("gap to limit", partial(_gap_cell, to_limit=True))
 AI_COLUMN: Column = ("gap to AI", partial(_gap_cell, to_limit=False))
+CLEAN_COLUMN: Column = ("clean", lambda records, recipe, rows: clean_text(rows))
+LAPS_COLUMN: Column = (
+    "laps (per seed)",
+    lambda records, recipe, rows: ", ".join(lap_text(r["lap_time_s"]) for r in rows),
+)
 TRAINING_COLUMN: Column = ("training per seed", lambda records, recipe, rows: training_minutes(records, recipe.curves))
 
 
@@ -626,6 +631,30 @@ CLEAN_PROBES = (
 )
 
 STATE_TABLES = {
+    "state-25hz-lrf-alone": partial(
+        changes_table,
+        recipes=(
+            Recipe("falling rate alone", (Seeds(_h25("dt04-lrf")),), bold=True, curves=_h25_curves("dt04-lrf")),
+            Recipe(
+                "falling rate and the entropy target -4 (the repeat above)",
+                (Seeds(REPEAT),),
+                curves=_h25_curves("dt04-ent4-lrf-repeat"),
+            ),
+        ),
+        columns=(
+            LAP_COLUMN,
+            LAPS_COLUMN,
+            STARTS_COLUMN,
+            WALL_COLUMN,
+            CLEAN_COLUMN,
+            *PER_SEED_WALL_COLUMNS,
+            LIMIT_COLUMN,
+            (
+                "periodic evaluations, mean: 300k-1M / 700k-1M",
+                partial(periodic_cell, spans=((300_000, 1_000_000), (700_000, 1_000_000))),
+            ),
+        ),
+    ),
     "state-25hz-curves": partial(
         curves_steps_table,
         path=f"{H25}dt04-6seeds_learning_curves.json",
