@@ -1,6 +1,8 @@
 """The state agent's tables: each recipe's lap through the protocol over its training seeds beside the physical limit
 and the built-in AI (the study's driver table, whose builder the vision study's can share), the n-step comparison and
-the steering-change penalty's, from the `vision-rl experiment` and learning-curve records."""
+the steering-change penalty's, and the 25 Hz and clean-laps studies' tables (each seed's laps, the last against the
+chosen weights, changes side by side, the periodic evaluations), from the `vision-rl experiment`, probes and
+learning-curve records."""
 
 from __future__ import annotations
 
@@ -409,6 +411,7 @@ def _gap_cell(records: Records, recipe: Recipe, rows: list[dict[str, Any]], to_l
 
 
 def _best_cell(records: Records, recipe: Recipe, rows: list[dict[str, Any]]) -> str:
+    """The fastest seed's lap."""
     return lap_text(min(row["lap_time_s"] for row in rows if row["lap_time_s"] is not None))
 
 
@@ -448,6 +451,7 @@ def _h25(*names: str) -> tuple[str, ...]:
 
 
 def _h25_curves(*names: str) -> tuple[str, ...]:
+    """The 25 Hz study's learning-curve records of the runs ``names``."""
     return tuple(f"{H25}{name}_learning_curves.json" for name in names)
 
 
