@@ -246,3 +246,27 @@ def test_the_vision_logs_tables_read_each_figure_from_its_record(results_copy):
     edit_record(results_copy, stuck, lambda r: r["finished_of_13_per_seed"]["last (150k)"].pop())
     with pytest.raises(ReportError, match="7 counts of starts finished for 8 training seeds"):
         build_tables(results_copy, names[:1])
+
+
+def test_the_selection_table_marks_chosen_weights_that_are_the_last_ones_and_last_weights_not_clean(results_copy):
+    two_million = "state-expressway-hatchback-25hz/dt04-ent4-lrf-select-2m_experiment.json"
+    before = build_tables(results_copy, ["state-25hz-select-2m"])["state-25hz-select-2m"]
+    assert "| 2 | 2:09.452 (0.04 s) | 2:09.452 (0.04 s) | 2M (the last weights) | 18 of 20 |" in before
+
+    def change(record):
+        record["selected"]["per_seed"][2].update(kept_at_steps=1_900_000)
+        record["per_seed"][2].update(clean=False)
+
+    edit_record(results_copy, two_million, change)
+    after = build_tables(results_copy, ["state-25hz-select-2m"])["state-25hz-select-2m"]
+    assert "| 2 | 2:09.452 (0.04 s: not clean) | 2:09.452 (0.04 s) | 1.9M | 18 of 20 |" in after
+
+
+def test_the_plateau_averages_only_the_evaluations_of_its_span(results_copy):
+    curves = "state-expressway-hatchback-25hz/dt04_learning_curves.json"
+    before = build_tables(results_copy, ["state-25hz-changes"])["state-25hz-changes"]
+    assert "| 2:11.34 (2:10.98) |" in before
+    edit_record(results_copy, curves, lambda r: r["mean_lap_time_s"].__setitem__(1, 100.0))  # 200k: outside the span
+    assert build_tables(results_copy, ["state-25hz-changes"])["state-25hz-changes"] == before
+    edit_record(results_copy, curves, lambda r: r["mean_lap_time_s"].__setitem__(2, None))  # 300k: no seed lapped
+    assert "| 2:11.31 (2:10.98) |" in build_tables(results_copy, ["state-25hz-changes"])["state-25hz-changes"]

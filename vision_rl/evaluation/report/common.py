@@ -13,12 +13,12 @@ AI_TT_CUP = "reference-laps/ai_expressway_tt_cup.json"
 AI_GT3 = "reference-laps/ai_catalunya_gt3.json"
 
 
-def lap_text(seconds: float | None) -> str:
-    """A lap as the papers write it: ``2:09.293``; ``DNF`` for none."""
+def lap_text(seconds: float | None, decimals: int = 3) -> str:
+    """A lap as the papers write it: ``2:09.293`` (``2:09.29`` to 2 ``decimals``); ``DNF`` for none."""
     if seconds is None:
         return "DNF"
-    minutes, rest_s = divmod(round(seconds * 1000) / 1000, 60.0)
-    return f"{int(minutes)}:{rest_s:06.3f}" if minutes else f"{rest_s:.3f} s"
+    minutes, rest_s = divmod(round(seconds * 10**decimals) / 10**decimals, 60.0)
+    return f"{int(minutes)}:{rest_s:0{3 + decimals}.{decimals}f}" if minutes else f"{rest_s:.{decimals}f} s"
 
 
 def gap_pct(seconds: float, reference_s: float) -> float:

@@ -1,16 +1,19 @@
 """The state agent's tables: each recipe's lap through the protocol over its training seeds beside the physical limit
 and the built-in AI (the study's driver table, whose builder the vision study's can share), the n-step comparison and
-the steering-change penalty's, from the `vision-rl experiment` and learning-curve records."""
+the steering-change penalty's, and the 25 Hz and clean-laps studies' tables (each seed's laps, the last against the
+chosen weights, changes side by side, the periodic evaluations), from the `vision-rl experiment`, probes and
+learning-curve records."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
 from vision_rl.evaluation.report.common import (
     AI_HATCHBACK,
+    faster_text,
     gap_text,
     lap_text,
     link,
@@ -31,18 +34,21 @@ QUICK_STATE_OCCASIONS = "make-quick/state_occasions.json"
 @dataclass(frozen=True)
 class Seeds:
     """Training seeds pooled from records: the last weights', or with ``selected`` those chosen by held-out starts;
-    ``name`` says which in a row of several sets."""
+    ``name`` says which in a row of several sets; ``arm`` the arm of a probes record (``{"arms": [{"arm": ...,
+    "per_seed": [...]}]}``)."""
 
     paths: tuple[str, ...]
     selected: bool = False
     name: str = ""
+    arm: str = ""
 
 
 @dataclass(frozen=True)
 class Recipe:
     """A row of a driver table: ``label`` (Markdown), then the mean lap of each set of seeds (``/`` between sets), or
     with ``best`` the fastest seed's (the paper's score); ``study`` a results page the row links; ``curves`` the
-    learning-curve records whose training time per seed the row states; no sets: a link row."""
+    learning-curve records of its seeds (a driver table states their training time per seed, a seeds table links
+    them); ``listed``: a seeds table gives each seed's own row above the recipe's; no sets: a link row."""
 
     label: str
     sets: tuple[Seeds, ...] = ()
@@ -50,6 +56,7 @@ class Recipe:
     bold: bool = False
     study: str = ""
     curves: tuple[str, ...] = ()
+    listed: bool = False
 
 
 def seed_rows(records: Records, seeds: Seeds) -> list[dict[str, Any]]:
@@ -58,7 +65,9 @@ def seed_rows(records: Records, seeds: Seeds) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     for path in seeds.paths:
         record = records(path)
-        if "per_seed" in record:
+        if seeds.arm:
+            rows += next(arm["per_seed"] for arm in record["arms"] if arm["arm"] == seeds.arm)
+        elif "per_seed" in record:
             rows += experiment_seeds(records, [path], seeds.selected)
         else:
             rows += [{"seed": int(key), **row} for key, row in record.items() if key.isdigit()]
@@ -72,16 +81,23 @@ def steps_text(steps: int) -> str:
     return f"{steps / 1e6:g}M" if steps >= 1_000_000 else f"{steps / 1e3:g}k"
 
 
+def wall_text(rows: list[dict[str, Any]]) -> str:
+    """Wall contact per scored lap, mean ± std over the seeds with a lap: ``0.10 ± 0.14 s``."""
+    wall_s, wall_std_s = mean_std_s(row["wall_contact_s"] for row in rows if row["lap_time_s"] is not None)
+    return f"{wall_s:.2f} ± {wall_std_s:.2f} s"
+
+
+def clean_text(rows: list[dict[str, Any]]) -> str:
+    """How many seeds were clean: ``clean for every seed``, ``clean for 2 of 3 seeds``, ``not clean``."""
+    clean = sum(bool(row.get("clean")) for row in rows)
+    return {len(rows): "clean for every seed", 0: "not clean"}.get(clean, f"clean for {clean} of {len(rows)} seeds")
+
+
 def seeds_details(rows: list[dict[str, Any]], selected: bool = False) -> str:
     """Starts finished, wall contact per scored lap (mean ± std over the seeds with a lap), how many seeds were clean,
     and with ``selected`` the steps whose weights the held-out starts chose."""
     done, total = (sum(int(row["finished"].split("/")[i]) for row in rows) for i in (0, 1))
-    wall_s, wall_std_s = mean_std_s(row["wall_contact_s"] for row in rows if row["lap_time_s"] is not None)
-    clean = sum(bool(row.get("clean")) for row in rows)
-    clean_text = {len(rows): "clean for every seed", 0: "not clean"}.get(
-        clean, f"clean for {clean} of {len(rows)} seeds"
-    )
-    text = f"{done} of {total} starts; {wall_s:.2f} ± {wall_std_s:.2f} s of wall contact per lap, {clean_text}"
+    text = f"{done} of {total} starts; {wall_text(rows)} of wall contact per lap, {clean_text(rows)}"
     if selected:
         kept = [row["kept_at_steps"] for row in rows]
         text += f"; chosen at {steps_text(min(kept))}-{steps_text(max(kept))} steps"
@@ -205,6 +221,26 @@ def curves_compare_table(records: Records, path: str) -> str:
     return f"{markdown_table(header, rows)}\n{link('record', path)}\n"
 
 
+#: The rows a periodic-evaluations table can pick: each evaluation's cell from a learning-curve record.
+CURVE_ROWS: dict[str, Callable[[dict[str, Any], int], str]] = {
+    "epochs": lambda curves, i: f"{curves['epochs'][i]:.0f}",
+    "training, min": lambda curves, i: f"{curves['mean_train_time_s'][i] / 60:.1f}",
+    "seeds finished": lambda curves, i: curves["seeds_finished"][i],
+    "mean lap": lambda curves, i: lap_text(curves["mean_lap_time_s"][i], 1),
+    "spread, s": lambda curves, i: f"{curves['std_lap_time_s'][i]:.2f}",
+}
+
+
+def curves_steps_table(records: Records, path: str, rows: tuple[str, ...], from_steps: int = 0) -> str:
+    """The periodic evaluations of a learning-curve record from ``from_steps`` on, one column per evaluation and the
+    :data:`CURVE_ROWS` named in ``rows`` (the seeds' mean lap, its spread, training time): how a recipe learned."""
+    curves = records(path)
+    picked = [i for i, n in enumerate(curves["num_timesteps"]) if n >= from_steps]
+    header = ("steps", *(steps_text(curves["num_timesteps"][i]) for i in picked))
+    table = markdown_table(header, [(name, *(CURVE_ROWS[name](curves, i) for i in picked)) for name in rows])
+    return f"{table}\n{link('record', path)}\n"
+
+
 def seeds_columns_table(records: Records, columns: tuple[tuple[str, Seeds], ...], steering: str) -> str:
     """Recipes side by side, one column each: the seeds' mean and best lap, starts finished (per seed), wall contact
     on each seed's best lap, and the steering motion per step transcribed in ``steering`` ({column: [low, high]})."""
@@ -241,6 +277,169 @@ def seeds_columns_table(records: Records, columns: tuple[tuple[str, Seeds], ...]
     return f"{table}\nRecords: {links}, {link('steering', steering)}.\n"
 
 
+def _links(recipe: Recipe) -> str:
+    """Links to a recipe's records (``record``, or each by its name when several) and its learning curves."""
+    paths = list(dict.fromkeys(path for seeds in recipe.sets for path in seeds.paths))
+    names = (
+        ["record"] if len(paths) == 1 else [path.rsplit("/", 1)[-1].removesuffix("_experiment.json") for path in paths]
+    )
+    curves = [link("curves", path) for path in recipe.curves]
+    return ", ".join([*(link(name, path) for name, path in zip(names, paths, strict=True)), *curves])
+
+
+def _seed_cells(row: dict[str, Any]) -> tuple[str, ...]:
+    """A training seed's lap, starts finished, wall contact per lap and wall hits (the fastest one's speed)."""
+    if row["lap_time_s"] is None:
+        return (lap_text(None), row["finished"], "-", "-")
+    hits = f"{row['wall_hits']} ({row['fastest_wall_hit_kmh']:.0f} km/h)"
+    return (lap_text(row["lap_time_s"]), row["finished"], f"{row['wall_contact_s']:.2f} s", hits)
+
+
+def seeds_table(records: Records, recipes: tuple[Recipe, ...], gaps: bool = False) -> str:
+    """Each recipe's row (its seeds' mean lap, starts finished, wall contact) below its seeds' own rows where
+    ``listed``, with ``gaps`` its gap to the limit and to the AI: how a recipe's laps spread over its seeds."""
+    ai_s, limit_s = reference_laps(records, AI_HATCHBACK)
+    header = ("seed", "lap", "starts finished", "wall contact per lap", "wall hits (fastest)")
+    header += ("gap to limit", "gap to AI") if gaps else ()
+    rows: list[tuple[str, ...]] = []
+    for recipe in recipes:
+        (seeds,) = recipe.sets
+        pooled = seed_rows(records, seeds)
+        if recipe.listed:
+            rows += [(str(row["seed"]), *_seed_cells(row), *("",) * (len(header) - 5)) for row in pooled]
+        lap_s, lap = _laps(pooled, best=False)
+        cells = (
+            f"{recipe.label} ({_links(recipe)})",
+            lap,
+            seeds_summary(pooled)["finished"],
+            f"{wall_text(pooled)}, {clean_text(pooled)}",
+            "",
+            *((gap_text(lap_s, limit_s), gap_text(lap_s, ai_s)) if gaps else ()),
+        )
+        rows.append(tuple(_bold(cell, recipe.bold) if cell else cell for cell in cells))
+    return markdown_table(header, rows)
+
+
+def _weights_cell(rows: list[dict[str, Any]], limit_s: float, ai_s: float, full: bool) -> str:
+    """A set of seeds' mean lap and gap to the limit, and whether every seed was clean; with ``full`` also its starts
+    finished, wall contact and gap to the AI."""
+    lap_s, lap = _laps(rows, best=False)
+    text = f"{lap}, {gap_text(lap_s, limit_s)}"
+    if full:
+        finished = seeds_summary(rows)["finished"]
+        return f"{text}, {finished}, {clean_text(rows)} ({wall_text(rows)}), {faster_text(lap_s, ai_s)}"
+    return text if all(row.get("clean") for row in rows) else f"{text}, {clean_text(rows)}"
+
+
+def _seed_weights(row: dict[str, Any]) -> str:
+    """A seed's lap with its wall contact: ``2:09.325 (0.09 s)``, ``: not clean`` where it was not."""
+    if row["lap_time_s"] is None:
+        return lap_text(None)
+    return f"{lap_text(row['lap_time_s'])} ({row['wall_contact_s']:.2f} s{'' if row.get('clean') else ': not clean'})"
+
+
+def selection_table(records: Records, recipes: tuple[Recipe, ...], held_out: str = "") -> str:
+    """Each seed's lap with its last weights and with those its held-out starts chose, and when (with ``held_out``,
+    at how many evaluations those starts were clean), then each recipe's means: what choosing the weights gains."""
+    ai_s, limit_s = reference_laps(records, AI_HATCHBACK)
+    clean_at = records(held_out) if held_out else {}
+
+    def held(seed: int) -> tuple[str, ...]:
+        if not held_out:
+            return ()
+        text = "{} of {}".format(*clean_at["per_seed"][str(seed)])
+        other = clean_at.get("one_million_step_run", {}).get(str(seed))
+        return (f"{text} (1M run: {other[0]} of {other[1]})" if other else text,)
+
+    rows: list[tuple[str, ...]] = []
+    for recipe in recipes:
+        if recipe.listed:
+            for path in recipe.sets[0].paths:
+                steps = records(path)["steps"]
+                last, chosen = (seed_rows(records, Seeds((path,), selected)) for selected in (False, True))
+                for a, b in zip(last, chosen, strict=True):
+                    kept = steps_text(b["kept_at_steps"]) + (
+                        " (the last weights)" if b["kept_at_steps"] == steps else ""
+                    )
+                    rows.append((str(a["seed"]), _seed_weights(a), _seed_weights(b), kept, *held(a["seed"])))
+        cells = [
+            " / ".join(
+                _weights_cell(seed_rows(records, Seeds(seeds.paths, selected)), limit_s, ai_s, recipe.bold)
+                for seeds in recipe.sets
+            )
+            for selected in (False, True)
+        ]
+        label = f"{recipe.label} ({_links(recipe)})"
+        rows.append(tuple(_bold(c, recipe.bold) for c in (label, *cells)) + ("",) * (1 + bool(held_out)))
+    header = ("seed", "last weights: lap (wall contact)", "chosen weights: lap (wall contact)", "chosen at (steps)")
+    return markdown_table(header + (("held-out starts clean at (evaluations)",) if held_out else ()), rows)
+
+
+#: A column of a changes table: its header and its cell from the records, the recipe and its seeds' rows.
+Column = tuple[str, Callable[[Records, Recipe, list[dict[str, Any]]], str]]
+
+
+def per_seed_cell(records: Records, recipe: Recipe, rows: list[dict[str, Any]], key: str, spec: str) -> str:
+    """``key`` of each seed with a lap, in seed order (``3.30, 4.17, 3.58``); ``not counted`` where no record has it."""
+    values = [row.get(key) for row in rows if row["lap_time_s"] is not None]
+    return "not counted" if all(v is None for v in values) else ", ".join(f"{v:{spec}}" for v in values)
+
+
+def periodic_cell(
+    records: Records, recipe: Recipe, rows: list[dict[str, Any]], spans: tuple[tuple[int, int], ...], best: bool = False
+) -> str:
+    """The seeds' mean lap at the periodic evaluations of each span of steps, averaged (`` / `` between spans), with
+    ``best`` the fastest in brackets: where a recipe's plateau sits, not one draw of its last weights."""
+    (path,) = recipe.curves
+    curves = records(path)
+    texts = []
+    for low, high in spans:
+        laps_s = [
+            lap
+            for n, lap in zip(curves["num_timesteps"], curves["mean_lap_time_s"], strict=True)
+            if low <= n <= high and lap is not None
+        ]
+        mean_s = mean_std_s(laps_s)[0]
+        texts.append(f"{lap_text(mean_s, 2)} ({lap_text(min(laps_s), 2)})" if best else lap_text(mean_s, 2))
+    return " / ".join(texts)
+
+
+def _gap_cell(records: Records, recipe: Recipe, rows: list[dict[str, Any]], to_limit: bool) -> str:
+    """The seeds' mean lap against the physical limit or the built-in AI."""
+    ai_s, limit_s = reference_laps(records, AI_HATCHBACK)
+    return gap_text(_laps(rows, best=False)[0], limit_s if to_limit else ai_s)
+
+
+def _best_cell(records: Records, recipe: Recipe, rows: list[dict[str, Any]]) -> str:
+    """The fastest seed's lap."""
+    return lap_text(min(row["lap_time_s"] for row in rows if row["lap_time_s"] is not None))
+
+
+#: The columns a changes table can pick.
+LAP_COLUMN: Column = ("lap: mean ± std", lambda records, recipe, rows: _laps(rows, best=False)[1])
+BEST_COLUMN: Column = ("best", _best_cell)
+STARTS_COLUMN: Column = ("starts finished", lambda records, recipe, rows: seeds_summary(rows)["finished"])
+WALL_COLUMN: Column = ("wall contact per lap", lambda records, recipe, rows: wall_text(rows))
+LIMIT_COLUMN: Column = ("gap to limit", partial(_gap_cell, to_limit=True))
+AI_COLUMN: Column = ("gap to AI", partial(_gap_cell, to_limit=False))
+CLEAN_COLUMN: Column = ("clean", lambda records, recipe, rows: clean_text(rows))
+LAPS_COLUMN: Column = (
+    "laps (per seed)",
+    lambda records, recipe, rows: ", ".join(lap_text(r["lap_time_s"]) for r in rows),
+)
+TRAINING_COLUMN: Column = ("training per seed", lambda records, recipe, rows: training_minutes(records, recipe.curves))
+
+
+def changes_table(records: Records, recipes: tuple[Recipe, ...], columns: tuple[Column, ...]) -> str:
+    """One row per recipe (its label and records, then ``columns`` over its seeds): changes to a recipe side by side."""
+    rows = []
+    for recipe in recipes:
+        pooled = [row for seeds in recipe.sets for row in seed_rows(records, seeds)]
+        cells = (f"{recipe.label} ({_links(recipe)})", *(cell(records, recipe, pooled) for _, cell in columns))
+        rows.append(tuple(_bold(c, recipe.bold) for c in cells))
+    return markdown_table(("change", *(header for header, _ in columns)), rows)
+
+
 H25 = "state-expressway-hatchback-25hz/"
 CLEAN = "state-expressway-hatchback-clean/"
 SPEED = "state-expressway-hatchback-speed-scaled/"
@@ -249,6 +448,11 @@ STEER05 = "state-expressway-hatchback-steer05/"
 
 def _h25(*names: str) -> tuple[str, ...]:
     return tuple(f"{H25}{name}_experiment.json" for name in names)
+
+
+def _h25_curves(*names: str) -> tuple[str, ...]:
+    """The 25 Hz study's learning-curve records of the runs ``names``."""
+    return tuple(f"{H25}{name}_learning_curves.json" for name in names)
 
 
 SELECT_2M = _h25("dt04-ent4-lrf-select-2m", "dt04-ent4-lrf-select-2m-seeds345")
@@ -381,7 +585,176 @@ STATE_AGENT_RECIPES = (
     ),
 )
 
+
+def _seeds_recipes(name: str) -> tuple[Recipe, ...]:
+    """The 25 Hz study's seeds 0-2 and 3-5 of the recipe ``name``, each seed listed, and the record of all 6."""
+    first, second, both = _h25(name, f"{name}-seeds345", f"{name}-6seeds")
+    return (
+        Recipe("seeds 0-2", (Seeds((first,)),), curves=_h25_curves(name), listed=True),
+        Recipe("seeds 3-5", (Seeds((second,)),), listed=True),
+        Recipe("all 6 seeds", (Seeds((both,)),), bold=True, curves=_h25_curves(f"{name}-6seeds")),
+    )
+
+
+REPEAT = _h25("dt04-ent4-lrf-repeat")
+PROBES = f"{CLEAN}probes.json"
+
+
+#: Each seed's wall contact per lap, wall hits and the fastest hit's speed.
+PER_SEED_WALL_COLUMNS: tuple[Column, ...] = (
+    ("wall contact per lap, s (per seed)", partial(per_seed_cell, key="wall_contact_s", spec=".2f")),
+    ("wall hits (per seed)", partial(per_seed_cell, key="wall_hits", spec="d")),
+    ("fastest hit, km/h (per seed)", partial(per_seed_cell, key="fastest_wall_hit_kmh", spec=".0f")),
+)
+
+
+#: docs/results/state-expressway-hatchback-clean: the ten probes against wall braking, (label, arm of probes.json).
+CLEAN_PROBES = (
+    ("off-track penalty c_o = 0.002 (`--off-track-penalty-c-o 0.002`)", "state-co0.002"),
+    ("off-track penalty c_o = 0.005", "state-co0.005"),
+    ("wall penalty at the impact speed, c_w = 0.005 (`--wall-penalty-speed impact`)", "state-impact-cw0.005"),
+    ("the same, c_w = 0.01 (`--wall-penalty-c-w 0.01`)", "state-impact-cw0.01"),
+    ("wall friction 0.6 instead of 0.4 (`WorldConfig.wall_friction`, changed in code for the probe)", "state-wf0.6"),
+    ("wall friction 0.8", "state-wf0.8"),
+    (
+        "100k transitions of the built-in AI in the replay buffer before the first update (`--guide-steps 100000`)",
+        "state-guide",
+    ),
+    ("the AI's transitions and the impact-speed penalty at c_w = 0.01", "state-guide-impact-cw0.01"),
+    (
+        "the AI's transitions cloned by the actor: a cloning step of weight 30 after each SAC update (`--guide-steps "
+        "100000 --guide-bc-weight 30`)",
+        "state-guide-bc30",
+    ),
+    (
+        "the actor cloned to the AI's transitions for 20k steps before SAC starts, and the impact-speed penalty at "
+        "c_w = 0.01 (`--guide-steps 100000 --guide-pretrain-steps 20000 --wall-penalty-speed impact "
+        "--wall-penalty-c-w 0.01`)",
+        "state-guide-pretrain-impact-cw0.01",
+    ),
+)
+
 STATE_TABLES = {
+    "state-25hz-lrf-alone": partial(
+        changes_table,
+        recipes=(
+            Recipe("falling rate alone", (Seeds(_h25("dt04-lrf")),), bold=True, curves=_h25_curves("dt04-lrf")),
+            Recipe(
+                "falling rate and the entropy target -4 (the repeat above)",
+                (Seeds(REPEAT),),
+                curves=_h25_curves("dt04-ent4-lrf-repeat"),
+            ),
+        ),
+        columns=(
+            LAP_COLUMN,
+            LAPS_COLUMN,
+            STARTS_COLUMN,
+            WALL_COLUMN,
+            CLEAN_COLUMN,
+            *PER_SEED_WALL_COLUMNS,
+            LIMIT_COLUMN,
+            (
+                "periodic evaluations, mean: 300k-1M / 700k-1M",
+                partial(periodic_cell, spans=((300_000, 1_000_000), (700_000, 1_000_000))),
+            ),
+        ),
+    ),
+    "state-25hz-curves": partial(
+        curves_steps_table,
+        path=f"{H25}dt04-6seeds_learning_curves.json",
+        rows=("epochs", "training, min", "seeds finished", "mean lap"),
+    ),
+    "state-25hz-ent4-lrf-curves": partial(
+        curves_steps_table,
+        path=f"{H25}dt04-ent4-lrf-6seeds_learning_curves.json",
+        rows=("epochs", "training, min", "seeds finished", "mean lap", "spread, s"),
+    ),
+    "state-clean-label30-cut3-1200k-curves": partial(
+        curves_steps_table, path=f"{CLEAN}label30-cut3-1.2M_learning_curves.json", rows=("mean lap",)
+    ),
+    "state-clean-probes": partial(
+        changes_table,
+        recipes=tuple(Recipe(label, (Seeds((PROBES,), arm=arm),)) for label, arm in CLEAN_PROBES),
+        columns=(LAP_COLUMN, STARTS_COLUMN, *PER_SEED_WALL_COLUMNS),
+    ),
+    "state-clean-labels": partial(
+        changes_table,
+        recipes=(
+            Recipe("labels, W = 30 (`--guide-label-weight 30`)", (Seeds((f"{CLEAN}label30_experiment.json",)),)),
+            Recipe(
+                "labels, W = 30, and the 3 s throttle cut",
+                (Seeds(LABEL30_CUT3[:1]),),
+                bold=True,
+                curves=(f"{CLEAN}label30-cut3_learning_curves.json",),
+            ),
+            Recipe("the same, training seeds 3, 4, 5", (Seeds(LABEL30_CUT3[1:]),)),
+            Recipe("labels, W = 100, and the cut", (Seeds((f"{CLEAN}label100-cut3_experiment.json",)),)),
+            Recipe(
+                "for comparison: no change (docs/results/state-expressway-hatchback-speed-scaled)",
+                (Seeds((f"{SPEED}rate_scaled_n3_experiment.json",)),),
+            ),
+        ),
+        columns=(LAP_COLUMN, STARTS_COLUMN, *PER_SEED_WALL_COLUMNS),
+    ),
+    "state-25hz-changes": partial(
+        changes_table,
+        recipes=tuple(
+            Recipe(label, (Seeds(_h25(name)),), bold=name == "dt04-ent4", curves=_h25_curves(name))
+            for label, name in (
+                ("none (the recipe)", "dt04"),
+                ("`--gamma 0.995`", "dt04-gamma0995"),
+                ("`--guide-label-weight 60`", "dt04-label60"),
+                ("`--target-entropy -4`", "dt04-ent4"),
+                ("`--target-entropy -6`", "dt04-ent6"),
+            )
+        ),
+        columns=(
+            LAP_COLUMN,
+            BEST_COLUMN,
+            STARTS_COLUMN,
+            WALL_COLUMN,
+            LIMIT_COLUMN,
+            AI_COLUMN,
+            TRAINING_COLUMN,
+            (
+                "periodic evaluations, 300k-1M: mean (best)",
+                partial(periodic_cell, spans=((300_000, 1_000_000),), best=True),
+            ),
+        ),
+    ),
+    "state-25hz-select-1m": partial(
+        selection_table,
+        recipes=(
+            Recipe("seeds 0-2", (Seeds(SELECT_1M[:1]),), listed=True),
+            Recipe("seeds 3-5", (Seeds(SELECT_1M[1:2]),), listed=True),
+            Recipe("seeds 6-8", (Seeds(SELECT_1M[2:]),), listed=True),
+            Recipe("all 9", (Seeds(SELECT_1M),), bold=True),
+        ),
+    ),
+    "state-25hz-select-2m": partial(
+        selection_table,
+        recipes=(
+            Recipe("seeds 0-2 (`make experiment`)", (Seeds(SELECT_2M[:1]),), listed=True),
+            Recipe("seeds 3-5", (Seeds(SELECT_2M[1:]),), listed=True),
+            Recipe("all 6, 2M steps", (Seeds(SELECT_2M),), bold=True),
+            Recipe(
+                "the 1M runs (above): seeds 0-2 / 3-5 / 6-8 / all 9",
+                (Seeds(SELECT_1M[:1]), Seeds(SELECT_1M[1:2]), Seeds(SELECT_1M[2:]), Seeds(SELECT_1M)),
+            ),
+        ),
+        held_out=f"{H25}dt04-ent4-lrf-select-2m_held_out_clean.json",
+    ),
+    "state-25hz-repeat": partial(
+        seeds_table,
+        recipes=(
+            Recipe("the repeat", (Seeds(REPEAT),), bold=True, curves=_h25_curves("dt04-ent4-lrf-repeat"), listed=True),
+            Recipe("the first run of seeds 0-2, above", (Seeds(ENT4_LRF[:1]),)),
+            Recipe("all 9 runs: the 6 seeds above and this repeat", (Seeds((*ENT4_LRF, *REPEAT)),)),
+        ),
+        gaps=True,
+    ),
+    "state-25hz-seeds": partial(seeds_table, recipes=_seeds_recipes("dt04")),
+    "state-25hz-ent4-lrf-seeds": partial(seeds_table, recipes=_seeds_recipes("dt04-ent4-lrf")),
     "state-steer05": partial(
         seeds_columns_table,
         columns=(
