@@ -246,3 +246,13 @@ def test_the_vision_logs_tables_read_each_figure_from_its_record(results_copy):
     edit_record(results_copy, stuck, lambda r: r["finished_of_13_per_seed"]["last (150k)"].pop())
     with pytest.raises(ReportError, match="7 counts of starts finished for 8 training seeds"):
         build_tables(results_copy, names[:1])
+
+
+def test_the_vision_driver_table_reads_the_chosen_weights_at_each_seeds_chosen_step(results_copy):
+    usable = "vision-expressway-hatchback/quick_steer_usable_starts13.json"
+    chosen = "the weights chosen by 3 held-out starts: the protocol's starts {}/24, 13 starts each 96 of 104, {}"
+    table = build_tables(results_copy, ["vision-agent"])["vision-agent"]
+    assert chosen.format(20, "2:15.162 +- 1.56 s") in table  # seeds 6 and 7 chosen at 125k, the others at 150k
+    # seed 6 chosen at 150k: its protocol's starts are those of the 150k weights (3 of 3), not of the 125k (1 of 3)
+    edit_record(results_copy, usable, lambda r: r["seeds"][2].update(chosen_steps_by_3_held_out_starts=150000))
+    assert chosen.format(22, "2:15.257 +- 1.58 s") in build_tables(results_copy, ["vision-agent"])["vision-agent"]

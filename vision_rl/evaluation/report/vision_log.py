@@ -40,9 +40,25 @@ def _bold(text: str, bold: bool) -> str:
     return f"**{text}**" if bold else text
 
 
-def _seed_rows(records: Records, batch: Batch) -> list[dict[str, Any]]:
+def _protocol_of_3(section: dict[str, Any], chosen: tuple[str, ...]) -> dict[int, tuple[int, float | None]]:
+    """Each training seed's starts finished of the protocol's 3 and its lap (the best of them) in a batch of lists of
+    counts: the last weights', or with ``chosen`` (the keys down each seed to its chosen step) that step's starts 0-2;
+    empty where the record has neither."""
+    if not chosen:
+        last = section.get("protocol_starts_0_2_last_weights", {"per_seed": []})["per_seed"]
+        return {row["seed"]: (row["finished_of_3"], row["lap_time_s"]) for row in last}
+    protocol = {}
+    for seed in section["seeds"]:
+        starts = seed["protocol_starts_0_12"][str(_dig(seed, chosen))][:3]
+        laps_s = [start["lap_time_s"] for start in starts if start["finished"]]
+        protocol[seed["training_seed"]] = (len(laps_s), min(laps_s, default=None))
+    return protocol
+
+
+def _seed_rows(records: Records, batch: Batch, chosen: tuple[str, ...] = ()) -> list[dict[str, Any]]:
     """Each training seed of a batch: starts finished of 13, of the protocol's 3 (starts 0-2), the protocol's lap and
-    the median wall contact of its laps, from either layout the studies wrote (the last three None where absent)."""
+    the median wall contact of its laps, from either layout the studies wrote (None where absent); ``chosen``: the
+    protocol's figures of the weights chosen at the step down those keys (:func:`_protocol_of_3`)."""
     file, keys, counts_key = batch
     section = _dig(records(f"{LOG}/{file}"), keys)
     if "per_seed" in section:
@@ -61,9 +77,12 @@ def _seed_rows(records: Records, batch: Batch) -> list[dict[str, Any]]:
     seeds = [row.get("training_seed", row.get("seed")) for row in section["seeds"]]
     if len(seeds) != len(counts):
         raise ReportError(f"{file}: {len(counts)} counts of starts finished for {len(seeds)} training seeds")
-    return [
-        {"seed": s, "of_13": n, "of_3": None, "lap_s": None, "wall_s": None} for s, n in zip(seeds, counts, strict=True)
-    ]
+    protocol = _protocol_of_3(section, chosen)
+    rows = []
+    for seed, of_13 in zip(seeds, counts, strict=True):
+        of_3, lap_s = protocol.get(seed, (None, None))
+        rows.append({"seed": seed, "of_13": of_13, "of_3": of_3, "lap_s": lap_s, "wall_s": None})
+    return rows
 
 
 def _pooled(records: Records, batches: Sequence[Batch]) -> list[dict[str, Any]]:
