@@ -256,3 +256,9 @@ def test_the_vision_driver_table_reads_the_chosen_weights_at_each_seeds_chosen_s
     # seed 6 chosen at 150k: its protocol's starts are those of the 150k weights (3 of 3), not of the 125k (1 of 3)
     edit_record(results_copy, usable, lambda r: r["seeds"][2].update(chosen_steps_by_3_held_out_starts=150000))
     assert chosen.format(22, "2:15.257 +- 1.58 s") in build_tables(results_copy, ["vision-agent"])["vision-agent"]
+
+
+def test_an_encoder_error_table_bolds_the_smaller_error_and_neither_when_they_read_alike():
+    table = build_tables(RESULTS_DIR, ["vision-log-wall-frames-encoder"])["vision-log-wall-frames-encoder"]
+    assert "| two policies that finished (5,572 frames) | 0.46 / **0.39** | 0.056 / 0.056 | 3.53 / **3.12** |" in table
+    assert "| the same, in wall contact (275 frames) | 1.52 / **0.79** | **0.110** / 0.164 |" in table
