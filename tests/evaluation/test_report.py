@@ -262,3 +262,14 @@ def test_an_encoder_error_table_bolds_the_smaller_error_and_neither_when_they_re
     table = build_tables(RESULTS_DIR, ["vision-log-wall-frames-encoder"])["vision-log-wall-frames-encoder"]
     assert "| two policies that finished (5,572 frames) | 0.46 / **0.39** | 0.056 / 0.056 | 3.53 / **3.12** |" in table
     assert "| the same, in wall contact (275 frames) | 1.52 / **0.79** | **0.110** / 0.164 |" in table
+
+
+def test_the_bench_tables_verdict_reads_the_idle_ratio_against_the_records_target(results_copy):
+    assert ">= 1.3x: **missed** |" in build_tables(results_copy, ["scaling-bench"])["scaling-bench"]
+    edit_record(
+        results_copy, "scaling/bench_scaling_idle.json", lambda r: r["rows"]["capture"]["frames/s"].update(ratio=1.3)
+    )
+    assert "| 1.30x (1 worker 144 [131-151]" in (
+        table := build_tables(results_copy, ["scaling-bench"])["scaling-bench"]
+    )
+    assert ">= 1.3x: met |" in table
