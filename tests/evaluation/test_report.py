@@ -270,3 +270,30 @@ def test_the_plateau_averages_only_the_evaluations_of_its_span(results_copy):
     assert build_tables(results_copy, ["state-25hz-changes"])["state-25hz-changes"] == before
     edit_record(results_copy, curves, lambda r: r["mean_lap_time_s"].__setitem__(2, None))  # 300k: no seed lapped
     assert "| 2:11.31 (2:10.98) |" in build_tables(results_copy, ["state-25hz-changes"])["state-25hz-changes"]
+
+
+def test_the_vision_driver_table_reads_the_chosen_weights_at_each_seeds_chosen_step(results_copy):
+    usable = "vision-expressway-hatchback/quick_steer_usable_starts13.json"
+    chosen = "the weights chosen by 3 held-out starts: the protocol's starts {}/24, 13 starts each 96 of 104, {}"
+    table = build_tables(results_copy, ["vision-agent"])["vision-agent"]
+    assert chosen.format(20, "2:15.162 +- 1.56 s") in table  # seeds 6 and 7 chosen at 125k, the others at 150k
+    # seed 6 chosen at 150k: its protocol's starts are those of the 150k weights (3 of 3), not of the 125k (1 of 3)
+    edit_record(results_copy, usable, lambda r: r["seeds"][2].update(chosen_steps_by_3_held_out_starts=150000))
+    assert chosen.format(22, "2:15.257 +- 1.58 s") in build_tables(results_copy, ["vision-agent"])["vision-agent"]
+
+
+def test_an_encoder_error_table_bolds_the_smaller_error_and_neither_when_they_read_alike():
+    table = build_tables(RESULTS_DIR, ["vision-log-wall-frames-encoder"])["vision-log-wall-frames-encoder"]
+    assert "| two policies that finished (5,572 frames) | 0.46 / **0.39** | 0.056 / 0.056 | 3.53 / **3.12** |" in table
+    assert "| the same, in wall contact (275 frames) | 1.52 / **0.79** | **0.110** / 0.164 |" in table
+
+
+def test_the_bench_tables_verdict_reads_the_idle_ratio_against_the_records_target(results_copy):
+    assert ">= 1.3x: **missed** |" in build_tables(results_copy, ["scaling-bench"])["scaling-bench"]
+    edit_record(
+        results_copy, "scaling/bench_scaling_idle.json", lambda r: r["rows"]["capture"]["frames/s"].update(ratio=1.3)
+    )
+    assert "| 1.30x (1 worker 144 [131-151]" in (
+        table := build_tables(results_copy, ["scaling-bench"])["scaling-bench"]
+    )
+    assert ">= 1.3x: met |" in table

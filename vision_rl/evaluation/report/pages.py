@@ -33,6 +33,7 @@ from vision_rl.evaluation.report.records import RESULTS, Records, ReportError
 from vision_rl.evaluation.report.scaling import SCALING_TABLES
 from vision_rl.evaluation.report.state import STATE_TABLES
 from vision_rl.evaluation.report.vision import phase1_table, quick_table, vision_table
+from vision_rl.evaluation.report.vision_agent import VISION_AGENT_TABLES
 from vision_rl.evaluation.report.vision_log import VISION_LOG_TABLES
 
 #: A generated table's place on a page: the opening marker names the table, the closing one ends it.
@@ -71,6 +72,7 @@ TABLES: dict[str, Callable[[Records], str]] = {
     **STATE_TABLES,
     **SCALING_TABLES,
     **VISION_LOG_TABLES,
+    **VISION_AGENT_TABLES,
 }
 
 

@@ -89,7 +89,72 @@ def staleness_table(records: Records, per_seed: bool = False) -> str:
     return markdown_table(header, rows)
 
 
+BENCH_IDLE = "scaling/bench_scaling_idle.json"
+#: The loaded machine's ratios, transcribed from the page (their runs' JSON was not kept).
+BENCH_LOADED = "scaling/bench_scaling_loaded.json"
+
+
+def _median_span(figure: dict[str, float], spec: str = ".0f") -> str:
+    """``144 [131-151]``: a figure's median over the repeats, their range in brackets."""
+    return f"{figure['median']:{spec}} [{figure['min']:{spec}}-{figure['max']:{spec}}]"
+
+
+def _verdict(ratio: float, target: str) -> str:
+    """Whether ``ratio`` reaches a target written ``>= 1.3``: ``met`` or ``**missed**``."""
+    sign, threshold = target.split()
+    if sign != ">=":
+        raise ReportError(f"a target of another form than '>= X': {target!r}")
+    return "met" if ratio >= float(threshold) else "**missed**"
+
+
+def bench_table(records: Records) -> str:
+    """`bench scaling`'s ratios of 2 workers over 1 on the idle machine (medians, the repeats' range) beside those
+    under load, and the verdict of the idle ratios against the targets."""
+    idle, targets = records(BENCH_IDLE)["rows"], records(BENCH_IDLE)["targets"]
+    loaded = records(BENCH_LOADED)["rows"]
+    capture, inside, cpu = (idle["capture"][k] for k in ("frames/s", "frames/s inside the shards", "CPU ms per frame"))
+    train, share = idle["train"]["training frames/s"], idle["sampling"]["learner share of standalone"]
+    capture_target, share_target = targets["capture frames/s"], targets["sampling learner share of standalone"]
+    cpu_low, cpu_high = loaded["capture"]["CPU ms per frame ratio, lowest and highest run"]
+    one_low, one_high = loaded["train"]["training frames/s with 1 process, lowest and highest repeat"]
+    one_mean, one_std = mean_std_s(loaded["sampling"]["learner share of standalone, 1 sampler, per run"])
+    two_mean, two_std = loaded["sampling"]["learner share of standalone, 2 samplers, mean and std over the runs"]
+    runs = loaded["capture"]["frames/s ratio per run"]
+    rows = [
+        (
+            "capture frames/s (1,200 frames, 280x470)",
+            f"{capture['ratio']:.2f}x (1 worker {_median_span(capture['workers_1'])}, 2: "
+            f"{_median_span(capture['workers_2'])}); inside the shards {inside['ratio']:.2f}x; CPU per frame "
+            f"{cpu['workers_1']['median']:.1f} vs {cpu['workers_2']['median']:.1f} ms ({cpu['ratio']:.2f}x)",
+            f"{', '.join(f'{r:.2f}x' for r in runs)} ({len(runs)} runs); CPU per frame {cpu_low:.2f}-{cpu_high:.2f}x "
+            "higher",
+            f"{capture_target}x: {_verdict(capture['ratio'], capture_target)}",
+        ),
+        (
+            "train-repr training frames/s, 2 DDP processes / 1",
+            f"{train['ratio']:.2f}x ({_median_span(train['workers_1'])} vs {_median_span(train['workers_2'])})",
+            f"{loaded['train']['training frames/s ratio']:.2f}x ({loaded['train']['runs']} run; 1 process: "
+            f"{one_low:.1f}-{one_high:.1f} frames/s)",
+            "-",
+        ),
+        (
+            "learner's update rate with sampling in other processes, share of its standalone rate",
+            f"1 sampler: {_median_span(share['workers_1'], '.2f')}; 2 samplers: "
+            f"{_median_span(share['workers_2'], '.2f')}",
+            f"1 sampler: {one_mean:.2f} +- {one_std:.2f} "
+            f"({', '.join(f'{r:.2f}' for r in loaded['sampling']['learner share of standalone, 1 sampler, per run'])}"
+            f"); 2 samplers: {two_mean:.2f} +- {two_std:.2f}",
+            f"{share_target}: {_verdict(share['workers_1']['median'], share_target)} with 1 sampler, "
+            f"{_verdict(share['workers_2']['median'], share_target)} with 2",
+        ),
+    ]
+    header = ("job", "2 workers / 1, idle machine", "2 workers / 1, loaded", "target")
+    records_text = f"{link('idle', BENCH_IDLE)}, {link('loaded', BENCH_LOADED)} (transcribed)"
+    return f"{markdown_table(header, rows)}\nRecords: {records_text}.\n"
+
+
 SCALING_TABLES = {
+    "scaling-bench": bench_table,
     "scaling-staleness": staleness_table,
     "scaling-staleness-seeds": partial(staleness_table, per_seed=True),
 }

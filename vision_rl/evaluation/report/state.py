@@ -193,13 +193,16 @@ def _quick_row(records: Records, stage: str, label: str, limit_s: float, ai_s: f
     )
 
 
-def driver_table(records: Records, recipes: tuple[Recipe, ...], quick: tuple[str, str]) -> str:
-    """The limit, the built-in AI, `make quick`'s policy of ``quick`` = (stage, label), then each recipe's row."""
+def driver_table(
+    records: Records, recipes: tuple[Any, ...], quick: tuple[str, str], row: Callable[..., tuple[str, ...]] = recipe_row
+) -> str:
+    """The limit, the built-in AI, `make quick`'s policy of ``quick`` = (stage, label), then each recipe's row (``row``
+    writes it: another study's rows of other records too)."""
     ai_s, limit_s = reference_laps(records, AI_HATCHBACK)
     rows = [
         *_reference_rows(records, ai_s, limit_s),
         _quick_row(records, *quick, limit_s, ai_s),
-        *(recipe_row(records, recipe, limit_s, ai_s) for recipe in recipes),
+        *(row(records, recipe, limit_s, ai_s) for recipe in recipes),
     ]
     return markdown_table(("driver", "lap", "gap to limit", "gap to AI"), rows)
 

@@ -17,6 +17,7 @@ from vision_rl.evaluation.report.common import (
     markdown_table,
     mean_std_s,
     reference_laps,
+    span_text,
 )
 from vision_rl.evaluation.report.records import Records, ReportError
 
@@ -40,9 +41,25 @@ def _bold(text: str, bold: bool) -> str:
     return f"**{text}**" if bold else text
 
 
-def _seed_rows(records: Records, batch: Batch) -> list[dict[str, Any]]:
+def _protocol_of_3(section: dict[str, Any], chosen: tuple[str, ...]) -> dict[int, tuple[int, float | None]]:
+    """Each training seed's starts finished of the protocol's 3 and its lap (the best of them) in a batch of lists of
+    counts: the last weights', or with ``chosen`` (the keys down each seed to its chosen step) that step's starts 0-2;
+    empty where the record has neither."""
+    if not chosen:
+        last = section.get("protocol_starts_0_2_last_weights", {"per_seed": []})["per_seed"]
+        return {row["seed"]: (row["finished_of_3"], row["lap_time_s"]) for row in last}
+    protocol = {}
+    for seed in section["seeds"]:
+        starts = seed["protocol_starts_0_12"][str(_dig(seed, chosen))][:3]
+        laps_s = [start["lap_time_s"] for start in starts if start["finished"]]
+        protocol[seed["training_seed"]] = (len(laps_s), min(laps_s, default=None))
+    return protocol
+
+
+def _seed_rows(records: Records, batch: Batch, chosen: tuple[str, ...] = ()) -> list[dict[str, Any]]:
     """Each training seed of a batch: starts finished of 13, of the protocol's 3 (starts 0-2), the protocol's lap and
-    the median wall contact of its laps, from either layout the studies wrote (the last three None where absent)."""
+    the median wall contact of its laps, from either layout the studies wrote (None where absent); ``chosen``: the
+    protocol's figures of the weights chosen at the step down those keys (:func:`_protocol_of_3`)."""
     file, keys, counts_key = batch
     section = _dig(records(f"{LOG}/{file}"), keys)
     if "per_seed" in section:
@@ -61,9 +78,12 @@ def _seed_rows(records: Records, batch: Batch) -> list[dict[str, Any]]:
     seeds = [row.get("training_seed", row.get("seed")) for row in section["seeds"]]
     if len(seeds) != len(counts):
         raise ReportError(f"{file}: {len(counts)} counts of starts finished for {len(seeds)} training seeds")
-    return [
-        {"seed": s, "of_13": n, "of_3": None, "lap_s": None, "wall_s": None} for s, n in zip(seeds, counts, strict=True)
-    ]
+    protocol = _protocol_of_3(section, chosen)
+    rows = []
+    for seed, of_13 in zip(seeds, counts, strict=True):
+        of_3, lap_s = protocol.get(seed, (None, None))
+        rows.append({"seed": seed, "of_13": of_13, "of_3": of_3, "lap_s": lap_s, "wall_s": None})
+    return rows
 
 
 def _pooled(records: Records, batches: Sequence[Batch]) -> list[dict[str, Any]]:
@@ -544,24 +564,93 @@ ENCODER_ERROR_GROUPS = (
     ("wall_contact", "the same, in wall contact"),
     ("heading_0.2_1.2", "the same, heading 0.2-1.2 rad off the track's"),
 )
+#: A row of a table of two encoders' errors: (label, the keys down the record's ``encoder`` to the pair, the group).
+EncoderErrorRow = tuple[str, tuple[str, ...], str]
+WALL_FRAMES = "quick_wall_frames_starts13.json"
+WALL_FRAMES_POLICIES = (
+    "error_on_policy_frames",
+    "two_policies_that_finished (seed 8 of the restart study, seed 5 of the pedal labels)",
+)
 
 
-def state_policy_laps_encoder_table(records: Records) -> str:
-    """The mean absolute error of the job's encoder and of the one that also saw the state policy's laps, on the
-    vision policies' own frames, per group of frames (the new encoder's figure bold)."""
-    error = records(f"{LOG}/{STATE_LAPS}")["encoder"]["error_on_policy_frames"]
-    old, new = error["job_encoder"], error["this_encoder"]
+def _lower_bold(old: float, new: float, decimals: int) -> str:
+    """``old / new`` with the smaller of the two in bold (neither when they read alike)."""
+    texts = [f"{x:.{decimals}f}" for x in (old, new)]
+    if texts[0] != texts[1]:
+        low = 0 if old < new else 1
+        texts[low] = f"**{texts[low]}**"
+    return " / ".join(texts)
+
+
+def encoder_error_table(
+    records: Records, file: str, rows: Sequence[EncoderErrorRow], pair: tuple[str, str] = ("old", "new")
+) -> str:
+    """The mean absolute error of the job's encoder and a new one on the vision policies' own frames, per group of
+    frames (the smaller bold), from the ``encoder`` key of ``file``; ``pair``: the two encoders' keys."""
     body = []
-    for key, label in ENCODER_ERROR_GROUPS:
-        if old[key]["frames"] != new[key]["frames"]:
-            raise ReportError(f"{STATE_LAPS}: the two encoders' errors on {key} are over different frames")
+    for label, keys, group in rows:
+        old, new = (_dig(records(f"{LOG}/{file}")["encoder"], keys)[key][group] for key in pair)
+        if old["frames"] != new["frames"]:
+            raise ReportError(f"{file}: the two encoders' errors on {group} are over different frames")
         cells = [
-            f"{old[key][target]:.{decimals}f} / **{new[key][target]:.{decimals}f}**"
+            _lower_bold(old[target], new[target], decimals)
             for target, decimals in (("centre_offset", 2), ("heading", 3), ("edge_rays", 2))
         ]
-        body.append((f"{label} ({old[key]['frames']:,} frames)", *cells))
+        body.append((f"{label} ({old['frames']:,} frames)", *cells))
     header = ("frames", "centre offset, m: job's / new", "heading, rad: job's / new", "edge rays, m: job's / new")
-    return f"{markdown_table(header, body)}\nRecord: {link(STATE_LAPS, f'{LOG}/{STATE_LAPS}')}, key `encoder`.\n"
+    return f"{markdown_table(header, body)}\nRecord: {link(file, f'{LOG}/{file}')}, key `encoder`.\n"
+
+
+ENCODER_ERROR = "encoder_error.json"
+#: The policies of `evaluate --encoder-error`'s record: (label, its run in the record).
+ENCODER_ERROR_RUNS = (
+    ("3-step, 400k steps, seed 0", "exp/seed-0"),
+    ("seed 1", "exp/seed-1"),
+    ("seed 2", "exp/seed-2"),
+    ("labels + cut, seed 0", "label/seed-0"),
+    ("seed 1", "label/seed-1"),
+    ("seed 2", "label/seed-2"),
+)
+
+
+def _error_cells(errors: list[dict[str, Any]]) -> list[str]:
+    """The encoder's mean absolute error over a lap's frames, near a wall and in wall contact; a range over several
+    laps' ``errors``."""
+
+    def span(group: str, target: str, spec: str) -> str:
+        return span_text((error[group][target] for error in errors), "", spec).strip()
+
+    contact = (
+        "none"
+        if not any(error["wall_contact"]["frames"] for error in errors)
+        else f"{span('wall_contact', 'frames', 'd')}: {span('wall_contact', 'centre_offset', '.2f')} / "
+        f"{span('wall_contact', 'edge_rays', '.2f')}"
+    )
+    return [
+        span("all", "centre_offset", ".2f"),
+        span("all", "heading", ".3f"),
+        span("all", "edge_rays", ".2f"),
+        f"{span('near_wall', 'frames', 'd')}: {span('near_wall', 'centre_offset', '.2f')}",
+        contact,
+    ]
+
+
+def policy_encoder_error_table(records: Records) -> str:
+    """The quick encoder's error along each policy's best lap, and the range of its error on the built-in AI's lap
+    from the same starts: where the policies drive, the encoder errs more than on the AI's laps it learned from."""
+    runs = records(f"{LOG}/{ENCODER_ERROR}")["runs"]
+    body = [
+        (label, f"{runs[key]['wall_contact_s']:.2f}", *_error_cells([runs[key]["encoder_error"]["policy"]]))
+        for label, key in ENCODER_ERROR_RUNS
+    ]
+    ais = [runs[key]["encoder_error"]["built_in_ai"] for _, key in ENCODER_ERROR_RUNS]
+    contact = "0" if not any(ai["wall_contact"]["frames"] for ai in ais) else "-"
+    skill = span_text((ai["skill"] for ai in ais), "", "g").strip()
+    body.append((f"built-in AI, skill {skill}, the same starts", contact, *_error_cells(ais)))
+    header = ("recipe, training seed", "wall contact on the lap, s", "centre offset error, m", "heading error, rad")
+    header += ("edge-ray error, m", "frames near a wall (< 1.5 m): centre offset error, m")
+    table = markdown_table((*header, "frames in wall contact: centre offset / edge-ray error, m"), body)
+    return f"{table}\nRecord: {link(ENCODER_ERROR, f'{LOG}/{ENCODER_ERROR}')}.\n"
 
 
 CRITIC_STATE = "quick_critic_state_starts13.json"
@@ -699,7 +788,28 @@ VISION_LOG_TABLES: dict[str, Callable[[Records], str]] = {
     **{name: partial(seeds_log_table, name=name) for name in SEEDS_TABLES},
     "vision-log-critic-state-runs": critic_state_runs_table,
     "vision-log-steer-share": steer_share_table,
-    "vision-log-state-policy-laps-encoder": state_policy_laps_encoder_table,
+    "vision-log-state-policy-laps-encoder": partial(
+        encoder_error_table,
+        file=STATE_LAPS,
+        rows=[(label, ("error_on_policy_frames",), key) for key, label in ENCODER_ERROR_GROUPS],
+        pair=("job_encoder", "this_encoder"),
+    ),
+    "vision-log-policy-encoder-error": policy_encoder_error_table,
+    "vision-log-wall-frames-encoder": partial(
+        encoder_error_table,
+        file=WALL_FRAMES,
+        rows=[
+            *((label, WALL_FRAMES_POLICIES, key) for key, label in ENCODER_ERROR_GROUPS),
+            (
+                "a policy that stops at the last corner from every start (every 5th frame), heading 0.2-1.2 rad",
+                (
+                    "error_on_policy_frames",
+                    "a_policy_that_stops_at_the_last_corner (seed 4 of the pedal labels, every 5th frame)",
+                ),
+                "heading_0.2_1.2",
+            ),
+        ],
+    ),
     **{
         name: partial(experiments_table, first=first, rows=rows, columns=columns)
         for name, (first, rows, columns) in EXPERIMENT_TABLES.items()
