@@ -95,17 +95,17 @@ def test_the_committed_records_give_the_tables_figures():
         "| 1 | agent 3 | [9/10](RESULTS/overtaking-expressway-tt_cup/seeds/s1/agent3_setting_A.json) | [8/10]" in seeds
     )
     assert (
-        "| B (200 m apart) | agent 2 | 10/10 | 5.0 (5-5) | 165.5 +- 30.2 | 114.9 | 0.4 / 6.9 |"
+        "| B (200 m apart) | agent 2 | 10/10 | 5.0 (5-5) | 165.5 ± 30.2 | 114.9 | 0.4 / 6.9 |"
         in tables["overtaking-settings"]
     )
     assert "| GAIL s0 | 113.31 (113.94) | 3/3 | 52.4 | 8,823 | - |" in tables["table3-gail-dart40"]
     assert "| TD3 s2 | 114.29 | 1/3 | 3.4 | 1,054 | 2,054-2,967 m into the lap |" in tables["table3-runs"]
     assert (
-        "| SAC | 89.82 | 176.4 | 0.893 | 0.922 | 91.03 +- 1.06 s over 3 lapping seeds | 9/9 | 5.2 |"
+        "| SAC | 89.82 | 176.4 | 0.893 | 0.922 | 91.03 ± 1.06 s over 3 lapping seeds | 9/9 | 5.2 |"
         in tables["table3-summary"]
     )
     assert "| 4/9 | 115.7 / 109.8 / 105.4 | 1.048 |" in tables["bc-recipes"]
-    assert "| A (50 m apart) | c_r 2 | 10/10 | 5.0 (5-5) | 48.2 +- 26.5 | 27.7 | 1.2 / 2.8 |" in tables["c-r-ablation"]
+    assert "| A (50 m apart) | c_r 2 | 10/10 | 5.0 (5-5) | 48.2 ± 26.5 | 27.7 | 1.2 / 2.8 |" in tables["c-r-ablation"]
     pendulum, mountain_car = tables["ddpg-reference-pendulum"], tables["ddpg-reference-mountaincar"]
     assert (
         "| ours-bn (the paper's networks) | -168 ± 93 (-276, -112, -117) | -121 ± 18 | -226 ± 8 | 1,357 |" in pendulum
@@ -233,7 +233,7 @@ def test_the_vision_logs_tables_read_each_figure_from_its_record(results_copy):
     # seed 10's rule kept the last weights: none of its candidates finished the first 3 held-out starts
     assert "| 7 (150k, none finished) | 10 (150k) | 93/104 |" in tables["vision-log-stuck-ends"]
     # seeds 0 and 12-14 of one record pooled with 15-18 of another: starts, the protocol's starts, the mean lap
-    assert "| 5 | 13 | 8 | 88/104 | 19/24 | 2:15.213 +- 2.31 s |" in tables["vision-log-critic-state"]
+    assert "| 5 | 13 | 8 | 88/104 | 19/24 | 2:15.213 ± 2.31 s |" in tables["vision-log-critic-state"]
     state = "RESULTS/state-expressway-hatchback-speed-scaled/rate_scaled_experiment.json"
     assert f"| 2.44 % faster than the AI | 3.32 % slower than its [2:11.537]({state}) |" in tables["vision-log-n-step"]
     stuck = "vision-expressway-hatchback/quick_stuck_ends_starts13.json"
@@ -276,10 +276,10 @@ def test_the_vision_driver_table_reads_the_chosen_weights_at_each_seeds_chosen_s
     usable = "vision-expressway-hatchback/quick_steer_usable_starts13.json"
     chosen = "the weights chosen by 3 held-out starts: the protocol's starts {}/24, 13 starts each 96 of 104, {}"
     table = build_tables(results_copy, ["vision-agent"])["vision-agent"]
-    assert chosen.format(20, "2:15.162 +- 1.56 s") in table  # seeds 6 and 7 chosen at 125k, the others at 150k
+    assert chosen.format(20, "2:15.162 ± 1.56 s") in table  # seeds 6 and 7 chosen at 125k, the others at 150k
     # seed 6 chosen at 150k: its protocol's starts are those of the 150k weights (3 of 3), not of the 125k (1 of 3)
     edit_record(results_copy, usable, lambda r: r["seeds"][2].update(chosen_steps_by_3_held_out_starts=150000))
-    assert chosen.format(22, "2:15.257 +- 1.58 s") in build_tables(results_copy, ["vision-agent"])["vision-agent"]
+    assert chosen.format(22, "2:15.257 ± 1.58 s") in build_tables(results_copy, ["vision-agent"])["vision-agent"]
 
 
 def test_an_encoder_error_table_bolds_the_smaller_error_and_neither_when_they_read_alike():

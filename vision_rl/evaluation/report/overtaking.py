@@ -60,7 +60,7 @@ def table3_summary_table(records: Records, path: str = TABLE3) -> str:
         seeds, paper, lap_s = row.get("over_training_seeds"), row.get("paper"), row["lap_time_s"]
         over = "-"
         if seeds and seeds["lap_time_mean_s"] is not None:
-            spread = "" if seeds["lap_time_std_s"] is None else f" +- {seeds['lap_time_std_s']:.2f}"
+            spread = "" if seeds["lap_time_std_s"] is None else f" ± {seeds['lap_time_std_s']:.2f}"
             lapping = seeds["n_training_seeds_finished"]
             over = f"{seeds['lap_time_mean_s']:.2f}{spread} s over {lapping} lapping seed{'s' if lapping > 1 else ''}"
         rows.append(
@@ -217,7 +217,7 @@ def _driver_cells(driver: dict[str, Any]) -> tuple[str, ...]:
     return (
         f"{s['all_overtaken_runs']}/{s['runs']}",
         f"{s['overtaken']['mean']:.1f} ({s['overtaken']['min']}-{s['overtaken']['max']})",
-        f"{s['travel_time_s']['mean']:.1f} +- {s['travel_time_s']['std']:.1f}",
+        f"{s['travel_time_s']['mean']:.1f} ± {s['travel_time_s']['std']:.1f}",
         "-" if fastest is None else f"{fastest:.1f}",
         f"{s['car_contact_s']['mean']:.1f} / {s['wall_contact_s']['mean']:.1f}",
     )

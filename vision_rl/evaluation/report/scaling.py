@@ -141,9 +141,9 @@ def bench_table(records: Records) -> str:
             "learner's update rate with sampling in other processes, share of its standalone rate",
             f"1 sampler: {_median_span(share['workers_1'], '.2f')}; 2 samplers: "
             f"{_median_span(share['workers_2'], '.2f')}",
-            f"1 sampler: {one_mean:.2f} +- {one_std:.2f} "
+            f"1 sampler: {one_mean:.2f} ± {one_std:.2f} "
             f"({', '.join(f'{r:.2f}' for r in loaded['sampling']['learner share of standalone, 1 sampler, per run'])}"
-            f"); 2 samplers: {two_mean:.2f} +- {two_std:.2f}",
+            f"); 2 samplers: {two_mean:.2f} ± {two_std:.2f}",
             f"{share_target}: {_verdict(share['workers_1']['median'], share_target)} with 1 sampler, "
             f"{_verdict(share['workers_2']['median'], share_target)} with 2",
         ),

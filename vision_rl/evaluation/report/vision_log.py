@@ -100,7 +100,7 @@ def _batch_extras(rows: list[dict[str, Any]], ai_s: float | None) -> dict[str, s
     against = f" ({faster_text(mean_s, ai_s)})" if ai_s is not None else ""
     return {
         "protocol": f"{sum(row['of_3'] for row in rows)}/{3 * len(rows)}",
-        "lap": f"{lap_text(mean_s)} +- {std_s:.2f} s{against}",
+        "lap": f"{lap_text(mean_s)} ± {std_s:.2f} s{against}",
         "wall": f"{sum(walls_s) / len(walls_s):.2f} s" if walls_s else "-",
     }
 
@@ -172,7 +172,7 @@ class SeedsTable:
     headers: dict[str, str] = field(default_factory=dict)
 
 
-EXTRA_HEADERS = {"protocol": "protocol's starts", "lap": "lap: mean +- std", "wall": "wall contact per lap"}
+EXTRA_HEADERS = {"protocol": "protocol's starts", "lap": "lap: mean ± std", "wall": "wall contact per lap"}
 
 
 def seeds_table(
@@ -395,7 +395,7 @@ SEEDS_TABLES |= {
         ),
         (STEPS_200K[0],),
         ("protocol", "lap"),
-        {"lap": "lap: mean +- std over the 4 seeds"},
+        {"lap": "lap: mean ± std over the 4 seeds"},
     ),
     "vision-log-200k-c-w": SeedsTable(
         S0_12_14,
@@ -416,7 +416,7 @@ SEEDS_TABLES |= {
         ),
         (STEPS_200K[0], "quick_300k_steps_starts13.json"),
         ("protocol", "lap"),
-        {"lap": "lap: mean +- std over the 4 seeds"},
+        {"lap": "lap: mean ± std over the 4 seeds"},
     ),
     "vision-log-200k-impact": SeedsTable(
         S0_12_14,
@@ -426,7 +426,7 @@ SEEDS_TABLES |= {
         ),
         (STEPS_200K[0], "quick_200k_wall_impact_starts13.json"),
         ("protocol", "lap", "wall"),
-        {**WALL_MEDIANS, "lap": "lap: mean +- std over the 4 seeds"},
+        {**WALL_MEDIANS, "lap": "lap: mean ± std over the 4 seeds"},
     ),
     "vision-log-critic-state": SeedsTable(
         (0, *range(12, 19)),
@@ -436,7 +436,7 @@ SEEDS_TABLES |= {
         ),
         (STEPS_200K[0], SEEDS_15_18[0], "quick_critic_state_starts13.json"),
         ("protocol", "lap"),
-        {"lap": "lap: mean +- std over the 8 seeds"},
+        {"lap": "lap: mean ± std over the 8 seeds"},
     ),
 }
 
@@ -471,13 +471,13 @@ def _experiment_cells(records: Records, row: ExperimentRow) -> dict[str, str]:
     walls_s = [seed["wall_contact_s"] for seed in per_seed if seed["wall_contact_s"] is not None]
     done, total = summary["finished"].split("/")
     each = "" if done == total else f" ({', '.join(seed['finished'] for seed in per_seed)})"
-    lap = _bold(f"{lap_text(mean_s)} +- {std_s:.2f} s", row.bold)
+    lap = _bold(f"{lap_text(mean_s)} ± {std_s:.2f} s", row.bold)
     cells = {
         "lap": lap,
         "lap_seeds": f"{lap} ({summary['n_training_seeds_finished']} of {summary['n_training_seeds']} seeds)",
         "best": lap_text(summary["best_lap_time_s"]),
         "starts": _bold(f"{summary['finished']}{each}", row.bold),
-        "wall_range": f"{min(walls_s):.1f}-{max(walls_s):.1f} s ({summary['wall_contact_mean_s']:.2f} +- "
+        "wall_range": f"{min(walls_s):.1f}-{max(walls_s):.1f} s ({summary['wall_contact_mean_s']:.2f} ± "
         f"{summary['wall_contact_std_s']:.2f})",
         "wall_seeds": ", ".join("-" if w is None else f"{w:.2f}" for w in (seed["wall_contact_s"] for seed in per_seed))
         + " s",
@@ -495,11 +495,11 @@ def _experiment_cells(records: Records, row: ExperimentRow) -> dict[str, str]:
 
 
 EXPERIMENT_HEADERS = {
-    "lap": "lap: mean +- std over 3 training seeds",
-    "lap_seeds": "lap: mean +- std over the seeds that finished",
+    "lap": "lap: mean ± std over 3 training seeds",
+    "lap_seeds": "lap: mean ± std over the seeds that finished",
     "best": "best seed",
     "starts": "starts finished",
-    "wall_range": "wall contact per lap (mean +- std)",
+    "wall_range": "wall contact per lap (mean ± std)",
     "wall_seeds": "wall contact per lap (seeds 0, 1, 2)",
     "hits": "wall hits (seeds 0, 1, 2)",
     "ai": "against the AI ({ai})",
@@ -681,7 +681,7 @@ def critic_state_runs_table(records: Records) -> str:
         runs += rows
         laps_s = [row["lap_s"] for row in rows if row["lap_s"] is not None]
         mean_s, std_s = mean_std_s(laps_s)
-        lap = lap_text(mean_s) if len(laps_s) == 1 else f"{lap_text(mean_s)} +- {std_s:.2f} s"
+        lap = lap_text(mean_s) if len(laps_s) == 1 else f"{lap_text(mean_s)} ± {std_s:.2f} s"
         walls_s = [row["wall_s"] for row in rows]
         body.append(
             (
@@ -707,7 +707,7 @@ def critic_state_runs_table(records: Records) -> str:
     )
     header = ("runs with the critic that reads the state", "starts finished of 13", "all", "runs losing any")
     return markdown_table(
-        (*header, "protocol's starts", "lap: mean +- std", "wall contact per lap (the seeds' medians)"), body
+        (*header, "protocol's starts", "lap: mean ± std", "wall contact per lap (the seeds' medians)"), body
     )
 
 
