@@ -4,6 +4,7 @@ incremental files, one update, save/load, the protocol driver and a tiny train-d
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -196,6 +197,8 @@ def test_train_ddpg_tiny_run_evaluates_saves_and_resumes(gl_available, track, tm
     result = train_ddpg(from_flat(TrainDDPGConfig, base))
     assert result["num_steps"] == 24 and result["n_updates"] > 0 and not result["interrupted"]
     assert result["last_eval"]["distance_m"] > 10.0  # the actor drove the protocol's car
+    metrics = json.loads((out / "metrics.jsonl").read_text().splitlines()[-1])  # the critic beside the lap
+    assert math.isfinite(metrics["q_mean"]) and metrics["critic_loss"] > 0.0
     side = json.loads((out / "ddpg.json").read_text())
     assert side["counters"]["num_steps"] == 24 and side["hyper"]["variant"] == "asymmetric"
     assert (out / "replay" / "index.json").is_file()

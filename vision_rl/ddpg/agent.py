@@ -666,6 +666,8 @@ class DDPGAgent:
             n_cars, len(self.action_low), hyper.ou_theta, hyper.ou_sigma, hyper.ou_mu, hyper.ou_dt, seed=seed
         )
         self.n_updates = 0
+        self.last_update: dict[str, torch.Tensor] = {}
+        """The latest update's losses and mean target Q (0-d tensors; empty before the first update)."""
         # The targets' tensors and their online twins, floats (lerped) apart from counters (copied), for one
         # foreach call each per update in place of one call per tensor.
         pairs = [
@@ -739,7 +741,12 @@ class DDPGAgent:
                 p.requires_grad_(True)
         self.soft_update(h.tau)
         self.n_updates += 1
-        return {"critic_loss": critic_loss.detach(), "actor_loss": actor_loss.detach(), "q_mean": target_q.mean()}
+        self.last_update = {
+            "critic_loss": critic_loss.detach(),
+            "actor_loss": actor_loss.detach(),
+            "q_mean": target_q.mean(),
+        }
+        return self.last_update
 
     @torch.no_grad()
     def soft_update(self, tau: float) -> None:

@@ -4,14 +4,13 @@ its ablations (``--variant symmetric``, ``state-actor``).
 A run folder holds ``ddpg.pt`` (weights, targets, optimisers, noise, counters; no pickle), ``ddpg.json`` (its
 sidecar: variant, environment, hyper-parameters, fingerprint, the weights' SHA-256, counters), ``replay/`` (the
 buffer in chunk files, only changed chunks rewritten), ``metrics.jsonl`` (one line per periodic evaluation through
-the lap-time protocol) and ``episodes.jsonl`` (one line per finished training episode: return, steps, distance,
-laps, why it ended). What survives a kill: the agent is saved every ``checkpoint_every_min`` minutes (light: no
-buffer) and, with the buffer, every ``checkpoint_every_steps``; Ctrl-C (and SIGTERM, which the command maps to it)
-saves everything and returns. ``--resume`` continues with the stored agent and buffer (without a saved buffer it
-collects ``learning_starts`` transitions before updating again) and cuts ``episodes.jsonl`` back to the
-checkpoint's episodes. ``--train-minutes`` bounds the run's training time over all its sessions, for comparisons at
-equal wall-clock.
-"""
+the lap-time protocol, with the critic's latest mean Q and loss) and ``episodes.jsonl`` (one line per finished
+training episode: return, steps, distance, laps, why it ended). What survives a kill: the agent is saved every
+``checkpoint_every_min`` minutes (light: no buffer) and, with the buffer, every ``checkpoint_every_steps``; Ctrl-C
+(and SIGTERM, which the command maps to it) saves everything and returns. ``--resume`` continues with the stored
+agent and buffer (without a saved buffer it collects ``learning_starts`` transitions before updating again) and cuts
+``episodes.jsonl`` back to the checkpoint's episodes. ``--train-minutes`` bounds the run's training time over all
+its sessions, for comparisons at equal wall-clock."""
 
 from __future__ import annotations
 
@@ -213,6 +212,9 @@ class _Run:
             "wall_contact_s": None if summary["best_lap"] is None else summary["best_lap"]["wall_contact_s"],
             "limit_lap_time_s": summary["limit_lap_time_s"],
             "eval_time_s": round(eval_time, 2),
+            # The critic at this point (its latest update's batch): a mean Q far above the largest reward over
+            # (1 - gamma) is a critic that has diverged (docs/notes/ddpg.md).
+            **{key: float(agent.last_update[key]) if agent.last_update else None for key in ("q_mean", "critic_loss")},
         }
         with open(self.out / METRICS_NAME, "a") as f:
             f.write(json_text(record) + "\n")
