@@ -43,8 +43,14 @@ def test_drive_runs_the_protocol_and_refuses_other_drivers(small_track, capsys, 
     assert result["protocol"]["version"] == 1 and result["n_finished"] == 1
     assert result["driver"] == {"driver": "built-in AI", "skill": 0.92, "disrupted": False}
     assert (tmp_path / "ai.png").read_bytes()[:4] == b"\x89PNG"
-    with pytest.raises(ValueError, match="only 'ai'"):
+    with pytest.raises(ValueError, match="ai or straight"):
         run_drive(DriveOptions(driver="human"))
+    with pytest.raises(ValueError, match="the straight driver has neither"):
+        run_drive(DriveOptions(driver="straight", skill=0.8))
+    assert run_drive(DriveOptions(track=small_track, driver="straight", seeds=1, laps=1, json=True)) == 0
+    straight = json.loads(capsys.readouterr().out)
+    assert straight["driver"] == {"driver": "straight", "steer_rad": 0.0, "omega": 1.0}
+    assert straight["seeds"][0]["distance_m"] > 50.0  # full throttle from the rolling start
 
 
 def test_an_experiment_prints_its_last_and_its_chosen_weights():

@@ -339,3 +339,21 @@ def test_the_default_run_folder_is_under_runs_ddpg_with_the_track_path_flattened
     run = _Run(TrainDDPGConfig(variant="state-actor", env=_env(track)))
     assert run.out.parent == Path("runs/ddpg")
     assert run.out.name == f"state-actor-{track.replace(os.sep, '_')}-gt3-s0" and run.out.is_dir()
+
+
+def test_the_diagnosis_tells_a_diverged_critic_and_saturated_keys(track):
+    """A fresh state actor passes every key's gradient and its critic is near 0; an output bias of 10 saturates a
+    pedal, and a critic whose output is lifted past the most any policy earns is called diverged."""
+    from vision_rl.ddpg.diagnose import critic_and_keys
+
+    torch.set_num_threads(1)
+    agent = DDPGAgent(DDPGHyper(variant="state-actor", pedal_activation="sigmoid"), _env(track, frames=False), seed=0)
+    fresh = critic_and_keys(agent, starts=8)
+    assert not fresh["diverged"] and abs(fresh["q_mean"]) < fresh["q_bound"] / 100
+    assert all(key["saturated_share"] == 0.0 for key in fresh["keys"].values())
+    with torch.no_grad():
+        agent.actor.head.out.bias[3] = 10.0  # brake
+        agent.critic.merge[-1].bias += 2 * fresh["q_bound"]
+    broken = critic_and_keys(agent, starts=8)
+    assert broken["diverged"] and broken["keys"]["brake"]["saturated_share"] == 1.0
+    assert broken["keys"]["accelerate"]["saturated_share"] == 0.0

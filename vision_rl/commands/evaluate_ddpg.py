@@ -131,3 +131,53 @@ def run_compare_ddpg(opts: CompareDDPGOptions) -> int:
     write_json(result["json"], sealed_record(result))  # `vision-rl report` reads it: sealed, as every record is
     emit(result, opts.json, format_compare)
     return 0
+
+
+@dataclass(frozen=True)
+class DiagnoseDDPGOptions:
+    """Whether trained DDPG agents' critics have diverged (mean Q above the most any policy can earn) and their
+    actors' keys saturated, over episode starts of each agent's own task (JSON record)."""
+
+    runs: str = ""
+    """train-ddpg run folders (or their ddpg.pt), comma-separated (required)."""
+    starts: int = 64
+    """Episode starts (the agent's own start rule) the critic and the actor are read at."""
+    seed: int = 0
+    """Seed of the start points."""
+    out: str = "ddpg_diagnosis.json"
+    """The record (JSON): each run's Q against its bound and each key's pre-activation."""
+    json: bool = False
+    """Print the result as JSON."""
+
+
+def format_diagnosis(result: dict) -> list[str]:
+    lines = []
+    for r in result["runs"]:
+        saturated = ", ".join(f"{k} {v['saturated_share']:.0%}" for k, v in r["keys"].items())
+        state = "DIVERGED" if r["diverged"] else "bounded"
+        drive = r["protocol_start"]
+        lines.append(
+            f"  {r['name']:<20} critic {state}: mean Q {r['q_mean']:,.0f} (max {r['q_max']:,.0f}) against a bound "
+            f"of {r['q_bound']:,.0f}; keys saturated: {saturated}; protocol start 0: {drive['laps']} laps in "
+            f"{drive['time_s']:.0f} s, wheels straight {drive['wheels_straight_share']:.0%}, full throttle "
+            f"{drive['full_throttle_share']:.0%}, on the walls {drive['wall_contact_share']:.0%}"
+        )
+    return [*lines, f"record: {result['json']}"]
+
+
+def run_diagnose_ddpg(opts: DiagnoseDDPGOptions) -> int:
+    from pathlib import Path
+
+    from vision_rl.ddpg.diagnose import diagnose_agent
+    from vision_rl.files import sealed_record, write_json
+
+    runs = comma_paths(opts.runs)
+    if opts.starts < 1:
+        raise ValueError(f"--starts must be >= 1, got {opts.starts}")
+    result = {
+        "runs": [{"name": Path(run).name, **diagnose_agent(run, opts.starts, opts.seed)} for run in runs],
+        "json": opts.out,
+    }
+    write_json(opts.out, sealed_record(result))
+    emit(result, opts.json, format_diagnosis)
+    return 0

@@ -152,6 +152,12 @@ COMMANDS: dict[str, Command] = {
         "CompareDDPGOptions",
         "run_compare_ddpg",
     ),
+    "diagnose-ddpg": Command(
+        "DDPG agents: a diverged critic, saturated keys",
+        f"{_C}.evaluate_ddpg",
+        "DiagnoseDDPGOptions",
+        "run_diagnose_ddpg",
+    ),
     "ddpg-reference": Command(
         "our DDPG beside SB3's DDPG and TD3 on a Gymnasium task",
         f"{_C}.ddpg_reference",

@@ -161,7 +161,10 @@ class _KeyHead(nn.Module):
         self.pedal = torch.relu if pedal_activation == "relu" else torch.sigmoid
 
     def forward(self, h: torch.Tensor) -> torch.Tensor:
-        z = self.out(h)
+        return self.keys(self.out(h))
+
+    def keys(self, z: torch.Tensor) -> torch.Tensor:
+        """The keys of the output layer's pre-activations ``z`` (n, 4)."""
         return torch.stack([self.pedal(z[:, 0]), torch.tanh(z[:, 1]), torch.tanh(z[:, 2]), self.pedal(z[:, 3])], 1)
 
 
@@ -194,7 +197,11 @@ class PixelActor(nn.Module):
         self.head = _KeyHead(300, init_scale, pedal_activation)
 
     def forward(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
-        return self.head(self.dense(self.trunk(obs["image"])))
+        return self.head.keys(self.preactivation(obs))
+
+    def preactivation(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """The output layer's values before the keys' activations (n, 4)."""
+        return self.head.out(self.dense(self.trunk(obs["image"])))
 
 
 class StateActor(nn.Module):
@@ -214,7 +221,11 @@ class StateActor(nn.Module):
         self.head = _KeyHead(300, init_scale, pedal_activation)
 
     def forward(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
-        return self.head(self.dense(self.scaled(obs["motion"], obs["goal"])))
+        return self.head.keys(self.preactivation(obs))
+
+    def preactivation(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """The output layer's values before the keys' activations (n, 4)."""
+        return self.head.out(self.dense(self.scaled(obs["motion"], obs["goal"])))
 
 
 class Critic(nn.Module):
@@ -566,7 +577,7 @@ def load_replay(buffer: FrameReplay, folder: str | os.PathLike[str], fingerprint
 # ------------------------------------------------------------------------------------------------ the agent
 
 
-def _to_torch(obs: Mapping[str, np.ndarray], device: torch.device) -> dict[str, torch.Tensor]:
+def to_torch(obs: Mapping[str, np.ndarray], device: torch.device) -> dict[str, torch.Tensor]:
     return {k: torch.as_tensor(np.ascontiguousarray(v), device=device) for k, v in obs.items()}
 
 
@@ -701,7 +712,7 @@ class DDPGAgent:
         """Keys (n, 4) for observations of n cars (eval-mode batch-norm); ``explore`` adds the OU noise (one
         process per car: n must be the agent's n_cars) and clips to the action space."""
         self.actor.eval()
-        keys = self.actor(_to_torch(self.actor_inputs(obs), self.device)).cpu().numpy().astype(np.float64)
+        keys = self.actor(to_torch(self.actor_inputs(obs), self.device)).cpu().numpy().astype(np.float64)
         if explore:
             keys = keys + self.noise()
         return np.clip(keys, self.action_low, self.action_high)

@@ -106,6 +106,20 @@ class BuiltinAI:
         return np.stack([steer, omega], axis=1)[self._ids]
 
 
+class StraightDriver:
+    """Full throttle with the wheels straight, never steering: the floor a learned driver must beat. Our walls keep a
+    car's speed along them, so on some tracks this driver laps, riding the walls (docs/simulator.md)."""
+
+    control_dt_s = AI_CONTROL_DT_S
+    identity = {"driver": "straight", "steer_rad": 0.0, "omega": 1.0}
+
+    def reset(self, world: World, car_ids: np.ndarray) -> None:
+        self._n_cars = len(car_ids)
+
+    def act(self, state: WorldState) -> np.ndarray:
+        return np.tile([0.0, 1.0], (self._n_cars, 1))
+
+
 @dataclass
 class LapRecord:
     """One completed lap."""

@@ -77,7 +77,8 @@ def span_m(distances_m: Iterable[float]) -> str:
 
 
 def reference_table(records: Records) -> str:
-    """The built-in AI's protocol lap and the physical limit of each track and car the papers' tables use."""
+    """The built-in AI's protocol lap and the physical limit of each track and car the papers' tables use, and the
+    straight driver's (full throttle, never steering): the floor a learned driver must beat."""
     rows = []
     for path, pair in (
         (AI_HATCHBACK, "expressway, hatchback"),
@@ -86,13 +87,19 @@ def reference_table(records: Records) -> str:
     ):
         ai_s, limit_s = reference_laps(records, path)
         skill = records(path)["driver"]["skill"]
+        straight_path = path.replace("/ai_", "/straight_")
+        straight = records(straight_path)
+        lap_s, best = straight["best_lap_time_s"], straight["best_lap"]
+        straight_lap = "DNF" if lap_s is None else f"{lap_text(lap_s)} ({best['wall_contact_s']:.0f} s on the walls)"
         rows.append(
             (
                 pair,
                 f"{lap_text(ai_s)} (skill {skill})",
                 lap_text(limit_s),
                 gap_text(ai_s, limit_s),
-                link("record", path),
+                f"{straight_lap}, {straight['n_finished']} of {straight['n_seeds']} starts",
+                f"{link('record', path)}, {link('record', straight_path)}",
             )
         )
-    return markdown_table(("track, car", "built-in AI", "physical limit", "the AI above the limit", "record"), rows)
+    header = ("track, car", "built-in AI", "physical limit", "the AI above the limit", "straight driver", "records")
+    return markdown_table(header, rows)
