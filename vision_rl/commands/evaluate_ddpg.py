@@ -158,8 +158,8 @@ def format_diagnosis(result: dict) -> list[str]:
         drive = r["protocol_start"]
         lines.append(
             f"  {r['name']:<20} critic {state}: mean Q {r['q_mean']:,.0f} (max {r['q_max']:,.0f}) against a bound "
-            f"of {r['q_bound']:,.0f}; keys saturated: {saturated}; protocol start 0: {drive['laps']} laps in "
-            f"{drive['time_s']:.0f} s, wheels straight {drive['wheels_straight_share']:.0%}, full throttle "
+            f"of {r['q_bound']:,.0f}; keys saturated: {saturated}; the protocol's {drive['seeds']} starts: laps "
+            f"{drive['laps']}, wheels straight {drive['wheels_straight_share']:.0%}, full throttle "
             f"{drive['full_throttle_share']:.0%}, on the walls {drive['wall_contact_share']:.0%}"
         )
     return [*lines, f"record: {result['json']}"]

@@ -74,25 +74,28 @@ def critic_and_keys(agent: DDPGAgent, starts: int, seed: int = 0) -> dict[str, A
     }
 
 
-def protocol_controls(agent: DDPGAgent, seed: int = 0) -> dict[str, Any]:
-    """How the deterministic actor drives the protocol's start ``seed`` (its two laps or until it stops): the share
-    of steps with the wheels straight (under 0.01 rad) and at full throttle, the mean steering angle and the share in
-    wall contact. A driver at full throttle with the wheels straight is the straight driver, whose laps the walls
-    steer (`vision-rl drive --driver straight`)."""
+def protocol_controls(agent: DDPGAgent, seeds: int = 3) -> dict[str, Any]:
+    """How the deterministic actor drives the protocol's starts (``seeds`` at once, as ``evaluate-ddpg`` drives them:
+    a pixel actor's lap depends on the batch it is acted in): per start, the laps it completed, and over all their
+    steps the share with the wheels straight (under 0.01 rad) and at full throttle, the mean steering angle and the
+    share in wall contact. A driver at full throttle with the wheels straight is the straight driver, whose laps the
+    walls steer (`vision-rl drive --driver straight`)."""
     from vision_rl.evaluation.protocol import time_laps
 
     driver = DDPGDriver(agent)
     try:
-        timing = time_laps(driver, agent.env.track, agent.env.car, [seed], 2, record=True)
+        timing = time_laps(driver, agent.env.track, agent.env.car, range(seeds), 2, record=True)
     finally:
         driver.close()
-    steer_rad, omega = timing.steer_rad[:, 0], timing.omega[:, 0]
+    # Recorded steps past a start's end repeat its last pose: count each start's own steps only.
+    own = timing.time_s[:, None] <= np.array([run.time_s for run in timing.runs])[None, :] + 1e-9
+    steer_rad, omega = timing.steer_rad[own], timing.omega[own]
     return {
-        "seed": seed,
-        "time_s": float(timing.time_s[-1]),
-        "laps": len(timing.runs[0].laps),
+        "seeds": seeds,
+        "laps": [len(run.laps) for run in timing.runs],
+        "time_s": [run.time_s for run in timing.runs],
         "steer_abs_mean_rad": float(np.abs(steer_rad).mean()),
         "wheels_straight_share": float(np.mean(np.abs(steer_rad) < 0.01)),
         "full_throttle_share": float(np.mean(omega > 0.99)),
-        "wall_contact_share": float(timing.wall_contact[:, 0].mean()),
+        "wall_contact_share": float(timing.wall_contact[own].mean()),
     }

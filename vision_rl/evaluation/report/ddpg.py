@@ -16,6 +16,10 @@ DDPG_COMPARE = "ddpg-equal-compute/compare.json"
 DDPG_VARIANTS = ("asymmetric", "symmetric", "state-actor")
 DDPG_STATE_ACTOR_DIR = "ddpg-state-actor-catalunya-gt3"
 DDPG_STATE_ACTOR = f"{DDPG_STATE_ACTOR_DIR}/evaluation-crashgo50k-s{{seed}}.json"
+#: diagnose-ddpg's records: each run's critic against its bound, its keys, and how it drives the protocol.
+DDPG_DIAGNOSES = ("ddpg-equal-compute/diagnosis.json", f"{DDPG_STATE_ACTOR_DIR}/diagnosis.json")
+#: The straight driver (full throttle, never steering) through the protocol on Catalunya in the gt3.
+STRAIGHT_GT3 = "reference-laps/straight_catalunya_gt3.json"
 
 
 def _best_lap(evaluations: dict[str, str], records: Records, limit_s: float) -> tuple[str | None, str]:
@@ -71,8 +75,35 @@ def ddpg_table(records: Records) -> str:
         ),
     ]
     rows.append(_ddpg_state_actor_row(records, ai_s, limit_s))
+    rows.append(_straight_row(records, ai_s, limit_s))
     return markdown_table(
         ("result", "paper (Project Cars 2)", "ours", "built-in AI", "physical limit", "command"), rows
+    )
+
+
+def _straight_row(records: Records, ai_s: float, limit_s: float) -> tuple[str, ...]:
+    """The straight driver's lap (full throttle, the wheels straight) and how the DDPG runs that lap drive: each
+    lapping run's share of protocol steps with the wheels straight, from the diagnosis records."""
+    straight = records(STRAIGHT_GT3)
+    lap_s, wall_s = straight["best_lap_time_s"], straight["best_lap"]["wall_contact_s"]
+    lapping = [
+        run["protocol_start"]
+        for path in DDPG_DIAGNOSES
+        for run in records(path)["runs"]
+        if any(run["protocol_start"]["laps"])
+    ]
+    straight_shares = [run["wheels_straight_share"] for run in lapping]
+    diagnoses = ", ".join(link("diagnosis", path) for path in DDPG_DIAGNOSES)
+    return (
+        "the straight driver: full throttle with the wheels straight, no learning (the floor)",
+        "-",
+        f"**{lap_text(lap_s)}** ({gap_text(lap_s, limit_s)} on the limit, {wall_s:.1f} s of wall contact: the walls "
+        f"steer it), {straight['n_finished']}/{straight['n_seeds']} starts ({link('record', STRAIGHT_GT3)}); every "
+        f"DDPG run above that laps drives so: {len(lapping)} runs, the wheels straight on "
+        f"{100 * min(straight_shares):.0f}-{100 * max(straight_shares):.0f} % of their steps ({diagnoses})",
+        lap_text(ai_s),
+        lap_text(limit_s),
+        "`vision-rl drive --driver straight`, `vision-rl diagnose-ddpg`",
     )
 
 
@@ -193,6 +224,10 @@ DDPG_STATE_ACTOR_SCREENS: dict[str, tuple[tuple[str, ...], tuple[tuple[str, tupl
     "ddpg-state-actor-body": (
         ("training seed", "10,000 transitions: starts finished", "20,000 transitions"),
         tuple((f"{seed}", (f"evaluation-body10k-s{seed}", f"evaluation-body20k-s{seed}")) for seed in (0, 1, 2)),
+    ),
+    "ddpg-state-actor-truncate": (
+        ("training seed", "the stuck end a termination (beta 10, 50,000 transitions)", "a truncation (bootstrapped)"),
+        tuple((f"{seed}", (f"evaluation-crashgo50k-s{seed}", f"evaluation-trunc50k-s{seed}")) for seed in (0, 1, 2)),
     ),
     "ddpg-state-actor-crashgo": (
         ("training seed", "beta 10, 10,000 transitions: starts finished", "30,000", "50,000", "beta 0, 50,000"),
