@@ -14,6 +14,8 @@ OVERTAKING_PAPER = "papers/gts-overtaking-curriculum-sac.json"
 TABLE3 = "table3-expressway-tt_cup/table3.json"
 SETTINGS = "overtaking-expressway-tt_cup/{agents}_setting_{setting}.json"
 CURRICULUM_CURVES = "overtaking-expressway-tt_cup/learning_curves_num_timesteps.json"
+#: The straight driver (full throttle, never steering) through the protocol on Table III's track and car.
+STRAIGHT_TT_CUP = "reference-laps/straight_expressway_tt_cup.json"
 OPPONENT_SKILL = "overtaking-expressway-tt_cup/opponent-skill/skill-{skill}/overtaking_setting_{setting}.json"
 
 #: GAIL on the DART-style demonstrations, timed alone (issue 65): a table3 record of its own.
@@ -75,6 +77,7 @@ def table3_summary_table(records: Records, path: str = TABLE3) -> str:
                 "-" if row["wall_contact_s"] is None else f"{row['wall_contact_s']:.1f}",
             )
         )
+    rows.append(_straight_row(records))
     header = (
         "driver",
         "lap 2, s (best start)",
@@ -85,7 +88,24 @@ def table3_summary_table(records: Records, path: str = TABLE3) -> str:
         "starts finished",
         "wall contact, s per lap (best start)",
     )
-    return markdown_table(header, rows) + f"\nRecord: {link(path.rsplit('/', 1)[-1], path)}.\n"
+    records_line = f"Records: {link(path.rsplit('/', 1)[-1], path)}, {link('the straight driver', STRAIGHT_TT_CUP)}."
+    return markdown_table(header, rows) + f"\n{records_line}\n"
+
+
+def _straight_row(records: Records) -> tuple[str, ...]:
+    """The straight driver (full throttle, never steering; the walls steer it) as a row of Table III: the floor."""
+    straight, ai_s = records(STRAIGHT_TT_CUP), reference_laps(records, AI_TT_CUP)[0]
+    lap_s, best = straight["best_lap_time_s"], straight["best_lap"]
+    return (
+        "straight driver (full throttle, never steering: the floor)",
+        "DNF" if lap_s is None else f"{lap_s:.2f}",
+        "-" if lap_s is None else f"{best['avg_speed_kmh']:.1f}",
+        "-" if lap_s is None else f"{lap_s / ai_s:.3f}",
+        "-",
+        "-",
+        f"{straight['n_finished']}/{straight['n_seeds']}",
+        "-" if lap_s is None else f"{best['wall_contact_s']:.1f}",
+    )
 
 
 def table3_runs_table(records: Records, path: str = TABLE3) -> str:
