@@ -39,6 +39,7 @@ def test_a_python_agent_is_timed_from_the_command_line_and_listed_by_its_name(sm
     rows = json.loads(capsys.readouterr().out)["rows"]
     assert [(r["name"], r["kind"]) for r in rows] == [
         ("built-in AI (default skill)", "ai"),
+        ("straight driver (full throttle, no steering)", "straight"),
         ("half throttle", "agent (state)"),
     ]
 

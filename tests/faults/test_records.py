@@ -46,13 +46,15 @@ def test_an_edited_lap_is_refused_and_one_under_the_limit_never_tops_the_table(t
     _store(_edited(timed, 59.999, reseal=False), path)
     result = lb.leaderboard(small_track, "hatchback", str(runs))
     (refused,) = result["refused"]
-    assert "evaluation.json: the evaluation record has content SHA-256" in refused and len(result["rows"]) == 1
+    assert (
+        "evaluation.json: the evaluation record has content SHA-256" in refused and len(result["rows"]) == 2
+    )  # the AI and the straight driver
     fault.refused("evaluation.json's best lap edited to 59.999 s", refused)
     fast_s = 0.5 * result["limit_lap_time_s"]  # the 59.999 s on the expressway: -52.6 % of its limit
     _store(_edited(timed, fast_s, reseal=True), path)
     result = lb.leaderboard(small_track, "hatchback", str(runs))
     (refused,) = result["refused"]
-    assert "50.0 % under the physical limit" in refused and [r["kind"] for r in result["rows"]] == ["ai"]
+    assert "50.0 % under the physical limit" in refused and [r["kind"] for r in result["rows"]] == ["ai", "straight"]
     fault.refused("evaluation.json (sealed anew) with a lap 50 % under the physical limit", refused)
 
 

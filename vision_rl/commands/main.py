@@ -42,7 +42,12 @@ COMMANDS: dict[str, Command] = {
         "run_tracks",
     ),
     "limit": Command("physical-limit (QSS) lap time of a car", f"{_C}.limit", "LimitOptions", "run_limit"),
-    "drive": Command("the built-in AI through the lap-time protocol", f"{_C}.drive", "DriveOptions", "run_drive"),
+    "drive": Command(
+        "the built-in AI (or the straight driver) through the lap-time protocol",
+        f"{_C}.drive",
+        "DriveOptions",
+        "run_drive",
+    ),
     "bench sim": Command("simulator throughput", f"{_C}.bench", "BenchSimOptions", "run_bench_sim"),
     "bench env": Command("environment throughput", f"{_C}.bench", "BenchEnvOptions", "run_bench_env"),
     "bench ddpg": Command("DDPG updates/s per variant and layout", f"{_C}.bench", "BenchDDPGOptions", "run_bench_ddpg"),
@@ -95,7 +100,10 @@ COMMANDS: dict[str, Command] = {
     ),
     "evaluate": Command("a policy through the lap-time protocol", f"{_C}.evaluate", "EvaluateOptions", "run_evaluate"),
     "leaderboard": Command(
-        "lap-time table: AI, limit, policies (Table 1)", f"{_C}.evaluate", "LeaderboardOptions", "run_leaderboard"
+        "lap-time table: AI, straight driver, limit, policies (Table 1)",
+        f"{_C}.evaluate",
+        "LeaderboardOptions",
+        "run_leaderboard",
     ),
     "convert-policy": Command(
         "a run of an older policy format to this one (SB3 zip to no pickle; sealed with content hashes)",

@@ -21,7 +21,7 @@ import statistics
 from pathlib import Path
 from typing import Any
 
-from vision_rl.evaluation.protocol import PROTOCOL_VERSION, BuiltinAI, LapTiming, time_laps
+from vision_rl.evaluation.protocol import PROTOCOL_VERSION, BuiltinAI, LapTiming, StraightDriver, time_laps
 from vision_rl.files import CONTENT_KEY, content_damage, content_sha256, parse_json
 
 EVALUATION_FORMAT = "vision_rl.evaluation"
@@ -274,9 +274,9 @@ def find_evaluations(runs: str | os.PathLike[str]) -> tuple[list[dict[str, Any]]
 
 
 def leaderboard(track: str = "expressway", car: str = "hatchback", runs: str = "runs") -> dict[str, Any]:
-    """The table for (track, car): the limit, the built-in AI at its default skill and every policy evaluated on
-    them under ``runs``, fastest first; DNF rows last. A row more than :data:`LIMIT_TOLERANCE_PCT` under the limit
-    is refused, naming its file."""
+    """The table for (track, car): the limit, the built-in AI at its default skill, the straight driver (the floor a
+    learner must beat) and every policy evaluated on them under ``runs``, fastest first; DNF rows last. A row more
+    than :data:`LIMIT_TOLERANCE_PCT` under the limit is refused, naming its file."""
     if Path(runs).exists() and not Path(runs).is_dir():  # a file here gave the AI's row alone, without a word
         raise RecordError(f"--runs {runs} is a file, not the folder of runs to search for evaluation.json")
     ai = time_laps(BuiltinAI(), track, car, seeds=AI_SEEDS)
@@ -296,7 +296,11 @@ def leaderboard(track: str = "expressway", car: str = "hatchback", runs: str = "
         if (record["track_geometry_hash"], record["car"]) == ours:
             candidates.append({**row(record, row_kind(record["driver"])), "evaluation_json": record["evaluation_json"]})
     candidates += [r for e in experiments for r in experiment_rows(e) if (r["track_geometry_hash"], r["car"]) == ours]
-    rows = [row(ai_record, "ai")]
+    straight = time_laps(StraightDriver(), track, car, seeds=AI_SEEDS)
+    straight_record = evaluation_record(
+        straight, StraightDriver.identity, "straight driver (full throttle, no steering)"
+    )
+    rows = [row(ai_record, "ai"), row(straight_record, "straight")]  # the floor: the walls steer it round
     for r in candidates:
         problem = limit_problem(r["lap_time_s"], limit_s)
         if problem is None:

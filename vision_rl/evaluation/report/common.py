@@ -86,7 +86,11 @@ def reference_table(records: Records) -> str:
         (AI_GT3, "Catalunya, gt3"),
     ):
         ai_s, limit_s = reference_laps(records, path)
-        skill = records(path)["driver"]["skill"]
+        ai = (
+            f"{lap_text(ai_s)} (skill {records(path)['driver']['skill']})",
+            lap_text(limit_s),
+            gap_text(ai_s, limit_s),
+        )
         straight_path = path.replace("/ai_", "/straight_")
         straight = records(straight_path)
         lap_s, best = straight["best_lap_time_s"], straight["best_lap"]
@@ -94,9 +98,7 @@ def reference_table(records: Records) -> str:
         rows.append(
             (
                 pair,
-                f"{lap_text(ai_s)} (skill {skill})",
-                lap_text(limit_s),
-                gap_text(ai_s, limit_s),
+                *ai,
                 f"{straight_lap}, {straight['n_finished']} of {straight['n_seeds']} starts",
                 f"{link('record', path)}, {link('record', straight_path)}",
             )
