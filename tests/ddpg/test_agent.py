@@ -343,7 +343,7 @@ def test_the_default_run_folder_is_under_runs_ddpg_with_the_track_path_flattened
 
 def test_the_diagnosis_tells_a_diverged_critic_and_saturated_keys(track):
     """A fresh state actor passes every key's gradient and its critic is near 0; an output bias of 10 saturates a
-    pedal, and a critic whose output is lifted past the most any policy earns is called diverged."""
+    pedal, and a critic whose output lies beyond what any policy earns or loses, either side, is called diverged."""
     from vision_rl.ddpg.diagnose import critic_and_keys
 
     torch.set_num_threads(1)
@@ -357,3 +357,6 @@ def test_the_diagnosis_tells_a_diverged_critic_and_saturated_keys(track):
     broken = critic_and_keys(agent, starts=8)
     assert broken["diverged"] and broken["keys"]["brake"]["saturated_share"] == 1.0
     assert broken["keys"]["accelerate"]["saturated_share"] == 0.0
+    with torch.no_grad():
+        agent.critic.merge[-1].bias -= 4 * fresh["q_bound"]  # as far below 0 as no policy can lose
+    assert critic_and_keys(agent, starts=8)["diverged"]

@@ -135,7 +135,7 @@ def run_compare_ddpg(opts: CompareDDPGOptions) -> int:
 
 @dataclass(frozen=True)
 class DiagnoseDDPGOptions:
-    """Whether trained DDPG agents' critics have diverged (mean Q above the most any policy can earn) and their
+    """Whether trained DDPG agents' critics have diverged (mean Q beyond what any policy can earn or lose) and their
     actors' keys saturated, over episode starts of each agent's own task (JSON record)."""
 
     runs: str = ""
@@ -158,7 +158,7 @@ def format_diagnosis(result: dict) -> list[str]:
         drive = r["protocol_start"]
         lines.append(
             f"  {r['name']:<20} critic {state}: mean Q {r['q_mean']:,.0f} (max {r['q_max']:,.0f}) against a bound "
-            f"of {r['q_bound']:,.0f}; keys saturated: {saturated}; the protocol's {drive['seeds']} starts: laps "
+            f"of +-{r['q_bound']:,.0f}; keys saturated: {saturated}; the protocol's {drive['seeds']} starts: laps "
             f"{drive['laps']}, wheels straight {drive['wheels_straight_share']:.0%}, full throttle "
             f"{drive['full_throttle_share']:.0%}, on the walls {drive['wall_contact_share']:.0%}"
         )

@@ -3,9 +3,11 @@ whether the actor's keys have saturated, the two states in which the runs that n
 (docs/notes/ddpg.md).
 
 A critic's Q of a state is a discounted sum of rewards ``r = V - alpha |d| - beta crashState`` (V: the forward speed,
-m/s), so no policy earns more than ``q_bound`` = the fastest speed on the track at the physical limit over
-``1 - gamma``; a mean Q above it is a critic that has diverged. A key is saturated where its pre-activation lies
-beyond +-5: its sigmoid or tanh then passes under 1 % of the critic's gradient, and the actor stops learning it.
+m/s; d: the distance to the racing line, at most ``max_line_distance_m`` before the episode ends; crashState at most
+4), so no Q lies farther from 0 than ``q_bound`` = (the fastest speed on the track at the physical limit + alpha
+max_line_distance_m + 4 beta) over ``1 - gamma``; a mean Q beyond it, either side, is a critic that has diverged. A
+key is saturated where its pre-activation lies beyond +-5: its sigmoid or tanh then passes under 1 % of the critic's
+gradient, and the actor stops learning it.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 import torch
 
 from vision_rl.ddpg.agent import DDPGAgent, DDPGDriver, load_agent, to_torch
-from vision_rl.envs.pixel_racing import PixelRacingCore
+from vision_rl.envs.pixel_racing import CRASH_ROLLING, PixelRacingCore
 
 #: Beyond this pre-activation a key's sigmoid or tanh has under 1 % of its largest slope (4 e^-5 = 0.027 of 0.25 for
 #: a sigmoid; 4 e^-10 of 1 for a tanh).
@@ -43,13 +45,20 @@ def diagnose_agent(run: str | os.PathLike[str], starts: int = 64, seed: int = 0)
 
 
 def critic_and_keys(agent: DDPGAgent, starts: int, seed: int = 0) -> dict[str, Any]:
-    """The critic's mean and largest Q of the actor's own keys against ``q_bound``, and each key's pre-activation
-    (mean, spread, share saturated), over ``starts`` episode starts of the agent's task (its start rule)."""
+    """The critic's mean and largest Q of the actor's own keys against ``q_bound`` (the module's docstring), and each
+    key's pre-activation (mean, spread, share saturated), over ``starts`` episode starts of the agent's task (its start
+    rule)."""
     core = PixelRacingCore(dataclasses.replace(agent.env, n_cars=starts), seed=seed)
     try:
         core.reset_cars(core.ids)
         obs = core.observation()
-        q_bound = core.profile.max_speed_mps / (1.0 - agent.hyper.gamma)
+        env = agent.env
+        largest_reward = (
+            core.profile.max_speed_mps
+            + env.line_distance_alpha * env.max_line_distance_m
+            + env.crash_penalty_beta * CRASH_ROLLING
+        )
+        q_bound = largest_reward / (1.0 - agent.hyper.gamma)
     finally:
         core.close()
     agent.actor.eval()
@@ -62,7 +71,7 @@ def critic_and_keys(agent: DDPGAgent, starts: int, seed: int = 0) -> dict[str, A
         "q_mean": float(q.mean()),
         "q_max": float(q.max()),
         "q_bound": float(q_bound),
-        "diverged": bool(q.mean() > q_bound),
+        "diverged": bool(abs(q.mean()) > q_bound),
         "keys": {
             key: {
                 "preactivation_mean": float(z[:, i].mean()),

@@ -17,7 +17,11 @@ DDPG_VARIANTS = ("asymmetric", "symmetric", "state-actor")
 DDPG_STATE_ACTOR_DIR = "ddpg-state-actor-catalunya-gt3"
 DDPG_STATE_ACTOR = f"{DDPG_STATE_ACTOR_DIR}/evaluation-crashgo50k-s{{seed}}.json"
 #: diagnose-ddpg's records: each run's critic against its bound, its keys, and how it drives the protocol.
-DDPG_DIAGNOSES = ("ddpg-equal-compute/diagnosis.json", f"{DDPG_STATE_ACTOR_DIR}/diagnosis.json")
+DDPG_DIAGNOSES = (
+    "ddpg-equal-compute/diagnosis.json",
+    f"{DDPG_STATE_ACTOR_DIR}/diagnosis.json",
+    f"{DDPG_STATE_ACTOR_DIR}/diagnosis-lrswap.json",
+)
 #: The straight driver (full throttle, never steering) through the protocol on Catalunya in the gt3.
 STRAIGHT_GT3 = "reference-laps/straight_catalunya_gt3.json"
 
@@ -228,6 +232,14 @@ DDPG_STATE_ACTOR_SCREENS: dict[str, tuple[tuple[str, ...], tuple[tuple[str, tupl
     "ddpg-state-actor-truncate": (
         ("training seed", "the stuck end a termination (beta 10, 50,000 transitions)", "a truncation (bootstrapped)"),
         tuple((f"{seed}", (f"evaluation-crashgo50k-s{seed}", f"evaluation-trunc50k-s{seed}")) for seed in (0, 1, 2)),
+    ),
+    "ddpg-state-actor-lrswap": (
+        (
+            "training seed",
+            "the paper's rates, actor 1e-3 and critic 1e-4 (50,000 transitions)",
+            "Lillicrap et al.'s, actor 1e-4 and critic 1e-3",
+        ),
+        tuple((f"{seed}", (f"evaluation-crashgo50k-s{seed}", f"evaluation-lrswap50k-s{seed}")) for seed in (0, 1, 2)),
     ),
     "ddpg-state-actor-crashgo": (
         ("training seed", "beta 10, 10,000 transitions: starts finished", "30,000", "50,000", "beta 0, 50,000"),
