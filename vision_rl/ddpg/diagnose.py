@@ -1,6 +1,5 @@
-"""A trained DDPG agent's critic and actor looked at where its episodes start: whether the critic has diverged and
-whether the actor's keys have saturated, the two states in which the runs that never lapped ended
-(docs/notes/ddpg.md).
+"""A trained DDPG agent's critic and actor looked at where its episodes start (whether the critic has diverged,
+whether the actor's keys have saturated) and at how it drives the protocol (docs/notes/ddpg.md).
 
 A critic's Q of a state is a discounted sum of rewards ``r = V - alpha |d| - beta crashState`` (V: the forward speed,
 m/s; d: the distance to the racing line, at most ``max_line_distance_m`` before the episode ends; crashState at most
@@ -30,7 +29,7 @@ KEYS = ("accelerate", "left", "right", "brake")
 
 def diagnose_agent(run: str | os.PathLike[str], starts: int = 64, seed: int = 0) -> dict[str, Any]:
     """A saved agent's critic and keys at ``starts`` episode starts of its own task (:func:`critic_and_keys`) and how
-    it drives the protocol's first start (:func:`protocol_controls`)."""
+    it drives the protocol's starts (:func:`protocol_controls`)."""
     if starts < 1:
         raise ValueError(f"starts must be >= 1, got {starts}")
     agent = load_agent(run)
