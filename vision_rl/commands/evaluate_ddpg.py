@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 from vision_rl.commands.choices import DDPG_VARIANTS
@@ -140,8 +140,8 @@ class DiagnoseDDPGOptions:
 
     runs: str = ""
     """train-ddpg run folders (or their ddpg.pt), comma-separated (required)."""
-    starts: int = 64
-    """Episode starts (the agent's own start rule) the critic and the actor are read at."""
+    starts: int = field(default=64, metadata={"max": 4096})
+    """Episode starts (the agent's own start rule) the critic and the actor are read at, each a car of one world."""
     seed: int = 0
     """Seed of the start points."""
     out: str = "ddpg_diagnosis.json"
