@@ -35,7 +35,9 @@ def test_the_lanes_run_each_variant_and_seed_once_at_one_training_time() -> None
 
 
 def test_a_screen_lane_trains_a_state_actor_then_times_that_run():
-    assert len(SCREENS) == 3
+    """Two screens of three training seeds each: the stuck end as a truncation, and Lillicrap et al.'s learning rates
+    (each on the crash-goes-on task, one question each)."""
+    runs = []
     for lane in SCREENS:
         (train, evaluate) = _lines(lane)
         run = parse_command("train-ddpg", [os.path.expanduser(w) for w in train[1:]])
@@ -46,4 +48,10 @@ def test_a_screen_lane_trains_a_state_actor_then_times_that_run():
             "state-actor",
             run.out,
         )
-        assert run.env.truncate_when_stuck and not run.env.terminate_on_crash
+        assert not run.env.terminate_on_crash and run.env.crash_penalty_beta == 10.0
+        runs.append(run)
+    truncate = sorted(r.seed for r in runs if r.env.truncate_when_stuck and r.hyper.actor_lr == 1e-3)
+    rates = sorted(
+        r.seed for r in runs if not r.env.truncate_when_stuck and (r.hyper.actor_lr, r.hyper.critic_lr) == (1e-4, 1e-3)
+    )
+    assert truncate == rates == [0, 1, 2] and len({r.out for r in runs}) == 6
