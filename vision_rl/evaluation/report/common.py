@@ -54,6 +54,11 @@ def markdown_table(header: Iterable[str], rows: Iterable[Iterable[str]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def bold_if(text: str, bold: bool) -> str:
+    """``text`` in bold where its row is the one its section is about."""
+    return f"**{text}**" if bold else text
+
+
 def link(text: str, relative_path: str) -> str:
     return f"[{text}]({RESULTS}{relative_path})"
 

@@ -13,6 +13,7 @@ from typing import Any
 
 from vision_rl.evaluation.report.common import (
     AI_HATCHBACK,
+    bold_if,
     faster_text,
     gap_text,
     lap_text,
@@ -115,10 +116,6 @@ def _laps(rows: list[dict[str, Any]], best: bool) -> tuple[float, str]:
     return summary["mean_s"], f"{lap_text(summary['mean_s'])}{spread}{lapped}"
 
 
-def _bold(text: str, bold: bool) -> str:
-    return f"**{text}**" if bold else text
-
-
 def training_minutes(records: Records, paths: Iterable[str]) -> str:
     """The training time of each seed in learning-curve records (its last periodic evaluation), ``53-59 min``."""
     return span_text(
@@ -133,7 +130,7 @@ def recipe_row(records: Records, recipe: Recipe, limit_s: float, ai_s: float) ->
         return (f"{recipe.label} {study}".rstrip(), "", "", "")
     sets = [(seeds, seed_rows(records, seeds)) for seeds in recipe.sets]
     laps = [_laps(rows, recipe.best) for _, rows in sets]
-    label = _bold(recipe.label, recipe.bold)
+    label = bold_if(recipe.label, recipe.bold)
     if len(sets) == 1 and not recipe.best and not sets[0][0].name:
         curves = f"{training_minutes(records, recipe.curves)} of training per seed" if recipe.curves else ""
         notes = (seeds_details(sets[0][1], sets[0][0].selected), curves, study)
@@ -144,9 +141,9 @@ def recipe_row(records: Records, recipe: Recipe, limit_s: float, ai_s: float) ->
         label += f" ({study})" if study else ""
     return (
         label,
-        _bold(" / ".join(text for _, text in laps), recipe.bold),
-        _bold(" / ".join(gap_text(lap_s, limit_s) for lap_s, _ in laps), recipe.bold),
-        _bold(" / ".join(gap_text(lap_s, ai_s) for lap_s, _ in laps), recipe.bold),
+        bold_if(" / ".join(text for _, text in laps), recipe.bold),
+        bold_if(" / ".join(gap_text(lap_s, limit_s) for lap_s, _ in laps), recipe.bold),
+        bold_if(" / ".join(gap_text(lap_s, ai_s) for lap_s, _ in laps), recipe.bold),
     )
 
 
@@ -319,7 +316,7 @@ def seeds_table(records: Records, recipes: tuple[Recipe, ...], gaps: bool = Fals
             "",
             *((gap_text(lap_s, limit_s), gap_text(lap_s, ai_s)) if gaps else ()),
         )
-        rows.append(tuple(_bold(cell, recipe.bold) if cell else cell for cell in cells))
+        rows.append(tuple(bold_if(cell, recipe.bold) if cell else cell for cell in cells))
     return markdown_table(header, rows)
 
 
@@ -373,7 +370,7 @@ def selection_table(records: Records, recipes: tuple[Recipe, ...], held_out: str
             for selected in (False, True)
         ]
         label = f"{recipe.label} ({_links(recipe)})"
-        rows.append(tuple(_bold(c, recipe.bold) for c in (label, *cells)) + ("",) * (1 + bool(held_out)))
+        rows.append(tuple(bold_if(c, recipe.bold) for c in (label, *cells)) + ("",) * (1 + bool(held_out)))
     header = ("seed", "last weights: lap (wall contact)", "chosen weights: lap (wall contact)", "chosen at (steps)")
     return markdown_table(header + (("held-out starts clean at (evaluations)",) if held_out else ()), rows)
 
@@ -439,7 +436,7 @@ def changes_table(records: Records, recipes: tuple[Recipe, ...], columns: tuple[
     for recipe in recipes:
         pooled = [row for seeds in recipe.sets for row in seed_rows(records, seeds)]
         cells = (f"{recipe.label} ({_links(recipe)})", *(cell(records, recipe, pooled) for _, cell in columns))
-        rows.append(tuple(_bold(c, recipe.bold) for c in cells))
+        rows.append(tuple(bold_if(c, recipe.bold) for c in cells))
     return markdown_table(("change", *(header for header, _ in columns)), rows)
 
 

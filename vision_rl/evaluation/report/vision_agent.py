@@ -9,7 +9,7 @@ from dataclasses import dataclass, replace
 from functools import partial
 from typing import Any
 
-from vision_rl.evaluation.report.common import gap_text, lap_text, link, mean_std_s, span_text
+from vision_rl.evaluation.report.common import bold_if, gap_text, lap_text, link, mean_std_s, span_text
 from vision_rl.evaluation.report.records import Records
 from vision_rl.evaluation.report.state import Recipe, Seeds, driver_table, recipe_row
 from vision_rl.evaluation.report.vision import VISION_25HZ
@@ -22,7 +22,6 @@ from vision_rl.evaluation.report.vision_log import (
     Batch,
     ExperimentRow,
     _batch_extras,
-    _bold,
     _hits_text,
     _seed_rows,
 )
@@ -82,12 +81,12 @@ def batches_row(records: Records, recipe: Batches, limit_s: float, ai_s: float) 
         *(_other_text(records, other) for other in recipe.others),
         *([link("study", recipe.study)] if recipe.study else []),
     ]
-    lap = f"{_bold(_batch_extras(rows, None)['lap'], recipe.bold)} over the {len(rows)} seeds"
+    lap = f"{bold_if(_batch_extras(rows, None)['lap'], recipe.bold)} over the {len(rows)} seeds"
     return (
-        f"{_bold(recipe.label, recipe.bold)} ({'; '.join(notes)})",
+        f"{bold_if(recipe.label, recipe.bold)} ({'; '.join(notes)})",
         f"{lap} (best seed {lap_text(min(laps_s))})",
         gap_text(mean_s, limit_s),
-        _bold(gap_text(mean_s, ai_s), recipe.bold),
+        bold_if(gap_text(mean_s, ai_s), recipe.bold),
     )
 
 

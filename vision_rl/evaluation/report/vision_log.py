@@ -11,6 +11,7 @@ from typing import Any
 
 from vision_rl.evaluation.report.common import (
     AI_HATCHBACK,
+    bold_if,
     faster_text,
     lap_text,
     link,
@@ -34,11 +35,6 @@ def _dig(record: Any, keys: Iterable[str]) -> Any:
     for key in keys:
         record = record[key]
     return record
-
-
-def _bold(text: str, bold: bool) -> str:
-    """``text`` in bold where the row is the one its section is about."""
-    return f"**{text}**" if bold else text
 
 
 def _protocol_of_3(section: dict[str, Any], chosen: tuple[str, ...]) -> dict[int, tuple[int, float | None]]:
@@ -115,9 +111,9 @@ def _starts_row(
     bold = options.get("bold", False)
     ai_s = reference_laps(records, AI_HATCHBACK)[0] if options.get("ai") else None
     figures = _batch_extras(rows, ai_s) if extras else {}
-    all_starts = _bold(f"{sum(by_seed.values())}/{13 * len(by_seed)}", bold)
+    all_starts = bold_if(f"{sum(by_seed.values())}/{13 * len(by_seed)}", bold)
     cells = [str(by_seed[s]) if s in by_seed else "" for s in seeds]
-    return [_bold(label, bold), *cells, all_starts, *(_bold(figures[e], bold and e == "lap") for e in extras)]
+    return [bold_if(label, bold), *cells, all_starts, *(bold_if(figures[e], bold and e == "lap") for e in extras)]
 
 
 def _choice_row(
@@ -471,17 +467,17 @@ def _experiment_cells(records: Records, row: ExperimentRow) -> dict[str, str]:
     walls_s = [seed["wall_contact_s"] for seed in per_seed if seed["wall_contact_s"] is not None]
     done, total = summary["finished"].split("/")
     each = "" if done == total else f" ({', '.join(seed['finished'] for seed in per_seed)})"
-    lap = _bold(f"{lap_text(mean_s)} ± {std_s:.2f} s", row.bold)
+    lap = bold_if(f"{lap_text(mean_s)} ± {std_s:.2f} s", row.bold)
     cells = {
         "lap": lap,
         "lap_seeds": f"{lap} ({summary['n_training_seeds_finished']} of {summary['n_training_seeds']} seeds)",
         "best": lap_text(summary["best_lap_time_s"]),
-        "starts": _bold(f"{summary['finished']}{each}", row.bold),
+        "starts": bold_if(f"{summary['finished']}{each}", row.bold),
         "wall_range": f"{min(walls_s):.1f}-{max(walls_s):.1f} s ({summary['wall_contact_mean_s']:.2f} ± "
         f"{summary['wall_contact_std_s']:.2f})",
         "wall_seeds": ", ".join("-" if w is None else f"{w:.2f}" for w in (seed["wall_contact_s"] for seed in per_seed))
         + " s",
-        "ai": _bold(faster_text(mean_s, reference_laps(records, AI_HATCHBACK)[0]), row.bold),
+        "ai": bold_if(faster_text(mean_s, reference_laps(records, AI_HATCHBACK)[0]), row.bold),
     }
     if row.hits or "wall_hits" in per_seed[0]:
         cells["hits"] = _hits_text(records, row, per_seed)
@@ -514,7 +510,7 @@ def experiments_table(records: Records, first: str, rows: Sequence[ExperimentRow
     for row in rows:
         cells = _experiment_cells(records, row)
         links = [link("record", f"{LOG}/{row.file}"), *([link("curves", f"{LOG}/{row.curves}")] if row.curves else [])]
-        body.append((f"{_bold(row.label, row.bold)} ({', '.join(links)})", *(cells[c] for c in columns)))
+        body.append((f"{bold_if(row.label, row.bold)} ({', '.join(links)})", *(cells[c] for c in columns)))
     ai = lap_text(reference_laps(records, AI_HATCHBACK)[0])
     return markdown_table((first, *(EXPERIMENT_HEADERS[c].format(ai=ai) for c in columns)), body)
 
@@ -548,7 +544,7 @@ def steer_share_table(records: Records) -> str:
             (
                 label,
                 f"{', '.join(str(policy['finished']) for policy in policies)} of 13",
-                _bold(arms[key]["finished"], bold),
+                bold_if(arms[key]["finished"], bold),
                 ", ".join(map(lap_text, medians_s)),
             )
         )
