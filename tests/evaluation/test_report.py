@@ -94,6 +94,8 @@ def test_the_committed_records_give_the_tables_figures():
     assert (
         "| 1 | agent 3 | [9/10](RESULTS/overtaking-expressway-tt_cup/seeds/s1/agent3_setting_A.json) | [8/10]" in seeds
     )
+    assert "| A: stuck at 24 s (0 passed); B: stuck at 57 s (0 passed), stuck at 121 s (2 passed) |" in seeds
+    assert "| A: stuck at 30 s (1 passed); B: none |" in seeds  # seed 0's Agent 2 misses once, in A only
     assert (
         "| B (200 m apart) | agent 2 | 10/10 | 5.0 (5-5) | 165.5 ± 30.2 | 114.9 | 0.4 / 6.9 |"
         in tables["overtaking-settings"]

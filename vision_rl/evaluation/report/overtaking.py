@@ -289,15 +289,26 @@ OVERTAKING_SEEDS = {
 }
 
 
+def _missed_runs(driver: dict[str, Any]) -> str:
+    """How each run that did not overtake all five ended: the protocol's reason, when, and the cars passed."""
+    return ", ".join(
+        f"{run['end'].split(':')[0]} at {run['travel_time_s']:.0f} s ({run['overtaken']} passed)"
+        for run in driver["runs"]
+        if not run["all_overtaken"]
+    )
+
+
 def overtaking_seeds_table(records: Records) -> str:
     """Runs with all five overtaken by Agents 2 and 3 in settings A and B, per training seed (issue 65's target: at
-    least 9/10 in each, on every seed)."""
+    least 9/10 in each, on every seed), and how the other runs ended."""
     rows = []
     for (seed, agent), (pattern, name) in OVERTAKING_SEEDS.items():
-        cells = []
+        cells, missed = [], []
         for setting in ("A", "B"):
             path = pattern.format(setting=setting)
             driver = next(d for d in records(path)["drivers"] if d["name"] == name)
             cells.append(link(_driver_cells(driver)[0], path))
-        rows.append((f"{seed}", agent, *cells))
-    return markdown_table(("training seed", "agent", "setting A: all five overtaken", "setting B"), rows)
+            missed.append(f"{setting}: {_missed_runs(driver) or 'none'}")
+        rows.append((f"{seed}", agent, *cells, "; ".join(missed)))
+    header = ("training seed", "agent", "setting A: all five overtaken", "setting B", "the other runs ended")
+    return markdown_table(header, rows)
