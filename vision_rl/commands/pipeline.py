@@ -129,41 +129,11 @@ SIZES: dict[str, PipelineSizes] = {
         state_eval_time_limit_s=30.0,
         vision_eval_time_limit_s=30.0,
     ),
-    # Frames at half the paper's side: training the encoder on 470 x 280 frames ran at about 30 frames/s on one of
-    # these cores, on 236 x 140 at about 230 (measured side by side), which is what fits the quick budget.
-    # On the 8,048 frames of 4 disrupted laps, R^2 on the clean lap was 0.90-0.99 (by target group) after 4 epochs
-    # (86 s) and 0.961-0.997 after 10 (214 s alone; README, Phase 1).
-    # The first layout (before the sampler process and the lap-time protocol), Phase 2 on 2 cores: state 250k steps
-    # in 183 s, which drove lap 2 of the expressway in 2:18.0.
-    # Vision (236 x 140 frames) learns per update much as with 20 cars, and an update costs 36 ms with 10 cars
-    # against 50 ms with 20: with 10 cars it drove one lap after 150k steps (491 s) and two (lap 2 in 2:24.1)
-    # after 200k (648 s; 587 s with the encoder on ONNX Runtime). The whole pipeline took 14.6 min with 150k
-    # vision steps, 15.6-17.1 with 200k and 4 encoder epochs, 17.2 with 10.
-    # Steering: a change of the command within the range usable at the car's speed (rate_scaled). Over 3 training
-    # seeds of 400k state steps it lapped in 2:11.5 (9 of 9 starts) against 2:15.1 with the speed-scaled range
-    # alone and 2:18.6 (6 of 9) with the papers' angle; vision: docs/results/vision-expressway-hatchback.
-    # The vision frames render in a sampler process beside the captures and the state run (28.3 -> 21.6 min on a slow
-    # day); 10 encoder epochs (8 left policies that lost starts). The vision stage, each change measured over the same
-    # 8 training seeds from 13 starts each (docs/results/vision-expressway-hatchback): the entropy target -4 and the
-    # learning rate falling to 1e-4 (58 -> 90 of 104 starts finished), a stuck car ending its training episode
-    # (45 % of the transitions had been of a standing car; 94), the steering-change penalty c_s 0.5 against the usable
-    # angle (the wheel's swings at speed halved; 99; c_s 1.0: 85; c_s 0.25 on 4 of the seeds: 49 of 52, as 0.5).
-    # The last weights are timed: weights chosen by 3 held-out starts gained nothing in the last three batches and
-    # cost about 100 s (docs/results/make-quick). Ending training episodes at a wall: 1 of 104; the AI's labels: 15;
-    # its pedal labels alone: 82. Phase 1 frames of cars at the walls at an angle (capture --disrupt-steer-offset-rad
-    # 0.6), alone or beside the job's: 39 and 46 of 52 on seeds 4-7 (the recipe: 49). Phase 1 also on 2 laps of the
-    # state policy (--state-policy-laps 2): 100 of 104, but the job waits for the state policy (22.2 min): an option.
-    # 200k vision steps instead of 150k (the learning rate falling over the 200k): 103 of 104 on the 8 seeds; 8 seeds
-    # paired with 150k on two encoders: 100 of 104 against 88 (Fisher p = 0.008), the lap the same. The job took 9.5
-    # min on the whole machine and 12.3 held to 1.5 cores, 9.4 with 150k the same night: the state run beside it
-    # takes as long as the captures, Phase 1 and the vision run together.
-    # Twice the papers' wall penalty (c_w 0.01) at 200k on 4 seeds: 51 of 52 (the recipe: 49), 5.2 s slower a lap.
-    # 300k steps on the same 4 seeds: 44 of 52, every loss at the chicane; the lap the same. The wall penalty at the
-    # impact speed (--wall-penalty-speed impact): 47 of 52, more wall contact.
-    # Over 16 training seeds at 200k (two encoders): 191 of 208 starts, 4 of 16 runs losing any.
-    # The critic also reading the 38-D state (--critic-state; the actor reads the vision vector alone), 8 seeds on
-    # one encoder: 104 of 104 against 88 (Fisher p = 2e-5), lap 2:10.8 +- 0.7 s against 2:15.2 +- 2.3 s; 4 seeds on an
-    # encoder of Phase 1 seed 1: 51 of 52, 2:11.5 +- 0.9 s. The job took 10.6 min (its vision lap 2:10.560, 13 of 13).
+    # Frames at half the paper's side: the encoder trains on 236 x 140 frames at about 230 frames/s on one of these
+    # cores, on 470 x 280 at about 30 (side by side); only the first fits the quick budget. Vision drives 10 cars: an
+    # update costs 36 ms against 50 ms with 20 and learns about as much. Every other value was measured over the same
+    # training seeds: docs/studies/quick-vision-recipe.md, docs/results/make-quick/README.md and, for the steering,
+    # docs/results/state-expressway-hatchback-speed-scaled/README.md.
     "quick": PipelineSizes(
         train_laps=4,
         eval_laps=1,
