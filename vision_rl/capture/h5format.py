@@ -93,25 +93,12 @@ ALL_DATASETS: tuple[str, ...] = ("images", *_TABLE_DATASETS)
 #: and small enough that the last, partly filled chunk costs little.
 _ROW_CHUNK = 4096
 
-#: Compression of the image chunks, one frame per chunk. Measured on these shared 2-core CPUs (medians) with
-#: 470x280 renderer frames (64 colour levels, smooth textures): size on 2,000 captured expressway frames; random
-#: read-back by 2 processes with a handle each, batches of 64, one thread each (wall clock, and CPU per frame);
-#: compression on one thread (300 frames of three tracks):
-#:
-#: ======  ========  ===================  ==========  =======================================================
-#: codec   size      read-back, 2 procs   compress    notes
-#: ======  ========  ===================  ==========  =======================================================
-#: zstd 3  43.0 kB   2,800 f/s, 0.35 ms   1.1 ms      default; zstd 1: +3 % size, 0.85 ms; zstd 5: -10 %, 4 ms
-#: gzip 1  51.6 kB   1,340 f/s, 0.74 ms   2.5 ms      the default before (130 kB/frame, 450 f/s with the old
-#:                                                    grainy frames); gzip 6: -28 % size, 9.7 ms: too slow
-#: lzf     75.5 kB     840 f/s, 1.17 ms   -
-#: none    395 kB    7,800 f/s, 0.13 ms   -           15 GB holds only 38,000 frames
-#: ======  ========  ===================  ==========  =======================================================
-#:
-#: zstd chunks are plain zstd frames under HDF5's registered Zstandard filter (id 32015, which ``hdf5plugin``
-#: provides), so any h5py that imported hdf5plugin reads them; this module compresses and decodes them itself with
-#: the ``zstandard`` package in threads (it releases the GIL) and moves them with write/read_direct_chunk. Files
-#: written with gzip (the earlier default), lzf or none stay readable and resumable with their own codec.
+#: Compression of the image chunks, one frame per chunk: zstd 3 is smaller and reads back faster than gzip and lzf,
+#: and a ninth of none's size (measured side by side: docs/benchmarks.md, "Capture compression"). zstd chunks are
+#: plain zstd frames under HDF5's registered Zstandard filter (id 32015, which ``hdf5plugin`` provides), so any h5py
+#: that imported hdf5plugin reads them; this module compresses and decodes them itself with the ``zstandard``
+#: package in threads (it releases the GIL) and moves them with write/read_direct_chunk. Files written with gzip (the
+#: earlier default), lzf or none stay readable and resumable with their own codec.
 COMPRESSIONS = ("zstd", "gzip", "lzf", "none")
 
 #: zstd level of the image chunks: level 3 is zstd's default; 5 and up are 4x slower to compress for 10 % less.
