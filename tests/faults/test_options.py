@@ -25,6 +25,7 @@ NEGATIVE_MEANS_SOMETHING = {
     "max_steps": "-1: no limit",
     "learning_starts": "-1: the preset's",
     "target_entropy": "an entropy target, nats, is negative",
+    "analysis_run": "-1: the fastest run",
 }
 #: Numbers that size no memory, so 1e12 of them is slow or odd but allocates nothing: counts of work (steps,
 #: epochs, repeats), durations, distances, seeds and coefficients.
@@ -39,7 +40,7 @@ NOT_A_MEMORY_SIZE = {
     *("episode_s", "eval_episode_s", "time_limit_s", "eval_time_limit_s", "flush_interval_s", "sampling_seconds"),
     *("checkpoint_every_min", "train_minutes", "bin_minutes"),
     *("sections_m", "reward_bin_m", "lead_margin_m", "detection_range_c_d_m", "max_line_distance_m"),
-    *("restart_before_stuck_m", "seed", "sampler_seed"),
+    *("restart_before_stuck_m", "seed", "sampler_seed", "analysis_run"),  # a run index: refused past --runs
     # coefficients and rates
     *("lr", "actor_lr", "critic_lr", "learning_rate", "learning_rate_final", "gail_disc_lr", "weight_decay"),
     *("wall_penalty_c_w", "steer_change_penalty_c_s", "off_track_penalty_c_o", "overtake_gain_c_r", "wall_weight"),

@@ -3,6 +3,7 @@ continued with other settings, a kill mid-stage."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -178,6 +179,16 @@ def test_the_analysis_takes_one_policy_and_writes_its_figures(agent1_run, tmp_pa
     assert analysis["reference"]["name"] == "built-in AI" and analysis["agent"]["run"]["seed"] == analysis["run"]
     assert len(analysis["agent"]["time_s"]) == len(analysis["agent"]["x_m"]) and analysis["agent"]["time_s"][0] == 0
     assert (tmp_path / "overtaking_timeline.png").stat().st_size > 1000
+    with pytest.raises(SettingError) as excinfo:  # --tiny runs 2
+        run_evaluate_overtaking(dataclasses.replace(opts, analysis_run=2))
+    assert "--analysis-run must be in 0-1 (of --runs 2), got 2" in str(excinfo.value)
+    fault.refused("evaluate-overtaking --analysis-run past the runs", str(excinfo.value))
+    assert run_evaluate_overtaking(dataclasses.replace(opts, analysis_run=1)) == 0
+    asked = json.loads((tmp_path / "overtaking_analysis.json").read_text())
+    assert asked["run"] == 1 and asked["run_choice"] == "asked" and asked["agent"]["run"]["run"] == 1
+    agent = asked["agent"]
+    assert len(agent["pedal"]) == len(agent["steer_rad"]) == len(agent["heading_error_rad"]) == len(agent["time_s"])
+    assert all(-1.0 <= p <= 1.0 for p in agent["pedal"]) and any(p != 0.0 for p in agent["pedal"])
 
 
 def _unsealed_copy(run: Path, target: Path) -> Path:

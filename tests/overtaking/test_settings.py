@@ -212,7 +212,8 @@ def _trace(track, gaps: np.ndarray, car_contact_s: np.ndarray) -> RunTrace:
     s = np.column_stack([40.0 * t, 40.0 * t[:, None] + gaps]) % track.length_m
     xy = track.position_at(s.ravel()).reshape(*s.shape, 2)
     yaw = track.heading_at(s.ravel()).reshape(s.shape)
-    return RunTrace(t, xy[..., 0], xy[..., 1], yaw, np.full(len(t), 40.0), gaps, car_contact_s, np.zeros(len(t)))
+    zeros = np.zeros(len(t))
+    return RunTrace(t, xy[..., 0], xy[..., 1], yaw, np.full(len(t), 40.0), gaps, car_contact_s, *[zeros] * 4)
 
 
 def test_passes_that_stood_contacts_and_the_fastest_run():
@@ -228,7 +229,7 @@ def test_passes_that_stood_contacts_and_the_fastest_run():
         np.full(10, 25.0),
         gaps,
         np.array([0, 0, 0.02, 0.04, 0.04, 0.04, 0.06, 0.06, 0.06, 0.06]),
-        np.zeros(10),
+        *[np.zeros(10)] * 4,
     )
     moments = overtake_moments(trace)
     assert [(m["opponent"], m["sample"]) for m in moments] == [(3, 0), (1, 6)]
@@ -259,6 +260,9 @@ def test_analysis_figures_and_the_driver_view_at_each_pass(small_track, tmp_path
         "moments": overtake_moments(trace),
         "car_contacts": [],
         "wall_contacts": [(1.0, 1.2)],
+        "speed_kmh": (3.6 * trace.speed_mps).tolist(),
+        "pedal": np.linspace(1.0, -1.0, 40).tolist(),
+        "heading_error_rad": trace.heading_error_rad.tolist(),
     }
     analysis = {"setting": "A", "track_name": track.name, "car": "tt_cup", "agent": record, "reference": record}
     files = write_analysis_outputs(analysis, trace, track, tmp_path)
@@ -302,3 +306,14 @@ def test_runs_that_end_between_trace_samples_leave_the_others_traces_whole(small
     for run, trace in zip(runs, traces, strict=True):
         assert trace.time_s[-1] == pytest.approx(run["travel_time_s"])  # each trace ends where its run ended
         assert np.all(np.diff(trace.time_s) > 0.0) and np.all(np.diff(trace.time_s) <= TRACE_DT_S + 1e-9)
+
+
+def test_the_trace_holds_each_agents_commands_and_heading_against_the_track(small_track):
+    runs, traces = run_setting(BrakingInTurn(), small_track, "tt_cup", "A", runs=3, time_limit_s=4.0)
+    braking = traces[2]  # full brake, wheels straight from 0.66 s on
+    late = braking.time_s > 0.8
+    assert np.all(braking.pedal[late] == -1.0) and np.all(braking.steer_rad[late] == 0.0)
+    assert np.any(traces[0].pedal[traces[0].time_s > 0.8] != -1.0)  # run 0 is the AI throughout
+    assert all(abs(trace.heading_error_rad[0]) < 0.05 for trace in traces)  # every car starts along the track
+    assert np.all(np.abs(traces[0].heading_error_rad) < 0.5)  # the AI follows it
+    assert abs(braking.heading_error_rad[-1]) > 0.5  # wheels straight through a turn: across the track at the end

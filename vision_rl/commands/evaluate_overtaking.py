@@ -51,6 +51,9 @@ class EvaluateOvertakingOptions:
     analysis: bool = False
     """With one --policy: the paper's Fig. 6 for its fastest run of --setting (cars overtaken against time with the
     collisions, the path of each pass, the driver view at each) beside the built-in AI's run with the same opponents."""
+    analysis_run: int = field(default=-1, metadata={"min": -1})
+    """With --analysis: the run to analyse instead of the fastest (0 to --runs - 1; -1: the fastest), e.g. one that
+    did not overtake all five."""
     tiny: bool = False
     """2 runs of at most 20 s each (for a check in seconds)."""
     json: bool = False
@@ -117,7 +120,7 @@ def format_curves(result: dict[str, Any]) -> list[str]:
 def format_analysis(result: dict[str, Any]) -> list[str]:
     lines = [
         f"setting {result['setting']}, run {result['run']} of {result['runs']} (seed "
-        f"{result['agent']['run']['seed']}): the fastest of {result['agent']['name']}"
+        f"{result['agent']['run']['seed']}): {result['run_choice']} of {result['agent']['name']}"
     ]
     for key in ("agent", "reference"):
         record = result[key]
@@ -188,7 +191,16 @@ def _analysis(opts: EvaluateOvertakingOptions, runs: int, limit_s: float) -> int
     driver = policy.driver()
     try:
         result, trace = analyse_overtaking(
-            driver, name, track, car, opts.setting, runs, opts.seed, limit_s, opts.lead_margin_m
+            driver,
+            name,
+            track,
+            car,
+            opts.setting,
+            runs,
+            opts.seed,
+            limit_s,
+            opts.lead_margin_m,
+            None if opts.analysis_run < 0 else opts.analysis_run,
         )
     finally:
         if hasattr(driver, "close"):
@@ -197,7 +209,7 @@ def _analysis(opts: EvaluateOvertakingOptions, runs: int, limit_s: float) -> int
         result, trace, track, opts.out, car_length_m=car.length_m, car_width_m=car.width_m
     )
     # The paths stay in the JSON file; the printed result keeps the runs, passes and contacts.
-    paths = ("time_s", "overtaken", "speed_kmh", "x_m", "y_m")
+    paths = ("time_s", "overtaken", "speed_kmh", "x_m", "y_m", "heading_error_rad", "steer_rad", "pedal")
     for key in ("agent", "reference"):
         result[key] = {k: v for k, v in result[key].items() if k not in paths}
     emit(result, opts.json, format_analysis)

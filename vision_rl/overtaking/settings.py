@@ -26,6 +26,7 @@ from vision_rl.overtaking.curriculum import learning_curve, load_overtaking_poli
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, OPPONENT_SKILL_RANGE
 from vision_rl.sim.driving import line_and_profile
 from vision_rl.sim.fleet import AI_CONTROL_DT_S, STUCK_RULE, AIFleet, StuckDetector, ai_ticks
+from vision_rl.sim.sensors import wrap_angle
 from vision_rl.sim.track import Track
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.vehicle import VehicleParams, get_preset
@@ -87,6 +88,12 @@ class RunTrace(NamedTuple):
     """(T,) the agent's car-contact time so far, s."""
     wall_contact_s: np.ndarray
     """(T,) the agent's wall-contact time so far, s."""
+    heading_error_rad: np.ndarray
+    """(T,) the agent's heading against the track's direction where it is, rad in (-pi, pi] (0: along the track)."""
+    steer_rad: np.ndarray
+    """(T,) the agent's steering command at the sample, rad."""
+    pedal: np.ndarray
+    """(T,) the agent's pedal command at the sample, in [-1, 1]: throttle above 0, brake below."""
 
 
 #: Sampling interval of a :class:`RunTrace`, s: the policies' control step.
@@ -213,13 +220,18 @@ class _Tracer:
                 ("gap_m", (k - 1,)),
                 ("car_contact_s", ()),
                 ("wall_contact_s", ()),
+                ("heading_error_rad", ()),
+                ("steer_rad", ()),
+                ("pedal", ()),
             )
         }
 
-    def record(self, which: np.ndarray, gap: np.ndarray) -> None:
-        """A sample of the runs ``which``; ``gap`` (runs, 5): each opponent's lead over the agent now, m."""
+    def record(self, which: np.ndarray, gap: np.ndarray, action: np.ndarray) -> None:
+        """A sample of the runs ``which``; ``gap`` (runs, 5): each opponent's lead over the agent now, m; ``action``
+        (runs, 2): the agents' commands (steer rad, pedal)."""
         st, rows, ids = self.world.state, self.samples[which], self.ego[which]
         cars = ids[:, None] + np.arange(self.k)
+        heading_error = wrap_angle(st.vehicle.yaw_rad[ids] - self.world.track.heading_at(st.s_m[ids]))
         for name, value in (
             ("time_s", st.time_s[ids]),
             ("x_m", st.vehicle.x_m[cars]),
@@ -229,6 +241,9 @@ class _Tracer:
             ("gap_m", gap[which]),
             ("car_contact_s", st.car_contact_time_s[ids]),
             ("wall_contact_s", st.wall_contact_time_s[ids]),
+            ("heading_error_rad", heading_error),
+            ("steer_rad", action[which, 0]),
+            ("pedal", action[which, 1]),
         ):
             self.trace[name][rows, which] = value
         self.samples[which] += 1
@@ -253,7 +268,7 @@ def _drive_runs(
     reason = np.array(["time limit"] * runs, dtype=object)
     action = np.zeros((runs, 2))
     gap = np.tile(field.start_gap_m, (runs, 1))
-    tracer.record(np.arange(runs), gap)
+    tracer.record(np.arange(runs), gap, action)
     for step in range(steps):
         if step % every == 0:
             action = np.asarray(driver.act(world.state), dtype=np.float64).reshape(runs, 2)
@@ -269,9 +284,9 @@ def _drive_runs(
         stuck_now &= active & ~led
         ended = led | stuck_now | (active & (step == steps - 1))
         if (step + 1) % tracer.every == 0:
-            tracer.record(np.flatnonzero(active), gap)
+            tracer.record(np.flatnonzero(active), gap, action)
         elif ended.any():  # only the runs that end get a sample off the grid, so rows_max bounds every run
-            tracer.record(np.flatnonzero(ended), gap)
+            tracer.record(np.flatnonzero(ended), gap, action)
         if ended.any():
             idx = np.flatnonzero(ended)
             end["travel_time_s"][idx] = st.time_s[ego[idx]]
@@ -517,6 +532,9 @@ def _trace_record(name: str, run: dict[str, Any], trace: RunTrace) -> dict[str, 
         "speed_kmh": np.round(3.6 * trace.speed_mps, 1).tolist(),
         "x_m": np.round(trace.x_m, 2).tolist(),
         "y_m": np.round(trace.y_m, 2).tolist(),
+        "heading_error_rad": np.round(trace.heading_error_rad, 3).tolist(),
+        "steer_rad": np.round(trace.steer_rad, 4).tolist(),
+        "pedal": np.round(trace.pedal, 3).tolist(),
     }
 
 
@@ -530,13 +548,16 @@ def analyse_overtaking(
     seed: int = 0,
     time_limit_s: float = 0.0,
     lead_margin_m: float = LEAD_MARGIN_M,
+    run: int | None = None,
 ) -> tuple[dict[str, Any], RunTrace]:
-    """The paper's Fig. 6 data: ``driver``'s fastest run of ``setting`` (:func:`fastest_run`) and the built-in AI's
-    run with the same seed (the same opponents), each with the cars overtaken against time, the car- and
-    wall-contact intervals, the passes that stood and the paths. Returns the record and the driver's trace (for
-    :func:`write_analysis_outputs`' frames)."""
+    """The paper's Fig. 6 data: ``driver``'s run ``run`` of ``setting`` (None: the fastest, :func:`fastest_run`)
+    and the built-in AI's run with the same seed (the same opponents), each with the cars overtaken against time,
+    the car- and wall-contact intervals, the passes that stood, the paths and the agent's heading and commands.
+    Returns the record and the driver's trace (for :func:`write_analysis_outputs`' frames)."""
+    if run is not None and not 0 <= run < runs:
+        raise SettingError(f"--analysis-run must be in 0-{runs - 1} (of --runs {runs}), got {run}")
     rows, traces = run_setting(driver, track, car, setting, runs, seed, time_limit_s, lead_margin_m)
-    best = fastest_run(rows)
+    best = fastest_run(rows) if run is None else run
     ai_rows, ai_traces = run_setting(BuiltinAI(), track, car, setting, 1, seed + best, time_limit_s, lead_margin_m)
     track = track if isinstance(track, Track) else load_track(track)
     return {
@@ -545,6 +566,7 @@ def analyse_overtaking(
         "runs": runs,
         "seed": seed,
         "run": best,
+        "run_choice": "the fastest" if run is None else "asked",
         "track_name": track.name,
         "car": car if isinstance(car, str) else car.name,
         "trace_dt_s": TRACE_DT_S,
@@ -597,9 +619,11 @@ def _save_figure(fig: Any, path: Path) -> str:
 
 
 def _timeline_figure(analysis: dict[str, Any]) -> Any:
-    """Cars overtaken against time, the agent's run above the built-in AI's, with their contacts."""
-    fig, axes = _pyplot().subplots(2, 1, figsize=(8.0, 5.0), sharex=True)
-    for ax, record, color in zip(axes, (analysis["agent"], analysis["reference"]), ("C0", "0.4"), strict=True):
+    """Cars overtaken against time, the agent's run above the built-in AI's, with their contacts; between them the
+    agent's speed, pedal and heading against the track (how a run that stopped came to stop)."""
+    fig, axes = _pyplot().subplots(3, 1, figsize=(8.0, 7.0))
+    axes[1].sharex(axes[0])  # the AI's run has its own time axis: it may run to the limit
+    for ax, record, color in zip(axes[::2], (analysis["agent"], analysis["reference"]), ("C0", "0.4"), strict=True):
         ax.step(record["time_s"], record["overtaken"], where="post", color=color)
         for start, _ in record["car_contacts"]:
             ax.axvline(start, ymin=0.0, ymax=1.0, color="r", linewidth=0.8)
@@ -614,7 +638,18 @@ def _timeline_figure(analysis: dict[str, Any]) -> Any:
             f"wall {run['wall_contact_s']:.1f} s (short black)",
             fontsize=8,
         )
-    axes[1].set_xlabel("time (s)")
+    agent, speed_ax = analysis["agent"], axes[1]
+    speed_ax.plot(agent["time_s"], agent["speed_kmh"], color="C0", label="speed")
+    speed_ax.set_ylabel("speed (km/h)")
+    commands = speed_ax.twinx()
+    commands.plot(agent["time_s"], agent["pedal"], color="C2", linewidth=0.8, label="pedal (throttle > 0)")
+    commands.plot(agent["time_s"], agent["heading_error_rad"], color="C3", linewidth=0.8, label="heading - track (rad)")
+    commands.set_ylim(-3.3, 3.3)
+    commands.axhline(0.0, color="0.7", linewidth=0.5)
+    commands.legend(loc="lower left", fontsize=7)
+    speed_ax.set_title(f"{agent['name']}: speed (blue), pedal and heading against the track", fontsize=8)
+    for ax in axes[1:]:
+        ax.set_xlabel("time (s)")
     fig.suptitle(f"setting {analysis['setting']}, {analysis['track_name']}, {analysis['car']}", fontsize=9)
     fig.tight_layout()
     return fig
