@@ -309,7 +309,7 @@ def test_runs_that_end_between_trace_samples_leave_the_others_traces_whole(small
 
 
 def test_the_trace_holds_each_agents_commands_and_heading_against_the_track(small_track):
-    runs, traces = run_setting(BrakingInTurn(), small_track, "tt_cup", "A", runs=3, time_limit_s=4.0)
+    _, traces = run_setting(BrakingInTurn(), small_track, "tt_cup", "A", runs=3, time_limit_s=4.0)
     braking = traces[2]  # full brake, wheels straight from 0.66 s on
     late = braking.time_s > 0.8
     assert np.all(braking.pedal[late] == -1.0) and np.all(braking.steer_rad[late] == 0.0)
