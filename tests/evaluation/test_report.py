@@ -101,6 +101,7 @@ def test_the_committed_records_give_the_tables_figures():
         in tables["overtaking-settings"]
     )
     assert "| GAIL s0 | 113.31 (113.94) | 3/3 | 52.4 | 8,823 | - |" in tables["table3-gail-dart40"]
+    assert "| GAIL s1 | 114.60 (114.78) | 3/3 | 37.5 | 10,833 | - |" in tables["table3-gail-dart40"]
     assert "| TD3 s2 | 114.29 | 1/3 | 3.4 | 1,054 | 2,054-2,967 m into the lap |" in tables["table3-runs"]
     assert (
         "| SAC | 89.82 | 176.4 | 0.893 | 0.922 | 91.03 ± 1.06 s over 3 lapping seeds | 9/9 | 5.2 |"

@@ -18,8 +18,8 @@ CURRICULUM_CURVES = "overtaking-expressway-tt_cup/learning_curves_num_timesteps.
 STRAIGHT_TT_CUP = "reference-laps/straight_expressway_tt_cup.json"
 OPPONENT_SKILL = "overtaking-expressway-tt_cup/opponent-skill/skill-{skill}/overtaking_setting_{setting}.json"
 
-#: GAIL on the DART-style demonstrations, timed alone (issue 65): a table3 record of its own.
-TABLE3_GAIL_DART40 = "table3-expressway-tt_cup/gail-dart40/table3-s0.json"
+#: GAIL on the DART-style demonstrations (issue 65), each training seed timed alone as it finished: a record each.
+TABLE3_GAIL_DART40 = tuple(f"table3-expressway-tt_cup/gail-dart40/table3-s{seed}.json" for seed in (0, 1))
 
 
 def _table3_rows(records: Records) -> list[tuple[str, ...]]:
@@ -108,11 +108,11 @@ def _straight_row(records: Records) -> tuple[str, ...]:
     )
 
 
-def table3_runs_table(records: Records, path: str = TABLE3) -> str:
-    """Each training run of a table3 record: its lap 2 (best and median start), starts finished, wall contact,
+def table3_runs_table(records: Records, paths: tuple[str, ...] = (TABLE3,)) -> str:
+    """Each training run of table3 records: its lap 2 (best and median start), starts finished, wall contact,
     training time, and where the starts that did not finish stopped."""
     rows = []
-    for row in records(path)["rows"]:
+    for row in (row for path in paths for row in records(path)["rows"]):
         for run in row.get("runs") or ():
             stopped_m = [float(m) for reason in run["dnf_reasons"] for m in _STOPPED_AT.findall(reason)]
             lap_s, median_s = run["lap_time_s"], run["median_lap_time_s"]
@@ -134,7 +134,8 @@ def table3_runs_table(records: Records, path: str = TABLE3) -> str:
         "training, s",
         "the other starts stopped",
     )
-    return markdown_table(header, rows) + f"\nRecord: {link(path.rsplit('/', 1)[-1], path)}.\n"
+    named = ", ".join(link(path.rsplit("/", 1)[-1], path) for path in paths)
+    return markdown_table(header, rows) + f"\n{'Record' if len(paths) == 1 else 'Records'}: {named}.\n"
 
 
 #: BC's recipes on the race (issue 65): (recipe, demonstrations, its table3 record).
