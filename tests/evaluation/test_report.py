@@ -100,12 +100,16 @@ def test_the_committed_records_give_the_tables_figures():
         "| B (200 m apart) | agent 2 | 10/10 | 5.0 (5-5) | 165.5 ± 30.2 | 114.9 | 0.4 / 6.9 |"
         in tables["overtaking-settings"]
     )
-    assert "| GAIL s0 | 113.31 (113.94) | 3/3 | 52.4 | 8,823 | - |" in tables["table3-gail-dart40"]
-    assert "| GAIL s1 | 114.60 (114.78) | 3/3 | 37.5 | 10,833 | - |" in tables["table3-gail-dart40"]
+    assert "| GAIL s1 | 114.60 (114.78) | 3/3 | 37.5 | 10,833 | - |" in tables["table3-runs"]
+    assert "| BC s1 | 117.02 | 1/3 | 23.4 | 28 | 1,073-1,074 m into the lap |" in tables["table3-first-runs"]
     assert "| TD3 s2 | 114.29 | 1/3 | 3.4 | 1,054 | 2,054-2,967 m into the lap |" in tables["table3-runs"]
     assert (
-        "| SAC | 89.82 | 176.4 | 0.893 | 0.922 | 91.03 ± 1.06 s over 3 lapping seeds | 9/9 | 5.2 |"
+        "| SAC (kept from an earlier timing) | 89.82 | 176.4 | 0.893 | 0.922 | 91.03 ± 1.06 s over 3 lapping seeds |"
         in tables["table3-summary"]
+    )
+    assert (
+        "| BC | 105.38 | 150.4 | 1.048 | 1.243 | 110.28 ± 5.17 s over 3 lapping seeds | 4/9 | 5.5 |"
+        in (tables["table3-summary"])
     )
     assert "| 4/9 | 115.7 / 109.8 / 105.4 | 1.048 |" in tables["bc-recipes"]
     assert "| A (50 m apart) | c_r 2 | 10/10 | 5.0 (5-5) | 48.2 ± 26.5 | 27.7 | 1.2 / 2.8 |" in tables["c-r-ablation"]
@@ -124,13 +128,16 @@ def test_a_changed_record_changes_its_tables(results_copy):
     edit_record(results_copy, AI_HATCHBACK, lambda r: r.update(best_lap_time_s=150.0))
     edit_record(results_copy, QUICK_JOB, lambda r: r["vision"].update(lap_time_s=128.5, train_seconds=401))
     edit_record(results_copy, TABLE3, lambda r: next(x for x in r["rows"] if x["key"] == "sac").update(lap_time_s=88.0))
-    edit_record(results_copy, TABLE3, lambda r: next(x for x in r["rows"] if x["key"] == "td3").update(kept_from="a"))
+    first = "docs/results/table3-expressway-tt_cup/first-recipe/table3.json"  # as `table3 --keep` writes it
+    edit_record(results_copy, TABLE3, lambda r: next(x for x in r["rows"] if x["key"] == "bc").update(kept_from=first))
     after = build_tables(results_copy)
     assert "| 2:30.000 |" in after["vision"] and "| 2:19.299 |" in before["vision"]
     assert "13.80 % faster than the AI" in after["vision"]  # 2:09.293 against 2:30.000
     assert "vision 2:08.500" in after["vision"] and "| 401 s | lap 2:08.500 (3/3 starts) |" in after["quick"]
     assert "**88.00 s** (0.875 of the AI's), 9/9 starts" in after["overtaking"]
-    assert "**92.16 s** (0.916 of the AI's), kept from an earlier timing of the table, 7/9" in after["overtaking"]
+    bc = "**105.38 s** (1.048 of the AI's), 4/9 starts finished ([record](RESULTS/table3-expressway-tt_cup/{}))"
+    assert bc.format("table3.json") in before["overtaking"]  # a kept row links the record it was timed in
+    assert bc.format("first-recipe/table3.json") in after["overtaking"]
     assert after["ddpg"] == before["ddpg"] and after["phase1"] == before["phase1"]
     for seed in (0, 1, 2):  # SB3 DDPG's training episodes on MountainCar, none of them ending at the goal now
         edit_record(

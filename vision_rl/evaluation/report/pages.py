@@ -20,7 +20,7 @@ from vision_rl.evaluation.report.ddpg import (
 )
 from vision_rl.evaluation.report.overtaking import (
     SETTINGS,
-    TABLE3_GAIL_DART40,
+    TABLE3_FIRST,
     bc_recipes_table,
     opponent_skill_table,
     overtaking_seeds_table,
@@ -57,7 +57,7 @@ TABLES: dict[str, Callable[[Records], str]] = {
     ),
     "table3-summary": table3_summary_table,
     "table3-runs": table3_runs_table,
-    "table3-gail-dart40": partial(table3_runs_table, paths=TABLE3_GAIL_DART40),
+    "table3-first-runs": partial(table3_runs_table, paths=(TABLE3_FIRST,)),
     "bc-recipes": bc_recipes_table,
     "overtaking-seeds": overtaking_seeds_table,
     "ddpg": ddpg_table,
