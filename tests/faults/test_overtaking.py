@@ -186,6 +186,7 @@ def test_the_analysis_takes_one_policy_and_writes_its_figures(agent1_run, tmp_pa
     assert run_evaluate_overtaking(dataclasses.replace(opts, analysis_run=1)) == 0
     asked = json.loads((tmp_path / "overtaking_analysis.json").read_text())
     assert asked["run"] == 1 and asked["run_choice"] == "asked" and asked["agent"]["run"]["run"] == 1
+    assert len(asked["agent"]["driver"]["policy_sha256"]) == 64  # which policy the record is of
     agent = asked["agent"]
     assert len(agent["pedal"]) == len(agent["steer_rad"]) == len(agent["heading_error_rad"]) == len(agent["time_s"])
     assert all(-1.0 <= p <= 1.0 for p in agent["pedal"]) and any(p != 0.0 for p in agent["pedal"])

@@ -570,7 +570,7 @@ def analyse_overtaking(
         "track_name": track.name,
         "car": car if isinstance(car, str) else car.name,
         "trace_dt_s": TRACE_DT_S,
-        "agent": _trace_record(name, rows[best], traces[best]),
+        "agent": {**_trace_record(name, rows[best], traces[best]), "driver": driver.identity},
         "reference": _trace_record("built-in AI", ai_rows[0], ai_traces[0]),
     }, traces[best]
 
