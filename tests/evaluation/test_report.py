@@ -104,7 +104,7 @@ def test_the_committed_records_give_the_tables_figures():
     assert "| BC s1 | 117.02 | 1/3 | 23.4 | 28 | 1,073-1,074 m into the lap |" in tables["table3-first-runs"]
     assert "| TD3 s2 | 114.29 | 1/3 | 3.4 | 1,054 | 2,054-2,967 m into the lap |" in tables["table3-runs"]
     assert (
-        "| SAC (kept from an earlier timing) | 89.82 | 176.4 | 0.893 | 0.922 | 91.03 ± 1.06 s over 3 lapping seeds |"
+        "| SAC, kept from an earlier timing | 89.82 | 176.4 | 0.893 | 0.922 | 91.03 ± 1.06 s over 3 lapping seeds |"
         in tables["table3-summary"]
     )
     assert (

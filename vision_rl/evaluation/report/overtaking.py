@@ -67,7 +67,7 @@ def table3_summary_table(records: Records, path: str = TABLE3) -> str:
             over = f"{seeds['lap_time_mean_s']:.2f}{spread} s over {lapping} lapping seed{'s' if lapping > 1 else ''}"
         rows.append(
             (
-                row["name"] + (" (kept from an earlier timing)" if row.get("kept_from") else ""),
+                row["name"] + (", kept from an earlier timing" if row.get("kept_from") else ""),
                 "DNF" if lap_s is None else f"{lap_s:.2f}",
                 "-" if lap_s is None else f"{row['avg_speed_kmh']:.1f}",
                 "-" if lap_s is None else f"{row['lap_ratio_to_ai']:.3f}",
