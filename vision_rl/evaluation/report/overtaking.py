@@ -288,6 +288,7 @@ OVERTAKING_SEEDS = {
     (1, "agent 2"): (OPPONENT_SKILL.format(skill="0.80-0.88", setting="{setting}"), "agent2-s1"),
     (1, "agent 3"): ("overtaking-expressway-tt_cup/seeds/s1/agent3_setting_{setting}.json", "agent3-s1"),
     (2, "agent 2"): ("overtaking-expressway-tt_cup/seeds/s2/agent2_setting_{setting}.json", "agent2-s2"),
+    (2, "agent 3"): ("overtaking-expressway-tt_cup/seeds/s2/agent3_setting_{setting}.json", "agent3-s2"),
 }
 
 
