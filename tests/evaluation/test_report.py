@@ -90,6 +90,11 @@ def test_the_committed_records_give_the_tables_figures():
         "| asymmetric, channels_last | 0.71 (1,408 ms; 402 ms of CPU) | 3.75 (267 ms; 78 ms of CPU) | 5.3x"
         in tables["ddpg-bench"]
     )
+    assert "Agents 2, 3 over 3 training seeds: 29/30, 23/30 |" in tables["overtaking"]  # setting B, summed
+    assert (
+        "1.80M, 0.90x standard SAC's (the curriculum over 2 training seeds, standard SAC over 2, interim"
+        in (tables["overtaking"])
+    )
     seeds = tables["overtaking-seeds"]
     assert (
         "| 1 | agent 3 | [9/10](RESULTS/overtaking-expressway-tt_cup/seeds/s1/agent3_setting_A.json) | [8/10]" in seeds
