@@ -266,7 +266,10 @@ def _kill_after(proc: subprocess.Popen, last_ckpt: Path, epochs: int, sig: signa
             time.sleep(0.05)
         assert proc.poll() is None, f"the run ended before the kill: {proc.communicate()[1][-2000:]}"
         assert _saved_epochs(last_ckpt) >= epochs, f"no last.ckpt of {epochs} epochs within 120 s"
-        proc.send_signal(sig)
+        if sig == signal.SIGKILL:  # as a crash: its loader worker too, which else holds the pipes open until it notices
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
         stdout, stderr = proc.communicate(timeout=60)
         return proc.returncode, stdout, stderr
     finally:
