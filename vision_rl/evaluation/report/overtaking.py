@@ -203,10 +203,15 @@ def _settings_rows(records: Records) -> list[tuple[str, ...]]:
     return out
 
 
+def _seed_driver(records: Records, pattern: str, name: str, setting: str) -> dict[str, Any]:
+    """The driver ``name`` of the settings record ``pattern`` (an :data:`OVERTAKING_SEEDS` entry) in ``setting``."""
+    return next(d for d in records(pattern.format(setting=setting))["drivers"] if d["name"] == name)
+
+
 def _over_seeds(records: Records, agent: str, setting: str) -> str:
     """Runs with all five overtaken by ``agent`` in ``setting``, summed over :data:`OVERTAKING_SEEDS`."""
     drivers = [
-        next(d for d in records(pattern.format(setting=setting))["drivers"] if d["name"] == name)["summary"]
+        _seed_driver(records, pattern, name, setting)["summary"]
         for (_, which), (pattern, name) in OVERTAKING_SEEDS.items()
         if which == agent
     ]
@@ -323,9 +328,8 @@ def overtaking_seeds_table(records: Records) -> str:
     for (seed, agent), (pattern, name) in OVERTAKING_SEEDS.items():
         cells, missed = [], []
         for setting in ("A", "B"):
-            path = pattern.format(setting=setting)
-            driver = next(d for d in records(path)["drivers"] if d["name"] == name)
-            cells.append(link(_driver_cells(driver)[0], path))
+            driver = _seed_driver(records, pattern, name, setting)
+            cells.append(link(_driver_cells(driver)[0], pattern.format(setting=setting)))
             missed.append(f"{setting}: {_missed_runs(driver) or 'none'}")
         rows.append((f"{seed}", agent, *cells, "; ".join(missed)))
     header = ("training seed", "agent", "setting A: all five overtaken", "setting B", "the other runs ended")
