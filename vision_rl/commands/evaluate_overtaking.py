@@ -178,7 +178,7 @@ def run_evaluate_overtaking(opts: EvaluateOvertakingOptions) -> int:
 
 def _analysis(opts: EvaluateOvertakingOptions, runs: int, limit_s: float) -> int:
     from vision_rl.overtaking.curriculum import load_overtaking_policy
-    from vision_rl.overtaking.settings import SettingError, analyse_overtaking, write_analysis_outputs
+    from vision_rl.overtaking.settings import TRACE_SERIES, SettingError, analyse_overtaking, write_analysis_outputs
     from vision_rl.sim.track_library import load_track
     from vision_rl.sim.vehicle import get_preset
 
@@ -208,9 +208,8 @@ def _analysis(opts: EvaluateOvertakingOptions, runs: int, limit_s: float) -> int
     result["files"] = write_analysis_outputs(
         result, trace, track, opts.out, car_length_m=car.length_m, car_width_m=car.width_m
     )
-    # The paths stay in the JSON file; the printed result keeps the runs, passes and contacts.
-    paths = ("time_s", "overtaken", "speed_kmh", "x_m", "y_m", "heading_error_rad", "steer_rad", "pedal")
+    # The series stay in the JSON file; the printed result keeps the runs, passes and contacts.
     for key in ("agent", "reference"):
-        result[key] = {k: v for k, v in result[key].items() if k not in paths}
+        result[key] = {k: v for k, v in result[key].items() if k not in TRACE_SERIES}
     emit(result, opts.json, format_analysis)
     return 0

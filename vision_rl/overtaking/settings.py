@@ -519,6 +519,10 @@ def fastest_run(runs: Sequence[dict[str, Any]]) -> int:
     )
 
 
+#: The entries of :func:`_trace_record` that hold one value per trace sample (the rest summarise the run).
+TRACE_SERIES = ("time_s", "overtaken", "speed_kmh", "x_m", "y_m", "heading_error_rad", "steer_rad", "pedal")
+
+
 def _trace_record(name: str, run: dict[str, Any], trace: RunTrace) -> dict[str, Any]:
     overtaken = np.sum(trace.gap_m < 0.0, axis=1)
     return {
