@@ -259,17 +259,30 @@ def _saved_epochs(last_ckpt: Path) -> int:
 
 
 def _kill_after(proc: subprocess.Popen, last_ckpt: Path, epochs: int, sig: signal.Signals) -> tuple[int, str, str]:
-    """Send ``sig`` once ``last_ckpt`` holds ``epochs`` finished epochs; the exit code, stdout and stderr."""
-    deadline = time.monotonic() + 120
+    """Send ``sig`` once ``last_ckpt`` holds ``epochs`` finished epochs; the exit code, stdout and stderr.
+
+    The run's group is stopped while each new last.ckpt is read, so that on a loaded machine its tiny epochs cannot
+    run to the end between the read and the signal.
+    """
+    deadline, seen = time.monotonic() + 120, None
     try:
-        while _saved_epochs(last_ckpt) < epochs and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
+        while proc.poll() is None and time.monotonic() < deadline:
+            stamp = last_ckpt.stat().st_mtime_ns if last_ckpt.is_file() else None
+            if stamp == seen:
+                time.sleep(0.01)
+                continue
+            os.killpg(proc.pid, signal.SIGSTOP)
+            seen = stamp
+            if _saved_epochs(last_ckpt) >= epochs:
+                break
+            os.killpg(proc.pid, signal.SIGCONT)
         assert proc.poll() is None, f"the run ended before the kill: {proc.communicate()[1][-2000:]}"
         assert _saved_epochs(last_ckpt) >= epochs, f"no last.ckpt of {epochs} epochs within 120 s"
         if sig == signal.SIGKILL:  # as a crash: its loader worker too, which else holds the pipes open until it notices
             os.killpg(proc.pid, sig)
         else:
             proc.send_signal(sig)
+            os.killpg(proc.pid, signal.SIGCONT)
         stdout, stderr = proc.communicate(timeout=60)
         return proc.returncode, stdout, stderr
     finally:
