@@ -105,9 +105,9 @@ def test_the_committed_records_give_the_tables_figures():
         "| B (200 m apart) | agent 2 | 10/10 | 5.0 (5-5) | 165.5 ± 30.2 | 114.9 | 0.4 / 6.9 |"
         in tables["overtaking-settings"]
     )
-    assert "| GAIL s1 | 114.60 (114.78) | 3/3 | 37.5 | 10,833 | - |" in tables["table3-runs"]
-    assert "| BC s1 | 117.02 | 1/3 | 23.4 | 28 | 1,073-1,074 m into the lap |" in tables["table3-first-runs"]
-    assert "| TD3 s2 | 114.29 | 1/3 | 3.4 | 1,054 | 2,054-2,967 m into the lap |" in tables["table3-runs"]
+    assert "| GAIL s1 | 114.60 (114.78) | 3/3 | 37.5 | 1,000,000 | 10,833 | - |" in tables["table3-runs"]
+    assert "| BC s1 | 117.02 | 1/3 | 23.4 | - | 28 | 1,073-1,074 m into the lap |" in tables["table3-first-runs"]
+    assert "| TD3 s2 | 114.29 | 1/3 | 3.4 | 1,000,000 | 1,054 | 2,054-2,967 m into the lap |" in tables["table3-runs"]
     assert (
         "| SAC, kept from an earlier timing | 89.82 | 176.4 | 0.893 | 0.922 | 91.03 ± 1.06 s over 3 lapping seeds |"
         in tables["table3-summary"]

@@ -22,6 +22,10 @@ OPPONENT_SKILL = "overtaking-expressway-tt_cup/opponent-skill/skill-{skill}/over
 
 #: Table III's first timing: BC and GAIL on 20 laps of the AI with noise 0.1, the rows SAC, TD3 and PlaNet keep.
 TABLE3_FIRST = "table3-expressway-tt_cup/first-recipe/table3.json"
+#: Dreamer's training seeds timed through the protocol mid-training (issue 65), and its world model's error on
+#: held-out laps of the AI at the same checkpoints (`vision-rl dreamer-model`), one record per seed.
+TABLE3_DREAMER_INTERIM = "table3-expressway-tt_cup/dreamer-interim/table3.json"
+DREAMER_MODEL_INTERIM = tuple(f"table3-expressway-tt_cup/dreamer-interim/model-s{seed}.json" for seed in (0, 2))
 
 
 def _table3_rows(records: Records) -> list[tuple[str, ...]]:
@@ -36,18 +40,32 @@ def _table3_rows(records: Records) -> list[tuple[str, ...]]:
         ours = "DNF" if lap_s is None else f"**{lap_s:.2f} s** ({lap_s / ai_s:.3f} of the AI's)"
         # `table3 --keep`: a row whose runs were not timed again links the record it was timed in
         record = row["kept_from"].removeprefix("docs/results/") if row.get("kept_from") else TABLE3
+        interim = _dreamer_interim(records, ai_s) if key == "planet" else ""
         out.append(
             (
                 f"Table III, {name}: lap 2, the best start of {seeds['n_training_seeds']} training "
                 + ("seed" if seeds["n_training_seeds"] == 1 else "seeds"),
                 f"{paper[key]:.1f} s ({paper[key] / paper['built_in_ai']:.3f} of its AI's {paper['built_in_ai']} s)",
-                f"{ours}, {seeds['finished']} starts finished ({link('record', record)})",
+                f"{ours}, {seeds['finished']} starts finished ({link('record', record)}){interim}",
                 f"{ai_s:.2f} s",
                 f"{limit_s:.2f} s" + ("" if lap_s is None else f" (ours {gap_text(lap_s, limit_s)})"),
                 f"`vision-rl train-baseline --algo {'dreamer' if key == 'planet' else key}`, `vision-rl table3`",
             )
         )
     return out
+
+
+def _dreamer_interim(records: Records, ai_s: float) -> str:
+    """Dreamer's seeds still training, as timed at their last checkpoints: a clause of the README's PlaNet row."""
+    row = next(row for row in records(TABLE3_DREAMER_INTERIM)["rows"] if row["key"] == "planet")
+    runs = sorted(row["runs"], key=lambda run: run["seed"])
+    each = ", ".join(
+        f"seed {run['seed']} at {run['num_timesteps'] / 1e3:.0f}k steps {run['finished']}/{run['seeds']}"
+        for run in runs
+    )
+    lap_s = row["lap_time_s"]
+    best = "" if lap_s is None else f", best {lap_s:.2f} s ({lap_s / ai_s:.3f} of the AI's)"
+    return f"; interim, the new recipe's seeds still training: {each}{best} ({link('record', TABLE3_DREAMER_INTERIM)})"
 
 
 #: Where a DNF reason of the protocol says a start stopped.
@@ -124,6 +142,7 @@ def table3_runs_table(records: Records, paths: tuple[str, ...] = (TABLE3,)) -> s
                     "DNF" if lap_s is None else f"{lap_s:.2f}" + ("" if median_s is None else f" ({median_s:.2f})"),
                     f"{run['finished']}/{run['seeds']}",
                     "-" if run["wall_contact_s"] is None else f"{run['wall_contact_s']:.1f}",
+                    f"{run['num_timesteps']:,}" if run["num_timesteps"] else "-",
                     f"{run['train_time_s']:,.0f}",
                     "-" if not stopped_m else f"{span_m(stopped_m)} into the lap",
                 )
@@ -133,11 +152,51 @@ def table3_runs_table(records: Records, paths: tuple[str, ...] = (TABLE3,)) -> s
         "lap 2, s: best (median) start",
         "starts finished",
         "wall contact, s per lap",
+        "environment steps",
         "training, s",
         "the other starts stopped",
     )
     named = ", ".join(link(path.rsplit("/", 1)[-1], path) for path in paths)
     return markdown_table(header, rows) + f"\n{'Record' if len(paths) == 1 else 'Records'}: {named}.\n"
+
+
+#: The horizons (control steps) the world-model table reports, of those `dreamer-model` records.
+MODEL_HORIZONS_STEPS = (1, 10, 50)
+
+
+def dreamer_model_table(records: Records, paths: Iterable[str] = DREAMER_MODEL_INTERIM) -> str:
+    """Each Dreamer checkpoint's world model on held-out laps: open-loop prediction error against holding the last
+    observation, per horizon, and the groups of entries it predicts worse than that at the longest."""
+    rows, longest_steps = [], MODEL_HORIZONS_STEPS[-1]
+    for path in paths:
+        record = records(path)
+        by_steps = {h["horizon_steps"]: h for h in record["horizons"]}
+        observation = [
+            f"{by_steps[n]['model']['observation_rmse']:.3f} / {by_steps[n]['hold_last']['observation_rmse']:.3f}"
+            for n in MODEL_HORIZONS_STEPS
+        ]
+        model, hold = by_steps[longest_steps]["model"], by_steps[longest_steps]["hold_last"]
+        worse = [group for group, rmse in model["groups"].items() if rmse > hold["groups"][group]]
+        rows.append(
+            (
+                link(path.rsplit("/", 1)[-1], path),
+                f"{record['num_timesteps']:,}",
+                f"{record['reconstruction']['observation_rmse']:.3f}",
+                *observation,
+                f"{model['reward_rmse']:.2f} / {hold['reward_rmse']:.2f}",
+                ", ".join(worse) or "none",
+            )
+        )
+    header = (
+        "record",
+        "environment steps",
+        "observation RMSE, reconstructed",
+        *(f"observation RMSE {n} step{'s' * (n > 1)} ahead, model / hold last" for n in MODEL_HORIZONS_STEPS),
+        f"reward RMSE {longest_steps} steps ahead, model / hold last",
+        f"groups predicted worse than holding the last, {longest_steps} steps ahead",
+    )
+    units = "Observations in the normalised units the model sees; reward per step (Eq. 1); a step is 0.1 s."
+    return markdown_table(header, rows) + f"\n{units}\n"
 
 
 #: BC's recipes on the race (issue 65): (recipe, demonstrations, its table3 record).

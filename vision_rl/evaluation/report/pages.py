@@ -20,8 +20,10 @@ from vision_rl.evaluation.report.ddpg import (
 )
 from vision_rl.evaluation.report.overtaking import (
     SETTINGS,
+    TABLE3_DREAMER_INTERIM,
     TABLE3_FIRST,
     bc_recipes_table,
+    dreamer_model_table,
     opponent_skill_table,
     overtaking_seeds_table,
     overtaking_table,
@@ -58,6 +60,8 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "table3-summary": table3_summary_table,
     "table3-runs": table3_runs_table,
     "table3-first-runs": partial(table3_runs_table, paths=(TABLE3_FIRST,)),
+    "table3-dreamer-interim": partial(table3_runs_table, paths=(TABLE3_DREAMER_INTERIM,)),
+    "dreamer-model-interim": dreamer_model_table,
     "bc-recipes": bc_recipes_table,
     "overtaking-seeds": overtaking_seeds_table,
     "ddpg": ddpg_table,
