@@ -92,8 +92,18 @@ def test_the_committed_records_give_the_tables_figures():
     )
     assert "Agents 2, 3 over 3 training seeds: 29/30, 23/30 |" in tables["overtaking"]  # setting B, summed
     assert (
-        "1.80M, 0.90x standard SAC's (the curriculum over 2 training seeds, standard SAC over 2, interim"
+        "1.50M against standard SAC's 1.30M (1.15x) (the curriculum over 3 training seeds, standard SAC over 3;"
         in (tables["overtaking"])
+    )
+    interim = "; interim, the new recipe's seeds still training: seed 0 at 280k steps 3/3, seed 2 at 133k steps 0/3"
+    assert interim + ", best 91.59 s (0.911 of the AI's)" in tables["overtaking"]  # Dreamer's PlaNet row
+    assert (
+        "| PlaNet (as Dreamer) s0 | 91.59 (91.67) | 3/3 | 7.2 | 280,300 | 17,639 | - |"
+        in (tables["table3-dreamer-interim"])
+    )
+    assert (
+        "| 280,300 | 0.075 | 0.084 / 0.081 | 0.258 / 0.402 | 0.563 / 0.644 | 3.08 / 1.34 | lidar, wall_contact,"
+        in (tables["dreamer-model-interim"])
     )
     seeds = tables["overtaking-seeds"]
     assert (
@@ -144,6 +154,15 @@ def test_a_changed_record_changes_its_tables(results_copy):
     assert bc.format("table3.json") in before["overtaking"]  # a kept row links the record it was timed in
     assert bc.format("first-recipe/table3.json") in after["overtaking"]
     assert after["ddpg"] == before["ddpg"] and after["phase1"] == before["phase1"]
+    edit_record(
+        results_copy,
+        "overtaking-expressway-tt_cup/fig3/learning_curves_num_timesteps.json",
+        lambda r: r.update(complete=False),
+    )
+    assert (
+        "standard SAC over 3, interim: seeds still training;"
+        in build_tables(results_copy, ["overtaking"])["overtaking"]
+    )
     for seed in (0, 1, 2):  # SB3 DDPG's training episodes on MountainCar, none of them ending at the goal now
         edit_record(
             results_copy,

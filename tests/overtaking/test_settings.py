@@ -12,7 +12,7 @@ import pytest
 from vision_rl.commands.evaluate_overtaking import EvaluateOvertakingOptions
 from vision_rl.evaluation.protocol import BuiltinAI
 from vision_rl.evaluation.report import record_damage
-from vision_rl.overtaking.curriculum import write_run_record
+from vision_rl.overtaking.curriculum import agent_record_path, write_run_record
 from vision_rl.overtaking.settings import (
     SETTINGS,
     TRACE_DT_S,
@@ -150,6 +150,8 @@ def _fake_run(root: Path, seed: int, switch: int) -> Path:
             for n in range(start + 100, end + 1, 100)
         ]
         (folder / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    for agent in ("1", "standard"):  # as a finished training writes them
+        write_run_record(agent_record_path(root / f"s{seed}", agent), {"agent": agent})
     return root / f"s{seed}"
 
 
@@ -181,12 +183,19 @@ def test_a_seed_still_training_counts_only_where_every_seed_has_a_point(tmp_path
                 line + "\n" for line in metrics.read_text().splitlines() if json.loads(line)["num_timesteps"] <= 400
             )
         )
+    for agent in ("1", "standard"):
+        agent_record_path(runs[1], agent).unlink()
     result = learning_curves(runs, "1")
     assert result["standard"]["n_seeds"] == [2, 2, 2, 2, 1, 1] and not result["complete"]
     # Standard SAC's mean at 400 (both seeds: 4 and 6), not at 600 where only seed 0 is: 5.0.
     assert (result["standard_final_x"], result["standard_final_return"]) == (400, pytest.approx(5.0))
     assert result["curriculum_steps_to_standard_final"] == 100 and result["share_of_standard_steps"] == 0.25
     assert Path(write_learning_curves(result, tmp_path / "fig")["png"]).stat().st_size > 1000
+    agent_record_path(runs[1], "1").write_text(agent_record_path(runs[0], "1").read_text())
+    agent_record_path(runs[1], "standard").write_text(agent_record_path(runs[0], "standard").read_text())
+    # Both finished, seed 2 sooner (as a curriculum whose stage 1 ended sooner): complete, still read at 400.
+    result = learning_curves(runs, "1")
+    assert result["complete"] and (result["standard_final_x"], result["standard_final_return"]) == (400, 5.0)
 
 
 def test_the_curriculum_is_timed_against_standard_sacs_first_arrival_at_its_final_return(tmp_path):

@@ -931,8 +931,8 @@ def read_metrics(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
 
 
 def learning_curve(out: str | os.PathLike[str], agent: str) -> dict[str, Any]:
-    """One agent's evaluations over its stages in order (cumulative steps and training seconds), and the steps
-    where each stage after the first began."""
+    """One agent's evaluations over its stages in order (cumulative steps and training seconds), the steps where
+    each stage after the first began, and whether the agent has finished (its record written)."""
     cfg = TrainOvertakingConfig(agent=agent, stage1_max_steps=1, stage2_steps=1, stage3_steps=2)
     names = [s.name for s in stages_of(cfg)]
     out = Path(out)
@@ -942,7 +942,8 @@ def learning_curve(out: str | os.PathLike[str], agent: str) -> dict[str, Any]:
         if i > 0 and stage_path.is_file():
             switches.append({"stage": name, "num_timesteps": _read_json(stage_path).get("start_steps")})
         records += read_metrics(out / name / METRICS_NAME)
-    return {"agent": agent, "out": str(out), "records": records, "stage_switches": switches}
+    finished = agent_record_path(out, agent).is_file()
+    return {"agent": agent, "out": str(out), "records": records, "stage_switches": switches, "finished": finished}
 
 
 __all__ = [

@@ -738,8 +738,8 @@ def learning_curves(
     behind each point and each seed's own curve, each seed's stage switches, and the steps at which the curriculum's
     mean first reaches standard SAC's final mean return, as a share of the steps at which standard SAC's own mean first
     reaches it (the issue's target: at most one half). Only points that every seed with data reaches count for the
-    target: while a seed is still training, the final return is that of the last such point and ``complete`` is
-    False."""
+    target (a seed still training, or a curriculum whose stage 1 ended sooner, stops earlier); ``complete`` says
+    every seed's agent and standard SAC have finished."""
     if axis not in ("num_timesteps", "train_time_s"):
         raise SettingError(f"axis must be num_timesteps or train_time_s, got {axis!r}")
     if not runs:
@@ -764,6 +764,7 @@ def learning_curves(
             "seeds_with_data": len(with_data),
             "per_seed": [_nan_to_none(values[i]) for i in range(len(curves))],
             "stage_switches": [c["stage_switches"] for c in curves],
+            "seeds_finished": sum(c["finished"] for c in curves),
         }
 
     def common(label: str) -> list[tuple[float, float]]:
@@ -777,8 +778,7 @@ def learning_curves(
     standard, curriculum = common("standard"), common("curriculum")
     result["standard_final_return"] = standard[-1][1] if standard else None
     result["standard_final_x"] = standard[-1][0] if standard else None
-    # Every run folder has both curves and each curve's last point has every seed.
-    result["complete"] = all(result[k]["n_seeds"][-1:] == [len(runs)] for k in ("standard", "curriculum"))
+    result["complete"] = all(result[k]["seeds_finished"] == len(runs) for k in ("standard", "curriculum"))
     if standard and axis == "num_timesteps":
         final = standard[-1][1]
         # The target compares first arrivals: standard SAC may reach its final return well before its last step.
@@ -811,7 +811,7 @@ def write_learning_curves(result: dict[str, Any], out: str | os.PathLike[str]) -
         std = np.array([np.nan if v is None else v for v in data["std"]])
         name = f"curriculum SAC (agent {result['curriculum_agent']})" if label == "curriculum" else "standard SAC"
         every = np.array(data["n_seeds"]) == data["seeds_with_data"]
-        # Solid where every seed has a point, dotted where some are still training; each seed thin.
+        # Solid where every seed has a point, dotted where some have stopped or are still training; each seed thin.
         ax.plot(x, np.where(every, mean, np.nan), color=color, label=f"{name}, mean of {data['seeds_with_data']} seeds")
         ax.plot(x, mean, color=color, linestyle=":", linewidth=1)
         ax.fill_between(x, mean - std, mean + std, where=every, color=color, alpha=0.25)

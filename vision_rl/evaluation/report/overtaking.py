@@ -14,8 +14,8 @@ OVERTAKING_PAPER = "papers/gts-overtaking-curriculum-sac.json"
 TABLE3 = "table3-expressway-tt_cup/table3.json"
 SETTINGS = "overtaking-expressway-tt_cup/{agents}_setting_{setting}.json"
 CURRICULUM_CURVES = "overtaking-expressway-tt_cup/learning_curves_num_timesteps.json"
-#: Fig. 3 over the training seeds that have trained so far (issue 65): the reading the README gives.
-CURVES_OVER_SEEDS = "overtaking-expressway-tt_cup/fig3-interim/learning_curves_num_timesteps.json"
+#: Fig. 3 over 3 training seeds (issue 65): the reading the README gives.
+CURVES_OVER_SEEDS = "overtaking-expressway-tt_cup/fig3/learning_curves_num_timesteps.json"
 #: The straight driver (full throttle, never steering) through the protocol on Table III's track and car.
 STRAIGHT_TT_CUP = "reference-laps/straight_expressway_tt_cup.json"
 OPPONENT_SKILL = "overtaking-expressway-tt_cup/opponent-skill/skill-{skill}/overtaking_setting_{setting}.json"
@@ -290,7 +290,12 @@ def overtaking_table(records: Records) -> str:
         (
             "Fig. 3: curriculum (Agent 3) against standard SAC, steps to standard SAC's final overtaking return",
             "fewer for the curriculum",
-            (f"{reach / 1e6:.2f}M, {curves['share_of_standard_steps']:.2f}x standard SAC's" if reach else "not reached")
+            (
+                f"{reach / 1e6:.2f}M against standard SAC's {curves['standard_steps_to_final'] / 1e6:.2f}M"
+                f" ({curves['share_of_standard_steps']:.2f}x)"
+                if reach
+                else "not reached"
+            )
             + f" ({seeds}{interim}; {link('record', CURVES_OVER_SEEDS)})",
             "-",
             "-",
