@@ -90,7 +90,7 @@ def test_the_committed_records_give_the_tables_figures():
         "| asymmetric, channels_last | 0.71 (1,408 ms; 402 ms of CPU) | 3.75 (267 ms; 78 ms of CPU) | 5.3x"
         in tables["ddpg-bench"]
     )
-    assert "Agents 2, 3 over 3 training seeds: 29/30, 23/30 |" in tables["overtaking"]  # setting B, summed
+    assert "Agents 2, 3 over 4 training runs of 3 seeds: 38/40, 31/40 |" in tables["overtaking"]  # setting B, summed
     assert (
         "1.50M against standard SAC's 1.30M (1.15x) (the curriculum over 3 training seeds, standard SAC over 3;"
         in (tables["overtaking"])
@@ -111,6 +111,7 @@ def test_the_committed_records_give_the_tables_figures():
     )
     assert "| A: stuck at 24 s (0 passed); B: stuck at 57 s (0 passed), stuck at 121 s (2 passed) |" in seeds
     assert "| A: stuck at 30 s (1 passed); B: none |" in seeds  # seed 0's Agent 2 misses once, in A only
+    assert "| 0 (Fig. 3's run) | agent 3 | [10/10](RESULTS/overtaking-expressway-tt_cup/seeds/s0-fig3/" in seeds
     assert (
         "| B (200 m apart) | agent 2 | 10/10 | 5.0 (5-5) | 165.5 ± 30.2 | 114.9 | 0.4 / 6.9 |"
         in tables["overtaking-settings"]

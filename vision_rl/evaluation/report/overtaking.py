@@ -253,13 +253,23 @@ def _settings_rows(records: Records) -> list[tuple[str, ...]]:
                 "all five, by each agent (Figs. 4-5)",
                 f"{counts}; fastest {fastest} s "
                 f"({link('record', SETTINGS.format(agents='agents23', setting=setting))}); "
-                f"Agents 2, 3 over {len({seed for seed, _ in OVERTAKING_SEEDS})} training seeds: {over_seeds}",
+                f"Agents 2, 3 over {_training_runs()}: {over_seeds}",
                 f"{ai['all_overtaken_runs']}/{ai['runs']} (in the agent's car)",
                 "-",
                 f"`vision-rl evaluate-overtaking --setting {setting} --runs 10 --policy ...`",
             )
         )
     return out
+
+
+def _training_runs() -> str:
+    """The training runs of :data:`OVERTAKING_SEEDS`, in words: "3 training seeds" or "4 training runs of 3 seeds"."""
+    seeds, runs = {seed for seed, _, _ in OVERTAKING_SEEDS}, {(seed, run) for seed, run, _ in OVERTAKING_SEEDS}
+    return (
+        f"{len(seeds)} training seeds"
+        if len(runs) == len(seeds)
+        else f"{len(runs)} training runs of {len(seeds)} seeds"
+    )
 
 
 def _seed_driver(records: Records, pattern: str, name: str, setting: str) -> dict[str, Any]:
@@ -271,7 +281,7 @@ def _over_seeds(records: Records, agent: str, setting: str) -> str:
     """Runs with all five overtaken by ``agent`` in ``setting``, summed over :data:`OVERTAKING_SEEDS`."""
     drivers = [
         _seed_driver(records, pattern, name, setting)["summary"]
-        for (_, which), (pattern, name) in OVERTAKING_SEEDS.items()
+        for (_, _, which), (pattern, name) in OVERTAKING_SEEDS.items()
         if which == agent
     ]
     return f"{sum(d['all_overtaken_runs'] for d in drivers)}/{sum(d['runs'] for d in drivers)}"
@@ -366,13 +376,23 @@ def settings_drivers_table(records: Records, paths: Iterable[str]) -> str:
 
 
 #: Agents 2 and 3 of each training seed in settings A and B (10 runs each): the record and the driver's name there.
+#: Settings A and B of Agents 2 and 3 per training run: (seed, which run of it, agent) -> (record pattern, driver name).
+#: Seed 0 trained twice: its first run (folder since lost) and the run Fig. 3 reads.
 OVERTAKING_SEEDS = {
-    (0, "agent 2"): (SETTINGS.format(agents="agents23", setting="{setting}"), "agent 2"),
-    (0, "agent 3"): (SETTINGS.format(agents="agents23", setting="{setting}"), "agent 3"),
-    (1, "agent 2"): (OPPONENT_SKILL.format(skill="0.80-0.88", setting="{setting}"), "agent2-s1"),
-    (1, "agent 3"): ("overtaking-expressway-tt_cup/seeds/s1/agent3_setting_{setting}.json", "agent3-s1"),
-    (2, "agent 2"): ("overtaking-expressway-tt_cup/seeds/s2/agent2_setting_{setting}.json", "agent2-s2"),
-    (2, "agent 3"): ("overtaking-expressway-tt_cup/seeds/s2/agent3_setting_{setting}.json", "agent3-s2"),
+    (0, "first run", "agent 2"): (SETTINGS.format(agents="agents23", setting="{setting}"), "agent 2"),
+    (0, "first run", "agent 3"): (SETTINGS.format(agents="agents23", setting="{setting}"), "agent 3"),
+    (0, "Fig. 3's run", "agent 2"): (
+        "overtaking-expressway-tt_cup/seeds/s0-fig3/agent2_setting_{setting}.json",
+        "agent2-s0",
+    ),
+    (0, "Fig. 3's run", "agent 3"): (
+        "overtaking-expressway-tt_cup/seeds/s0-fig3/agent3_setting_{setting}.json",
+        "agent3-s0",
+    ),
+    (1, "", "agent 2"): (OPPONENT_SKILL.format(skill="0.80-0.88", setting="{setting}"), "agent2-s1"),
+    (1, "", "agent 3"): ("overtaking-expressway-tt_cup/seeds/s1/agent3_setting_{setting}.json", "agent3-s1"),
+    (2, "", "agent 2"): ("overtaking-expressway-tt_cup/seeds/s2/agent2_setting_{setting}.json", "agent2-s2"),
+    (2, "", "agent 3"): ("overtaking-expressway-tt_cup/seeds/s2/agent3_setting_{setting}.json", "agent3-s2"),
 }
 
 
@@ -389,12 +409,12 @@ def overtaking_seeds_table(records: Records) -> str:
     """Runs with all five overtaken by Agents 2 and 3 in settings A and B, per training seed (issue 65's target: at
     least 9/10 in each, on every seed), and how the other runs ended."""
     rows = []
-    for (seed, agent), (pattern, name) in OVERTAKING_SEEDS.items():
+    for (seed, run, agent), (pattern, name) in OVERTAKING_SEEDS.items():
         cells, missed = [], []
         for setting in ("A", "B"):
             driver = _seed_driver(records, pattern, name, setting)
             cells.append(link(_driver_cells(driver)[0], pattern.format(setting=setting)))
             missed.append(f"{setting}: {_missed_runs(driver) or 'none'}")
-        rows.append((f"{seed}", agent, *cells, "; ".join(missed)))
+        rows.append((f"{seed} ({run})" if run else f"{seed}", agent, *cells, "; ".join(missed)))
     header = ("training seed", "agent", "setting A: all five overtaken", "setting B", "the other runs ended")
     return markdown_table(header, rows)
