@@ -102,7 +102,7 @@ def test_the_committed_records_give_the_tables_figures():
         in (tables["table3-dreamer-interim"])
     )
     assert (
-        "| 280,300 | 0.075 | 0.084 / 0.081 | 0.258 / 0.402 | 0.563 / 0.644 | 3.08 / 1.34 | lidar, wall_contact,"
+        "| 280,300 | 0.075 | 0.084 / 0.081 | 0.258 / 0.402 | 0.563 / 0.644 | 3.08 / 1.34 | -1.96 (4.34) | lidar,"
         in (tables["dreamer-model-interim"])
     )
     seeds = tables["overtaking-seeds"]

@@ -111,10 +111,26 @@ def test_a_model_exact_on_a_linear_system_has_no_error_and_holding_the_last_obse
     assert [row["horizon_steps"] for row in result["horizons"]] == [1, 5, 20]
     for row in result["horizons"]:  # off by one step in actions or rewards, or actions in env units, would show
         assert row["model"]["observation_rmse"] < 1e-4 and row["model"]["reward_rmse"] < 1e-4
+        assert abs(row["model"]["reward_bias"]) < 1e-4
         assert row["hold_last"]["observation_rmse"] > 0.1 and row["hold_last"]["reward_rmse"] > 0.01
         assert row["observation_rmse_ratio_to_hold_last"] < 1e-3
     assert result["reconstruction"]["observation_rmse"] < 1e-6
     assert len(result["curve"]["model_observation_rmse"]) == 20
+
+
+def test_a_model_that_expects_a_penalty_the_laps_lack_has_a_negative_reward_bias_of_its_size():
+    (a, b, c), laps = _linear_laps([60, 45])
+
+    class Pessimist(LinearModel):
+        def reward_head(self, feature):
+            return super().reward_head(feature) - 0.25
+
+    result = model_error(_run(Pessimist(a, b, c)), laps, context_steps=5, horizons=(1, 20), starts=1000)
+    true = np.array([row["true_reward_mean"] for row in result["horizons"]])
+    assert np.abs(true).max() > 1e-3  # the laps' rewards, not zeros
+    for row in result["horizons"]:
+        assert row["model"]["reward_bias"] == pytest.approx(-0.25, abs=1e-5)
+        assert row["model"]["reward_rmse"] == pytest.approx(0.25, abs=1e-5)
 
 
 def test_holding_the_last_observation_is_exact_on_constant_laps_only():

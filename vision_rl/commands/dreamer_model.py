@@ -73,16 +73,18 @@ def format_dreamer_model(result: dict[str, Any]) -> list[str]:
         f"context {settings['context_steps']} steps",
         "  the context's last observation reconstructed: RMSE "
         + number_text(result["reconstruction"]["observation_rmse"], 3),
-        f"  {'horizon':>12} | {'obs RMSE':>9} {'hold last':>9} {'ratio':>6} | {'reward RMSE':>11} {'hold last':>9}",
+        f"  {'horizon':>12} | {'obs RMSE':>9} {'hold last':>9} {'ratio':>6} | {'reward RMSE':>11} {'hold last':>9}"
+        f" {'bias':>7} {'true':>7}",
     ]
     for row in result["horizons"]:
         model, hold = row["model"], row["hold_last"]
         obs_model, obs_hold = (number_text(x["observation_rmse"], 3) for x in (model, hold))
         reward_model, reward_hold = (number_text(x["reward_rmse"], 3) for x in (model, hold))
         ratio = number_text(row["observation_rmse_ratio_to_hold_last"], 2)
+        bias, true = number_text(model["reward_bias"], 3), number_text(row["true_reward_mean"], 3)
         lines.append(
             f"  {row['horizon_steps']:>4} ({row['horizon_s']:>4.1f} s) | {obs_model:>9} {obs_hold:>9} {ratio:>6} | "
-            f"{reward_model:>11} {reward_hold:>9}"
+            f"{reward_model:>11} {reward_hold:>9} {bias:>7} {true:>7}"
         )
     longest = result["horizons"][-1]
     groups = ", ".join(

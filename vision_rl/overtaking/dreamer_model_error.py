@@ -27,7 +27,7 @@ from vision_rl.overtaking.demos import Demos, demo_fingerprint, load_demos, norm
 from vision_rl.overtaking.dreamer import LatentState, LoadedDreamer, WorldModel, to_model_units
 
 RECORD_FORMAT = "vision_rl.dreamer_model_error"
-RECORD_FORMAT_VERSION = 1
+RECORD_FORMAT_VERSION = 2  # 2: the model's reward bias and the true reward per horizon
 DEFAULT_HORIZONS = (1, 5, 10, 25, 50)
 CONTROL_DT_S = 0.1
 
@@ -103,13 +103,17 @@ def start_rows(episode_starts: np.ndarray, context_steps: int, max_horizon: int)
 
 class SquaredErrors(NamedTuple):
     """Mean squared errors over the start points: per step 1..H and observation entry (H, obs_dim), per step (H,)
-    for the reward; the posterior's reconstruction of the context's last observation (obs_dim,)."""
+    for the reward; the posterior's reconstruction of the context's last observation (obs_dim,). Then, per step, the
+    mean of the model's reward less the true one (its bias: negative where it expects penalties the laps do not
+    have) and the mean true reward."""
 
     model_observation: np.ndarray
     model_reward: np.ndarray
     hold_last_observation: np.ndarray
     hold_last_reward: np.ndarray
     reconstruction: np.ndarray
+    model_reward_bias: np.ndarray
+    true_reward: np.ndarray
 
 
 @torch.no_grad()
@@ -139,12 +143,11 @@ def rollout_errors(model: WorldModel, rows: ModelRows, starts: np.ndarray, conte
         predicted_reward.append(model.reward_head(feature).squeeze(-1))
     true_obs, true_reward = obs[:, last + 1 :], rewards[:, last + 1 :]  # (N, H, ...)
     model_obs = (torch.stack(predicted_obs, 1) - true_obs) ** 2
-    model_reward = (torch.stack(predicted_reward, 1) - true_reward) ** 2
+    reward_error = torch.stack(predicted_reward, 1) - true_reward
     hold_obs = (true_obs - obs[:, last : last + 1]) ** 2
     hold_reward = (true_reward - rewards[:, last : last + 1]) ** 2
-    return SquaredErrors(
-        *(e.double().mean(0).cpu().numpy() for e in (model_obs, model_reward, hold_obs, hold_reward, reconstruction))
-    )
+    means = (model_obs, reward_error**2, hold_obs, hold_reward, reconstruction, reward_error, true_reward)
+    return SquaredErrors(*(e.double().mean(0).cpu().numpy() for e in means))
 
 
 def check_horizons(horizons: tuple[int, ...], context_steps: int) -> None:
@@ -170,6 +173,7 @@ def _horizon_rows(errors: SquaredErrors, horizons: tuple[int, ...]) -> list[dict
         model = {
             **_rmse(errors.model_observation[h - 1], groups),
             "reward_rmse": float(np.sqrt(errors.model_reward[h - 1])),
+            "reward_bias": float(errors.model_reward_bias[h - 1]),
         }
         hold = {
             **_rmse(errors.hold_last_observation[h - 1], groups),
@@ -183,6 +187,7 @@ def _horizon_rows(errors: SquaredErrors, horizons: tuple[int, ...]) -> list[dict
                 "model": model,
                 "hold_last": hold,
                 "observation_rmse_ratio_to_hold_last": ratio,
+                "true_reward_mean": float(errors.true_reward[h - 1]),
             }
         )
     return out

@@ -184,6 +184,7 @@ def dreamer_model_table(records: Records, paths: Iterable[str] = DREAMER_MODEL_I
                 f"{record['reconstruction']['observation_rmse']:.3f}",
                 *observation,
                 f"{model['reward_rmse']:.2f} / {hold['reward_rmse']:.2f}",
+                f"{model['reward_bias']:+.2f} ({by_steps[longest_steps]['true_reward_mean']:.2f})",
                 ", ".join(worse) or "none",
             )
         )
@@ -193,6 +194,7 @@ def dreamer_model_table(records: Records, paths: Iterable[str] = DREAMER_MODEL_I
         "observation RMSE, reconstructed",
         *(f"observation RMSE {n} step{'s' * (n > 1)} ahead, model / hold last" for n in MODEL_HORIZONS_STEPS),
         f"reward RMSE {longest_steps} steps ahead, model / hold last",
+        f"the model's reward less the true one {longest_steps} steps ahead, mean (the true reward's)",
         f"groups predicted worse than holding the last, {longest_steps} steps ahead",
     )
     units = "Observations in the normalised units the model sees; reward per step (Eq. 1); a step is 0.1 s."
