@@ -41,7 +41,7 @@ def test_vector_task_drives_the_state_actor_and_critic() -> None:
     batch = buffer.sample(16, rng)
     assert batch["obs"]["state"].shape == (16, 3) and batch["action"].shape == (16, 2)
     losses = agent.update(batch)
-    assert all(np.isfinite(v) for v in losses.values())
+    assert all(np.isfinite(float(v)) for v in losses.values())
     with pytest.raises(DDPGError, match="state-actor"):
         DDPGAgent(DDPGHyper(variant="asymmetric"), task)
 

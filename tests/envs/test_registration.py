@@ -196,11 +196,13 @@ def test_the_old_ids_keep_their_spaces(small_track):
         np.array([-STEER_LIMIT_RAD, -1.0], np.float32), np.array([STEER_LIMIT_RAD, 1.0], np.float32), dtype=np.float32
     )
     for env_id, size in (("vision_rl/TimeTrial-v1", 38), ("vision_rl/Overtaking-v1", 96)):
-        env = gym.make(env_id, track=TRACK)
+        with pytest.warns(DeprecationWarning, match="is out of date"):  # Gymnasium tells its user of the newer one
+            env = gym.make(env_id, track=TRACK)
         assert env.action_space == physical
         np.testing.assert_array_equal(env.action_space.low, np.float32([-0.5235988, -1.0]))
         assert env.observation_space == gym.spaces.Box(-np.inf, np.inf, (size,), np.float32)
-    pixel = gym.make("vision_rl/PixelRacing-v0", track=small_track)
+    with pytest.warns(DeprecationWarning, match="upgrading to version `v1`"):
+        pixel = gym.make("vision_rl/PixelRacing-v0", track=small_track)
     assert pixel.action_space == gym.spaces.Box(np.float32([0, -1, -1, 0]), np.float32([1, 1, 1, 1]))
     assert pixel.observation_space == gym.spaces.Dict(
         image=gym.spaces.Box(0, 255, (89, 120, 3), np.uint8),

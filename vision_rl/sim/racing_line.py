@@ -212,7 +212,8 @@ def _curvature_and_jacobian(
 def _max_step(value: np.ndarray, change: np.ndarray) -> float:
     """Largest step in [0, 1] that keeps ``value + step * change`` non-negative."""
     neg = change < 0.0
-    return float(min(1.0, np.min(-value[neg] / change[neg]))) if neg.any() else 1.0
+    with np.errstate(over="ignore"):  # a change of denormal size overflows its ratio to inf, which the min drops
+        return float(min(1.0, np.min(-value[neg] / change[neg]))) if neg.any() else 1.0
 
 
 def _newton_direction(
