@@ -95,6 +95,11 @@ def test_the_committed_records_give_the_tables_figures():
         "1.50M against standard SAC's 1.30M (1.15x) (the curriculum over 3 training seeds, standard SAC over 3;"
         in (tables["overtaking"])
     )
+    assert (
+        "| 100 % (4,281) | 1.30M | 1.50M | 1.15x | 1.30M / 0.60M / 1.50M | 1.60M / 1.40M / 1.20M |"
+        in (tables["fig3-reach"])
+    )
+    assert "| 80 % (3,425) | 0.40M | 0.80M | 2.00x |" in tables["fig3-reach"]  # the mean where every seed has a point
     interim = "; interim, the new recipe's seeds still training: seed 0 at 280k steps 3/3, seed 2 at 133k steps 0/3"
     assert interim + ", best 91.59 s (0.911 of the AI's)" in tables["overtaking"]  # Dreamer's PlaNet row
     assert (
