@@ -100,14 +100,14 @@ def test_the_committed_records_give_the_tables_figures():
         in (tables["fig3-reach"])
     )
     assert "| 80 % (3,425) | 0.40M | 0.80M | 2.00x |" in tables["fig3-reach"]  # the mean where every seed has a point
-    interim = "; interim, the new recipe's seeds still training: seed 0 at 280k steps 3/3, seed 2 at 133k steps 0/3"
-    assert interim + ", best 91.59 s (0.911 of the AI's)" in tables["overtaking"]  # Dreamer's PlaNet row
+    interim = "; interim, the new recipe's seeds still training: seed 0 at 610k steps 3/3, seed 2 at 466k steps 3/3"
+    assert interim + ", best 89.85 s (0.893 of the AI's)" in tables["overtaking"]  # Dreamer's PlaNet row
     assert (
-        "| PlaNet (as Dreamer) s0 | 91.59 (91.67) | 3/3 | 7.2 | 280,300 | 17,639 | - |"
+        "| PlaNet (as Dreamer) s2 | 97.08 (97.14) | 3/3 | 6.0 | 465,900 | 11,926 | - |"
         in (tables["table3-dreamer-interim"])
     )
     assert (
-        "| 280,300 | 0.075 | 0.084 / 0.081 | 0.258 / 0.402 | 0.563 / 0.644 | 3.08 / 1.34 | -1.96 (4.34) | lidar,"
+        "| 609,640 | 0.060 | 0.069 / 0.081 | 0.236 / 0.402 | 0.521 / 0.644 | 2.25 / 1.34 | -0.75 (4.34) | heading"
         in (tables["dreamer-model-interim"])
     )
     seeds = tables["overtaking-seeds"]
