@@ -192,7 +192,9 @@ def fig3_reach_table(records: Records, shares: tuple[float, ...] = (0.8, 0.9, 0.
             for label in ("standard", "curriculum")
         ]
         ratio = "-" if standard is None or curriculum is None else f"{curriculum / standard:.2f}x"
-        rows.append((f"{share * 100:.0f} % ({level:,.0f})", _steps_text(standard), _steps_text(curriculum), ratio, *per_seed))
+        rows.append(
+            (f"{share * 100:.0f} % ({level:,.0f})", _steps_text(standard), _steps_text(curriculum), ratio, *per_seed)
+        )
     header = (
         "share of standard SAC's final mean return",
         "standard SAC, mean",
