@@ -101,8 +101,8 @@ def start_rows(episode_starts: np.ndarray, context_steps: int, max_horizon: int)
     return rows[ok]
 
 
-class SquaredErrors(NamedTuple):
-    """Mean squared errors over the start points: per step 1..H and observation entry (H, obs_dim), per step (H,)
+class RolloutErrors(NamedTuple):
+    """Means over the start points. Squared errors: per step 1..H and observation entry (H, obs_dim), per step (H,)
     for the reward; the posterior's reconstruction of the context's last observation (obs_dim,). Then, per step, the
     mean of the model's reward less the true one (its bias: negative where it expects penalties the laps do not
     have) and the mean true reward."""
@@ -118,7 +118,7 @@ class SquaredErrors(NamedTuple):
 
 @torch.no_grad()
 def rollout_errors(model: WorldModel, rows: ModelRows, starts: np.ndarray, context_steps: int, horizon: int):
-    """:class:`SquaredErrors` of the model filtering ``context_steps`` rows ending at each of ``starts`` and
+    """:class:`RolloutErrors` of the model filtering ``context_steps`` rows ending at each of ``starts`` and
     imagining ``horizon`` steps on from there, all start points at once."""
     device = next(model.parameters()).device
     index = starts[:, None] + np.arange(1 - context_steps, horizon + 1)[None, :]  # (N, C + H)
@@ -147,7 +147,7 @@ def rollout_errors(model: WorldModel, rows: ModelRows, starts: np.ndarray, conte
     hold_obs = (true_obs - obs[:, last : last + 1]) ** 2
     hold_reward = (true_reward - rewards[:, last : last + 1]) ** 2
     means = (model_obs, reward_error**2, hold_obs, hold_reward, reconstruction, reward_error, true_reward)
-    return SquaredErrors(*(e.double().mean(0).cpu().numpy() for e in means))
+    return RolloutErrors(*(e.double().mean(0).cpu().numpy() for e in means))
 
 
 def check_horizons(horizons: tuple[int, ...], context_steps: int) -> None:
@@ -166,7 +166,7 @@ def _rmse(squared: np.ndarray, groups: dict[str, list[int]]) -> dict[str, Any]:
     }
 
 
-def _horizon_rows(errors: SquaredErrors, horizons: tuple[int, ...]) -> list[dict[str, Any]]:
+def _horizon_rows(errors: RolloutErrors, horizons: tuple[int, ...]) -> list[dict[str, Any]]:
     groups = observation_groups()
     out = []
     for h in sorted(set(horizons)):
@@ -288,7 +288,7 @@ def _figure(result: dict[str, Any], path: Path) -> None:
 __all__ = [
     "DEFAULT_HORIZONS",
     "ModelRows",
-    "SquaredErrors",
+    "RolloutErrors",
     "check_horizons",
     "default_out",
     "load_dreamer_run",
