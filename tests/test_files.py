@@ -7,6 +7,7 @@ import errno
 import hashlib
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from vision_rl.files import (
     content_damage,
     content_sha256,
     file_sha256,
+    first_line,
     json_text,
     parse_json,
     sealed_record,
@@ -166,3 +168,22 @@ def test_json_nested_past_the_parsers_depth_is_a_value_error():
     with pytest.raises(ValueError, match="nested too deeply"):
         parse_json("[" * 100_000 + "]" * 100_000)
     assert parse_json('{"a": [1, {"b": null}]}') == {"a": [1, {"b": None}]}
+
+
+def test_an_errors_first_line_is_its_message_first_line_or_its_type_name():
+    assert first_line(ValueError("  bad value\n  at line 3\n")) == "bad value"
+    assert first_line(KeyError()) == "KeyError"
+    assert first_line(RuntimeError("   ")) == "RuntimeError"
+
+
+def test_only_files_py_takes_an_errors_first_line():
+    """One implementation: an inline ``str(exc).splitlines()[0]`` fails (IndexError) on an empty message."""
+    idiom = re.compile(r"str\(\w+\)(\.strip\(\))?\.splitlines\(\)\[0\]")
+    found = [
+        f"{path.relative_to(PACKAGE_DIR)}:{n}"
+        for path in sorted(PACKAGE_DIR.rglob("*.py"))
+        if path.name != "files.py"
+        for n, line in enumerate(path.read_text().splitlines(), 1)
+        if idiom.search(line)
+    ]
+    assert not found, f"use vision_rl.files.first_line: {found}"

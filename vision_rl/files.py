@@ -82,6 +82,12 @@ def clear_folder(folder: Path) -> None:
             entry.unlink()
 
 
+def first_line(exc: BaseException) -> str:
+    """An exception's message as one line (its type's name when it has none), for the one-line errors of the CLI."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
 def file_sha256(path: str | os.PathLike[str]) -> str:
     """Hex SHA-256 of a file's bytes, read in 1 MiB blocks."""
     digest = hashlib.sha256()
@@ -118,7 +124,7 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None]) ->
         _fsync(path.parent)
     except (OSError, RuntimeError) as exc:  # torch reports a failed write (a full disk) as RuntimeError
         tmp.unlink(missing_ok=True)
-        reason = getattr(exc, "strerror", None) or str(exc).strip().splitlines()[0]
+        reason = getattr(exc, "strerror", None) or first_line(exc)
         error = ArtifactWriteError(f"cannot write {path}: {reason}; the previous file is kept")
         error.errno = getattr(exc, "errno", None) or (errno.ENOSPC if "space" in str(exc) else errno.EIO)
         raise error from None

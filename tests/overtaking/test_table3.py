@@ -96,6 +96,14 @@ def test_kept_rows_stand_in_for_algorithms_without_a_run_and_a_foreign_or_change
     assert rows["gail"]["status"] == "not trained" and "kept_from" not in rows["ai"]
     again = {r["key"]: r for r in table3(Table3Config(runs=str(bc_run), keep=str(kept_path), **table))["rows"]}
     assert "kept_from" not in again["bc"] and again["bc"]["run"] == str(bc_run)
+    # Kept again from a record that kept it: the row still names the record it was timed in.
+    chained_path = tmp_path / "chained.json"
+    write_json(chained_path, table3(Table3Config(runs_root=str(tmp_path / "none"), keep=str(kept_path), **table)))
+    chained = {
+        r["key"]: r
+        for r in table3(Table3Config(runs_root=str(tmp_path / "none"), keep=str(chained_path), **table))["rows"]
+    }
+    assert chained["bc"]["kept_from"] == str(kept_path)
     with pytest.raises(ValueError, match=r"would not compare: protocol laps 1 \(here 2\)"):
         table3(Table3Config(runs=str(bc_run), keep=str(kept_path), **{**table, "laps": 2}))
     earlier["rows"][1]["lap_time_s"] = 1.0

@@ -31,7 +31,7 @@ import numpy as np
 import zstandard
 
 from vision_rl import files
-from vision_rl.files import atomic_write, package_version
+from vision_rl.files import atomic_write, first_line, package_version
 
 FORMAT_VERSION = 3
 #: The first format version whose files carry checksums; older files are refused.
@@ -542,7 +542,7 @@ class CaptureWriter:
             return self._rewrite_for_resume(file_attrs, committed, rewrite)
         except _H5_ERRORS as exc:
             raise CaptureFormatError(
-                f"{self.path}: cannot be reopened for writing (damaged file): {_first_line(exc)}"
+                f"{self.path}: cannot be reopened for writing (damaged file): {first_line(exc)}"
             ) from exc
 
     def _rewrite_for_resume(
@@ -649,7 +649,7 @@ class CaptureWriter:
             if _is_disk_full(exc):
                 raise self._disk_full(exc) from exc
             if isinstance(exc, RuntimeError):  # HDF5's word for a damaged file met while writing
-                raise CaptureFormatError(f"{self.path}: writing failed (damaged file?): {_first_line(exc)}") from exc
+                raise CaptureFormatError(f"{self.path}: writing failed (damaged file?): {first_line(exc)}") from exc
             raise
 
     def _reserve(self, n_bytes: int) -> None:
@@ -666,7 +666,7 @@ class CaptureWriter:
         self._abandon()
         return CaptureDiskFullError(
             errno.ENOSPC,
-            f"{self.path}: disk full after {committed} frames ({_first_line(exc)}); the file keeps those frames, "
+            f"{self.path}: disk full after {committed} frames ({first_line(exc)}); the file keeps those frames, "
             "marked incomplete: free space and resume",
         )
 
@@ -832,14 +832,9 @@ def _read_table(ds: h5py.Dataset, n_frames: int, path: Path) -> np.ndarray:
                 )
                 raise CaptureFormatError(
                     f"{path}: dataset {name!r}, frames {start}..{stop - 1}: the data fail their checksum or cannot "
-                    f"be read (damaged file): {remedy} ({_first_line(exc)})"
+                    f"be read (damaged file): {remedy} ({first_line(exc)})"
                 ) from exc
-        raise CaptureFormatError(f"{path}: cannot read dataset {name!r}: {_first_line(exc)}") from exc
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
+        raise CaptureFormatError(f"{path}: cannot read dataset {name!r}: {first_line(exc)}") from exc
 
 
 #: Largest stored chunk read, bytes, beyond its raw size: zstd's and deflate's worst case adds a few bytes per
@@ -871,7 +866,7 @@ def _check_chunks(ds: h5py.Dataset, n_frames: int, path: Path, file_bytes: int) 
         ds.id.chunk_iter(visit)
     except _H5_ERRORS as exc:
         raise CaptureFormatError(
-            f"{path}: dataset {name!r}: its chunk index cannot be read (damaged file): {_first_line(exc)}"
+            f"{path}: dataset {name!r}: its chunk index cannot be read (damaged file): {first_line(exc)}"
         ) from exc
     if not bad and not found.all():
         missing = int(np.flatnonzero(~found)[0]) * rows
@@ -1062,7 +1057,7 @@ class CaptureFile:
             mask, blob = self.images.id.read_direct_chunk((int(index), 0, 0, 0))
         except _H5_ERRORS as exc:
             raise CaptureFormatError(
-                f"{self.path}: dataset 'images', frame {index} cannot be read (damaged file): {_first_line(exc)}"
+                f"{self.path}: dataset 'images', frame {index} cannot be read (damaged file): {first_line(exc)}"
             ) from exc
         if mask != 0 and self._crc_of == "chunk":  # this writer never skips the filter: a damaged index
             raise CaptureFormatError(f"{self.path}: dataset 'images', frame {index}: filter mask {mask} (damaged file)")
@@ -1088,7 +1083,7 @@ class CaptureFile:
                 out.reshape(-1)[:] = np.frombuffer(self._decode(chunk[0]), dtype=np.uint8)
         except (*_H5_ERRORS, *_DECODE_ERRORS) as exc:
             raise CaptureFormatError(
-                f"{self.path}: dataset 'images', frame {index} cannot be decoded (damaged file): {_first_line(exc)}"
+                f"{self.path}: dataset 'images', frame {index} cannot be decoded (damaged file): {first_line(exc)}"
             ) from exc
         if self._crc_of == "frame" and zlib.crc32(out) != stored:
             raise self._checksum_error(index, stored, zlib.crc32(out))
@@ -1245,7 +1240,7 @@ def _open_checked(path: Path, locking: bool) -> CaptureFile:
     except _H5_ERRORS as exc:
         raise CaptureFormatError(
             f"{path}: not a readable HDF5 file (truncated or corrupt, or still open in a running capture?): "
-            f"{_first_line(exc)}"
+            f"{first_line(exc)}"
         ) from exc
     try:
         attrs, n_frames = _validate(path, f)
@@ -1256,7 +1251,7 @@ def _open_checked(path: Path, locking: bool) -> CaptureFile:
     except (*_H5_ERRORS, LookupError) as exc:
         f.close()
         raise CaptureFormatError(
-            f"{path}: unreadable capture file structure (truncated or corrupt?): {_first_line(exc)}"
+            f"{path}: unreadable capture file structure (truncated or corrupt?): {first_line(exc)}"
         ) from exc
 
 

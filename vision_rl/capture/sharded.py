@@ -30,7 +30,7 @@ from vision_rl.capture.h5format import (
     probe_captures,
 )
 from vision_rl.capture.sim_capture import CaptureConfig
-from vision_rl.files import atomic_write, json_text
+from vision_rl.files import atomic_write, first_line, json_text
 
 #: The ``format`` field of a manifest, and the version this module writes and reads.
 MANIFEST_FORMAT = "vision_rl capture manifest"
@@ -320,7 +320,7 @@ def connect_ray(address: str, what: str) -> tuple[Any, bool]:
             ray.init(**kwargs)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         where = f"at --address {address}" if address else "on this machine"
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        first = first_line(exc)
         raise ValueError(f"{what}: cannot start or reach a Ray cluster {where}: {first}") from exc
     return ray, True
 

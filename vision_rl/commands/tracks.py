@@ -8,6 +8,7 @@ from typing import Any
 
 from vision_rl.commands.options import comma_list
 from vision_rl.commands.output import emit, progress_bar, show
+from vision_rl.files import first_line
 
 
 @dataclass(frozen=True)
@@ -94,7 +95,7 @@ def render_check(name: str) -> dict[str, Any]:
         with Renderer(track) as renderer:
             labels = renderer.render_labels(xy[:, 0], xy[:, 1], track.heading_at(s))[0]
     except Exception as exc:  # reported per track: one track that cannot be drawn must not hide the others
-        return {"road_share": None, "render_error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
+        return {"road_share": None, "render_error": f"{type(exc).__name__}: {first_line(exc)}"}
     lower = labels[labels.shape[0] // 2 :]
     road = np.isin(lower, [Label.ROAD, Label.LINE, Label.KERB]).mean()
     return {"road_share": round(float(road), 3), "render_error": None}

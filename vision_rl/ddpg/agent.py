@@ -41,6 +41,7 @@ from vision_rl.files import (
     atomic_write,
     content_damage,
     content_sha256,
+    first_line,
     parse_json,
     sealed_record,
     write_json,
@@ -785,7 +786,7 @@ class DDPGAgent:
             self.actor_opt.load_state_dict(state["optimizers"]["actor"])
             self.critic_opt.load_state_dict(state["optimizers"]["critic"])
         except (RuntimeError, KeyError, ValueError, AttributeError) as exc:
-            first = str(exc).strip().splitlines()[0]
+            first = first_line(exc)
             raise DDPGError(f"{source}: its weights do not fit this agent's networks: {first}") from None
         noise = np.asarray(state["noise"], dtype=np.float64)
         if noise.shape == self.noise.x.shape:
@@ -852,7 +853,7 @@ def read_agent_file(path: str | os.PathLike[str], sha256: str | None = None) -> 
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except DAMAGED_FILE_ERRORS as exc:  # a flipped bit of the pickled index can fail anywhere in the unpickler
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        first = first_line(exc)
         raise ArtifactError(
             f"{path}: not a DDPG agent file (it holds more than tensors and plain values, or is damaged): {first}"
         ) from None

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from vision_rl.evaluation.protocol import PROTOCOL_VERSION, BuiltinAI, LapTiming, StraightDriver, time_laps
-from vision_rl.files import CONTENT_KEY, content_damage, content_sha256, parse_json
+from vision_rl.files import CONTENT_KEY, content_damage, content_sha256, first_line, parse_json
 
 EVALUATION_FORMAT = "vision_rl.evaluation"
 #: What writers add to a record after it is sealed: where its outputs went, not figures. Left out of its hash.
@@ -60,7 +60,7 @@ def read_evaluation(path: str | os.PathLike[str]) -> dict[str, Any]:
     try:
         data = parse_json(Path(path).read_text())
     except (OSError, ValueError) as exc:
-        raise RecordError(f"{path}: not a readable evaluation record: {_first_line(exc)}") from None
+        raise RecordError(f"{path}: not a readable evaluation record: {first_line(exc)}") from None
     if not isinstance(data, dict) or data.get("format") != EVALUATION_FORMAT:
         raise RecordError(f"{path}: not an evaluation record (no format {EVALUATION_FORMAT!r})")
     protocol = data.get("protocol")
@@ -77,11 +77,6 @@ def read_evaluation(path: str | os.PathLike[str]) -> dict[str, Any]:
     if problem is not None:
         raise RecordError(f"{path}: {problem}; re-measure it: {remeasure_hint(data)}")
     return data
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def _seconds(value: Any) -> bool:
@@ -208,7 +203,7 @@ def find_experiments(runs: str | os.PathLike[str]) -> tuple[list[dict[str, Any]]
         try:
             data = parse_json(path.read_text())
         except (OSError, ValueError) as exc:
-            refused.append(f"{path}: not a readable experiment record: {_first_line(exc)}")
+            refused.append(f"{path}: not a readable experiment record: {first_line(exc)}")
             continue
         if not isinstance(data, dict) or (data.get("format") != EXPERIMENT_FORMAT and CONTENT_KEY not in data):
             continue  # another program's file of that name

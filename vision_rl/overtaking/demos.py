@@ -29,7 +29,7 @@ import numpy as np
 from vision_rl.envs.core import RacingCore
 from vision_rl.envs.observations import OBS_NAMES, OBS_VERSION, ObsNormalizer
 from vision_rl.envs.racing_env import action_space
-from vision_rl.files import atomic_write, json_text
+from vision_rl.files import atomic_write, first_line, json_text
 from vision_rl.overtaking.config import OBSERVATION, SCENARIO, RecordDemosConfig, race_config
 from vision_rl.sim.ai_driver import DEFAULT_SKILL, AIDriver
 from vision_rl.sim.driving import line_and_profile
@@ -219,7 +219,7 @@ def load_demos(path: str | os.PathLike[str], fingerprint: Mapping[str, Any] | No
     except DemoError:
         raise
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        first = first_line(exc)
         raise DemoError(f"{path}: damaged demonstrations file ({first}); record them again") from None
     n = len(arrays["actions"])
     shapes = {

@@ -21,7 +21,7 @@ import torch
 
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import time_laps
-from vision_rl.files import CONTENT_KEY, parse_json
+from vision_rl.files import CONTENT_KEY, first_line, parse_json
 from vision_rl.overtaking.baseline_run import (
     HIDDEN_UNITS,
     BaselineError,
@@ -86,7 +86,7 @@ def load_sequence_replay(replay: SequenceReplay, path: Path, fingerprint: dict[s
     except ArtifactError:
         raise
     except (*DAMAGED_FILE_ERRORS, KeyError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        first = first_line(exc)
         raise ArtifactError(f"{path}: damaged or mismatched sequence-replay file: {first}") from None
 
 
@@ -108,9 +108,7 @@ def load_dreamer(weights: Path, spec: PolicySpec, sidecar: Path, device: str = "
     except ArtifactError as exc:
         raise PolicyError(str(exc)) from None
     except (RuntimeError, KeyError, TypeError) as exc:
-        raise PolicyError(
-            f"{weights}: the weights do not fit the recorded Dreamer recipe: {str(exc).splitlines()[0]}"
-        ) from None
+        raise PolicyError(f"{weights}: the weights do not fit the recorded Dreamer recipe: {first_line(exc)}") from None
     return LoadedDreamer(agent, spec, weights, sidecar)
 
 
@@ -149,7 +147,7 @@ class _DreamerSession:
             raise BaselineError(f"cannot continue {out}: {exc}") from None
         except (KeyError, RuntimeError, ValueError) as exc:
             raise BaselineError(
-                f"cannot continue {out}: its weights do not fit this recipe's networks: {str(exc).splitlines()[0]}"
+                f"cannot continue {out}: its weights do not fit this recipe's networks: {first_line(exc)}"
             ) from None
         self.steps, self.agent.n_updates = int(state["counters"]["num_timesteps"]), int(state["counters"]["n_updates"])
         self.train_time_before_s = spec.train_time_s

@@ -18,6 +18,7 @@ import torch
 from stable_baselines3.common.buffers import ReplayBuffer
 from torch import nn
 
+from vision_rl.files import first_line
 from vision_rl.overtaking.baseline_run import HIDDEN_UNITS, BaselineError, TrainBaselineConfig
 from vision_rl.overtaking.demos import OBS_DIM, Demos, load_demos_for
 from vision_rl.training.sac import next_multiple
@@ -138,9 +139,7 @@ class GAILUpdater:
             self.disc.load_state_dict(state["discriminator"])
             self.optimizer.load_state_dict(state["discriminator_optimizer"])
         except (KeyError, RuntimeError, ValueError) as exc:
-            raise BaselineError(
-                f"{source}: no discriminator that fits this gail run: {str(exc).splitlines()[0]}"
-            ) from None
+            raise BaselineError(f"{source}: no discriminator that fits this gail run: {first_line(exc)}") from None
 
 
 class GAILCompanion:

@@ -32,6 +32,7 @@ from stable_baselines3.common.vec_env import VecMonitor
 from vision_rl.envs.racing_env import action_space
 from vision_rl.envs.vector import make_sb3_vec_env
 from vision_rl.evaluation.protocol import time_laps
+from vision_rl.files import first_line
 from vision_rl.overtaking.baseline_run import (
     HIDDEN_UNITS,
     BaselineError,
@@ -338,7 +339,7 @@ def load_td3(weights: Path, spec: PolicySpec, sidecar: Path, device: str = "cpu"
     except (RuntimeError, KeyError) as exc:
         raise PolicyError(
             f"{weights}: the weights do not fit a TD3 {list(HIDDEN_UNITS)} network of {OBS_DIM} inputs: "
-            f"{str(exc).splitlines()[0]}"
+            f"{first_line(exc)}"
         ) from None
     policy.set_training_mode(False)
     return LoadedPolicy(policy, spec, weights, sidecar)

@@ -120,7 +120,10 @@ def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[st
     rows = [ai]
     for algo, key in ROW_OF_ALGO.items():
         row = _algo_row(algo, key, loaded, timed, progress)
-        rows.append({**kept[key], "kept_from": cfg.keep} if row["status"] == "not trained" and key in kept else row)
+        if row["status"] == "not trained" and key in kept:
+            # A row the kept record itself kept names the record it was timed in, so provenance survives a chain.
+            row = {**kept[key], "kept_from": kept[key].get("kept_from") or cfg.keep}
+        rows.append(row)
     if cfg.demonstrator:
         if progress is not None:
             progress("demonstrator")

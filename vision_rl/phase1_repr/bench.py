@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from vision_rl.files import first_line
 from vision_rl.phase1_repr.checkpoint import build_network, read_checkpoint
 from vision_rl.phase1_repr.config import BenchLatencyConfig, BenchTrainStepConfig
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet, count_parameters
@@ -161,7 +162,7 @@ def bench_latency(cfg: BenchLatencyConfig) -> dict[str, Any]:
                     "setup_s": setup_s,
                 }
             except Exception as exc:  # a variant that does not work on this machine is reported, not fatal
-                variants[name] = {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200]}"}
+                variants[name] = {"error": f"{type(exc).__name__}: {first_line(exc)[:200]}"}
     result["variants"] = variants
     return result
 

@@ -24,7 +24,7 @@ from vision_rl.envs.observations import ObservationKind, ObsNormalizer
 from vision_rl.envs.observer import Observer, in_batches_of
 from vision_rl.envs.racing_env import action_space
 from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
-from vision_rl.files import atomic_write, content_damage, json_text, parse_json, sealed_record
+from vision_rl.files import atomic_write, content_damage, first_line, json_text, parse_json, sealed_record
 from vision_rl.sim.track_library import load_track
 from vision_rl.sim.world import World, WorldState
 from vision_rl.training.persist import (
@@ -589,8 +589,7 @@ def load_policy(
         raise PolicyError(str(exc)) from None
     except RuntimeError as exc:
         raise PolicyError(
-            f"{weights_path}: the weights do not fit a {spec.hidden_units} network of {dim} inputs: "
-            f"{str(exc).splitlines()[0]}"
+            f"{weights_path}: the weights do not fit a {spec.hidden_units} network of {dim} inputs: {first_line(exc)}"
         ) from None
     policy.set_training_mode(False)
     return LoadedPolicy(policy, spec, weights_path, spec_path, module, encoder_path)

@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from vision_rl.files import first_line
+
 RAY_MISSING = "--workers needs Ray: pip install 'vision_rl[ray]'"
 #: Seconds the learner blocks at most on samplers before it looks again (Ctrl-C and SIGTERM are handled between).
 WAIT_SLICE_S = 0.25
@@ -102,7 +104,7 @@ def connect(address: str, workers: int) -> Cluster:
                 os.environ.setdefault("RAY_worker_niceness", "0")
                 ray.init(num_cpus=os.cpu_count() or 1, **kwargs)
         except (ConnectionError, RuntimeError, ValueError) as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            first = first_line(exc)
             raise DistributedError(f"cannot join the Ray cluster at {address or 'a new local one'}: {first}") from None
         finally:
             if main and previous is not None:
@@ -566,7 +568,7 @@ class SamplingLearner:
                     try:
                         value = self.ray.get(ref)
                     except RayError as exc:
-                        self._lose(worker, _first_line(exc))
+                        self._lose(worker, _ray_error_line(exc))
                     else:
                         learner.started(worker, value)
         except BaseException:
@@ -599,7 +601,7 @@ class SamplingLearner:
             chunk = self.ray.get(ref)
         except self.ray_error as exc:
             self.pacer.lose(chunk_id, steps)
-            self._lose(worker, _first_line(exc))
+            self._lose(worker, _ray_error_line(exc))
             return
         self.busy[worker] = False
         self.pacer.receive(chunk_id, steps)
@@ -739,11 +741,11 @@ def learn_like_sb3(
     return learn_with_samplers(SB3Learner(model, on_vector_step), setup, pacing, cluster, log_event=log_event)
 
 
-def _first_line(exc: BaseException) -> str:
+def _ray_error_line(exc: BaseException) -> str:
     """The cause of a Ray error in one line (a task's own exception, not Ray's traceback)."""
     cause = getattr(exc, "cause", None)
     if isinstance(cause, BaseException) and str(cause).strip():
-        return f"{type(cause).__name__}: {str(cause).strip().splitlines()[0]}"
+        return f"{type(cause).__name__}: {first_line(cause)}"
     lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
     # An actor whose constructor raised: Ray's text ends with that exception's own last line.
     raised = [line for line in lines if line.split(":")[0].endswith(("Error", "Exception")) and ": " in line]

@@ -48,7 +48,7 @@ from gymnasium import spaces
 from vision_rl.envs.core import RacingConfig
 from vision_rl.envs.observations import ObsNormalizer
 from vision_rl.envs.racing_env import action_space as physical_action_space
-from vision_rl.files import file_sha256
+from vision_rl.files import file_sha256, first_line
 from vision_rl.training.artifact import SIDECAR_NAME, PolicyDriver
 from vision_rl.training.evaluate import EVALUATION_NAME, ProtocolRun, timed_record, write_record
 from vision_rl.training.persist import DAMAGED_FILE_ERRORS
@@ -204,7 +204,7 @@ def describe_env(env_id: str, env_kwargs: Mapping[str, Any]) -> EnvFacts:
             warnings.filterwarnings("ignore", message=".*is out of date", category=DeprecationWarning)
             env = gym.make(env_id, **env_kwargs)
     except (TypeError, ValueError, OSError) as exc:
-        raise ValueError(f"{env_id}: {_first_line(exc)}") from None
+        raise ValueError(f"{env_id}: {first_line(exc)}") from None
     try:
         base = env.unwrapped
         config = getattr(base, "config", None)
@@ -302,7 +302,7 @@ class CheckedPredict:
         try:
             actions = np.asarray(out, dtype=np.float64)
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"the agent's actions are not an array of numbers: {_first_line(exc)}") from None
+            raise ValueError(f"the agent's actions are not an array of numbers: {first_line(exc)}") from None
         if actions.shape != (n, self.action_dim):
             raise ValueError(
                 f"the agent returned actions of shape {actions.shape} for {n} observations: give one row per "
@@ -329,11 +329,6 @@ def _check_observations(obs: Any, env: EnvFacts) -> None:
         )
 
 
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
-
-
 # ----------------------------------------------------------------------------------------- --python module:function
 
 
@@ -353,7 +348,7 @@ def load_python_agent(spec: str) -> Any:
             with _on_sys_path(os.getcwd()):
                 module = importlib.import_module(module_name)
     except (ImportError, SyntaxError) as exc:
-        raise ValueError(f"--python {spec}: cannot import {module_name}: {_first_line(exc)}") from None
+        raise ValueError(f"--python {spec}: cannot import {module_name}: {first_line(exc)}") from None
     agent: Any = module
     for part in attribute.split("."):
         if not hasattr(agent, part):
@@ -467,7 +462,7 @@ def read_sb3_actor(path: str | os.PathLike[str]) -> SB3Actor:
                 tensors = torch.load(io.BytesIO(member.read()), map_location="cpu", weights_only=True)
             data = json.loads(archive.read("data"))
     except DAMAGED_FILE_ERRORS as exc:
-        raise ValueError(f"{path}: not a Stable-Baselines3 zip whose tensors load safely: {_first_line(exc)}") from None
+        raise ValueError(f"{path}: not a Stable-Baselines3 zip whose tensors load safely: {first_line(exc)}") from None
     if not isinstance(tensors, dict) or not isinstance(data, dict):
         raise ValueError(f"{path}: not a Stable-Baselines3 zip (no policy tensors and data)")
     if any("features_extractor" in key for key in tensors):

@@ -34,7 +34,7 @@ import torch
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-from vision_rl.files import atomic_write, content_damage, file_sha256, json_text, parse_json, sealed_record
+from vision_rl.files import atomic_write, content_damage, file_sha256, first_line, json_text, parse_json, sealed_record
 
 AGENT_FORMAT = "vision_rl.agent"
 BUFFER_FORMAT = "vision_rl.replay_buffer"
@@ -74,12 +74,6 @@ OPTIONAL_BUFFER_ARRAYS = ("ai_labels",)
 
 class ArtifactError(ValueError):
     """A file that is not what it should be (corrupt, foreign, or made for something else); the message says how."""
-
-
-def _first_line(exc: BaseException) -> str:
-    """An exception's message as one line (its type's name when it has none)."""
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def check_fingerprint(recorded: Mapping[str, Any], expected: Mapping[str, Any], source: str) -> None:
@@ -169,7 +163,7 @@ def read_sb3_zip(path: str | os.PathLike[str]) -> dict[str, Any]:
             data = json.loads(archive.read("data"))
     except DAMAGED_FILE_ERRORS as exc:
         raise ArtifactError(
-            f"{path}: not a Stable-Baselines3 SAC zip whose tensors load safely: {_first_line(exc)}"
+            f"{path}: not a Stable-Baselines3 SAC zip whose tensors load safely: {first_line(exc)}"
         ) from None
     state["counters"] = {
         "num_timesteps": int(data.get("num_timesteps", 0)),
@@ -201,7 +195,7 @@ def read_agent(
     except DAMAGED_FILE_ERRORS as exc:
         raise ArtifactError(
             f"{path}: not a vision_rl agent file (it holds more than tensors and plain values, or is damaged): "
-            f"{_first_line(exc)}"
+            f"{first_line(exc)}"
         ) from None
     if not isinstance(state, dict) or state.get("format") != AGENT_FORMAT:
         raise ArtifactError(f"{path}: not a vision_rl agent file (no format {AGENT_FORMAT!r})")
@@ -221,7 +215,7 @@ def restore_agent(model: OffPolicyAlgorithm, state: Mapping[str, Any], source: s
             optimizer = model.ent_coef_optimizer if name == "ent_coef" else getattr(model, name).optimizer
             optimizer.load_state_dict(optimizer_state)
     except (RuntimeError, KeyError, ValueError, AttributeError) as exc:
-        first = str(exc).strip().splitlines()[0]
+        first = first_line(exc)
         raise ArtifactError(f"{source}: its weights do not fit this agent's networks: {first}") from None
     if "log_ent_coef" in state:
         with torch.no_grad():
@@ -317,7 +311,7 @@ def _read_npz(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     except ArtifactError:
         raise
     except DAMAGED_FILE_ERRORS as exc:
-        raise ArtifactError(f"{path}: damaged replay-buffer file: {_first_line(exc)}") from None
+        raise ArtifactError(f"{path}: damaged replay-buffer file: {first_line(exc)}") from None
     return meta, arrays
 
 
