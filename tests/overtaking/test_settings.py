@@ -165,6 +165,12 @@ def test_learning_curves_over_seeds_with_the_stage_switch(tmp_path):
     assert result["standard_final_return"] == pytest.approx(7.0)
     assert result["curriculum_steps_to_standard_final"] == 100
     assert result["share_of_standard_steps"] == pytest.approx(1 / 6)
+    # Read at 80 % (5.6): standard SAC's mean (2..7) at 500 steps, its seeds (1..6, 3..8) at 600 and 400.
+    eighty = result["reach"][0]
+    assert (eighty["share"], eighty["level"]) == (0.8, pytest.approx(5.6))
+    assert eighty["standard"] == {"mean_x": 500, "per_seed_x": [600, 400]}
+    assert eighty["curriculum"] == {"mean_x": 100, "per_seed_x": [100, 100]}
+    assert result["reach"][-1]["standard"]["mean_x"] == 600 and result["reach"][-1]["share"] == 1.0
     files = write_learning_curves(result, tmp_path / "fig")
     assert Path(files["png"]).stat().st_size > 1000
     assert json.loads(Path(files["json"]).read_text())["curriculum"]["x"] == cur["x"]

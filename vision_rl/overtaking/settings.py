@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -737,7 +737,8 @@ def learning_curves(
     and standard deviation of the overtaking return on a common axis (``num_timesteps`` or ``train_time_s``), the seeds
     behind each point and each seed's own curve, each seed's stage switches, and the steps at which the curriculum's
     mean first reaches standard SAC's final mean return, as a share of the steps at which standard SAC's own mean first
-    reaches it (the issue's target: at most one half). Only points that every seed with data reaches count for the
+    reaches it (the issue's target: at most one half), and both read at several shares of that return (``reach``,
+    :func:`reach_reading`). Only points that every seed with data reaches count for the
     target (a seed still training, or a curriculum whose stage 1 ended sooner, stops earlier); ``complete`` says
     every seed's agent and standard SAC have finished."""
     if axis not in ("num_timesteps", "train_time_s"):
@@ -767,27 +768,54 @@ def learning_curves(
             "seeds_finished": sum(c["finished"] for c in curves),
         }
 
-    def common(label: str) -> list[tuple[float, float]]:
-        data = result[label]
-        return [
-            (x, v)
-            for x, v, n in zip(data["x"], data["mean"], data["n_seeds"], strict=True)
-            if v is not None and n == data["seeds_with_data"]
-        ]
-
-    standard, curriculum = common("standard"), common("curriculum")
-    result["standard_final_return"] = standard[-1][1] if standard else None
-    result["standard_final_x"] = standard[-1][0] if standard else None
+    final = _common_mean(result["standard"])
+    result["standard_final_return"] = final[-1][1] if final else None
+    result["standard_final_x"] = final[-1][0] if final else None
     result["complete"] = all(result[k]["seeds_finished"] == len(runs) for k in ("standard", "curriculum"))
-    if standard and axis == "num_timesteps":
-        final = standard[-1][1]
+    if final and axis == "num_timesteps":
+        result["reach"] = reach_reading(result)
         # The target compares first arrivals: standard SAC may reach its final return well before its last step.
-        standard_reach = next(x for x, v in standard if v >= final)
-        reach = next((x for x, v in curriculum if v >= final), None)
+        target = result["reach"][-1]
+        standard_reach, reach = target["standard"]["mean_x"], target["curriculum"]["mean_x"]
         result["standard_steps_to_final"] = standard_reach
         result["curriculum_steps_to_standard_final"] = reach
         result["share_of_standard_steps"] = None if reach is None else reach / standard_reach
     return result
+
+
+#: The shares of standard SAC's final mean return at which Fig. 3 is read; the last, all of it, is the target's.
+REACH_SHARES = (0.8, 0.9, 0.95, 1.0)
+
+
+def _common_mean(data: dict[str, Any]) -> list[tuple[float, float]]:
+    """A curve's mean where every seed with data has a point (a seed still training, or a curriculum whose stage 1
+    ended sooner, stops earlier)."""
+    return [
+        (x, v)
+        for x, v, n in zip(data["x"], data["mean"], data["n_seeds"], strict=True)
+        if v is not None and n == data["seeds_with_data"]
+    ]
+
+
+def _first_reach(points: Iterable[tuple[float, float | None]], level: float) -> float | None:
+    return next((x for x, v in points if v is not None and v >= level), None)
+
+
+def reach_reading(curves: dict[str, Any], shares: Sequence[float] = REACH_SHARES) -> list[dict[str, Any]]:
+    """Fig. 3 read at each share of standard SAC's final mean return: the steps at which each mean curve (where every
+    seed has a point) and each seed's own curve first reach it (None: never)."""
+    final = curves["standard_final_return"]
+    reading = []
+    for share in shares:
+        entry: dict[str, Any] = {"share": share, "level": share * final}
+        for label in ("standard", "curriculum"):
+            data = curves[label]
+            entry[label] = {
+                "mean_x": _first_reach(_common_mean(data), share * final),
+                "per_seed_x": [_first_reach(zip(data["x"], v, strict=True), share * final) for v in data["per_seed"]],
+            }
+        reading.append(entry)
+    return reading
 
 
 def _nan_to_none(values: np.ndarray) -> list[float | None]:

@@ -160,40 +160,28 @@ def table3_runs_table(records: Records, paths: tuple[str, ...] = (TABLE3,)) -> s
     return markdown_table(header, rows) + f"\n{'Record' if len(paths) == 1 else 'Records'}: {named}.\n"
 
 
-def _first_reach(xs: list[float], values: list[float | None], level: float) -> float | None:
-    """The first step whose value is at least ``level`` (None when none is)."""
-    return next((x for x, v in zip(xs, values, strict=True) if v is not None and v >= level), None)
-
-
 def _steps_text(steps: float | None) -> str:
     return "not reached" if steps is None else f"{steps / 1e6:.2f}M"
 
 
-def fig3_reach_table(records: Records, shares: tuple[float, ...] = (0.8, 0.9, 0.95, 1.0)) -> str:
-    """Fig. 3's reading at several levels: the steps at which the mean curves (where every seed has a point) and each
-    seed's own curve first reach a share of standard SAC's final mean return, and the curriculum's against standard
-    SAC's; the last level is the target's."""
+def fig3_reach_table(records: Records) -> str:
+    """Fig. 3's reading at several levels, as the curves record holds it (``reach``): the steps at which the mean
+    curves (where every seed has a point) and each seed's own curve first reach a share of standard SAC's final mean
+    return, and the curriculum's against standard SAC's; the last level is the target's."""
     curves = records(CURVES_OVER_SEEDS)
-    final = curves["standard_final_return"]
-
-    def common(label: str) -> tuple[list[float], list[float | None]]:
-        data = curves[label]
-        every = [n == data["seeds_with_data"] for n in data["n_seeds"]]
-        return data["x"], [v if ok else None for v, ok in zip(data["mean"], every, strict=True)]
-
     rows = []
-    for share in shares:
-        level = share * final
-        standard, curriculum = (_first_reach(*common(label), level) for label in ("standard", "curriculum"))
-        per_seed = [
-            " / ".join(
-                _steps_text(_first_reach(curves[label]["x"], values, level)) for values in curves[label]["per_seed"]
-            )
-            for label in ("standard", "curriculum")
-        ]
+    for entry in curves["reach"]:
+        standard, curriculum = (entry[label]["mean_x"] for label in ("standard", "curriculum"))
+        per_seed = [" / ".join(map(_steps_text, entry[label]["per_seed_x"])) for label in ("standard", "curriculum")]
         ratio = "-" if standard is None or curriculum is None else f"{curriculum / standard:.2f}x"
         rows.append(
-            (f"{share * 100:.0f} % ({level:,.0f})", _steps_text(standard), _steps_text(curriculum), ratio, *per_seed)
+            (
+                f"{entry['share'] * 100:.0f} % ({entry['level']:,.0f})",
+                _steps_text(standard),
+                _steps_text(curriculum),
+                ratio,
+                *per_seed,
+            )
         )
     header = (
         "share of standard SAC's final mean return",
