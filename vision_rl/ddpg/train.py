@@ -51,7 +51,7 @@ from vision_rl.evaluation.protocol import time_laps
 from vision_rl.files import atomic_write, clear_folder, json_text, lock_run_folder, sealed_record, write_json
 from vision_rl.training.interrupts import HeldSignal
 from vision_rl.training.persist import ArtifactError, check_fingerprint
-from vision_rl.training.sac import torch_device
+from vision_rl.training.sac import next_multiple, torch_device
 
 METRICS_NAME = "metrics.jsonl"
 EPISODES_NAME = "episodes.jsonl"
@@ -344,8 +344,8 @@ class _StepHooks:
     def __init__(self, run: _Run, agent: DDPGAgent, buffer: FrameReplay, progress: Progress | None) -> None:
         cfg = run.cfg
         self.run, self.agent, self.buffer, self.progress = run, agent, buffer, progress
-        self.next_eval = _next_multiple(run.num_steps, cfg.evaluation.every_steps)
-        self.next_checkpoint = _next_multiple(run.num_steps, cfg.checkpoints.every_steps)
+        self.next_eval = next_multiple(run.num_steps, cfg.evaluation.every_steps)
+        self.next_checkpoint = next_multiple(run.num_steps, cfg.checkpoints.every_steps)
         self.last_light_s = time.perf_counter()
         self.episodes_file = open(run.out / EPISODES_NAME, "a")  # closed by close()
         self.held = HeldSignal()
@@ -380,11 +380,6 @@ class _StepHooks:
 
     def close(self) -> None:
         self.episodes_file.close()
-
-
-def _next_multiple(n: int, every: int) -> int | None:
-    """The first multiple of ``every`` after ``n`` (None when ``every`` is 0: never)."""
-    return (n // every + 1) * every if every else None
 
 
 def _learn_here(
