@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from vision_rl.files import first_line
+from vision_rl.training.schedules import SamplerOptions
 
 RAY_MISSING = "--workers needs Ray: pip install 'vision_rl[ray]'"
 #: Seconds the learner blocks at most on samplers before it looks again (Ctrl-C and SIGTERM are handled between).
@@ -701,27 +702,25 @@ def learn_like_sb3(
     setup: SamplerSetup,
     cluster: Cluster,
     *,
-    workers: int,
-    max_staleness: int,
-    version_every_updates: int,
+    samplers: SamplerOptions,
     total_timesteps: int,
     callback: Any,
     log_event: Callable[[dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
-    """``model.learn(total_timesteps - model.num_timesteps, callback)`` with ``workers`` sampler actors: the model's
+    """``model.learn(total_timesteps - model.num_timesteps, callback)`` with ``samplers.workers`` actors: the model's
     own update ratio, batch size and random start steps; ``callback`` (an SB3 ``BaseCallback``) after every vector
     step, on the same step counts (its False ends the session); TensorBoard's rollout figures every
     :data:`LOG_EVERY_S`. Returns the session's :meth:`SamplingLearner.stats`."""
     pacing = Pacing(
-        workers=workers,
+        workers=int(samplers.workers or 0),
         n_cars=model.n_envs,
         gradient_steps=model.gradient_steps,
         train_freq_steps=model.train_freq.frequency,
         learning_starts=int(model.learning_starts),
         start_timesteps=int(model.num_timesteps),
         total_timesteps=total_timesteps,
-        version_every_updates=version_every_updates,
-        max_staleness=max_staleness,
+        version_every_updates=samplers.version_every_updates,
+        max_staleness=samplers.max_staleness,
     )
     callback.init_callback(model)
     last_dump = [time.perf_counter(), model.num_timesteps]
