@@ -64,8 +64,13 @@ def test_the_checks_find_a_long_function_and_a_print():
     assert long_functions(f"def f():\n{body}\n", "m.py") == [f"m.py:1 f ({MAX_FUNCTION_LINES + 1} lines)"]
     assert long_functions("def f():\n    return 1\n", "m.py") == []
     loads = "\n".join(
-        ("torch.load(p)", "torch.load(p, weights_only=True)", "np.load(p, allow_pickle=True)", "pickle.loads(b)")
-        + ("load_from_zip_file(p)",)
+        [
+            "torch.load(p)",
+            "torch.load(p, weights_only=True)",
+            "np.load(p, allow_pickle=True)",
+            "pickle.loads(b)",
+            "load_from_zip_file(p)",
+        ]
     )
     assert code_loads(loads, "m.py") == ["m.py:1", "m.py:3", "m.py:4", "m.py:5"]
     assert print_calls('def f():\n    """print(1)"""\n    # print(2)\n    print(3)\n', "m.py") == ["m.py:4"]
