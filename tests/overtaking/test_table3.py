@@ -10,6 +10,7 @@ import pytest
 from tests.helpers.overtaking import tiny_baseline_config
 from vision_rl.commands.main import main
 from vision_rl.evaluation.protocol import BuiltinAI, time_laps
+from vision_rl.evaluation.report import record_damage
 from vision_rl.overtaking.baselines import train_baseline
 from vision_rl.overtaking.config import Table3Config
 from vision_rl.overtaking.table3 import PAPER_TABLE3, table3
@@ -104,6 +105,13 @@ def test_kept_rows_stand_in_for_algorithms_without_a_run_and_a_foreign_or_change
         for r in table3(Table3Config(runs_root=str(tmp_path / "none"), keep=str(chained_path), **table))["rows"]
     }
     assert chained["bc"]["kept_from"] == str(kept_path)
+    # --out writes the record once timed, so --keep may name the file it replaces (a shell's > would empty it first).
+    args = ["table3", "--runs-root", str(tmp_path / "none"), "--track", small_track, "--seeds", "1", "--laps", "1"]
+    assert main([*args, "--no-demonstrator", "--keep", str(chained_path), "--out", str(chained_path)]) == 0
+    rewritten = {r["key"]: r for r in json.loads(chained_path.read_text())["rows"]}
+    assert (
+        rewritten["bc"]["kept_from"] == str(kept_path) and record_damage(json.loads(chained_path.read_text())) is None
+    )
     with pytest.raises(ValueError, match=r"would not compare: protocol laps 1 \(here 2\)"):
         table3(Table3Config(runs=str(bc_run), keep=str(kept_path), **{**table, "laps": 2}))
     earlier["rows"][1]["lap_time_s"] = 1.0

@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from vision_rl.commands.output import emit, number_text
+from vision_rl.commands.output import emit, note, number_text
+from vision_rl.files import write_json
 from vision_rl.overtaking.config import Table3Config
 
 
@@ -14,6 +15,9 @@ class Table3Options(Table3Config):
     """Time the built-in AI and every trained Table III baseline through the lap-time protocol (lap time and
     average speed), beside the paper's row, as ratios to each table's built-in AI."""
 
+    out: str = ""
+    """Also write the record (the --json document, sealed) to this file once every row is timed, in one atomic
+    write, so that --keep may name the file it replaces."""
     json: bool = False
     """Print the result as JSON."""
 
@@ -82,5 +86,9 @@ def run_table3(opts: Table3Options) -> int:
 
     fields = {f.name for f in dataclasses.fields(Table3Config)}
     cfg = Table3Config(**{k: v for k, v in dataclasses.asdict(opts).items() if k in fields})
-    emit(table3(cfg), opts.json, format_table3)
+    result = table3(cfg)
+    if opts.out:
+        write_json(opts.out, result)
+        note(f"wrote {opts.out}")
+    emit(result, opts.json, format_table3)
     return 0
