@@ -738,9 +738,9 @@ def learning_curves(
     behind each point and each seed's own curve, each seed's stage switches, and the steps at which the curriculum's
     mean first reaches standard SAC's final mean return, as a share of the steps at which standard SAC's own mean first
     reaches it (the issue's target: at most one half), and both read at several shares of that return (``reach``,
-    :func:`reach_reading`). Only points that every seed with data reaches count for the
-    target (a seed still training, or a curriculum whose stage 1 ended sooner, stops earlier); ``complete`` says
-    every seed's agent and standard SAC have finished."""
+    :func:`reach_reading`). Only points that every seed with data reaches count for the target (a seed still
+    training, or a curriculum whose stage 1 ended sooner, stops earlier); ``complete`` says every seed's agent and
+    standard SAC have finished."""
     if axis not in ("num_timesteps", "train_time_s"):
         raise SettingError(f"axis must be num_timesteps or train_time_s, got {axis!r}")
     if not runs:
@@ -768,11 +768,11 @@ def learning_curves(
             "seeds_finished": sum(c["finished"] for c in curves),
         }
 
-    final = _common_mean(result["standard"])
-    result["standard_final_return"] = final[-1][1] if final else None
-    result["standard_final_x"] = final[-1][0] if final else None
+    standard = _common_mean(result["standard"])
+    result["standard_final_return"] = standard[-1][1] if standard else None
+    result["standard_final_x"] = standard[-1][0] if standard else None
     result["complete"] = all(result[k]["seeds_finished"] == len(runs) for k in ("standard", "curriculum"))
-    if final and axis == "num_timesteps":
+    if standard and axis == "num_timesteps":
         result["reach"] = reach_reading(result)
         # The target compares first arrivals: standard SAC may reach its final return well before its last step.
         target = result["reach"][-1]
