@@ -526,7 +526,7 @@ STATE_AGENT_RECIPES = (
             ),
             Seeds((*ENT4_LRF, *_h25("dt04-ent4-lrf-repeat")), name="all 9 runs"),
         ),
-        study=f"{H25}README.md#seeds-0-2-again-make-experiment-from-a-fresh-clone-another-evening",
+        study=f"{H25}README.md#seeds-0-2-again-make-experiment-from-a-fresh-clone-on-another-occasion",
     ),
     Recipe(
         "SAC, state, 1M steps of 0.04 s (25 Hz, `--control-dt-s 0.04`), `rate_scaled`, 8-step returns, the AI's labels "

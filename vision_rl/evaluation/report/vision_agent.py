@@ -182,7 +182,7 @@ VISION_AGENT_RECIPES: tuple[Any, ...] = (
         "SAC, vision, `make quick`'s recipe before the held-out choice and the entropy target (frames in a sampler "
         "process), **3 training seeds**, at 200k steps",
         (_vision("quick_sampler_n1"),),
-        study=f"{STUDY}#make-quicks-recipe-of-2026-11-27-frames-in-a-sampler-process-3-step-returns-150k-steps",
+        study=f"{STUDY}#make-quicks-recipe-at-cba7343-frames-in-a-sampler-process-3-step-returns-150k-steps",
     ),
     NotedRecipe(
         "SAC, vision, 400k steps, `rate_scaled` steering, 3-step returns (`--n-step 3`), 3 training seeds",
