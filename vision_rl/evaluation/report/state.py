@@ -521,7 +521,7 @@ STATE_AGENT_RECIPES = (
         (
             Seeds(
                 _h25("dt04-ent4-lrf-repeat"),
-                name="`make experiment` again, seeds 0-2 on another evening, when the machine's floats differed and "
+                name="`make experiment` again, seeds 0-2 on another occasion, when the machine's floats differed and "
                 "so did the runs",
             ),
             Seeds((*ENT4_LRF, *_h25("dt04-ent4-lrf-repeat")), name="all 9 runs"),

@@ -356,7 +356,7 @@ SEEDS_TABLES: dict[str, SeedsTable] = {
     ),
 }
 
-#: The 200k-step batches on the encoder of 2026-11-28's night (training seeds 0 and 12-18), their records.
+#: The 200k-step batches on the 200k job's encoder (sha256 5144e91a...; training seeds 0 and 12-18), their records.
 STEPS_200K = ("quick_200k_steps_second_encoder_starts13.json", ("steps_200k",), None)
 SEEDS_15_18 = ("quick_200k_steps_seeds15_18_starts13.json", (), None)
 S0_12_14 = (0, 12, 13, 14)
@@ -373,7 +373,7 @@ SEEDS_TABLES |= {
     "vision-log-200k": SeedsTable(
         S4_11,
         (
-            _last("`make quick`'s recipe, 150k steps, on the encoder of 2026-11-27", USABLE),
+            _last("`make quick`'s recipe, 150k steps, on the earlier encoder", USABLE),
             _batch(
                 "the same 150k steps on this encoder",
                 "quick_200k_steps_starts13.json",
@@ -653,7 +653,7 @@ CRITIC_STATE = "quick_critic_state_starts13.json"
 CRITIC_STATE_ENCODER_SEED1 = "quick_critic_state_encoder_seed1_starts13.json"
 #: The runs with the critic that reads the state: (label, batch, whether the lap is set against the AI).
 CRITIC_STATE_RUNS: tuple[tuple[str, Batch, bool], ...] = (
-    ("training seeds 0 and 12-18, the night's encoder (above)", (CRITIC_STATE, ("critic_state",), None), False),
+    ("training seeds 0 and 12-18, the 200k job's encoder (above)", (CRITIC_STATE, ("critic_state",), None), False),
     (
         "the job's own run (seed 0), the same encoder",
         (CRITIC_STATE_ENCODER_SEED1, ("make_quick_job_vision_run",), None),
