@@ -105,6 +105,18 @@ def test_the_readme_links_resolve_and_cite_the_three_papers():
     assert "MIT License" in (ROOT / "LICENSE").read_text(encoding="utf-8")
 
 
+def test_no_docs_page_is_dated():
+    """The docs speak of the project (commits, occasions, the machine), not of when someone measured (the README's
+    own check is the front page's)."""
+    dated = [
+        f"{page.relative_to(ROOT)}:{n}"
+        for page in sorted((ROOT / "docs").rglob("*.md"))
+        for n, line in enumerate(page.read_text(encoding="utf-8").splitlines(), 1)
+        if re.search(r"\b20\d\d-\d\d-\d\d\b|\b(?:that evening|at night|this morning|today's)\b", line)
+    ]
+    assert not dated, f"dated lines: {dated}"
+
+
 def test_the_command_check_finds_a_missing_command_and_option():
     text = "```bash\nvision-rl experiment --steps 10 \\\n    --seeds 0,1,2   # a comment --nothing\n```\n"
     text += "Then `vision-rl no-such --x` and `vision-rl COMMAND --help`, and `vision-rl bench sim --json`.\n"
