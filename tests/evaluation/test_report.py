@@ -100,8 +100,18 @@ def test_the_committed_records_give_the_tables_figures():
         in (tables["fig3-reach"])
     )
     assert "| 80 % (3,425) | 0.40M | 0.80M | 2.00x |" in tables["fig3-reach"]  # the mean where every seed has a point
-    interim = "; interim, the new recipe's seeds still training: seed 0 at 610k steps 3/3, seed 2 at 466k steps 3/3"
-    assert interim + ", best 89.85 s (0.893 of the AI's)" in tables["overtaking"]  # Dreamer's PlaNet row
+    interim = "; interim, the new recipe's seeds still training: first runs: seed 0 at 610k steps 3/3, seed 2 at 466k"
+    assert interim + " steps 3/3, best 89.85 s (0.893 of the AI's)" in tables["overtaking"]  # Dreamer's PlaNet row
+    restarted = "; restarted: seed 0 at 516k steps 3/3, seed 1 at 524k steps 3/3, best 87.53 s (0.870 of the AI's)"
+    assert restarted in tables["overtaking"]
+    assert (
+        "| PlaNet (as Dreamer) s1 | 98.17 (98.74) | 3/3 | 5.6 | 524,140 | 7,165 | - |"
+        in tables["table3-dreamer-restarted"]
+    )
+    assert (
+        "| 524,140 | 0.063 | 0.072 / 0.081 | 0.326 / 0.402 | 0.746 / 0.644 | 1.75 / 1.34 | -1.11 (4.34) | velocity"
+        in tables["dreamer-model-restarted"]
+    )
     assert (
         "| PlaNet (as Dreamer) s2 | 97.08 (97.14) | 3/3 | 6.0 | 465,900 | 11,926 | - |"
         in (tables["table3-dreamer-interim"])
