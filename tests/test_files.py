@@ -187,3 +187,9 @@ def test_only_files_py_takes_an_errors_first_line():
         if idiom.search(line)
     ]
     assert not found, f"use vision_rl.files.first_line: {found}"
+
+
+def test_a_json_record_under_a_file_is_refused_in_one_line_naming_it(tmp_path):
+    (tmp_path / "a_file").write_text("x")
+    with pytest.raises(ArtifactWriteError, match=r"cannot write .*a_file/record.json: File exists"):
+        write_json(tmp_path / "a_file" / "record.json", {"a": 1})

@@ -196,7 +196,10 @@ def parse_json(text: str) -> Any:
 def write_json(path: str | os.PathLike[str], data: Mapping[str, Any] | list[Any], indent: int | None = 2) -> str:
     """``data`` as strict JSON (:func:`json_text`), written atomically (folders made); returns the file's SHA-256."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a file where a folder should be, or no permission: one line naming the path
+        raise ArtifactWriteError(f"cannot write {path}: {exc.strerror or first_line(exc)}") from None
     return atomic_write(path, lambda tmp: tmp.write_text(json_text(data, indent=indent)))
 
 
