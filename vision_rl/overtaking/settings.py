@@ -807,12 +807,13 @@ def reach_reading(curves: dict[str, Any], shares: Sequence[float] = REACH_SHARES
     final = curves["standard_final_return"]
     reading = []
     for share in shares:
-        entry: dict[str, Any] = {"share": share, "level": share * final}
+        level = share * final
+        entry: dict[str, Any] = {"share": share, "level": level}
         for label in ("standard", "curriculum"):
             data = curves[label]
             entry[label] = {
-                "mean_x": _first_reach(_common_mean(data), share * final),
-                "per_seed_x": [_first_reach(zip(data["x"], v, strict=True), share * final) for v in data["per_seed"]],
+                "mean_x": _first_reach(_common_mean(data), level),
+                "per_seed_x": [_first_reach(zip(data["x"], v, strict=True), level) for v in data["per_seed"]],
             }
         reading.append(entry)
     return reading
