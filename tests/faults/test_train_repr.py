@@ -246,9 +246,20 @@ def _start(tmp_path: Path, out: str, *extra: str) -> subprocess.Popen:
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env={**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"},
+        env={**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"},
         start_new_session=True,
     )
+
+
+def _communicate(proc: subprocess.Popen, timeout_s: float) -> tuple[str, str]:
+    """The run's stdout and stderr once it ends; a run still going after ``timeout_s`` fails the test with the
+    stacks of its processes (SIGABRT makes faulthandler print them)."""
+    try:
+        return proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGABRT)
+        _, stderr = proc.communicate(timeout=30)
+        pytest.fail(f"the run did not end within {timeout_s:.0f} s; its stacks:\n{stderr[-6000:]}")
 
 
 def _saved_epochs(last_ckpt: Path) -> int:
@@ -283,7 +294,7 @@ def _kill_after(proc: subprocess.Popen, last_ckpt: Path, epochs: int, sig: signa
         else:
             proc.send_signal(sig)
             os.killpg(proc.pid, signal.SIGCONT)
-        stdout, stderr = proc.communicate(timeout=60)
+        stdout, stderr = _communicate(proc, 120)
         return proc.returncode, stdout, stderr
     finally:
         if proc.poll() is None:
@@ -292,7 +303,7 @@ def _kill_after(proc: subprocess.Popen, last_ckpt: Path, epochs: int, sig: signa
 
 def _finish(proc: subprocess.Popen) -> dict:
     try:
-        stdout, stderr = proc.communicate(timeout=180)
+        stdout, stderr = _communicate(proc, 180)
     finally:
         if proc.poll() is None:
             kill_and_read(proc)
