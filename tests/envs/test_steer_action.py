@@ -96,7 +96,7 @@ def test_a_policy_drives_the_protocol_as_it_drove_its_environment(steer_action, 
     rng = np.random.default_rng(0)
     actions = np.column_stack([rng.uniform(-LIMIT, LIMIT, (12, 2)).ravel(), np.full(24, 0.6)]).reshape(12, 2, 2)
     queue = list(actions)
-    driver = PolicyDriver(lambda obs: queue.pop(0), "state", None, control_dt_s=control_dt_s, steer_action=steer_action)
+    driver = PolicyDriver(lambda obs: queue.pop(0), "state", None, config=cfg)
     driver.reset(replayed.world, replayed.ego_ids)
     for a in actions:
         trained.step(a, autoreset=False)

@@ -26,15 +26,7 @@ def test_driver_observations_equal_the_environments_with_a_frame_delay(gl_availa
     core.reset_groups(np.arange(2))
     seen = []
     actions = np.array([[0.2, 1.0], [-0.2, 0.8]])
-    driver = PolicyDriver(
-        lambda obs: seen.append(obs.copy()) or actions,
-        "vision",
-        None,
-        _MeanColour(),
-        cfg.image_hw_px,
-        cfg.control_dt_s,
-        frame_delay_s=cfg.frame_delay_s,
-    )
+    driver = PolicyDriver(lambda obs: seen.append(obs.copy()) or actions, "vision", None, _MeanColour(), cfg)
     driver.reset(core.world, core.ego_ids)
     env_obs = [core.observation()]
     for _ in range(4):
@@ -45,28 +37,6 @@ def test_driver_observations_equal_the_environments_with_a_frame_delay(gl_availa
     assert not np.allclose(seen[4][:, :6], seen[2][:, :6])  # the frames do change over the steps compared
     driver.close()
     core.observer.close()
-
-
-def test_a_driver_for_a_config_observes_and_steers_as_that_environment():
-    # Regression: train-policy's periodic evaluation once built its driver without the frame delay and the steering
-    # action of the run's environment, so its learning curves timed another policy than the one saved.
-    cfg = RacingConfig(
-        track="technical",
-        observation="vision",
-        image_hw_px=(24, 40),
-        control_dt_s=0.2,
-        frame_delay_s=0.1,
-        steer_action="speed_scaled",
-        pedal_full_at=0.9,
-    )
-    driver = PolicyDriver.for_config(lambda obs: obs, "vision", None, _MeanColour(), cfg)
-    assert (
-        driver.image_hw_px,
-        driver.control_dt_s,
-        driver.frame_delay_s,
-        driver.steer_action,
-        driver.pedal_full_at,
-    ) == ((24, 40), 0.2, 0.1, "speed_scaled", 0.9)
 
 
 def test_a_start_drives_the_same_beside_any_number_of_others(gl_available, tiny_encoders):
@@ -89,7 +59,7 @@ def test_a_start_drives_the_same_beside_any_number_of_others(gl_available, tiny_
             return actor(torch.as_tensor(obs)).numpy()
 
     def drive(seeds):
-        driver = PolicyDriver(predict, "vision", None, encoder, encoder.input_hw_px)
+        driver = PolicyDriver(predict, "vision", None, encoder, RacingConfig(image_hw_px=encoder.input_hw_px))
         timing = time_laps(driver, "technical", "hatchback", seeds, laps=1, time_limit_s=3.0, record=True)
         driver.close()
         return np.stack([timing.x_m, timing.yaw_rad, timing.steer_rad, timing.omega])

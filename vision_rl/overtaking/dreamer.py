@@ -458,19 +458,7 @@ class DreamerDriver(PolicyDriver):
     """A Dreamer agent as a protocol driver: its recurrent state restarts with every protocol run."""
 
     def __init__(self, agent: DreamerAgent, config: RacingConfig, normalizer, identity: dict[str, Any]) -> None:
-        super().__init__(
-            self._predict,
-            OBSERVATION,
-            normalizer,
-            None,
-            config.image_hw_px,
-            config.control_dt_s,
-            identity,
-            config.frame_delay_s,
-            config.steer_action,
-            config.pedal_full_at,
-            config.steer_change_share_of_range,
-        )
+        super().__init__(self._predict, OBSERVATION, normalizer, None, config, identity)
         self.agent = agent
 
     def reset(self, world, car_ids: np.ndarray) -> None:

@@ -386,15 +386,10 @@ class PolicyDriver:
 
     Args:
         predict: observations (n, obs_dim) -> actions (n, 2) ``[steer rad, omega]``.
-        kind, normalizer, encoder, image_hw_px: the observation it reads (as in training).
-        control_dt_s: how often it acts, s (its training environment's control step).
-        frame_delay_s: vision: how far its frames lag the state, s (as in training).
-        steer_action: how its first action entry steers (as in training; see
-            :func:`vision_rl.envs.core.steering_command`).
-        steer_change_share_of_range: ``rate_scaled``: the most a step moves the command, as a share of the usable
-            angle (as in training; see :func:`vision_rl.envs.core.rate_step_rad`).
-        pedal_full_at: where its second entry reaches full throttle or brake (as in training; see
-            :func:`vision_rl.envs.core.pedal_command`).
+        kind, normalizer, encoder: the observation it reads (as in training).
+        config: its training environment's, whose frame size, control step, frame delay, steering and pedal actions
+            it observes and acts with (see :func:`vision_rl.envs.core.steering_command` and
+            :func:`~vision_rl.envs.core.pedal_command`); the default environment's when None.
         identity: who it is, for the record (policy path, hashes, training steps).
     """
 
@@ -404,21 +399,13 @@ class PolicyDriver:
         kind: str,
         normalizer: ObsNormalizer | None,
         encoder=None,
-        image_hw_px: tuple[int, int] = (280, 470),
-        control_dt_s: float = 0.1,
+        config: RacingConfig | None = None,
         identity: dict[str, Any] | None = None,
-        frame_delay_s: float = 0.0,
-        steer_action: str = "angle",
-        pedal_full_at: float = 1.0,
-        steer_change_share_of_range: float = 0.0,
     ) -> None:
         self.predict = predict
-        self.steer_action, self.pedal_full_at = steer_action, pedal_full_at
-        self.steer_change_share_of_range = steer_change_share_of_range
         self.kind, self.normalizer, self.encoder = kind, normalizer, encoder
-        self.image_hw_px = image_hw_px
-        self.control_dt_s = control_dt_s
-        self.frame_delay_s = frame_delay_s
+        self.config = config or RacingConfig()
+        self.control_dt_s = self.config.control_dt_s  # what every driver of the protocol tells
         self.identity = identity or {"driver": "policy", "observation": kind}
         self.observer: Observer | None = None
 
@@ -432,26 +419,13 @@ class PolicyDriver:
         config: RacingConfig,
         identity: dict[str, Any] | None = None,
     ) -> PolicyDriver:
-        """A driver that observes and steers as the environment ``config`` did in training (frame size, control
-        step, frame delay, steering and pedal actions). A policy with a state-reading critic observes as a vision
-        policy (:func:`vision_rl.training.critic_state.actor_only`)."""
+        """A driver that observes and acts as the environment ``config`` did in training. A policy with a
+        state-reading critic observes as a vision policy (:func:`vision_rl.training.critic_state.actor_only`)."""
         if config.critic_state:
             from vision_rl.training.critic_state import actor_only
 
             normalizer, predict = actor_only(normalizer, predict)
-        return cls(
-            predict,
-            kind,
-            normalizer,
-            encoder,
-            config.image_hw_px,
-            config.control_dt_s,
-            identity,
-            config.frame_delay_s,
-            config.steer_action,
-            config.pedal_full_at,
-            config.steer_change_share_of_range,
-        )
+        return cls(predict, kind, normalizer, encoder, config, identity)
 
     def reset(self, world: World, car_ids: np.ndarray) -> None:
         if self.observer is not None:
@@ -463,10 +437,10 @@ class PolicyDriver:
             world.model.groups,
             self.normalizer,
             self.encoder,
-            self.image_hw_px,
+            self.config.image_hw_px,
             batch_cars=DRIVER_BATCH_CARS,
         )
-        self.observer.delay_frames(self.frame_delay_s, self.control_dt_s)
+        self.observer.delay_frames(self.config.frame_delay_s, self.control_dt_s)
         self.car_ids = np.asarray(car_ids)
         # As the environment: a run starts from the wheel angle the car was placed with.
         self.steer_command_rad = world.state.vehicle.steer_rad[self.car_ids].copy()
@@ -482,13 +456,13 @@ class PolicyDriver:
         action[:, 0] = self.steer_command_rad = steering_command(
             action[:, 0],
             self.steer_command_rad,
-            self.steer_action,
+            self.config.steer_action,
             self.max_steer_change_rad,
             speed,
             self.wheelbase_m,
-            self.steer_change_share_of_range,
+            self.config.steer_change_share_of_range,
         )
-        action[:, 1] = pedal_command(action[:, 1], self.pedal_full_at)
+        action[:, 1] = pedal_command(action[:, 1], self.config.pedal_full_at)
         return action
 
     def close(self) -> None:
