@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from vision_rl.commands.train_overtaking import TINY
 from vision_rl.config import from_flat
 from vision_rl.overtaking.config import TrainBaselineConfig, TrainOvertakingConfig
 
@@ -13,27 +14,9 @@ DEMOS_CAR = "tt_cup"
 
 
 def tiny_overtaking_config(track: str, out: Path, **kw) -> TrainOvertakingConfig:
-    """train-overtaking at tiny sizes on ``track``: stage 1 capped at 200 steps, 100 steps for each of stages 2 and 3
-    and 400 of standard SAC, 2 cars; ``kw`` overrides any field."""
-    base = dict(
-        track=track,
-        cars=2,
-        out=str(out),
-        stage1_max_steps=200,
-        stage2_steps=100,
-        stage3_steps=100,
-        standard_steps=400,
-        learning_starts=50,
-        batch_size=32,
-        buffer_size=5_000,
-        eval_every_steps=100,
-        eval_laps=1,
-        eval_time_limit_s=40.0,
-        eval_episodes=2,
-        eval_episode_s=5.0,
-        checkpoint_every_steps=0,
-        device="cpu",
-    )
+    """train-overtaking at its ``--tiny`` sizes on ``track`` (stage 1 capped at 200 steps, 100 steps for each of
+    stages 2 and 3 and 400 of standard SAC, 2 cars); ``kw`` overrides any field."""
+    base = dict(TINY, track=track, out=str(out), device="cpu")
     return from_flat(TrainOvertakingConfig, {**base, **kw})
 
 
