@@ -486,18 +486,8 @@ class LoadedDreamer:
         return self.spec.config
 
     def driver(self) -> DreamerDriver:
-        spec = self.spec
-        identity = {
-            "driver": "policy",
-            "observation": spec.observation,
-            "policy": str(self.weights_path),
-            "policy_sha256": spec.weights_sha256,
-            "num_timesteps": spec.num_timesteps,
-            "train_time_s": spec.train_time_s,
-            "seed": spec.seed,
-            "algo": "dreamer",
-        }
-        return DreamerDriver(self.agent, self.config, spec.normalizer, identity)
+        identity = {**self.spec.driver_identity(self.weights_path), "algo": "dreamer"}
+        return DreamerDriver(self.agent, self.config, self.spec.normalizer, identity)
 
 
 __all__ = [

@@ -173,6 +173,19 @@ class PolicySpec:
     def hidden_units(self) -> list[int]:
         return [int(n) for n in self.sac["hidden_units"]]
 
+    def driver_identity(self, weights_path: Path) -> dict[str, Any]:
+        """Who drives, for a protocol record: the weights at ``weights_path`` that this spec describes."""
+        return {
+            "driver": "policy",
+            "observation": self.observation,
+            "policy": str(weights_path),
+            "policy_sha256": self.weights_sha256,
+            "encoder_sha256": self.encoder_sha256,
+            "num_timesteps": self.num_timesteps,
+            "train_time_s": self.train_time_s,
+            "seed": self.seed,
+        }
+
     def to_dict(self) -> dict[str, Any]:
         from vision_rl.files import package_version
 
@@ -499,19 +512,8 @@ class LoadedPolicy:
 
     def driver(self) -> PolicyDriver:
         """This policy as a protocol driver, reading what it was trained on."""
-        spec = self.spec
-        identity = {
-            "driver": "policy",
-            "observation": spec.observation,
-            "policy": str(self.weights_path),
-            "policy_sha256": spec.weights_sha256,
-            "encoder_sha256": spec.encoder_sha256,
-            "num_timesteps": spec.num_timesteps,
-            "train_time_s": spec.train_time_s,
-            "seed": spec.seed,
-        }
-        config = self.config
-        return PolicyDriver.for_config(self.act, spec.observation, spec.normalizer, self.encoder, config, identity)
+        spec, identity = self.spec, self.spec.driver_identity(self.weights_path)
+        return PolicyDriver.for_config(self.act, spec.observation, spec.normalizer, self.encoder, spec.config, identity)
 
 
 def sac_policy(obs_dim: int, hidden_units: list[int], device: str = "cpu", critic_state: bool = False):
