@@ -100,16 +100,16 @@ def test_the_committed_records_give_the_tables_figures():
         in (tables["fig3-reach"])
     )
     assert "| 80 % (3,425) | 0.40M | 0.80M | 2.00x |" in tables["fig3-reach"]  # the mean where every seed has a point
-    interim = "; interim, the new recipe's seeds still training: first runs: seed 0 at 610k steps 3/3, seed 2 at 466k"
+    interim = "; the new recipe, timed as its seeds train: first runs: seed 0 at 610k steps 3/3, seed 2 at 466k"
     assert interim + " steps 3/3, best 89.85 s (0.893 of the AI's)" in tables["overtaking"]  # Dreamer's PlaNet row
-    restarted = "; restarted: seed 0 at 516k steps 3/3, seed 1 at 524k steps 3/3, best 87.53 s (0.870 of the AI's)"
+    restarted = "; restarted: seed 0 at 1M steps 3/3, seed 1 at 1M steps 3/3, best 87.81 s (0.873 of the AI's)"
     assert restarted in tables["overtaking"]
     assert (
-        "| PlaNet (as Dreamer) s1 | 98.17 (98.74) | 3/3 | 5.6 | 524,140 | 7,165 | - |"
+        "| PlaNet (as Dreamer) s1 | 94.54 (95.77) | 3/3 | 5.5 | 1,000,000 | 14,503 | - |"
         in tables["table3-dreamer-restarted"]
     )
     assert (
-        "| 524,140 | 0.063 | 0.072 / 0.081 | 0.326 / 0.402 | 0.746 / 0.644 | 1.75 / 1.34 | -1.11 (4.34) | velocity"
+        "| 1,000,000 | 0.053 | 0.062 / 0.081 | 0.254 / 0.402 | 0.623 / 0.644 | 3.00 / 1.34 | -1.72 (4.34) | heading"
         in tables["dreamer-model-restarted"]
     )
     assert (

@@ -28,8 +28,8 @@ EVALUATION_FORMAT = "vision_rl.evaluation"
 #: What writers add to a record after it is sealed: where its outputs went, not figures. Left out of its hash.
 OUTPUT_PATH_KEYS = ("plot", "video", "trace", "reward_plot", "evaluation_json")
 #: How far under the physical limit a lap may be and still enter the table, %. The limit (the QSS lap on the racing
-#: line) is a steady-state estimate, not a bound: the project's fastest genuine lap is 4.28 % under it (Dreamer on
-#: expressway, tt_cup, Table III, on the walls 5.2 s of its lap). docs/protocol.md says why 10.
+#: line) is a steady-state estimate, not a bound: the project's fastest genuine lap is 3.97 % under it (Dreamer on
+#: expressway, tt_cup, Table III, on the walls 4.3 s of its lap). docs/protocol.md says why 10.
 LIMIT_TOLERANCE_PCT = 10.0
 
 

@@ -110,3 +110,8 @@ def reference_table(records: Records) -> str:
         )
     header = ("track, car", "built-in AI", "physical limit", "the AI above the limit", "straight driver", "records")
     return markdown_table(header, rows)
+
+
+def steps_text(steps: int) -> str:
+    """``400k``, ``1.2M``, ``2M``."""
+    return f"{steps / 1e6:g}M" if steps >= 1_000_000 else f"{steps / 1e3:g}k"

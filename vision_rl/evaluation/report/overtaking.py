@@ -7,7 +7,15 @@ import re
 from collections.abc import Iterable
 from typing import Any
 
-from vision_rl.evaluation.report.common import AI_TT_CUP, gap_text, link, markdown_table, reference_laps, span_m
+from vision_rl.evaluation.report.common import (
+    AI_TT_CUP,
+    gap_text,
+    link,
+    markdown_table,
+    reference_laps,
+    span_m,
+    steps_text,
+)
 from vision_rl.evaluation.report.records import Records
 
 OVERTAKING_PAPER = "papers/gts-overtaking-curriculum-sac.json"
@@ -62,19 +70,20 @@ def _table3_rows(records: Records) -> list[tuple[str, ...]]:
 
 
 def _dreamer_interim(records: Records, ai_s: float) -> str:
-    """Dreamer's seeds still training, as timed at their last checkpoints (the first runs, then the restarted ones):
+    """Dreamer's seeds as timed at their checkpoints while the recipe trains (the first runs, then the restarted ones):
     a clause of the README's PlaNet row."""
     readings = []
     for label, path in (("first runs", TABLE3_DREAMER_INTERIM), ("restarted", TABLE3_DREAMER_RESTARTED)):
         row = next(row for row in records(path)["rows"] if row["key"] == "planet")
         each = ", ".join(
-            f"seed {run['seed']} at {run['num_timesteps'] / 1e3:.0f}k steps {run['finished']}/{run['seeds']}"
+            f"seed {run['seed']} at {steps_text(round(run['num_timesteps'], -3))} steps "
+            f"{run['finished']}/{run['seeds']}"
             for run in sorted(row["runs"], key=lambda run: run["seed"])
         )
         lap_s = row["lap_time_s"]
         best = "" if lap_s is None else f", best {lap_s:.2f} s ({lap_s / ai_s:.3f} of the AI's)"
         readings.append(f"{label}: {each}{best} ({link('record', path)})")
-    return "; interim, the new recipe's seeds still training: " + "; ".join(readings)
+    return "; the new recipe, timed as its seeds train: " + "; ".join(readings)
 
 
 #: Where a DNF reason of the protocol says a start stopped.

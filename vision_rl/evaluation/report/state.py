@@ -22,6 +22,7 @@ from vision_rl.evaluation.report.common import (
     mean_std_s,
     reference_laps,
     span_text,
+    steps_text,
 )
 from vision_rl.evaluation.report.records import Records, ReportError
 from vision_rl.evaluation.report.vision import QUICK_JOB, experiment_seeds, seeds_summary
@@ -75,11 +76,6 @@ def seed_rows(records: Records, seeds: Seeds) -> list[dict[str, Any]]:
     if not rows:
         raise ReportError(f"no training seed in {', '.join(seeds.paths)}")
     return rows
-
-
-def steps_text(steps: int) -> str:
-    """``400k``, ``1.2M``, ``2M``."""
-    return f"{steps / 1e6:g}M" if steps >= 1_000_000 else f"{steps / 1e3:g}k"
 
 
 def wall_text(rows: list[dict[str, Any]]) -> str:
