@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -143,3 +144,25 @@ def test_train_repr_writes_run_and_resumes(tmp_path: Path) -> None:
     assert heard and all(0 < done <= total for done, total in heard)  # the progress callback hears the resumed epoch
     metrics = json.loads((out / "metrics.json").read_text())
     assert [e["epoch"] for e in metrics["epochs"]] == [0, 1, 2]  # history kept, one more epoch run
+
+
+def test_sigterm_in_training_stops_at_the_next_batch_edge_and_a_second_one_at_once():
+    # Raising from inside the signal handler could leave a lock of the interrupted code taken (a hung teardown).
+    from vision_rl.phase1_repr.train import _StopAtBatchEdge
+
+    heard = []
+
+    def handler(signum, frame):
+        heard.append(signum)
+        raise KeyboardInterrupt
+
+    stop = _StopAtBatchEdge(handler)
+    stop.on_train_batch_start(None, None, None, 0)  # no signal: the batch goes on
+    stop.note(signal.SIGTERM, None)  # inside a batch: only noted
+    assert heard == []
+    with pytest.raises(KeyboardInterrupt):
+        stop.on_train_batch_end(None, None, None, None, 0)
+    assert heard == [signal.SIGTERM]
+    with pytest.raises(KeyboardInterrupt):  # a stop that a batch does not reach: the second signal acts at once
+        stop.note(signal.SIGTERM, None)
+    assert heard == [signal.SIGTERM, signal.SIGTERM]

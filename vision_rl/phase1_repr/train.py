@@ -481,20 +481,36 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
 
 
-class _StopAtOnce(L.Callback):
-    """Once training starts, puts ``handler`` back as SIGTERM's handler over Lightning's (Lightning puts back the one
-    before the fit when it ends).
+class _StopAtBatchEdge(L.Callback):
+    """Once training starts, SIGTERM stops the run at the next edge of a batch (a training or validation batch's start
+    or end, or the training's end): the signal handler only notes the signal, and the hook there calls ``handler``,
+    which raises KeyboardInterrupt, as Ctrl-C: Lightning then stops, and on several devices rank 0 kills the others.
+    A second SIGTERM calls ``handler`` at once. Lightning puts back the handler of before the fit when it ends.
 
-    Lightning's handler only notes the signal, stopping the run after the batch, and on several devices broadcasts
-    from inside the handler, which deadlocks a process caught in another collective. ``handler`` raises
-    KeyboardInterrupt, as Ctrl-C: Lightning then stops at once, and on several devices rank 0 kills the others."""
+    Raised from inside the signal handler, the KeyboardInterrupt could leave a lock of the interrupted code taken, and
+    Lightning's teardown then waited for it for ever (docs/guarantees.md). Lightning's own handler notes the signal
+    too, but on several devices broadcasts from inside the handler, which deadlocks a process caught in another
+    collective."""
 
     def __init__(self, handler: Callable[[int, Any], Any]) -> None:
         self.handler = handler
+        self.noted: int | None = None
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, self.handler)
+            signal.signal(signal.SIGTERM, self.note)
+
+    def note(self, signum: int, frame: Any) -> None:
+        if self.noted is not None:  # the second: at once
+            self.handler(signum, frame)
+        self.noted = signum
+
+    def _stop_if_noted(self, *hook_args: Any, **hook_kwargs: Any) -> None:
+        if self.noted is not None:
+            self.handler(self.noted, None)
+
+    on_train_batch_start = on_train_batch_end = _stop_if_noted
+    on_validation_batch_start = on_validation_batch_end = on_train_end = _stop_if_noted
 
 
 def _lightning_dir(out: Path) -> Path:
@@ -603,7 +619,7 @@ def _fit(cfg: TrainReprConfig, out: Path, module: ReprModule, dm, callbacks: lis
     # Lightning ignores Ctrl-C from the first one on: the caller's handler comes back when the fit ends.
     main_thread = threading.current_thread() is threading.main_thread()
     sigint, sigterm = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    callbacks = [*callbacks, _StopAtOnce(sigterm if callable(sigterm) else _raise_interrupt)]
+    callbacks = [*callbacks, _StopAtBatchEdge(sigterm if callable(sigterm) else _raise_interrupt)]
     with _quiet_lightning():
         trainer = L.Trainer(
             accelerator=cfg.device if cfg.device != "auto" else "auto",
