@@ -17,7 +17,7 @@ PACKAGE = PACKAGE_DIR.name
 #: share one floor and import nothing of each other. ``vision_rl/__init__.py`` sits below them all and imports only
 #: gymnasium.
 FLOORS = (
-    ("files", "config", "budget"),
+    ("files", "config", "budget", "signals"),
     ("sim",),
     ("render",),
     ("envs",),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import signal
 from pathlib import Path
 
@@ -148,7 +149,7 @@ def test_train_repr_writes_run_and_resumes(tmp_path: Path) -> None:
 
 def test_sigterm_in_training_stops_at_the_next_batch_edge_and_a_second_one_at_once():
     # Raising from inside the signal handler could leave a lock of the interrupted code taken (a hung teardown).
-    from vision_rl.phase1_repr.train import _StopAtBatchEdge
+    from vision_rl.phase1_repr.train import _HoldToBatchEdge
 
     heard = []
 
@@ -156,13 +157,21 @@ def test_sigterm_in_training_stops_at_the_next_batch_edge_and_a_second_one_at_on
         heard.append(signum)
         raise KeyboardInterrupt
 
-    stop = _StopAtBatchEdge(handler)
-    stop.on_train_batch_start(None, None, None, 0)  # no signal: the batch goes on
-    stop.note(signal.SIGTERM, None)  # inside a batch: only noted
-    assert heard == []
-    with pytest.raises(KeyboardInterrupt):
-        stop.on_train_batch_end(None, None, None, None, 0)
-    assert heard == [signal.SIGTERM]
-    with pytest.raises(KeyboardInterrupt):  # a stop that a batch does not reach: the second signal acts at once
-        stop.note(signal.SIGTERM, None)
-    assert heard == [signal.SIGTERM, signal.SIGTERM]
+    previous = signal.getsignal(signal.SIGTERM)
+    stop = _HoldToBatchEdge(handler)
+    try:
+        stop.on_train_start(None, None)
+        stop.on_train_batch_start(None, None, None, 0)  # no signal: the batch goes on
+        os.kill(os.getpid(), signal.SIGTERM)  # inside a batch: only held
+        assert heard == []
+        with pytest.raises(KeyboardInterrupt):
+            stop.on_train_batch_end(None, None, None, None, 0)
+        assert heard == [signal.SIGTERM]
+        os.kill(os.getpid(), signal.SIGTERM)
+        with pytest.raises(KeyboardInterrupt):  # a stop that a batch does not reach: the second signal acts at once
+            os.kill(os.getpid(), signal.SIGTERM)
+        assert heard == [signal.SIGTERM, signal.SIGTERM]
+    finally:
+        stop.on_exception(None, None, None)
+    assert signal.getsignal(signal.SIGTERM) is handler  # the fit's handler back; Lightning restores its own after
+    signal.signal(signal.SIGTERM, previous)

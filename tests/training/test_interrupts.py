@@ -10,8 +10,9 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 
+from vision_rl.signals import HeldSignal
 from vision_rl.sim.world import NonFiniteInputError, WorldInputError
-from vision_rl.training.interrupts import HeldSignal, TrainingDivergedError, learn_between_interrupts
+from vision_rl.training.interrupts import TrainingDivergedError, learn_between_interrupts
 
 
 class _SignalAt(BaseCallback):

@@ -49,7 +49,7 @@ from vision_rl.envs.pixel_racing import PixelRacingConfig, PixelRacingCore
 from vision_rl.evaluation.leaderboard import evaluation_record
 from vision_rl.evaluation.protocol import time_laps
 from vision_rl.files import atomic_write, clear_folder, json_text, lock_run_folder, sealed_record, write_json
-from vision_rl.training.interrupts import HeldSignal
+from vision_rl.signals import HeldSignal
 from vision_rl.training.persist import ArtifactError, check_fingerprint
 from vision_rl.training.sac import next_multiple, torch_device
 

@@ -38,6 +38,7 @@ from vision_rl.files import atomic_write, write_json
 from vision_rl.phase1_repr.checkpoint import save_checkpoint
 from vision_rl.phase1_repr.config import TrainReprConfig, launch_rank
 from vision_rl.phase1_repr.encoder import EncoderConfig, ReprNet
+from vision_rl.signals import HeldSignal
 
 #: Target groups reported with R^2, matched by name prefix; any other target lands in "other".
 TARGET_GROUPS: dict[str, str] = {
@@ -481,36 +482,33 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
 
 
-class _StopAtBatchEdge(L.Callback):
-    """Once training starts, SIGTERM stops the run at the next edge of a batch (a training or validation batch's start
-    or end, or the training's end): the signal handler only notes the signal, and the hook there calls ``handler``,
-    which raises KeyboardInterrupt, as Ctrl-C: Lightning then stops, and on several devices rank 0 kills the others.
-    A second SIGTERM calls ``handler`` at once. Lightning puts back the handler of before the fit when it ends.
+class _HoldToBatchEdge(L.Callback):
+    """Once training starts, puts ``handler`` back as SIGTERM's over Lightning's and holds the first SIGINT or SIGTERM
+    (:class:`~vision_rl.signals.HeldSignal`) to the next edge of a batch (a training or validation batch's start or
+    end, or the training's end), where ``handler`` (or Python's, for Ctrl-C) raises KeyboardInterrupt: Lightning then
+    stops, and on several devices rank 0 kills the others. A second signal acts at once.
 
-    Raised from inside the signal handler, the KeyboardInterrupt could leave a lock of the interrupted code taken, and
-    Lightning's teardown then waited for it for ever (docs/guarantees.md). Lightning's own handler notes the signal
-    too, but on several devices broadcasts from inside the handler, which deadlocks a process caught in another
-    collective."""
+    Lightning's own SIGTERM handler notes the signal too, but on several devices broadcasts from inside the handler,
+    which deadlocks a process caught in another collective."""
 
     def __init__(self, handler: Callable[[int, Any], Any]) -> None:
         self.handler = handler
-        self.noted: int | None = None
+        self.held = HeldSignal()
+        self._holding = contextlib.ExitStack()
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, self.note)
+            signal.signal(signal.SIGTERM, self.handler)
+        self._holding.enter_context(self.held.installed())
 
-    def note(self, signum: int, frame: Any) -> None:
-        if self.noted is not None:  # the second: at once
-            self.handler(signum, frame)
-        self.noted = signum
+    def _release(self, *hook_args: Any, **hook_kwargs: Any) -> None:
+        self.held.release()
 
-    def _stop_if_noted(self, *hook_args: Any, **hook_kwargs: Any) -> None:
-        if self.noted is not None:
-            self.handler(self.noted, None)
+    def _stop_holding(self, *hook_args: Any, **hook_kwargs: Any) -> None:
+        self._holding.close()  # the handlers of before, and a signal still held acted on
 
-    on_train_batch_start = on_train_batch_end = _stop_if_noted
-    on_validation_batch_start = on_validation_batch_end = on_train_end = _stop_if_noted
+    on_train_batch_start = on_train_batch_end = on_validation_batch_start = on_validation_batch_end = _release
+    on_train_end = on_exception = _stop_holding
 
 
 def _lightning_dir(out: Path) -> Path:
@@ -619,7 +617,7 @@ def _fit(cfg: TrainReprConfig, out: Path, module: ReprModule, dm, callbacks: lis
     # Lightning ignores Ctrl-C from the first one on: the caller's handler comes back when the fit ends.
     main_thread = threading.current_thread() is threading.main_thread()
     sigint, sigterm = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    callbacks = [*callbacks, _StopAtBatchEdge(sigterm if callable(sigterm) else _raise_interrupt)]
+    callbacks = [*callbacks, _HoldToBatchEdge(sigterm if callable(sigterm) else _raise_interrupt)]
     with _quiet_lightning():
         trainer = L.Trainer(
             accelerator=cfg.device if cfg.device != "auto" else "auto",
