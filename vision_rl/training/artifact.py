@@ -418,9 +418,13 @@ class PolicyDriver:
         self.predict = predict
         self.kind, self.normalizer, self.encoder = kind, normalizer, encoder
         self.config = config or RacingConfig()
-        self.control_dt_s = self.config.control_dt_s  # what every driver of the protocol tells
         self.identity = identity or {"driver": "policy", "observation": kind}
         self.observer: Observer | None = None
+
+    @property
+    def control_dt_s(self) -> float:
+        """How often it acts, s (every driver of the protocol tells)."""
+        return self.config.control_dt_s
 
     @classmethod
     def for_config(
