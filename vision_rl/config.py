@@ -3,7 +3,8 @@
 The command line and a search over options see such a tree flat, one name per leaf field (``--cars`` for
 ``racing.n_groups``): :func:`flat_fields` lists them, :func:`from_flat` and :func:`replace_flat` build configs from
 flat names. A field's help is its attribute docstring (:func:`field_docs`), or the holder's word for it; a config
-with a ``check_options(flat_values)`` static method has the flat values checked before anything is built.
+with a ``check_options(flat_values)`` static method has the flat values checked before anything is built,
+typically with :func:`check_option_bounds`.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import ast
 import dataclasses
 import functools
 import inspect
+import math
 import textwrap
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -194,3 +196,43 @@ def from_flat(config_cls: type, values: Mapping[str, Any] | None = None, **more:
     """A ``config_cls`` of its defaults with the leaf fields named flat in ``values`` and ``more`` replaced."""
     defaults = config_cls(**_defaults(config_cls))
     return replace_flat(defaults, **{**(values or {}), **more})
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """The values a number option may take: from ``low`` to ``high``, each end included unless it is open. NaN is
+    in no bounds."""
+
+    low: float = -math.inf
+    high: float = math.inf
+    low_open: bool = False
+    high_open: bool = False
+
+    def __contains__(self, value: float) -> bool:
+        above_low = value > self.low if self.low_open else value >= self.low
+        below_high = value < self.high if self.high_open else value <= self.high
+        return above_low and below_high
+
+    def __str__(self) -> str:
+        ends = []
+        if self.low > -math.inf:
+            ends.append(f"{'more than' if self.low_open else 'at least'} {self.low:g}")
+        if self.high < math.inf:
+            ends.append(f"{'less than' if self.high_open else 'at most'} {self.high:g}")
+        return " and ".join(ends) or "any number"
+
+
+def at_least(low: float) -> Bounds:
+    return Bounds(low)
+
+
+def above(low: float) -> Bounds:
+    return Bounds(low, low_open=True)
+
+
+def check_option_bounds(values: Mapping[str, Any], bounds: Mapping[str, Bounds]) -> None:
+    """Raise ValueError naming the first option (flat name) whose value in ``values`` is outside its ``bounds``,
+    with the range it may take: ``--laps 0 is out of range: at least 1``."""
+    for name, allowed in bounds.items():
+        if values[name] not in allowed:
+            raise ValueError(f"--{name.replace('_', '-')} {values[name]} is out of range: {allowed}")

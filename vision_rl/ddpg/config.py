@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from vision_rl.budget import array_bytes, require_memory
-from vision_rl.config import nested
+from vision_rl.config import Bounds, at_least, check_option_bounds, nested
 from vision_rl.envs.pixel_racing import PixelRacingConfig
 from vision_rl.training.schedules import CheckpointSchedule, EvaluationSchedule, SamplerOptions
 
@@ -330,24 +330,24 @@ class TrainDDPGConfig:
 def check_bounds(o: Mapping[str, Any]) -> None:
     """One clear line for an option out of range, before anything is built or written: ``o`` holds the flat
     options (:func:`~vision_rl.config.flat_values` of a config)."""
-    checks = {
-        "cars": 1 <= o["cars"] <= MAX_CARS,
-        "steps": o["steps"] >= 1,
-        "learning_starts": o["learning_starts"] >= 0,
-        "updates_per_step": o["updates_per_step"] >= 0,
-        "eval_every_steps": o["eval_every_steps"] >= 0,
-        "eval_seeds": o["eval_seeds"] >= 0,
-        "eval_laps": o["eval_laps"] >= 1,
-        "checkpoint_every_steps": o["checkpoint_every_steps"] >= 0,
-        "checkpoint_every_min": o["checkpoint_every_min"] >= 0,
-        "train_minutes": o["train_minutes"] >= 0,
-        "start_speed_share": 0 <= o["start_speed_share"] <= 1,
-        "torch_threads": o["torch_threads"] >= 0,
-        "eval_time_limit_s": o["eval_time_limit_s"] >= 0,
-    }
-    for name, ok in checks.items():
-        if not ok:
-            raise ValueError(f"--{name.replace('_', '-')} {o[name]} is out of range")
+    check_option_bounds(
+        o,
+        {
+            "cars": Bounds(1, MAX_CARS),
+            "steps": at_least(1),
+            "learning_starts": at_least(0),
+            "updates_per_step": at_least(0),
+            "eval_every_steps": at_least(0),
+            "eval_seeds": at_least(0),
+            "eval_laps": at_least(1),
+            "checkpoint_every_steps": at_least(0),
+            "checkpoint_every_min": at_least(0),
+            "train_minutes": at_least(0),
+            "start_speed_share": Bounds(0, 1),
+            "torch_threads": at_least(0),
+            "eval_time_limit_s": at_least(0),
+        },
+    )
     columns = o["cars"] * (o["workers"] or 1)
     if o["buffer_size"] < 4 * columns:
         raise ValueError(f"--buffer-size {o['buffer_size']} leaves fewer than 4 rows per car for {columns} cars")

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from vision_rl.budget import require_memory
-from vision_rl.config import nested
+from vision_rl.config import Bounds, above, at_least, check_option_bounds, nested
 from vision_rl.envs.core import RacingConfig
 from vision_rl.envs.observations import ObservationKind
 from vision_rl.sim.ai_driver import DEFAULT_SKILL
@@ -154,33 +154,33 @@ def check_overtaking_ranges(o: Mapping[str, Any]) -> None:
         raise ValueError(f"--agent must be one of {', '.join(AGENTS)}, got {o['agent']!r}")
     if o["preset"] not in PRESETS or o["preset"] not in BUDGETS:
         raise ValueError(f"--preset must be one of {sorted(BUDGETS)}, got {o['preset']!r}")
-    checks = {
-        "cars": 1 <= o["cars"] <= MAX_CARS,
-        "stage1_max_steps": o["stage1_max_steps"] >= 0,
-        "stage1_margin": o["stage1_margin"] >= 0,
-        "stage2_steps": o["stage2_steps"] >= 0,
-        "stage3_steps": o["stage3_steps"] >= 0,
-        "stage3_buffer_size": o["stage3_buffer_size"] >= 0,
-        "standard_steps": o["standard_steps"] >= 0,
-        "episode_s": o["episode_s"] > 0,
-        "overtake_gain_c_r": o["overtake_gain_c_r"] >= 0,
-        "detection_range_c_d_m": o["detection_range_c_d_m"] > 0,
-        "eval_every_steps": o["eval_every_steps"] >= 0,
-        "eval_seeds": o["eval_seeds"] >= 1,
-        "eval_laps": o["eval_laps"] >= 1,
-        "eval_time_limit_s": o["eval_time_limit_s"] >= 0,
-        "eval_episodes": o["eval_episodes"] >= 0,
-        "eval_episode_s": o["eval_episode_s"] >= 0,
-        "checkpoint_every_steps": o["checkpoint_every_steps"] >= 0,
-        "checkpoint_every_min": o["checkpoint_every_min"] >= 0,
-        "learning_rate": o["learning_rate"] >= 0,
-        "batch_size": o["batch_size"] >= 0,
-        "buffer_size": o["buffer_size"] >= 0,
-        "gradient_steps": o["gradient_steps"] >= 0,
-    }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        raise ValueError(f"--{bad[0].replace('_', '-')} {o[bad[0]]} is out of range")
+    check_option_bounds(
+        o,
+        {
+            "cars": Bounds(1, MAX_CARS),
+            "stage1_max_steps": at_least(0),
+            "stage1_margin": at_least(0),
+            "stage2_steps": at_least(0),
+            "stage3_steps": at_least(0),
+            "stage3_buffer_size": at_least(0),
+            "standard_steps": at_least(0),
+            "episode_s": above(0),
+            "overtake_gain_c_r": at_least(0),
+            "detection_range_c_d_m": above(0),
+            "eval_every_steps": at_least(0),
+            "eval_seeds": at_least(1),
+            "eval_laps": at_least(1),
+            "eval_time_limit_s": at_least(0),
+            "eval_episodes": at_least(0),
+            "eval_episode_s": at_least(0),
+            "checkpoint_every_steps": at_least(0),
+            "checkpoint_every_min": at_least(0),
+            "learning_rate": at_least(0),
+            "batch_size": at_least(0),
+            "buffer_size": at_least(0),
+            "gradient_steps": at_least(0),
+        },
+    )
 
 
 def race_config(track: str, car: str, n_groups: int = 1, episode_s: float = 100.0) -> RacingConfig:
@@ -302,34 +302,34 @@ def check_baseline_ranges(o: Mapping[str, Any]) -> None:
         raise ValueError(f"--algo must be one of {', '.join(ALGO_NAMES)}, got {o['algo']!r}{hint}")
     if o["preset"] not in PRESETS:
         raise ValueError(f"--preset must be one of {sorted(PRESETS)}, got {o['preset']!r}")
-    checks = {
-        "steps": o["steps"] >= 0,
-        "cars": 1 <= o["cars"] <= 1000,
-        "episode_s": o["episode_s"] >= 0.1,
-        "learning_rate": o["learning_rate"] >= 0,
-        "batch_size": o["batch_size"] >= 0,
-        "buffer_size": o["buffer_size"] >= 0,
-        "eval_every_steps": o["eval_every_steps"] >= 0,
-        "eval_seeds": o["eval_seeds"] >= 1,
-        "eval_laps": o["eval_laps"] >= 1,
-        "eval_time_limit_s": o["eval_time_limit_s"] >= 0,
-        "checkpoint_every_steps": o["checkpoint_every_steps"] >= 0,
-        "checkpoint_every_min": o["checkpoint_every_min"] >= 0,
-        "bc_patience": o["bc_patience"] >= 1,
-        "bc_min_improvement": 0 <= o["bc_min_improvement"] < 1,
-        "bc_max_epochs": o["bc_max_epochs"] >= 1,
-        "bc_smooth_steps": 1 <= o["bc_smooth_steps"] <= 100,
-        "gail_disc_every_steps": o["gail_disc_every_steps"] >= 1,
-        "gail_disc_updates": o["gail_disc_updates"] >= 0,
-        "gail_disc_batch": o["gail_disc_batch"] >= 1,
-        "gail_disc_lr": o["gail_disc_lr"] > 0,
-        "td3_noise": o["td3_noise"] >= 0,
-        "dreamer_train_every_steps": o["dreamer_train_every_steps"] >= 1,
-        "dreamer_sequence_steps": o["dreamer_sequence_steps"] >= 2,
-    }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        raise ValueError(f"--{bad[0].replace('_', '-')} {o[bad[0]]} is out of range")
+    check_option_bounds(
+        o,
+        {
+            "steps": at_least(0),
+            "cars": Bounds(1, 1000),
+            "episode_s": at_least(0.1),
+            "learning_rate": at_least(0),
+            "batch_size": at_least(0),
+            "buffer_size": at_least(0),
+            "eval_every_steps": at_least(0),
+            "eval_seeds": at_least(1),
+            "eval_laps": at_least(1),
+            "eval_time_limit_s": at_least(0),
+            "checkpoint_every_steps": at_least(0),
+            "checkpoint_every_min": at_least(0),
+            "bc_patience": at_least(1),
+            "bc_min_improvement": Bounds(0, 1, high_open=True),
+            "bc_max_epochs": at_least(1),
+            "bc_smooth_steps": Bounds(1, 100),
+            "gail_disc_every_steps": at_least(1),
+            "gail_disc_updates": at_least(0),
+            "gail_disc_batch": at_least(1),
+            "gail_disc_lr": above(0),
+            "td3_noise": at_least(0),
+            "dreamer_train_every_steps": at_least(1),
+            "dreamer_sequence_steps": at_least(2),
+        },
+    )
 
 
 @dataclass(frozen=True)

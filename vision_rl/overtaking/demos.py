@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from vision_rl.config import Bounds, above, at_least, check_option_bounds, flat_values
 from vision_rl.envs.core import RacingCore
 from vision_rl.envs.observations import OBS_NAMES, OBS_VERSION, ObsNormalizer
 from vision_rl.envs.racing_env import action_space
@@ -289,15 +290,16 @@ def check_record_config(cfg: RecordDemosConfig) -> None:
             f"--driver must be one of {', '.join(DRIVERS)} (human demonstrations need a human driver, "
             f"which does not exist yet), got {cfg.driver!r}"
         )
-    for name, ok in (
-        ("laps", cfg.laps > 0),
-        ("cars", 1 <= cfg.cars <= 1000),
-        ("episode_s", cfg.episode_s >= 0.1),
-        ("skill", 0 < cfg.skill <= 1),
-        ("noise", 0 <= cfg.noise <= 1),
-    ):
-        if not ok:
-            raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
+    check_option_bounds(
+        flat_values(cfg),
+        {
+            "laps": above(0),
+            "cars": Bounds(1, 1000),
+            "episode_s": at_least(0.1),
+            "skill": Bounds(0, 1, low_open=True),
+            "noise": Bounds(0, 1),
+        },
+    )
     if not cfg.out:
         raise ValueError("--out must name the demonstrations file")
 

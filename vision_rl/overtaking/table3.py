@@ -21,6 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from vision_rl.config import at_least, check_option_bounds, flat_values
 from vision_rl.evaluation.leaderboard import aggregate_seeds
 from vision_rl.evaluation.protocol import BuiltinAI, rules, time_laps
 from vision_rl.evaluation.report import record_damage
@@ -98,9 +99,7 @@ Table3Progress = Callable[[str], None]
 
 def table3(cfg: Table3Config, progress: Table3Progress | None = None) -> dict[str, Any]:
     """Time every row (see the module's docstring); returns the rows with the paper's beside them."""
-    for name, ok in (("seeds", cfg.seeds >= 1), ("laps", cfg.laps >= 1), ("time_limit_s", cfg.time_limit_s >= 0)):
-        if not ok:
-            raise ValueError(f"--{name.replace('_', '-')} {getattr(cfg, name)} is out of range")
+    check_option_bounds(flat_values(cfg), {"seeds": at_least(1), "laps": at_least(1), "time_limit_s": at_least(0)})
     track = load_track(cfg.track)
     explicit = _split(cfg.runs)
     paths = [Path(p) for p in explicit] if explicit else find_runs(cfg.runs_root)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from vision_rl.budget import require_memory
-from vision_rl.config import nested
+from vision_rl.config import Bounds, at_least, check_option_bounds, nested
 from vision_rl.envs.core import STEER_ACTIONS, STEER_CHANGE_PENALTY_SCALES, WALL_PENALTY_SPEEDS, RacingConfig
 from vision_rl.envs.observations import ObservationKind
 from vision_rl.sim.fleet import AI_CONTROL_DT_S, ai_ticks
@@ -222,46 +222,45 @@ def _check_memory(o: Mapping[str, Any]) -> None:
 
 
 def _check_ranges(o: Mapping[str, Any]) -> None:
-    checks = {
-        "cars": o["cars"] >= 1,
-        "steps": o["steps"] >= 1,
-        "eval_every_steps": o["eval_every_steps"] >= 0,
-        "eval_seeds": o["eval_seeds"] >= 1 or o["eval_every_steps"] == 0,
-        "eval_laps": o["eval_laps"] >= 1,
-        "select_starts": o["select_starts"] >= 0,
-        "checkpoint_every_steps": o["checkpoint_every_steps"] >= 0,
-        "checkpoint_every_min": o["checkpoint_every_min"] >= 0,
-        "episode_s": o["episode_s"] >= o["control_dt_s"],
-        "control_dt_s": 0 < o["control_dt_s"] <= 1,
-        "wall_penalty_c_w": o["wall_penalty_c_w"] >= 0,
-        "steer_change_penalty_c_s": o["steer_change_penalty_c_s"] >= 0,
-        "stats_steps": o["stats_steps"] >= 1,
-        "off_track_penalty_c_o": o["off_track_penalty_c_o"] >= 0,
-        "wall_hit_throttle_cut_s": 0 <= o["wall_hit_throttle_cut_s"] <= 60,
-        "restart_before_stuck_share": 0 <= o["restart_before_stuck_share"] <= 1,
-        "restart_before_stuck_m": o["restart_before_stuck_m"] >= 0,
-        "frame_delay_s": 0 <= o["frame_delay_s"] <= 1,
-        "pedal_full_at": 0 < o["pedal_full_at"] <= 1,
-        "steer_change_share_of_range": o["steer_change_share_of_range"] >= 0,
-        "learning_rate": o["learning_rate"] >= 0,
-        "learning_rate_final": o["learning_rate_final"] >= 0,
-        "target_entropy": o["target_entropy"] <= 0,
-        "batch_size": o["batch_size"] >= 0,
-        "buffer_size": o["buffer_size"] >= 0,
-        "gradient_steps": o["gradient_steps"] >= 0,
-        "gamma": 0 <= o["gamma"] < 1,
-        "n_step": 1 <= o["n_step"] <= 100,
-        "guide_steps": o["guide_steps"] >= 0,
-        "guide_bc_weight": o["guide_bc_weight"] >= 0,
-        "guide_label_weight": o["guide_label_weight"] >= 0,
-        "guide_label_fade_steps": o["guide_label_fade_steps"] >= 0,
-        "guide_label_steer_weight": o["guide_label_steer_weight"] >= 0,
-        "guide_pretrain_steps": o["guide_pretrain_steps"] >= 0,
-    }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        name = bad[0]
-        raise ValueError(f"--{name.replace('_', '-')} {o[name]} is out of range")
+    check_option_bounds(
+        o,
+        {
+            "cars": at_least(1),
+            "steps": at_least(1),
+            "eval_every_steps": at_least(0),
+            "eval_seeds": at_least(0 if o["eval_every_steps"] == 0 else 1),
+            "eval_laps": at_least(1),
+            "select_starts": at_least(0),
+            "checkpoint_every_steps": at_least(0),
+            "checkpoint_every_min": at_least(0),
+            "control_dt_s": Bounds(0, 1, low_open=True),
+            "episode_s": at_least(o["control_dt_s"]),
+            "wall_penalty_c_w": at_least(0),
+            "steer_change_penalty_c_s": at_least(0),
+            "stats_steps": at_least(1),
+            "off_track_penalty_c_o": at_least(0),
+            "wall_hit_throttle_cut_s": Bounds(0, 60),
+            "restart_before_stuck_share": Bounds(0, 1),
+            "restart_before_stuck_m": at_least(0),
+            "frame_delay_s": Bounds(0, 1),
+            "pedal_full_at": Bounds(0, 1, low_open=True),
+            "steer_change_share_of_range": at_least(0),
+            "learning_rate": at_least(0),
+            "learning_rate_final": at_least(0),
+            "target_entropy": Bounds(high=0),
+            "batch_size": at_least(0),
+            "buffer_size": at_least(0),
+            "gradient_steps": at_least(0),
+            "gamma": Bounds(0, 1, high_open=True),
+            "n_step": Bounds(1, 100),
+            "guide_steps": at_least(0),
+            "guide_bc_weight": at_least(0),
+            "guide_label_weight": at_least(0),
+            "guide_label_fade_steps": at_least(0),
+            "guide_label_steer_weight": at_least(0),
+            "guide_pretrain_steps": at_least(0),
+        },
+    )
 
 
 def _check_choices(o: Mapping[str, Any]) -> None:
