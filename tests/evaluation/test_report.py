@@ -169,6 +169,9 @@ def test_a_changed_record_changes_its_tables(results_copy):
     bc = "**105.38 s** (1.048 of the AI's), 4/9 starts finished ([record](RESULTS/table3-expressway-tt_cup/{}))"
     assert bc.format("table3.json") in before["overtaking"]  # a kept row links the record it was timed in
     assert bc.format("first-recipe/table3.json") in after["overtaking"]
+    assert "the new recipe, timed as its seeds train" in after["overtaking"]  # PlaNet's row is kept: its readings
+    edit_record(results_copy, TABLE3, lambda r: next(x for x in r["rows"] if x["key"] == "planet").pop("kept_from"))
+    assert "the new recipe, timed as its seeds train" not in build_tables(results_copy, ["overtaking"])["overtaking"]
     assert after["ddpg"] == before["ddpg"] and after["phase1"] == before["phase1"]
     edit_record(
         results_copy,

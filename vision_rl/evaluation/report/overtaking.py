@@ -54,7 +54,8 @@ def _table3_rows(records: Records) -> list[tuple[str, ...]]:
         ours = "DNF" if lap_s is None else f"**{lap_s:.2f} s** ({lap_s / ai_s:.3f} of the AI's)"
         # `table3 --keep`: a row whose runs were not timed again links the record it was timed in
         record = row["kept_from"].removeprefix("docs/results/") if row.get("kept_from") else TABLE3
-        interim = _dreamer_interim(records, ai_s) if key == "planet" else ""
+        # Dreamer's readings while its seeds train stand beside its row until the row is timed from its own runs
+        interim = _dreamer_interim(records, ai_s) if key == "planet" and row.get("kept_from") else ""
         out.append(
             (
                 f"Table III, {name}: lap 2, the best start of {seeds['n_training_seeds']} training "
