@@ -287,8 +287,9 @@ class TrainBaselineConfig:
     """gail: discriminator learning rate."""
     td3_noise: float = 0.1
     """td3: std of the Gaussian exploration noise, as a share of each action's half range."""
-    dreamer_train_every_steps: int = 100
-    """dreamer: transitions (over all cars) per update of the world model, actor and value."""
+    dreamer_train_every_steps: int = 20
+    """dreamer: transitions (over all cars) per update of the world model, actor and value (20: SAC's number of
+    updates, Table III's PlaNet row)."""
     dreamer_sequence_steps: int = 32
     """dreamer: control steps per training sequence."""
     device: str = "auto"

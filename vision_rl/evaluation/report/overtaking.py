@@ -14,7 +14,6 @@ from vision_rl.evaluation.report.common import (
     markdown_table,
     reference_laps,
     span_m,
-    steps_text,
 )
 from vision_rl.evaluation.report.records import Records
 
@@ -34,12 +33,8 @@ TABLE3_FIRST = "table3-expressway-tt_cup/first-recipe/table3.json"
 #: held-out laps of the AI at the same checkpoints (`vision-rl dreamer-model`), one record per seed.
 TABLE3_DREAMER_INTERIM = "table3-expressway-tt_cup/dreamer-interim/table3.json"
 DREAMER_MODEL_INTERIM = tuple(f"table3-expressway-tt_cup/dreamer-interim/model-s{seed}.json" for seed in (0, 2))
-#: The runs restarted from scratch on a new machine (the first runs' folders were lost at 700k and 571k steps), timed
-#: and measured the same way.
-TABLE3_DREAMER_RESTARTED = "table3-expressway-tt_cup/dreamer-interim/restarted/table3.json"
-DREAMER_MODEL_RESTARTED = tuple(
-    f"table3-expressway-tt_cup/dreamer-interim/restarted/model-s{seed}.json" for seed in (0, 1)
-)
+#: Each of Dreamer's three training seeds' world model at the end of its 1M steps, the runs of Table III's PlaNet row.
+DREAMER_MODEL = tuple(f"table3-expressway-tt_cup/dreamer-model/model-s{seed}.json" for seed in (0, 1, 2))
 
 
 def _table3_rows(records: Records) -> list[tuple[str, ...]]:
@@ -54,37 +49,18 @@ def _table3_rows(records: Records) -> list[tuple[str, ...]]:
         ours = "DNF" if lap_s is None else f"**{lap_s:.2f} s** ({lap_s / ai_s:.3f} of the AI's)"
         # `table3 --keep`: a row whose runs were not timed again links the record it was timed in
         record = row["kept_from"].removeprefix("docs/results/") if row.get("kept_from") else TABLE3
-        # Dreamer's readings while its seeds train stand beside its row until the row is timed from its own runs
-        interim = _dreamer_interim(records, ai_s) if key == "planet" and row.get("kept_from") else ""
         out.append(
             (
                 f"Table III, {name}: lap 2, the best start of {seeds['n_training_seeds']} training "
                 + ("seed" if seeds["n_training_seeds"] == 1 else "seeds"),
                 f"{paper[key]:.1f} s ({paper[key] / paper['built_in_ai']:.3f} of its AI's {paper['built_in_ai']} s)",
-                f"{ours}, {seeds['finished']} starts finished ({link('record', record)}){interim}",
+                f"{ours}, {seeds['finished']} starts finished ({link('record', record)})",
                 f"{ai_s:.2f} s",
                 f"{limit_s:.2f} s" + ("" if lap_s is None else f" (ours {gap_text(lap_s, limit_s)})"),
                 f"`vision-rl train-baseline --algo {'dreamer' if key == 'planet' else key}`, `vision-rl table3`",
             )
         )
     return out
-
-
-def _dreamer_interim(records: Records, ai_s: float) -> str:
-    """Dreamer's seeds as timed at their checkpoints while the recipe trains (the first runs, then the restarted ones):
-    a clause of the README's PlaNet row."""
-    readings = []
-    for label, path in (("first runs", TABLE3_DREAMER_INTERIM), ("restarted", TABLE3_DREAMER_RESTARTED)):
-        row = next(row for row in records(path)["rows"] if row["key"] == "planet")
-        each = ", ".join(
-            f"seed {run['seed']} at {steps_text(round(run['num_timesteps'], -3))} steps "
-            f"{run['finished']}/{run['seeds']}"
-            for run in sorted(row["runs"], key=lambda run: run["seed"])
-        )
-        lap_s = row["lap_time_s"]
-        best = "" if lap_s is None else f", best {lap_s:.2f} s ({lap_s / ai_s:.3f} of the AI's)"
-        readings.append(f"{label}: {each}{best} ({link('record', path)})")
-    return "; the new recipe, timed as its seeds train: " + "; ".join(readings)
 
 
 #: Where a DNF reason of the protocol says a start stopped.

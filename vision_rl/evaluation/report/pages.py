@@ -19,10 +19,9 @@ from vision_rl.evaluation.report.ddpg import (
     ddpg_table,
 )
 from vision_rl.evaluation.report.overtaking import (
-    DREAMER_MODEL_RESTARTED,
+    DREAMER_MODEL,
     SETTINGS,
     TABLE3_DREAMER_INTERIM,
-    TABLE3_DREAMER_RESTARTED,
     TABLE3_FIRST,
     bc_recipes_table,
     dreamer_model_table,
@@ -65,8 +64,7 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "table3-first-runs": partial(table3_runs_table, paths=(TABLE3_FIRST,)),
     "table3-dreamer-interim": partial(table3_runs_table, paths=(TABLE3_DREAMER_INTERIM,)),
     "dreamer-model-interim": dreamer_model_table,
-    "table3-dreamer-restarted": partial(table3_runs_table, paths=(TABLE3_DREAMER_RESTARTED,)),
-    "dreamer-model-restarted": partial(dreamer_model_table, paths=DREAMER_MODEL_RESTARTED),
+    "dreamer-model": partial(dreamer_model_table, paths=DREAMER_MODEL),
     "fig3-reach": fig3_reach_table,
     "bc-recipes": bc_recipes_table,
     "overtaking-seeds": overtaking_seeds_table,
