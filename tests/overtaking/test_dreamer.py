@@ -135,6 +135,17 @@ def test_a_dreamer_run_drives_the_protocol_the_same_way_twice(dreamer_run, small
         laps.append(time_laps(driver, small_track, "tt_cup", seeds=[0], laps=1, time_limit_s=10.0).summary())
         driver.close()
     assert laps[0]["seeds"] == laps[1]["seeds"]
+
+    def drive(seeds):  # each batch of 3 starts keeps its own recurrent state
+        driver = loaded.driver()
+        timing = time_laps(driver, small_track, "tt_cup", seeds=seeds, laps=1, time_limit_s=3.0, record=True)
+        driver.close()
+        return np.stack([timing.x_m, timing.yaw_rad, timing.steer_rad])
+
+    together = drive(range(4))
+    apart = np.concatenate([drive([0, 1, 2]), drive([3])], axis=2)
+    assert together.shape == apart.shape == (3, 30, 4) and np.array_equal(together, apart)
+    assert np.array_equal(drive([0]), together[..., :1])
     assert json.loads((out / "metrics.jsonl").read_text().splitlines()[0])["n_updates"] >= 2
     with pytest.raises(BaselineError, match="a dreamer policy, not a sac one"):
         load_baseline(out, "sac")

@@ -33,8 +33,10 @@ def test_driver_observations_equal_the_environments_with_a_frame_delay(gl_availa
         driver.act(core.world.state)
         env_obs.append(core.step(actions, autoreset=False)[0])
     driver.act(core.world.state)
-    np.testing.assert_allclose(np.stack(seen), np.stack(env_obs), rtol=1e-6)
-    assert not np.allclose(seen[4][:, :6], seen[2][:, :6])  # the frames do change over the steps compared
+    seen_obs = np.stack(seen)
+    assert seen_obs.shape[1] == 3 and np.array_equal(seen_obs[:, 2], seen_obs[:, 1])  # padded to 3 with the last car
+    np.testing.assert_allclose(seen_obs[:, :2], np.stack(env_obs), rtol=1e-6)
+    assert not np.allclose(seen_obs[4, :, :6], seen_obs[2, :, :6])  # the frames do change over the steps compared
     driver.close()
     core.observer.close()
 
@@ -42,7 +44,8 @@ def test_driver_observations_equal_the_environments_with_a_frame_delay(gl_availa
 def test_a_start_drives_the_same_beside_any_number_of_others(gl_available, tiny_encoders):
     # A batch's size changes a network's products in the last bit, and laps are chaotic in that bit: a vision
     # policy's start 0 once lapped in 2:11.385 among 13 starts and in 2:13.090 among the protocol's 3. The driver
-    # renders, embeds and acts in batches of 3, so 7 starts drive as the runs of starts 0-2, 3-5 and 6-8.
+    # renders, embeds and acts in batches of 3, so 7 starts drive as the runs of starts 0-2, 3-5 and 6-8, and start 0
+    # alone as among the others.
     encoder = load_encoder(tiny_encoders[0])
     torch.manual_seed(0)
     actor = torch.nn.Sequential(
@@ -68,4 +71,5 @@ def test_a_start_drives_the_same_beside_any_number_of_others(gl_available, tiny_
     apart = np.concatenate([drive([0, 1, 2]), drive([3, 4, 5]), drive([6, 7, 8])[..., :1]], axis=2)
     assert together.shape == apart.shape == (4, 30, 7)
     assert np.array_equal(together, apart)
+    assert np.array_equal(drive([0]), together[..., :1])  # fewer than 3 starts: the batch is padded to 3 as well
     assert not np.array_equal(together[2, :, 0], together[2, :, 1])  # the starts steer differently

@@ -78,16 +78,13 @@ class PoseHistory:
 
 
 def in_batches_of(size: int, fn, rows: np.ndarray) -> np.ndarray:
-    """``fn`` over ``rows`` in batches of exactly ``size`` rows (the last padded with copies of its last row), joined;
-    ``size`` rows or fewer in one batch as they are.
+    """``fn`` over ``rows`` in batches of exactly ``size`` rows (the last padded with copies of its last row), joined.
 
     A network's matrix products round differently (in the last bit) by batch size and by the alignment of the batch
     in memory, and a policy's laps are chaotic in the last bit of its command: each batch is a fresh array of one
-    size, so the first ``size`` rows give the same results however many rows follow them.
+    size, so the k-th row gives the same result however many rows follow it, fewer than ``size`` included.
     """
     n = len(rows)
-    if n <= size:
-        return np.asarray(fn(rows.copy()))
     padded = np.concatenate([rows, np.repeat(rows[-1:], -n % size, axis=0)])
     return np.concatenate([np.asarray(fn(padded[i : i + size].copy())) for i in range(0, len(padded), size)])[:n]
 
@@ -101,9 +98,9 @@ class Observer:
         encoder: vision only: the frozen frame encoder; None gives the Dict of frame and raw features.
         image_hw_px: vision frame size, (height, width) px.
         batch_cars: vision: render and embed the frames in batches of this many cars (:func:`in_batches_of`; the
-            renderer's views per pass, whose layout sets a view's pixels; all at once when there are no more), so
-            that the first ``batch_cars`` cars' observations do not change with more cars beside them; 0: all at once,
-            one view per collision group.
+            renderer's views per pass, whose layout sets a view's pixels, even with fewer cars), so that a car's
+            observation does not change with the number of cars after it; 0: all at once, one view per collision
+            group.
         critic_state: vision with an encoder: append the raw 38-D ``state`` observation to the vector
             (``RacingConfig.critic_state``).
     """
@@ -201,7 +198,7 @@ class Observer:
                     f"it could not be imported: {exc}"
                 ) from exc
             height, width = self.image_hw_px
-            views = min(len(np.unique(self.groups)), self.batch_cars or len(self.groups))
+            views = self.batch_cars or len(np.unique(self.groups))
             self.renderer = Renderer(
                 self.track,
                 RenderConfig(width_px=width, height_px=height, max_views=views),

@@ -28,6 +28,7 @@ from torch.distributions import Independent, Normal, TanhTransform, TransformedD
 
 from vision_rl.envs.core import RacingConfig
 from vision_rl.envs.racing_env import action_space
+from vision_rl.evaluation.protocol import DRIVER_BATCH_CARS
 from vision_rl.overtaking.config import OBSERVATION
 from vision_rl.training.artifact import PolicyDriver, PolicySpec
 
@@ -455,7 +456,10 @@ def to_model_units(actions: np.ndarray) -> np.ndarray:
 
 
 class DreamerDriver(PolicyDriver):
-    """A Dreamer agent as a protocol driver: its recurrent state restarts with every protocol run."""
+    """A Dreamer agent as a protocol driver: its recurrent state restarts with every protocol run.
+
+    The driver acts in batches of ``DRIVER_BATCH_CARS`` cars, in order, once each per control step; each batch keeps
+    its own recurrent state, so a start drives the same beside any number of others."""
 
     def __init__(self, agent: DreamerAgent, config: RacingConfig, normalizer, identity: dict[str, Any]) -> None:
         super().__init__(self._predict, OBSERVATION, normalizer, None, config, identity)
@@ -463,12 +467,16 @@ class DreamerDriver(PolicyDriver):
 
     def reset(self, world, car_ids: np.ndarray) -> None:
         super().reset(world, car_ids)
-        self.carry = self.agent.initial(len(car_ids))
-        self.first = np.ones(len(car_ids))
+        n_batches = -(-len(car_ids) // DRIVER_BATCH_CARS)
+        self.carries = [self.agent.initial(DRIVER_BATCH_CARS) for _ in range(n_batches)]
+        self.started = [False] * n_batches
+        self.batch = 0
 
     def _predict(self, obs: np.ndarray) -> np.ndarray:
-        action, self.carry = self.agent.act(self.carry, obs, self.first, explore=False)
-        self.first = np.zeros(len(obs))
+        i = self.batch
+        first = np.full(len(obs), float(not self.started[i]))
+        action, self.carries[i] = self.agent.act(self.carries[i], obs, first, explore=False)
+        self.started[i], self.batch = True, (i + 1) % len(self.carries)
         return to_env_units(action)
 
 
