@@ -55,7 +55,7 @@ def test_a_module_on_the_working_folder_is_found_and_named_by_default(small_trac
     text = capsys.readouterr().out
     assert text.startswith("outside_agent_mod:predict (state, stadium, hatchback), protocol v1")
     assert (tmp_path / "runs" / "outside_agent_mod-predict" / "evaluation.json").is_file()
-    assert sys.modules["outside_agent_mod"].CALLS[0] == (1, 38) and str(tmp_path) not in sys.path
+    assert sys.modules["outside_agent_mod"].CALLS[0] == (3, 38) and str(tmp_path) not in sys.path
 
 
 def test_options_that_cannot_mean_an_outside_agent_are_refused_in_one_line(small_track, tmp_path):

@@ -36,7 +36,8 @@ def test_a_stock_ppo_trained_on_gym_make_is_timed_and_listed_on_the_leaderboard(
     runs = tmp_path / "runs"
     protocol = dict(env_id=ENV_ID, track=small_track, runs=runs, seeds=2, time_limit_s=30.0)
     record = vision_rl.evaluate(predict, name="stock ppo", **protocol)
-    assert seen[0].shape == (2, 38) and seen[0].dtype == np.float32  # what the env gives, one row per car
+    assert seen[0].shape == (3, 38) and seen[0].dtype == np.float32  # what the env gives, one row per car ...
+    assert np.array_equal(seen[0][2], seen[0][1])  # ... in a batch of 3, the last start's row repeated
     assert record["format"] == "vision_rl.evaluation" and record["name"] == "stock ppo"
     assert [s["seed"] for s in record["seeds"]] == [0, 1] and record["protocol"]["version"] == 1
     assert record["driver"]["agent"] == "outside" and record["driver"]["env_id"] == ENV_ID
@@ -161,7 +162,7 @@ def test_what_cannot_be_timed_is_refused_in_one_line(small_track, tmp_path):
         ({**good, "name": " "}, constant, "needs a name"),
         ({**good, "encoder": "ckpt.pt"}, constant, "takes no encoder"),
         ({**good, "name": "tiny-state"}, constant, "is a train-policy run"),
-        (good, lambda obs: np.zeros(len(obs)), r"shape \(1,\) for 1 observations"),
+        (good, lambda obs: np.zeros(len(obs)), r"shape \(3,\) for 3 observations"),
         (good, lambda obs: np.full((len(obs), 2), np.nan), "non-finite"),
         (good, lambda obs: (constant(obs), None), "returned a tuple"),
         (good, "not an agent", "must be callable"),
@@ -225,7 +226,7 @@ def test_a_vision_agent_reads_the_encoders_embedding_and_the_record_names_the_en
         time_limit_s=4.0,
     )
     record = vision_rl.evaluate(straight_on, name="vision-door", encoder=str(encoder), **protocol)
-    assert seen[0].shape == (1, 64 + 11) and seen[0].dtype == np.float32  # [embedding, 11 car-state features]
+    assert seen[0].shape == (3, 64 + 11) and seen[0].dtype == np.float32  # [embedding, 11 car-state features]
     assert record["driver"]["observation"] == "vision"
     assert record["driver"]["encoder_sha256"] == file_sha256(encoder) != file_sha256(other)
     assert record["seeds"][0]["distance_m"] > 20.0
