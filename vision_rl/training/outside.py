@@ -77,9 +77,9 @@ def evaluate(
         predict: observations -> actions for a batch: exactly what ``gymnasium.make(env_id, **env_kwargs)`` gives,
             one row per car (``(n, 38)`` float32 for ``vision_rl/TimeTrial-v1``; a dict of batched arrays for a
             ``Dict`` space), to ``(n, action_dim)`` actions in that environment's action space. ``n`` is 3: the
-            starts in batches of 3, the last padded with copies of its last start (docs/protocol.md says why). A numpy function,
-            a ``torch.nn.Module`` (called in eval mode, without gradients, on a tensor of the batch) or an object
-            with Stable-Baselines3's ``predict(obs, deterministic=True)`` (a trained ``PPO``/``SAC``).
+            starts in batches of 3, the last padded with copies of its last start (docs/protocol.md says why). A
+            numpy function, a ``torch.nn.Module`` (called in eval mode, without gradients, on a tensor of the batch)
+            or an object with Stable-Baselines3's ``predict(obs, deterministic=True)`` (a trained ``PPO``/``SAC``).
         env_id: a registered ``vision_rl/...`` racing id (TimeTrial, Overtaking).
         name: the agent's row on the leaderboard; the record goes to ``<runs>/<name>/evaluation.json``.
         runs: the folder ``vision-rl leaderboard --runs`` searches (its default: ``runs``).
