@@ -458,8 +458,8 @@ def to_model_units(actions: np.ndarray) -> np.ndarray:
 class DreamerDriver(PolicyDriver):
     """A Dreamer agent as a protocol driver: its recurrent state restarts with every protocol run.
 
-    The driver acts in batches of ``DRIVER_BATCH_CARS`` cars, in order, once each per control step; each batch keeps
-    its own recurrent state, so a start drives the same beside any number of others."""
+    :class:`PolicyDriver` calls ``_predict`` once per batch of ``DRIVER_BATCH_CARS`` cars, in order, every control
+    step; each batch keeps its own recurrent state, so a start drives the same beside any number of others."""
 
     def __init__(self, agent: DreamerAgent, config: RacingConfig, normalizer, identity: dict[str, Any]) -> None:
         super().__init__(self._predict, OBSERVATION, normalizer, None, config, identity)
@@ -469,14 +469,13 @@ class DreamerDriver(PolicyDriver):
         super().reset(world, car_ids)
         n_batches = -(-len(car_ids) // DRIVER_BATCH_CARS)
         self.carries = [self.agent.initial(DRIVER_BATCH_CARS) for _ in range(n_batches)]
-        self.started = [False] * n_batches
-        self.batch = 0
+        self.calls = 0
 
     def _predict(self, obs: np.ndarray) -> np.ndarray:
-        i = self.batch
-        first = np.full(len(obs), float(not self.started[i]))
+        i = self.calls % len(self.carries)
+        first = np.full(len(obs), float(self.calls < len(self.carries)))  # each batch's first step restarts its state
         action, self.carries[i] = self.agent.act(self.carries[i], obs, first, explore=False)
-        self.started[i], self.batch = True, (i + 1) % len(self.carries)
+        self.calls += 1
         return to_env_units(action)
 
 

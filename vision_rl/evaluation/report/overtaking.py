@@ -195,7 +195,7 @@ def fig3_reach_table(records: Records) -> str:
 MODEL_HORIZONS_STEPS = (1, 10, 50)
 
 
-def dreamer_model_table(records: Records, paths: Iterable[str] = DREAMER_MODEL_INTERIM) -> str:
+def dreamer_model_table(records: Records, paths: Iterable[str] = DREAMER_MODEL) -> str:
     """Each Dreamer checkpoint's world model on held-out laps: open-loop prediction error against holding the last
     observation, per horizon, and the groups of entries it predicts worse than that at the longest."""
     rows, longest_steps = [], MODEL_HORIZONS_STEPS[-1]

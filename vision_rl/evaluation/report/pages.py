@@ -19,7 +19,7 @@ from vision_rl.evaluation.report.ddpg import (
     ddpg_table,
 )
 from vision_rl.evaluation.report.overtaking import (
-    DREAMER_MODEL,
+    DREAMER_MODEL_INTERIM,
     SETTINGS,
     TABLE3_DREAMER_INTERIM,
     TABLE3_FIRST,
@@ -63,8 +63,8 @@ TABLES: dict[str, Callable[[Records], str]] = {
     "table3-runs": table3_runs_table,
     "table3-first-runs": partial(table3_runs_table, paths=(TABLE3_FIRST,)),
     "table3-dreamer-interim": partial(table3_runs_table, paths=(TABLE3_DREAMER_INTERIM,)),
-    "dreamer-model-interim": dreamer_model_table,
-    "dreamer-model": partial(dreamer_model_table, paths=DREAMER_MODEL),
+    "dreamer-model-interim": partial(dreamer_model_table, paths=DREAMER_MODEL_INTERIM),
+    "dreamer-model": dreamer_model_table,
     "fig3-reach": fig3_reach_table,
     "bc-recipes": bc_recipes_table,
     "overtaking-seeds": overtaking_seeds_table,
